@@ -1,0 +1,31 @@
+"""ament_python package talc_model (also installs editable into the repo's venv via setup.sh)."""
+from setuptools import find_packages, setup
+
+PACKAGE = "talc_model"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["**/*.yaml", "**/*.csv", "**/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="thermal-comp developers",
+    maintainer_email="thermal-comp@example.org",
+    description="Adaptive thermal-error models: TALC (ARX), adaptive Gaussian process, characteristic diagrams.",
+    license="Apache-2.0",
+    entry_points={
+        # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
+        # "name = module:function" where function(argv: list[str]) -> int.
+        "thermal_comp.commands": [
+
+        ],
+        "console_scripts": [
+            "talc_model = talc_model.talc_model_node:main",
+        ],
+    },
+)

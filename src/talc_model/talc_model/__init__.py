@@ -1,0 +1,1 @@
+"""Adaptive thermal-error models: TALC (ARX), adaptive Gaussian process, characteristic diagrams."""

@@ -1,0 +1,35 @@
+"""ament_python package thermal_comp (also installs editable into the repo's venv via setup.sh)."""
+from setuptools import find_packages, setup
+
+PACKAGE = "thermal_comp"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["**/*.yaml", "**/*.csv", "**/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="thermal-comp developers",
+    maintainer_email="thermal-comp@example.org",
+    description="The thermal-comp command: launcher, inspection, record/replay, rerun view, demo and benchmarks.",
+    license="Apache-2.0",
+    entry_points={
+        # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
+        # "name = module:function" where function(argv: list[str]) -> int.
+        "thermal_comp.commands": [
+            "launch = thermal_comp.launcher:main",
+            "topics = thermal_comp.inspect_cli:topics_main",
+            "echo = thermal_comp.inspect_cli:echo_main",
+            "nodes = thermal_comp.inspect_cli:nodes_main",
+            "bench = thermal_comp.bench:main",
+        ],
+        "console_scripts": [
+            "thermal-comp = thermal_comp.cli:main",
+        ],
+    },
+)

@@ -1,0 +1,204 @@
+"""Conventions every thermal-comp node follows (the thin ROS shell around a pure core).
+
+- Parameters are declared with a description and, for numbers, a validated range
+  (:func:`declare_parameters`); a bad value stops the node with one line naming it.
+- ``main()`` of a node file is ``run_node(MyNode, args)``: an own rclpy context, a
+  single-threaded executor (or multi-threaded on request), SIGINT/SIGTERM and
+  ExternalShutdownException handled, the node destroyed and the context shut down.
+- Simulated time: every node accepts ``use_sim_time`` (rclpy declares it); nodes stamp
+  messages with ``node.get_clock().now()``, never with the wall clock.
+- QoS profiles are the named ones below, chosen per kind of data.
+
+This module imports rclpy; pure cores must not import it.
+"""
+from __future__ import annotations
+
+import math
+import signal
+import sys
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Sequence
+
+import rclpy
+from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
+                                SetParametersResult)
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+
+# --------------------------------------------------------------------------------------
+# QoS, chosen per kind of data (documented in docs/architecture.md).
+#: Temperature and machine-state streams: reliable, keep the last 50. Reliable because a
+#: model that misses samples in lock-step simulation would not be deterministic, and the
+#: rate (<= 10 Hz) makes reliability cheap; depth 50 absorbs a slow subscriber for a while.
+SENSOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=50,
+                        reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.VOLATILE)
+#: Predictions, offsets, measured errors: reliable, deep history (nothing may be lost).
+EVENT_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.VOLATILE)
+#: Latest-state topics a late joiner needs at once (model status, configuration):
+#: reliable, transient local, depth 1.
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+#: Monitoring-only streams where the newest value matters (viewer feeds): best effort.
+MONITOR_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                         reliability=ReliabilityPolicy.BEST_EFFORT,
+                         durability=DurabilityPolicy.VOLATILE)
+
+# --------------------------------------------------------------------------------------
+# Topic and service names, relative so that a cell's namespace applies.
+TOPIC_TEMPERATURES = "temperatures"               # TemperatureArray, calibrated, with status
+TOPIC_TWIN_SENSORS = "twin/sensor_readings"       # TemperatureArray, raw readings of the twin
+TOPIC_MACHINE_STATE = "machine_state"             # MachineState
+TOPIC_ERRORS_TRUE = "errors/ground_truth"         # ThermalErrors (twin only, evaluation)
+TOPIC_ERRORS_PREDICTED = "errors/predicted"       # ThermalErrors from the model
+TOPIC_ERRORS_MEASURED = "errors/measured"         # ThermalErrors from successful probing
+TOPIC_OFFSETS = "offsets"                         # AxisOffsets from the CNC bridge
+TOPIC_MODEL_STATUS = "model_status"               # ModelStatus
+TOPIC_SIM_SYNC = "sim_sync"                       # SimSync lock-step handshake
+SERVICE_TOUCH_PROBE = "twin/touch_probe"          # TouchProbe
+ACTION_PROBE_CYCLE = "probe_cycle"                # ProbeCycle
+
+
+class ParameterError(ValueError):
+    """A node parameter has a value outside its declared range or type."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """Declaration of one node parameter.
+
+    ``lo``/``hi`` bound numbers (inclusive); ``choices`` bounds strings.
+    """
+
+    name: str
+    default: Any
+    description: str
+    lo: float | None = None
+    hi: float | None = None
+    choices: Sequence[str] | None = None
+    read_only: bool = False
+    dynamic_typing: bool = False
+
+
+def _descriptor(p: Param) -> ParameterDescriptor:
+    desc = p.description
+    if p.choices:
+        desc += f" (one of: {', '.join(p.choices)})"
+    d = ParameterDescriptor(description=desc, read_only=p.read_only,
+                            dynamic_typing=p.dynamic_typing)
+    if isinstance(p.default, bool):
+        return d
+    if isinstance(p.default, int) and (p.lo is not None or p.hi is not None):
+        d.integer_range = [IntegerRange(from_value=int(p.lo if p.lo is not None else -2**62),
+                                        to_value=int(p.hi if p.hi is not None else 2**62), step=0)]
+    elif isinstance(p.default, float) and (p.lo is not None or p.hi is not None):
+        d.floating_point_range = [FloatingPointRange(
+            from_value=float(p.lo if p.lo is not None else -sys.float_info.max),
+            to_value=float(p.hi if p.hi is not None else sys.float_info.max), step=0.0)]
+    return d
+
+
+def check_value(p: Param, value: Any) -> None:
+    """Raise :class:`ParameterError` naming the parameter if ``value`` is not allowed."""
+    if isinstance(value, float) and math.isnan(value):
+        raise ParameterError(f"parameter '{p.name}': NaN is not allowed")
+    if p.lo is not None and isinstance(value, (int, float)) and not isinstance(value, bool) \
+            and value < p.lo:
+        raise ParameterError(f"parameter '{p.name}': {value!r} is below the minimum {p.lo}")
+    if p.hi is not None and isinstance(value, (int, float)) and not isinstance(value, bool) \
+            and value > p.hi:
+        raise ParameterError(f"parameter '{p.name}': {value!r} is above the maximum {p.hi}")
+    if p.choices is not None and value not in p.choices:
+        raise ParameterError(f"parameter '{p.name}': {value!r} is not one of {list(p.choices)}")
+
+
+def declare_parameters(node: Node, params: Iterable[Param]) -> dict[str, Any]:
+    """Declare ``params`` on ``node`` with descriptors, validate them and return the values.
+
+    Later changes through the parameter service are validated the same way.
+    """
+    table = {p.name: p for p in params}
+    values: dict[str, Any] = {}
+    for p in table.values():
+        node.declare_parameter(p.name, p.default, _descriptor(p))
+        v = node.get_parameter(p.name).value
+        check_value(p, v)
+        values[p.name] = v
+
+    def _on_set(changes) -> SetParametersResult:
+        for c in changes:
+            if c.name in table:
+                try:
+                    check_value(table[c.name], c.value)
+                except ParameterError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(_on_set)
+    return values
+
+
+def stamp_to_s(stamp) -> float:
+    """builtin_interfaces/Time -> seconds (float)."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+def s_to_stamp(t_s: float):
+    """Seconds -> builtin_interfaces/Time (rounded to the nanosecond)."""
+    from builtin_interfaces.msg import Time
+    ns = int(round(t_s * 1e9))
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
+             multi_threaded: bool = False, num_threads: int = 2) -> int:
+    """Run one node in its own context until Ctrl-C, SIGTERM or an external shutdown.
+
+    ``node_factory(context=ctx)`` builds the node. Returns a process exit code: 0 on a clean
+    shutdown, 2 when the node's parameters are invalid (message printed, naming the key).
+    """
+    if args is None:
+        args = sys.argv
+    context = rclpy.context.Context()
+    rclpy.init(args=args, context=context)
+    executor = (MultiThreadedExecutor(num_threads=num_threads, context=context) if multi_threaded
+                else SingleThreadedExecutor(context=context))
+
+    def _on_sigterm(signum, frame):  # SIGTERM: the launcher's polite stop
+        executor.create_task(lambda: None)  # wake the executor
+        if context.ok():
+            context.try_shutdown()
+
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    node = None
+    code = 0
+    try:
+        try:
+            node = node_factory(context=context)
+        except (ParameterError, ValueError) as exc:
+            print(f"{getattr(node_factory, '__name__', 'node')}: {exc}", file=sys.stderr)
+            return 2
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        if node is not None:
+            close = getattr(node, "close", None)
+            if callable(close):
+                try:
+                    close()
+                except Exception as exc:  # the node's own cleanup must not hide the shutdown
+                    print(f"error while closing node: {exc}", file=sys.stderr)
+                    code = 1
+            executor.remove_node(node)
+            node.destroy_node()
+        executor.shutdown()
+        if context.ok():
+            context.try_shutdown()
+    return code

@@ -1,0 +1,1 @@
+"""Temperature publishers: twin, CSV replay and Modbus RTD modules."""

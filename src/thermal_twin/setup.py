@@ -1,0 +1,35 @@
+"""ament_python package thermal_twin (also installs editable into the repo's venv via setup.sh)."""
+from setuptools import find_packages, setup
+
+PACKAGE = "thermal_twin"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["**/*.yaml", "**/*.csv", "**/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="thermal-comp developers",
+    maintainer_email="thermal-comp@example.org",
+    description="Physics simulator (digital twin) of machine cells and the mismatch finder.",
+    license="Apache-2.0",
+    entry_points={
+        # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
+        # "name = module:function" where function(argv: list[str]) -> int.
+        "thermal_comp.commands": [
+            "sim = thermal_twin.sim_cli:main",
+        ],
+        # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
+        "thermal_comp.bench": [
+            "twin = thermal_twin.bench_twin:run",
+        ],
+        "console_scripts": [
+            "machine_sim = thermal_twin.machine_sim_node:main",
+        ],
+    },
+)

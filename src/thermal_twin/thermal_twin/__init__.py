@@ -1,0 +1,1 @@
+"""Physics simulator (digital twin) of machine cells and the mismatch finder."""
