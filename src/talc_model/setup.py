@@ -24,6 +24,9 @@ setup(
         "thermal_comp.commands": [
 
         ],
+        "thermal_comp.bench": [
+            "model = talc_model.bench_model:run",
+        ],
         "console_scripts": [
             "talc_model = talc_model.talc_model_node:main",
         ],

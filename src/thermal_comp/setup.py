@@ -27,6 +27,15 @@ setup(
             "echo = thermal_comp.inspect_cli:echo_main",
             "nodes = thermal_comp.inspect_cli:nodes_main",
             "bench = thermal_comp.bench:main",
+            "demo = thermal_comp.demo:main",
+            "record = thermal_comp.record_cli:main",
+            "play = thermal_comp.play_cli:main",
+            "import-csv = thermal_comp.import_csv_cli:main",
+            "view = thermal_comp.view_cli:main",
+        ],
+        # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
+        "thermal_comp.bench": [
+            "bags = thermal_comp.bench_bags:run",
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",

@@ -22,10 +22,12 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
+            "diagnose = thermal_twin.diagnose_cli:main",
             "sim = thermal_twin.sim_cli:main",
         ],
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [
+            "diagnose = thermal_twin.bench_diagnose:run",
             "twin = thermal_twin.bench_twin:run",
         ],
         "console_scripts": [
