@@ -1,0 +1,190 @@
+"""Predicted thermal errors -> axis offsets (pure core, no ROS).
+
+5-axis table machine (Blaser's TALC, thesis §6.4.1, eq. 6.3-6.5): a rigid-body
+homogeneous-transformation model maps the seven location errors of the C axis / table
+
+    E_X0C, E_Y0C, E_Z0T, E_R0T   in micrometres (um)
+    E_A0C, E_B0C, E_C0C          in micrometres per metre (um/m, i.e. urad)
+
+at the nominal axis positions X, Y, Z [mm] (zero at the machine's coordinate origin of
+thesis Fig. 6.11) and the swivel angle B [deg] (zero with the table surface parallel to X)
+to the error of the tool centre point along the machine axes X, Y, Z in um.
+
+Units, made explicit: an angular error in um/m times a position in mm gives
+``E [um/m] * pos [mm] * 1e-3 = um``; E_R0T is the radial growth measured at the sphere
+eccentricity d/2 [mm] and scales linearly with radius, so it enters as ``E_R0T * pos / (d/2)``.
+
+Sign convention (the same as AxisOffsets.msg): the offset is the predicted error itself;
+the CNC holds it as a compensation so that what a probe then sees is
+``true error - applied offset`` (the axis origin is shifted opposite to the error).
+
+Swiss-type lathe (Kaftan's AGP thesis, §6.3): the model predicts the error at the
+torque-limit-skip (TLS) position, usually the guide bush (component ``GB_X``); every
+other tool position k gets ``e_k = e_TLS + delta_k`` where ``delta_k = e_k - e_TLS`` comes
+from a per-tool offset model trained offline in a multiple-TCP training test, unless
+the prediction itself already carries the tool's component.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+#: The seven C-axis / table errors of a 5-axis machine, in the order of the thesis.
+FIVE_AXIS_COMPONENTS = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C")
+LINEAR_COMPONENTS = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T")     # um
+ANGULAR_COMPONENTS = ("E_A0C", "E_B0C", "E_C0C")             # um/m
+#: Axes the 5-axis offsets are written to (B and C are not compensated: their 0.001 deg
+#: command resolution, ~17.5 um/m, is of the order of the angular errors themselves).
+FIVE_AXIS_OFFSET_AXES = ("X", "Y", "Z")
+#: Sphere eccentricity d/2 of the thesis' set-up (d = 0.32 m).
+DEFAULT_SPHERE_RADIUS_MM = 160.0
+
+_UM_PER_M_TIMES_MM_TO_UM = 1e-3
+
+
+class TransformInputError(ValueError):
+    """An error component or axis position is missing or not a finite number."""
+
+
+def _finite(name: str, value: float) -> float:
+    v = float(value)
+    if not math.isfinite(v):
+        raise TransformInputError(f"'{name}' must be a finite number, got {value!r}")
+    return v
+
+
+def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, z_mm: float,
+                         b_deg: float, sphere_radius_mm: float = DEFAULT_SPHERE_RADIUS_MM
+                         ) -> dict[str, float]:
+    """Eq. 6.3-6.5: the seven errors at axis position (X, Y, Z [mm], B [deg]) -> {X, Y, Z} in um.
+
+    ``errors`` maps component name -> value (um for E_X0C..E_R0T, um/m for E_A0C..E_C0C);
+    a missing component is an error (a model that does not predict one must send 0).
+    """
+    if not sphere_radius_mm > 0.0:
+        raise TransformInputError(f"'sphere_radius_mm' must be > 0, got {sphere_radius_mm!r}")
+    e = {}
+    for name in FIVE_AXIS_COMPONENTS:
+        if name not in errors:
+            raise TransformInputError(
+                f"error component '{name}' missing (got {sorted(errors)})")
+        e[name] = _finite(name, errors[name])
+    x, y, z = _finite("X", x_mm), _finite("Y", y_mm), _finite("Z", z_mm)
+    b = math.radians(_finite("B", b_deg))
+    cb, sb = math.cos(b), math.sin(b)
+    k = _UM_PER_M_TIMES_MM_TO_UM
+    r = sphere_radius_mm
+    ex, ey, ezt, ert = e["E_X0C"], e["E_Y0C"], e["E_Z0T"], e["E_R0T"]
+    ea, eb, ec = e["E_A0C"], e["E_B0C"], e["E_C0C"]
+    off_x = (eb * z * k
+             + (ex + ert * x / r - ec * y * k) * cb
+             + (ezt + ea * y * k) * sb)
+    off_y = (ey + ert * y / r
+             + (ea * z * k + ec * x * k) * cb
+             - (ea * x * k + ec * z * k) * sb)
+    off_z = (-eb * x * k
+             + (ezt + ea * y * k) * cb
+             + (-ex + ert * z / r + ec * y * k) * sb)
+    return {"X": off_x, "Y": off_y, "Z": off_z}
+
+
+@dataclass(frozen=True)
+class ToolOffsetModel:
+    """delta_k = e_k - e_TLS for one tool position, linear in the TLS error.
+
+    ``delta_um = intercept_um + gain * e_TLS_um``: the simplest model a multiple-TCP
+    training test can identify without the tool-position temperatures (the bridge sees
+    errors, not temperatures); a temperature-driven offset model belongs in the error
+    model and then arrives as the tool's own component in the prediction.
+    """
+
+    intercept_um: float = 0.0
+    gain: float = 0.0
+
+    def delta_um(self, tls_error_um: float) -> float:
+        return self.intercept_um + self.gain * tls_error_um
+
+
+def fit_tool_offset_model(tls_error_um, tool_error_um) -> ToolOffsetModel:
+    """Least-squares fit of a :class:`ToolOffsetModel` to training pairs (e_TLS, e_k) in um."""
+    e_tls = np.asarray(tls_error_um, dtype=float).ravel()
+    e_k = np.asarray(tool_error_um, dtype=float).ravel()
+    if e_tls.shape != e_k.shape:
+        raise TransformInputError(
+            f"tls_error_um has {e_tls.size} samples but tool_error_um has {e_k.size}")
+    if e_tls.size < 2 or not (np.all(np.isfinite(e_tls)) and np.all(np.isfinite(e_k))):
+        raise TransformInputError("need at least 2 finite training pairs to fit a tool offset model")
+    design = np.column_stack([np.ones_like(e_tls), e_tls])
+    (intercept, gain), *_ = np.linalg.lstsq(design, e_k - e_tls, rcond=None)
+    return ToolOffsetModel(intercept_um=float(intercept), gain=float(gain))
+
+
+@dataclass(frozen=True)
+class LatheToolOffsets:
+    """Per-tool offsets of a Swiss-type lathe from the TLS (guide-bush) prediction.
+
+    ``tls_component``: the predicted component at the TLS position (e.g. ``GB_X``); it is
+    itself an offset axis. ``tools``: offset axis name (e.g. ``T01_X``) -> its offset model.
+    """
+
+    tls_component: str = "GB_X"
+    tools: Mapping[str, ToolOffsetModel] = field(default_factory=dict)
+
+    def offsets_um(self, errors: Mapping[str, float]) -> dict[str, float]:
+        if self.tls_component not in errors:
+            raise TransformInputError(
+                f"TLS component '{self.tls_component}' missing (got {sorted(errors)})")
+        e_tls = _finite(self.tls_component, errors[self.tls_component])
+        out = {self.tls_component: e_tls}
+        for tool, model in self.tools.items():
+            if tool in errors:      # the error model already predicted this tool position
+                out[tool] = _finite(tool, errors[tool])
+            else:
+                out[tool] = e_tls + model.delta_um(e_tls)
+        return out
+
+    @staticmethod
+    def from_mapping(spec: Mapping) -> "LatheToolOffsets":
+        """Build from a YAML/JSON mapping ``{tls_component: GB_X, tools: {T01_X: {intercept_um, gain}}}``."""
+        if not isinstance(spec, Mapping):
+            raise TransformInputError(f"lathe tool offsets: expected a mapping, got {type(spec).__name__}")
+        tls = spec.get("tls_component", "GB_X")
+        if not isinstance(tls, str) or not tls:
+            raise TransformInputError(f"lathe tool offsets: 'tls_component' must be a name, got {tls!r}")
+        tools_spec = spec.get("tools", {}) or {}
+        if not isinstance(tools_spec, Mapping):
+            raise TransformInputError(f"lathe tool offsets: 'tools' must be a mapping, got {tools_spec!r}")
+        tools = {}
+        for name, m in tools_spec.items():
+            m = m or {}
+            unknown = set(m) - {"intercept_um", "gain"}
+            if unknown:
+                raise TransformInputError(
+                    f"lathe tool offsets: tools.{name}: unknown key(s) {sorted(unknown)}")
+            tools[str(name)] = ToolOffsetModel(
+                intercept_um=_finite(f"tools.{name}.intercept_um", m.get("intercept_um", 0.0)),
+                gain=_finite(f"tools.{name}.gain", m.get("gain", 0.0)))
+        return LatheToolOffsets(tls_component=tls, tools=tools)
+
+
+def offsets_from_errors(errors: Mapping[str, float], axis_positions: Mapping[str, float],
+                        sphere_radius_mm: float = DEFAULT_SPHERE_RADIUS_MM,
+                        lathe: LatheToolOffsets | None = None) -> dict[str, float]:
+    """Offsets (axis -> um) for whatever machine kind the error components describe.
+
+    Components E_X0C.. -> 5-axis HTM at ``axis_positions`` (X, Y, Z in mm, B in deg; a
+    missing B means a machine without swivel, B = 0); otherwise the lathe mapping.
+    """
+    if any(name in errors for name in FIVE_AXIS_COMPONENTS):
+        pos = {}
+        for axis in ("X", "Y", "Z"):
+            if axis not in axis_positions:
+                raise TransformInputError(
+                    f"axis position '{axis}' unknown (machine_state gave {sorted(axis_positions)})")
+            pos[axis] = axis_positions[axis]
+        return five_axis_offsets_um(errors, pos["X"], pos["Y"], pos["Z"],
+                                    axis_positions.get("B", 0.0), sphere_radius_mm)
+    return (lathe or LatheToolOffsets()).offsets_um(errors)

@@ -1,0 +1,193 @@
+"""Safety envelope between a model's commanded offsets and what may reach the CNC (pure core).
+
+Per axis, in this order:
+1. **enable**: disabled -> the target is 0, approached at ``disable_ramp_um_per_s``
+   (flag LIMIT_DISABLED); re-enabling ramps up again under the normal rate limit.
+2. **watchdog**: no fresh prediction for ``watchdog_timeout_s`` -> hold the applied value
+   for ``watchdog_hold_s``, then ramp to zero at ``watchdog_ramp_um_per_s`` (0 = hold
+   forever) (flag LIMIT_WATCHDOG). Before the first prediction the target is 0 and the
+   watchdog flag is set, because nothing fresh has ever arrived.
+3. **absolute limit**: the target is clamped to +-``abs_limit_um`` (per-axis overrides in
+   ``axis_abs_limits_um``) (flag LIMIT_ABSOLUTE).
+4. **rate limit**: the applied value moves towards the target by at most
+   ``max_rate_um_per_s * dt`` (flag LIMIT_RATE), like SINUMERIK MD32760 limits the
+   compensation change per interpolation cycle. ``dt`` is capped at ``max_step_s`` so
+   that a long pause (an outage, a stalled clock) never licenses a jump.
+
+The envelope's "applied" state is what the CNC confirmed by read-back (:meth:`confirm`);
+a write that fails leaves it at the last confirmed value (the caller reports
+LIMIT_WRITE_FAILED for that write). The flag values are those of thermal_comp_msgs/AxisOffsets.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+# Bit flags, identical to thermal_comp_msgs/msg/AxisOffsets.msg LIMIT_* (checked in a test).
+LIMIT_NONE = 0
+LIMIT_ABSOLUTE = 1
+LIMIT_RATE = 2
+LIMIT_WATCHDOG = 4
+LIMIT_DISABLED = 8
+LIMIT_WRITE_FAILED = 16
+
+FLAG_NAMES = {LIMIT_ABSOLUTE: "absolute", LIMIT_RATE: "rate", LIMIT_WATCHDOG: "watchdog",
+              LIMIT_DISABLED: "disabled", LIMIT_WRITE_FAILED: "write_failed"}
+
+
+def flag_names(flags: int) -> str:
+    """``3`` -> ``"absolute|rate"``; ``0`` -> ``"none"``."""
+    names = [n for bit, n in FLAG_NAMES.items() if flags & bit]
+    return "|".join(names) if names else "none"
+
+
+class EnvelopeConfigError(ValueError):
+    """A safety-envelope setting is out of range (the message names it)."""
+
+
+@dataclass(frozen=True)
+class EnvelopeConfig:
+    """Limits of the safety envelope; defaults are conservative (off-by-default spirit)."""
+
+    abs_limit_um: float = 30.0
+    axis_abs_limits_um: Mapping[str, float] = field(default_factory=dict)
+    max_rate_um_per_s: float = 0.5
+    max_step_s: float = 10.0
+    watchdog_timeout_s: float = 900.0       # 3 prediction periods of 5 min
+    watchdog_hold_s: float = 300.0
+    watchdog_ramp_um_per_s: float = 0.05
+    disable_ramp_um_per_s: float = 0.5
+
+    def __post_init__(self):
+        def positive(name, v, allow_zero=False):
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0 \
+                    or (v == 0 and not allow_zero):
+                raise EnvelopeConfigError(
+                    f"safety envelope: '{name}' must be a finite number "
+                    f"{'>= 0' if allow_zero else '> 0'}, got {v!r}")
+        positive("abs_limit_um", self.abs_limit_um, allow_zero=True)
+        for axis, v in self.axis_abs_limits_um.items():
+            positive(f"axis_abs_limits_um.{axis}", v, allow_zero=True)
+        positive("max_rate_um_per_s", self.max_rate_um_per_s)
+        positive("max_step_s", self.max_step_s)
+        positive("watchdog_timeout_s", self.watchdog_timeout_s)
+        positive("watchdog_hold_s", self.watchdog_hold_s, allow_zero=True)
+        positive("watchdog_ramp_um_per_s", self.watchdog_ramp_um_per_s, allow_zero=True)
+        positive("disable_ramp_um_per_s", self.disable_ramp_um_per_s)
+
+    def limit_for(self, axis: str) -> float:
+        return float(self.axis_abs_limits_um.get(axis, self.abs_limit_um))
+
+
+@dataclass(frozen=True)
+class AxisDecision:
+    """One axis after one envelope step: what was asked, what to write, and why it differs."""
+
+    axis: str
+    commanded_um: float      # the model's command (NaN before the first prediction)
+    target_um: float         # after enable / watchdog / clamp
+    applied_um: float        # rate-limited value to write to the CNC
+    flags: int               # LIMIT_* bits
+
+
+class SafetyEnvelope:
+    """Stateful per-axis envelope; drive it with :meth:`step`, feed read-back with :meth:`confirm`."""
+
+    def __init__(self, config: EnvelopeConfig | None = None, enabled: bool = True):
+        self.config = config or EnvelopeConfig()
+        self.enabled = bool(enabled)
+        self._commanded: dict[str, float] = {}
+        self._applied: dict[str, float] = {}
+        self._last_t: float | None = None
+        self._last_fresh_t: float | None = None
+        self._watchdog_since: float | None = None
+
+    @property
+    def applied(self) -> dict[str, float]:
+        """Last values the CNC confirmed, per axis (um)."""
+        return dict(self._applied)
+
+    @property
+    def last_fresh_t(self) -> float | None:
+        return self._last_fresh_t
+
+    def set_enabled(self, enabled: bool) -> None:
+        self.enabled = bool(enabled)
+
+    def add_axes(self, axes) -> None:
+        for a in axes:
+            self._applied.setdefault(a, 0.0)
+
+    def step(self, t_s: float, commanded_um: Mapping[str, float] | None = None,
+             fresh: bool = False) -> list[AxisDecision]:
+        """Advance to time ``t_s`` [s]; ``commanded_um`` replaces the command of those axes.
+
+        ``fresh`` marks ``commanded_um`` as a new prediction (it resets the watchdog); a
+        command recomputed from an old prediction at new axis positions is not fresh.
+        Non-finite commands raise :class:`ValueError` naming the axis; nothing changes then.
+        """
+        t = float(t_s)
+        if not math.isfinite(t):
+            raise ValueError(f"envelope time must be finite, got {t_s!r}")
+        if commanded_um:
+            for axis, v in commanded_um.items():
+                if not math.isfinite(float(v)):
+                    raise ValueError(f"commanded offset for axis '{axis}' is not finite: {v!r}")
+            for axis, v in commanded_um.items():
+                self._commanded[axis] = float(v)
+                self._applied.setdefault(axis, 0.0)
+        if fresh:
+            self._last_fresh_t = t
+        dt = 0.0 if self._last_t is None else min(max(t - self._last_t, 0.0), self.config.max_step_s)
+        self._last_t = t if self._last_t is None else max(self._last_t, t)
+
+        cfg = self.config
+        age = math.inf if self._last_fresh_t is None else t - self._last_fresh_t
+        watchdog = age > cfg.watchdog_timeout_s or self._last_fresh_t is None
+        if watchdog and self._watchdog_since is None:
+            self._watchdog_since = t if self._last_fresh_t is None \
+                else self._last_fresh_t + cfg.watchdog_timeout_s
+        elif not watchdog:
+            self._watchdog_since = None
+        ramp_to_zero = watchdog and (self._last_fresh_t is None or (
+            cfg.watchdog_ramp_um_per_s > 0 and t - self._watchdog_since > cfg.watchdog_hold_s))
+
+        out = []
+        for axis in sorted(self._applied):
+            prev = self._applied[axis]
+            commanded = self._commanded.get(axis, math.nan)
+            flags = LIMIT_NONE
+            limit = cfg.limit_for(axis)
+            if not self.enabled:
+                target, rate = 0.0, cfg.disable_ramp_um_per_s
+                flags |= LIMIT_DISABLED
+            elif watchdog:
+                flags |= LIMIT_WATCHDOG
+                if ramp_to_zero:
+                    target = 0.0
+                    rate = (cfg.watchdog_ramp_um_per_s if self._last_fresh_t is not None
+                            else cfg.max_rate_um_per_s)
+                else:
+                    target, rate = prev, cfg.max_rate_um_per_s
+            else:
+                target, rate = commanded, cfg.max_rate_um_per_s
+            if abs(target) > limit:
+                target = math.copysign(limit, target)
+                flags |= LIMIT_ABSOLUTE
+            allow = rate * dt
+            delta = target - prev
+            if abs(delta) > allow:
+                applied = prev + math.copysign(allow, delta)
+                if flags & (LIMIT_DISABLED | LIMIT_WATCHDOG) == 0:
+                    flags |= LIMIT_RATE
+            else:
+                applied = target
+            out.append(AxisDecision(axis, commanded, target, applied, flags))
+        return out
+
+    def confirm(self, axis: str, applied_um: float | None) -> None:
+        """Record the CNC's read-back for ``axis``; ``None`` = the write was not confirmed."""
+        if applied_um is None or not math.isfinite(applied_um):
+            return      # keep the last confirmed value: the CNC may still hold it
+        self._applied[axis] = float(applied_um)

@@ -1,0 +1,113 @@
+"""Eq. 6.3-6.5 against hand-computed cases, and the lathe's per-tool offsets."""
+import math
+
+import numpy as np
+import pytest
+
+from cnc_bridge.error_transform import (FIVE_AXIS_COMPONENTS, LatheToolOffsets, ToolOffsetModel,
+                                        TransformInputError, fit_tool_offset_model,
+                                        five_axis_offsets_um, offsets_from_errors)
+
+POS = dict(x_mm=100.0, y_mm=200.0, z_mm=300.0)   # mm; sphere radius d/2 = 160 mm
+C30, S30 = math.cos(math.radians(30)), 0.5
+
+
+def only(name, value):
+    e = {c: 0.0 for c in FIVE_AXIS_COMPONENTS}
+    e[name] = value
+    return e
+
+
+# (component, value, B [deg], expected X, Y, Z in um), each worked out by hand from eq. 6.3-6.5:
+# um/m * mm * 1e-3 = um; E_R0T scales with pos / 160 mm.
+CASES = [
+    ("E_X0C", 10.0, 0.0, (10.0, 0.0, 0.0)),
+    ("E_X0C", 10.0, 90.0, (0.0, 0.0, -10.0)),
+    ("E_X0C", 10.0, 30.0, (10 * C30, 0.0, -5.0)),
+    ("E_Y0C", 10.0, 0.0, (0.0, 10.0, 0.0)),
+    ("E_Y0C", 10.0, 90.0, (0.0, 10.0, 0.0)),
+    ("E_Y0C", 10.0, 30.0, (0.0, 10.0, 0.0)),
+    ("E_Z0T", 10.0, 0.0, (0.0, 0.0, 10.0)),
+    ("E_Z0T", 10.0, 90.0, (10.0, 0.0, 0.0)),
+    ("E_Z0T", 10.0, 30.0, (5.0, 0.0, 10 * C30)),
+    ("E_R0T", 16.0, 0.0, (10.0, 20.0, 0.0)),          # 16*100/160, 16*200/160
+    ("E_R0T", 16.0, 90.0, (0.0, 20.0, 30.0)),         # Z: 16*300/160
+    ("E_R0T", 16.0, 30.0, (10 * C30, 20.0, 15.0)),
+    ("E_A0C", 10.0, 0.0, (0.0, 3.0, 2.0)),            # Y: 10*0.3, Z: 10*0.2
+    ("E_A0C", 10.0, 90.0, (2.0, -1.0, 0.0)),          # X: 10*0.2, Y: -10*0.1
+    ("E_A0C", 10.0, 30.0, (1.0, 3 * C30 - 0.5, 2 * C30)),
+    ("E_B0C", 10.0, 0.0, (3.0, 0.0, -1.0)),           # X: 10*0.3, Z: -10*0.1
+    ("E_B0C", 10.0, 90.0, (3.0, 0.0, -1.0)),
+    ("E_B0C", 10.0, 30.0, (3.0, 0.0, -1.0)),
+    ("E_C0C", 10.0, 0.0, (-2.0, 1.0, 0.0)),           # X: -10*0.2, Y: 10*0.1
+    ("E_C0C", 10.0, 90.0, (0.0, -3.0, 2.0)),          # Y: -10*0.3, Z: 10*0.2
+    ("E_C0C", 10.0, 30.0, (-2 * C30, C30 - 1.5, 1.0)),
+]
+
+
+@pytest.mark.parametrize("name,value,b_deg,expected", CASES)
+def test_each_error_alone(name, value, b_deg, expected):
+    off = five_axis_offsets_um(only(name, value), b_deg=b_deg, **POS)
+    assert (off["X"], off["Y"], off["Z"]) == pytest.approx(expected, abs=1e-12)
+
+
+def test_all_errors_superpose_at_an_arbitrary_angle():
+    values = dict(E_X0C=3.0, E_Y0C=-7.0, E_Z0T=12.0, E_R0T=4.0, E_A0C=-15.0, E_B0C=6.0, E_C0C=9.0)
+    b = 37.5
+    total = five_axis_offsets_um(values, b_deg=b, **POS)
+    parts = [five_axis_offsets_um(only(n, v), b_deg=b, **POS) for n, v in values.items()]
+    for axis in "XYZ":
+        assert total[axis] == pytest.approx(sum(p[axis] for p in parts), abs=1e-12)
+
+
+def test_at_the_origin_only_the_table_position_errors_remain():
+    values = dict(E_X0C=3.0, E_Y0C=-7.0, E_Z0T=12.0, E_R0T=4.0, E_A0C=-15.0, E_B0C=6.0, E_C0C=9.0)
+    off = five_axis_offsets_um(values, 0.0, 0.0, 0.0, 0.0)
+    assert (off["X"], off["Y"], off["Z"]) == pytest.approx((3.0, -7.0, 12.0))
+
+
+def test_missing_or_bad_input_names_the_field():
+    e = only("E_X0C", 1.0)
+    del e["E_C0C"]
+    with pytest.raises(TransformInputError, match="E_C0C"):
+        five_axis_offsets_um(e, 0, 0, 0, 0)
+    with pytest.raises(TransformInputError, match="'E_Y0C'.*nan"):
+        five_axis_offsets_um(only("E_Y0C", float("nan")), 0, 0, 0, 0)
+    with pytest.raises(TransformInputError, match="axis position 'Z'"):
+        offsets_from_errors(only("E_Y0C", 1.0), {"X": 0.0, "Y": 0.0})
+
+
+def test_machine_without_b_axis_uses_b_zero():
+    off = offsets_from_errors(only("E_Z0T", 5.0), {"X": 1.0, "Y": 2.0, "Z": 3.0})
+    assert off == pytest.approx({"X": 0.0, "Y": 0.0, "Z": 5.0})
+
+
+def test_lathe_tool_offsets_from_tls_prediction_and_offset_models():
+    lathe = LatheToolOffsets("GB_X", {"T01_X": ToolOffsetModel(2.0, 0.5),
+                                      "T02_X": ToolOffsetModel(-1.0, 0.0)})
+    off = offsets_from_errors({"GB_X": 8.0}, {}, lathe=lathe)
+    assert off == pytest.approx({"GB_X": 8.0, "T01_X": 8.0 + 2.0 + 4.0, "T02_X": 7.0})
+    # a tool component predicted by the model itself wins over the bridge's offset model
+    off = offsets_from_errors({"GB_X": 8.0, "T02_X": 3.5}, {}, lathe=lathe)
+    assert off["T02_X"] == 3.5
+    with pytest.raises(TransformInputError, match="GB_X"):
+        offsets_from_errors({"T01_X": 1.0}, {}, lathe=lathe)
+
+
+def test_tool_offset_model_fit_recovers_a_known_relation():
+    rng = np.random.default_rng(7)
+    e_tls = rng.uniform(-5, 25, 200)
+    e_tool = e_tls + 1.5 + 0.2 * e_tls + rng.normal(0, 0.3, e_tls.size)
+    m = fit_tool_offset_model(e_tls, e_tool)
+    assert m.intercept_um == pytest.approx(1.5, abs=0.15)
+    assert m.gain == pytest.approx(0.2, abs=0.01)
+
+
+def test_lathe_spec_from_mapping_names_bad_keys():
+    lathe = LatheToolOffsets.from_mapping({"tls_component": "GB_X",
+                                           "tools": {"T01_X": {"intercept_um": 1.0, "gain": 0.1}}})
+    assert lathe.tools["T01_X"] == ToolOffsetModel(1.0, 0.1)
+    with pytest.raises(TransformInputError, match=r"tools\.T01_X.*slope"):
+        LatheToolOffsets.from_mapping({"tools": {"T01_X": {"slope": 1.0}}})
+    with pytest.raises(TransformInputError, match=r"tools\.T01_X\.gain"):
+        LatheToolOffsets.from_mapping({"tools": {"T01_X": {"gain": "nan"}}})
