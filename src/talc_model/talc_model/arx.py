@@ -1,0 +1,293 @@
+"""MISO ARX models: regression matrix, weighted least squares, full-rank check, prediction.
+
+One model per error component (Blaser thesis §4.1, Eqs 4.3, 4.15-4.20)::
+
+    E[k] + a1 E[k-1] + ... + a_na E[k-na]
+         = sum_i ( b_i,0 u_i[k-nk] + ... + b_i,nb_i-1 u_i[k-nk-nb_i+1] ) (+ c) + e[k]
+
+Conventions (the thesis is inconsistent here, see spec §2.3 [GAP]):
+
+- ``nb[i]`` is the *number* of coefficients of input i (MATLAB ``arx`` [na nb nk]); with
+  the default delay ``nk = 0`` the current input u[k] (b0) is included, as in the thesis's
+  worked examples (4.24), (4.26). ``nk = 1`` drops b0 (Eq. 4.15 as printed).
+- ``nb[i] = 0`` removes input i from the model.
+- The intercept ``c`` is optional and off by default (all signals are deltas from the start).
+- theta = [a1 .. a_na, b_1,0 .. b_1,nb1-1, b_2,0 .., c] and the regressor is
+  phi[k] = [-E[k-1] .. -E[k-na], u_1[k-nk] .., u_2[k-nk] .., 1]  (thesis sign convention).
+
+Parameters are estimated by (weighted) least squares through ``numpy.linalg.lstsq`` on
+sqrt(W)-scaled rows (Eq. 4.20), after a full-rank check of the regression matrix with the
+SVD tolerance of ``numpy.linalg.matrix_rank`` (= MATLAB ``rank``, thesis §6.2.1).
+
+Simulation mode (thesis §4.2, validation): past *predictions* are fed back as the
+autoregressive outputs; wherever a measured output is known it replaces the prediction
+(the TALC state update, §6.2.2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import signal
+
+
+class RankDeficientError(ValueError):
+    """The (weighted) regression matrix has no full column rank: the model is not identifiable."""
+
+    def __init__(self, message: str, rank: int, n_params: int):
+        super().__init__(message)
+        self.rank = rank
+        self.n_params = n_params
+
+
+@dataclass(frozen=True)
+class ArxOrders:
+    """Orders of one MISO ARX model."""
+
+    na: int
+    nb: tuple[int, ...]
+    nk: int = 0
+    intercept: bool = False
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "nb", tuple(int(n) for n in self.nb))
+        if self.na < 0:
+            raise ValueError(f"ArxOrders.na: {self.na} must be >= 0")
+        if self.nk < 0:
+            raise ValueError(f"ArxOrders.nk: {self.nk} must be >= 0")
+        if any(n < 0 for n in self.nb):
+            raise ValueError(f"ArxOrders.nb: {self.nb} must all be >= 0")
+
+    @property
+    def n_inputs(self) -> int:
+        return len(self.nb)
+
+    @property
+    def n_params(self) -> int:
+        return self.na + sum(self.nb) + int(self.intercept)
+
+    @property
+    def order_sum(self) -> int:
+        """n_a + sum of n_b,i: the 'N' of the thesis's Eq. 4.23 and its minimum CP length."""
+        return self.na + sum(self.nb)
+
+    @property
+    def max_lag(self) -> int:
+        """Samples of history needed before the first regression row."""
+        lags = [self.na] + [self.nk + n - 1 for n in self.nb if n > 0]
+        return max(lags)
+
+    def as_dict(self) -> dict:
+        return {"na": self.na, "nb": list(self.nb), "nk": self.nk, "intercept": self.intercept}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ArxOrders":
+        return cls(int(d["na"]), tuple(d["nb"]), int(d.get("nk", 0)), bool(d.get("intercept", False)))
+
+
+def _check_signals(y: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1:
+        u = u[:, None]
+    if y.ndim != 1:
+        raise ValueError(f"output y: expected a 1-D array, got shape {y.shape}")
+    if u.ndim != 2 or u.shape[0] != y.shape[0]:
+        raise ValueError(f"inputs u: expected shape ({y.shape[0]}, n_inputs), got {u.shape}")
+    return y, u
+
+
+def regression_matrix(y: np.ndarray, u: np.ndarray, orders: ArxOrders,
+                      start: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Regression matrix Phi, target and the sample indices k of its rows.
+
+    Rows run from ``start`` (default: ``orders.max_lag``) to the end; rows that contain a
+    non-finite value are kept (callers decide; :func:`fit_arx` drops them).
+    """
+    y, u = _check_signals(y, u)
+    if u.shape[1] != orders.n_inputs:
+        raise ValueError(f"inputs u: {u.shape[1]} columns, orders have {orders.n_inputs} inputs")
+    n = y.shape[0]
+    k0 = orders.max_lag if start is None else max(int(start), orders.max_lag)
+    rows = np.arange(k0, n)
+    cols = []
+    for i in range(1, orders.na + 1):
+        cols.append(-y[rows - i])
+    for j, nb in enumerate(orders.nb):
+        for lag in range(orders.nk, orders.nk + nb):
+            cols.append(u[rows - lag, j])
+    if orders.intercept:
+        cols.append(np.ones(rows.shape[0]))
+    phi = np.column_stack(cols) if cols else np.zeros((rows.shape[0], 0))
+    return phi, y[rows], rows
+
+
+def check_full_rank(phi: np.ndarray, what: str = "regression matrix") -> int:
+    """Raise :class:`RankDeficientError` unless ``phi`` has full column rank; return the rank."""
+    n_params = phi.shape[1]
+    if phi.shape[0] < n_params:
+        raise RankDeficientError(f"{what}: {phi.shape[0]} usable rows for {n_params} parameters",
+                                 rank=min(phi.shape), n_params=n_params)
+    rank = int(np.linalg.matrix_rank(phi)) if n_params else 0
+    if rank < n_params:
+        raise RankDeficientError(f"{what}: rank {rank} < {n_params} parameters (not identifiable yet)",
+                                 rank=rank, n_params=n_params)
+    return rank
+
+
+def solve_wls(phi: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None,
+              what: str = "regression matrix") -> np.ndarray:
+    """theta = argmin sum W[k] (target[k] - phi[k] theta)^2 (Eq. 4.20), full rank required."""
+    if weights is None:
+        weights = np.ones(phi.shape[0])
+    weights = np.asarray(weights, dtype=float)
+    if weights.shape != (phi.shape[0],):
+        raise ValueError(f"weights: shape {weights.shape}, expected ({phi.shape[0]},)")
+    if np.any(weights < 0) or not np.all(np.isfinite(weights)):
+        raise ValueError("weights: must be finite and >= 0")
+    keep = weights > 0
+    sw = np.sqrt(weights[keep])
+    a = phi[keep] * sw[:, None]
+    b = target[keep] * sw
+    check_full_rank(a, what)
+    theta, *_ = np.linalg.lstsq(a, b, rcond=None)
+    return theta
+
+
+@dataclass
+class ArxModel:
+    """A fitted MISO ARX model."""
+
+    orders: ArxOrders
+    theta: np.ndarray
+    #: standard deviation of the (weighted) equation error on the fit data
+    residual_std: float = float("nan")
+    n_fit_samples: int = 0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def a(self) -> np.ndarray:
+        return self.theta[: self.orders.na]
+
+    @property
+    def b(self) -> list[np.ndarray]:
+        out, i = [], self.orders.na
+        for nb in self.orders.nb:
+            out.append(self.theta[i:i + nb])
+            i += nb
+        return out
+
+    @property
+    def c(self) -> float:
+        return float(self.theta[-1]) if self.orders.intercept else 0.0
+
+    def input_part(self, u: np.ndarray) -> np.ndarray:
+        """B(q) u[k] (+ c) for every k >= the largest input lag (NaN before)."""
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 1:
+            u = u[:, None]
+        n = u.shape[0]
+        out = np.full(n, self.c)
+        for j, bj in enumerate(self.b):
+            if bj.size == 0:
+                continue
+            # full convolution, then shift by the delay nk
+            conv = np.convolve(u[:, j], bj)[:n]
+            shifted = np.full(n, np.nan)
+            shifted[self.orders.nk:] = conv[: n - self.orders.nk]
+            shifted[: self.orders.nk + bj.size - 1] = np.nan
+            out = out + shifted
+        return out
+
+    def predict_one(self, y_past: np.ndarray, u_hist: np.ndarray, k: int) -> float:
+        """Prediction of E[k] from the outputs y_past[k-1], ... and the inputs u_hist[..k]."""
+        o = self.orders
+        val = self.c
+        for i in range(1, o.na + 1):
+            val -= self.theta[i - 1] * y_past[k - i]
+        p = o.na
+        for j, nb in enumerate(o.nb):
+            for lag in range(o.nk, o.nk + nb):
+                val += self.theta[p] * u_hist[k - lag, j]
+                p += 1
+        return float(val)
+
+    def simulate(self, u: np.ndarray, y_init: np.ndarray, start: int,
+                 measured: np.ndarray | None = None, y_measured: np.ndarray | None = None
+                 ) -> np.ndarray:
+        """Simulation-mode prediction for k = start .. len(u)-1.
+
+        ``y_init`` gives the outputs before ``start`` (at least ``na`` of them). From
+        ``start`` on, predictions are fed back; where ``measured[k]`` is true the value
+        ``y_measured[k]`` replaces the prediction in the fed-back history (state update)
+        *after* the prediction for k has been recorded. Returns the predictions (NaN
+        before ``start``).
+        """
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 1:
+            u = u[:, None]
+        n = u.shape[0]
+        o = self.orders
+        if start < o.max_lag:
+            raise ValueError(f"simulate: start {start} is before the model's largest lag {o.max_lag}")
+        y = np.full(n, np.nan)
+        y[:start] = np.asarray(y_init, dtype=float)[:start]
+        bu = self.input_part(u)
+        pred = np.full(n, np.nan)
+        if measured is None or not np.any(measured[start:]):
+            # pure simulation: an IIR filter, vectorised by scipy.signal.lfilter
+            if o.na == 0:
+                pred[start:] = bu[start:]
+                return pred
+            den = np.concatenate(([1.0], self.a))
+            zi = signal.lfiltic([1.0], den, y[start - o.na:start][::-1])
+            pred[start:], _ = signal.lfilter([1.0], den, bu[start:], zi=zi)
+            return pred
+        a = self.a
+        for k in range(start, n):
+            v = bu[k]
+            for i in range(o.na):
+                v -= a[i] * y[k - 1 - i]
+            pred[k] = v
+            y[k] = y_measured[k] if measured[k] else v
+        return pred
+
+    def as_dict(self) -> dict:
+        return {"orders": self.orders.as_dict(), "theta": self.theta.tolist(),
+                "residual_std": self.residual_std, "n_fit_samples": self.n_fit_samples,
+                "extra": self.extra}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ArxModel":
+        orders = ArxOrders.from_dict(d["orders"])
+        theta = np.asarray(d["theta"], dtype=float)
+        if theta.shape != (orders.n_params,):
+            raise ValueError(f"ARX state: 'theta' has {theta.size} values, orders need {orders.n_params}")
+        return cls(orders, theta, float(d.get("residual_std", np.nan)),
+                   int(d.get("n_fit_samples", 0)), dict(d.get("extra", {})))
+
+
+def fit_arx(y: np.ndarray, u: np.ndarray, orders: ArxOrders, weights: np.ndarray | None = None,
+            start: int | None = None, stop: int | None = None,
+            what: str = "ARX regression matrix") -> ArxModel:
+    """Fit an ARX model by (weighted) least squares on the rows k in [start, stop).
+
+    ``weights[k]`` weighs the equation of sample k (the sample whose output is the target).
+    Rows with a non-finite value or zero weight are left out. Raises
+    :class:`RankDeficientError` if the remaining regression matrix has no full rank.
+    """
+    y, u = _check_signals(y, u)
+    phi, target, rows = regression_matrix(y, u, orders, start)
+    w = np.ones(y.shape[0]) if weights is None else np.asarray(weights, dtype=float)
+    if w.shape != y.shape:
+        raise ValueError(f"weights: shape {w.shape}, expected {y.shape}")
+    w = w[rows]
+    if stop is not None:
+        w = np.where(rows < stop, w, 0.0)
+    ok = np.isfinite(target) & np.all(np.isfinite(phi), axis=1) & (w > 0)
+    phi, target, w = phi[ok], target[ok], w[ok]
+    theta = solve_wls(phi, target, w, what)
+    res = target - phi @ theta
+    dof = max(1, phi.shape[0] - orders.n_params)
+    std = float(np.sqrt(np.sum(w * res ** 2) / np.sum(w) * phi.shape[0] / dof)) if phi.shape[0] else np.nan
+    return ArxModel(orders, theta, std, int(phi.shape[0]))
