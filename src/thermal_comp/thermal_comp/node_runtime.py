@@ -16,10 +16,12 @@ from __future__ import annotations
 import math
 import signal
 import sys
+import threading
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
+from rclpy.signals import SignalHandlerOptions
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor, SingleThreadedExecutor
@@ -155,46 +157,50 @@ def s_to_stamp(t_s: float):
 
 
 def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
-             multi_threaded: bool = False, num_threads: int = 2) -> int:
-    """Run one node in its own context until Ctrl-C, SIGTERM or an external shutdown.
+             multi_threaded: bool = False, num_threads: int = 2, poll_s: float = 0.1) -> int:
+    """Run one node in its own context until SIGINT, SIGTERM or an external shutdown.
 
-    ``node_factory(context=ctx)`` builds the node. Returns a process exit code: 0 on a clean
-    shutdown, 2 when the node's parameters are invalid (message printed, naming the key).
+    ``node_factory(context=ctx)`` builds the node. rclpy's own signal handlers are not
+    installed; SIGINT and SIGTERM set a flag that the spin loop checks every ``poll_s``
+    (a blocking ``spin()`` would not return on a signal with the multi-threaded executor).
+    Returns a process exit code: 0 on a clean shutdown, 2 when the node's parameters are
+    invalid (message printed, naming the parameter), 1 when the node's own cleanup failed.
     """
     if args is None:
         args = sys.argv
     context = rclpy.context.Context()
-    rclpy.init(args=args, context=context)
+    rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
     executor = (MultiThreadedExecutor(num_threads=num_threads, context=context) if multi_threaded
                 else SingleThreadedExecutor(context=context))
+    stop = threading.Event()
 
-    def _on_sigterm(signum, frame):  # SIGTERM: the launcher's polite stop
-        executor.create_task(lambda: None)  # wake the executor
-        if context.ok():
-            context.try_shutdown()
+    def _on_signal(signum, frame):
+        stop.set()
 
-    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     node = None
     code = 0
     try:
         try:
             node = node_factory(context=context)
         except (ParameterError, ValueError) as exc:
-            print(f"{getattr(node_factory, '__name__', 'node')}: {exc}", file=sys.stderr)
+            print(f"{getattr(node_factory, '__name__', 'node')}: {exc}", file=sys.stderr, flush=True)
             return 2
         executor.add_node(node)
-        executor.spin()
+        while context.ok() and not stop.is_set():
+            executor.spin_once(timeout_sec=poll_s)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, h in previous.items():
+            signal.signal(s, h)
         if node is not None:
             close = getattr(node, "close", None)
             if callable(close):
                 try:
                     close()
                 except Exception as exc:  # the node's own cleanup must not hide the shutdown
-                    print(f"error while closing node: {exc}", file=sys.stderr)
+                    print(f"error while closing node: {exc}", file=sys.stderr, flush=True)
                     code = 1
             executor.remove_node(node)
             node.destroy_node()

@@ -1,0 +1,140 @@
+"""bag_recorder node: records topics into a rosbag2 MCAP bag (core: thermal_comp.bag_recorder).
+
+Subscribes at start-up to every topic it is given, with the type known up front (no
+discovery wait, nothing early is lost), as raw (serialized) subscriptions, and writes the
+bytes untouched. A steady-clock timer closes the open chunk every ``flush_period_s`` so a
+crash loses at most that chunk. Run: ``python -m thermal_comp.bag_recorder_node --ros-args
+-p output:=BAG`` or ``thermal-comp record BAG``.
+"""
+from __future__ import annotations
+
+import importlib
+
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+
+from thermal_comp import node_runtime as rt
+from thermal_comp.bag_recorder import BagWriter, TopicInfo, qos_dict, stamp_from_cdr
+from thermal_comp.msg_definitions import first_field_type, normalize_type
+
+#: The topics recorded when none are given: relative name -> (type, QoS the publisher offers).
+DEFAULT_TOPICS: dict[str, tuple[str, QoSProfile]] = {
+    rt.TOPIC_MACHINE_STATE: ("thermal_comp_msgs/msg/MachineState", rt.SENSOR_QOS),
+    rt.TOPIC_TWIN_SENSORS: ("thermal_comp_msgs/msg/TemperatureArray", rt.SENSOR_QOS),
+    rt.TOPIC_TEMPERATURES: ("thermal_comp_msgs/msg/TemperatureArray", rt.SENSOR_QOS),
+    rt.TOPIC_ERRORS_TRUE: ("thermal_comp_msgs/msg/ThermalErrors", rt.EVENT_QOS),
+    rt.TOPIC_ERRORS_PREDICTED: ("thermal_comp_msgs/msg/ThermalErrors", rt.EVENT_QOS),
+    rt.TOPIC_ERRORS_MEASURED: ("thermal_comp_msgs/msg/ThermalErrors", rt.EVENT_QOS),
+    rt.TOPIC_OFFSETS: ("thermal_comp_msgs/msg/AxisOffsets", rt.EVENT_QOS),
+    rt.TOPIC_MODEL_STATUS: ("thermal_comp_msgs/msg/ModelStatus", rt.LATCHED_QOS),
+}
+#: Known topics that are not recorded by default but may be named on the command line.
+OPTIONAL_TOPICS: dict[str, tuple[str, QoSProfile]] = {
+    rt.TOPIC_SIM_SYNC: ("thermal_comp_msgs/msg/SimSync", rt.EVENT_QOS),
+    "/clock": ("rosgraph_msgs/msg/Clock", rt.MONITOR_QOS),
+}
+#: Receive-side queue depth for reliable topics (absorbs bursts of an as-fast-as-possible replay).
+RECEIVE_DEPTH = 1000
+
+
+def parse_topic_arg(arg: str) -> tuple[str, str, QoSProfile]:
+    """'name' (a known topic) or 'name:pkg/msg/Type' -> (name, type, QoS)."""
+    name, sep, type_name = arg.partition(":")
+    name = name.strip()
+    if not name:
+        raise ValueError(f"topics: {arg!r} has no topic name")
+    known = {**DEFAULT_TOPICS, **OPTIONAL_TOPICS}
+    if sep:
+        qos = known.get(name, (None, rt.EVENT_QOS))[1]
+        return name, normalize_type(type_name), qos
+    if name not in known:
+        raise ValueError(f"topics: {name!r} is not a known topic; give its type as "
+                         f"'{name}:pkg/msg/Type' (known: {', '.join(sorted(known))})")
+    return name, known[name][0], known[name][1]
+
+
+def message_class(type_name: str):
+    """The rclpy message class of 'pkg/msg/Type' (ValueError naming it if not installed)."""
+    pkg, sub, name = normalize_type(type_name).split("/")
+    try:
+        return getattr(importlib.import_module(f"{pkg}.{sub}"), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f"message type {type_name!r} has no installed Python typesupport") from None
+
+
+def starts_with_stamp(type_name: str) -> bool:
+    """True if the type's first field is a std_msgs/Header or builtin_interfaces/Time."""
+    return first_field_type(type_name) in ("std_msgs/msg/Header", "builtin_interfaces/msg/Time")
+
+
+def _qos_to_dict(q: QoSProfile) -> dict:
+    return qos_dict(reliability=q.reliability.name.lower(), durability=q.durability.name.lower(),
+                    history=q.history.name.lower(), depth=q.depth)
+
+
+def _receive_qos(q: QoSProfile) -> QoSProfile:
+    return QoSProfile(history=q.history, depth=max(q.depth, RECEIVE_DEPTH) if q.depth > 1 else q.depth,
+                      reliability=q.reliability, durability=q.durability)
+
+
+class BagRecorderNode(Node):
+    """Records the configured topics into ``output`` until shut down."""
+
+    def __init__(self, context=None, **kwargs):
+        super().__init__("bag_recorder", context=context, **kwargs)
+        p = rt.declare_parameters(self, [
+            rt.Param("output", "", "bag folder to create (must not exist)"),
+            rt.Param("topics", [""], "topics to record, 'name' or 'name:pkg/msg/Type'; "
+                     "empty: every default topic"),
+            rt.Param("flush_period_s", 1.0, "close the open chunk this often (wall clock, s): "
+                     "a crash loses at most this much", lo=0.05, hi=3600.0),
+            rt.Param("chunk_bytes", 262144, "close a chunk when it holds this many bytes",
+                     lo=1024, hi=64 * 2**20),
+            rt.Param("timestamps", "header", "message time in the bag: the message's own "
+                     "header stamp, or the receive time on the node's clock",
+                     choices=("header", "receive")),
+            rt.Param("compression", "zstd", "chunk compression", choices=("zstd", "lz4", "none")),
+        ])
+        if not p["output"]:
+            raise ValueError("parameter 'output': a bag folder path is required")
+        args = [t for t in p["topics"] if t.strip()]
+        specs = ([parse_topic_arg(a) for a in args] if args
+                 else [(n, t, q) for n, (t, q) in DEFAULT_TOPICS.items()])
+        self._use_header = p["timestamps"] == "header"
+        self._subs = []
+        infos = []
+        for name, type_name, qos in specs:
+            cls = message_class(type_name)
+            sub = self.create_subscription(cls, name, self._callback_for(len(self._subs)),
+                                           _receive_qos(qos), raw=True)
+            stamped = starts_with_stamp(type_name)
+            self._subs.append((sub, sub.topic_name, stamped))
+            infos.append(TopicInfo(sub.topic_name, type_name, [_qos_to_dict(qos)]))
+        self.writer = BagWriter(p["output"], infos, chunk_bytes=p["chunk_bytes"],
+                                compression=p["compression"],
+                                custom_data={"recorded_by": "thermal_comp.bag_recorder_node"})
+        self._flush_timer = self.create_timer(p["flush_period_s"], self.writer.flush,
+                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self.get_logger().info(f"recording {len(infos)} topics into {p['output']}: "
+                               + ", ".join(i.name for i in infos))
+
+    def _callback_for(self, index: int):
+        def on_message(data: bytes) -> None:
+            _, topic, stamped = self._subs[index]
+            now = self.get_clock().now().nanoseconds
+            t = stamp_from_cdr(data) if (self._use_header and stamped) else None
+            self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
+        return on_message
+
+    def close(self) -> None:
+        self.writer.close()
+        self.get_logger().info(f"bag {self.writer.path} closed: {self.writer.message_count} messages")
+
+
+def main(args=None) -> int:
+    return rt.run_node(BagRecorderNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

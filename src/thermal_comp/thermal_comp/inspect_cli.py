@@ -1,0 +1,179 @@
+"""Inspect a running graph: stand-ins for `ros2 topic list`, `ros2 topic echo`, `ros2 node list`.
+
+Discovery takes a moment, so each command watches the graph for ``--wait`` seconds
+(``--expect NAME`` returns as soon as every expected name is seen, or fails at the deadline).
+``ROS_DOMAIN_ID`` selects the cell's domain (or ``--domain-id``).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import math
+import os
+import sys
+import time
+from typing import Any, Iterable
+
+from thermal_comp.message_text import message_to_yaml
+
+
+def _type_class(type_name: str):
+    """'pkg/msg/Type' -> the Python message class."""
+    parts = type_name.split("/")
+    if len(parts) != 3:
+        raise ValueError(f"type {type_name!r} is not of the form package/msg/Type")
+    pkg, kind, name = parts
+    try:
+        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
+    except (ImportError, AttributeError):
+        raise ValueError(f"message type {type_name!r} is not installed in this environment") from None
+
+
+class _GraphWatcher:
+    def __init__(self, domain_id: int | None):
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        if domain_id is not None:
+            os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+        self.ctx = rclpy.context.Context()
+        rclpy.init(args=[], context=self.ctx)
+        self.node = rclpy.create_node(f"thermal_comp_inspect_{os.getpid()}", context=self.ctx,
+                                      start_parameter_services=False, enable_rosout=False)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, done, wait_s: float) -> bool:
+        """Spin until done() is true or wait_s elapsed (wall time: discovery is a wall-time process)."""
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline:
+            if done():
+                return True
+            self.executor.spin_once(timeout_sec=0.1)
+        return bool(done())
+
+    def topics(self) -> list[tuple[str, list[str]]]:
+        own = {"/parameter_events", "/rosout"}
+        return [(n, t) for n, t in self.node.get_topic_names_and_types() if n not in own]
+
+    def nodes(self) -> list[str]:
+        me = self.node.get_name()
+        out = []
+        for name, ns in self.node.get_node_names_and_namespaces():
+            if name == me:
+                continue
+            out.append((ns.rstrip("/") + "/" + name) if ns != "/" else "/" + name)
+        return sorted(set(out))
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        if self.ctx.ok():
+            self.ctx.try_shutdown()
+
+
+def _common(ap: argparse.ArgumentParser, default_wait: float) -> None:
+    ap.add_argument("--wait", type=float, default=default_wait,
+                    help=f"seconds to watch the graph for discovery (default {default_wait})")
+    ap.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID to inspect (default: the environment's)")
+
+
+def _watch_names(get, expect: Iterable[str], wait_s: float, w: _GraphWatcher) -> tuple[list, set]:
+    expect = set(expect)
+    if expect:
+        w.spin_until(lambda: expect <= {x if isinstance(x, str) else x[0] for x in get()}, wait_s)
+    else:  # no expectation: watch the whole time, the list only grows during discovery
+        w.spin_until(lambda: False, wait_s)
+    found = get()
+    missing = expect - {x if isinstance(x, str) else x[0] for x in found}
+    return found, missing
+
+
+def topics_main(argv: list[str] | None = None) -> int:
+    """List the topics of the graph with their types."""
+    ap = argparse.ArgumentParser(prog="thermal-comp topics", description=topics_main.__doc__)
+    _common(ap, 2.0)
+    ap.add_argument("-t", "--show-types", action="store_true", help="print the type beside each topic")
+    ap.add_argument("--expect", action="append", default=[], metavar="TOPIC",
+                    help="return as soon as this topic is seen; fail if it is not seen in --wait s (repeatable)")
+    args = ap.parse_args(argv)
+    w = _GraphWatcher(args.domain_id)
+    try:
+        found, missing = _watch_names(w.topics, args.expect, args.wait, w)
+    finally:
+        w.close()
+    for name, types in sorted(found):
+        print(f"{name} [{', '.join(types)}]" if args.show_types else name)
+    if missing:
+        print(f"thermal-comp topics: not seen within {args.wait:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def nodes_main(argv: list[str] | None = None) -> int:
+    """List the nodes of the graph (namespace/name)."""
+    ap = argparse.ArgumentParser(prog="thermal-comp nodes", description=nodes_main.__doc__)
+    _common(ap, 2.0)
+    ap.add_argument("--expect", action="append", default=[], metavar="NODE",
+                    help="return as soon as this node (/ns/name) is seen; fail if not (repeatable)")
+    args = ap.parse_args(argv)
+    w = _GraphWatcher(args.domain_id)
+    try:
+        found, missing = _watch_names(w.nodes, args.expect, args.wait, w)
+    finally:
+        w.close()
+    for name in found:
+        print(name)
+    if missing:
+        print(f"thermal-comp nodes: not seen within {args.wait:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def echo_main(argv: list[str] | None = None) -> int:
+    """Print the messages of a topic as YAML documents."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    ap = argparse.ArgumentParser(prog="thermal-comp echo", description=echo_main.__doc__)
+    _common(ap, 10.0)
+    ap.add_argument("topic", help="topic name, e.g. /cell_a/temperatures")
+    ap.add_argument("--type", help="message type (package/msg/Type); default: from the graph")
+    ap.add_argument("-n", "--count", type=int, default=0, help="stop after N messages (default: run until Ctrl-C)")
+    ap.add_argument("--once", action="store_true", help="same as --count 1")
+    ap.add_argument("--reliable", action="store_true",
+                    help="subscribe reliable (default best effort, which matches any publisher)")
+    args = ap.parse_args(argv)
+    count = 1 if args.once else args.count
+    w = _GraphWatcher(args.domain_id)
+    received: list[Any] = []
+    try:
+        type_name = args.type
+        if type_name is None:
+            def typed():
+                return dict(w.topics()).get(args.topic)
+            if not w.spin_until(lambda: typed() is not None, args.wait):
+                print(f"thermal-comp echo: topic {args.topic} not seen within {args.wait:g} s "
+                      f"(domain {os.environ.get('ROS_DOMAIN_ID', '0')})", file=sys.stderr)
+                return 1
+            type_name = typed()[0]
+        try:
+            cls = _type_class(type_name)
+        except ValueError as exc:
+            print(f"thermal-comp echo: {exc}", file=sys.stderr)
+            return 2
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                         reliability=ReliabilityPolicy.RELIABLE if args.reliable else ReliabilityPolicy.BEST_EFFORT,
+                         durability=DurabilityPolicy.VOLATILE)
+
+        def on_msg(msg):
+            received.append(msg)
+            print(message_to_yaml(msg) + "---", flush=True)
+
+        w.node.create_subscription(cls, args.topic, on_msg, qos)
+        limit = count if count > 0 else math.inf
+        try:
+            while w.ctx.ok() and len(received) < limit:
+                w.executor.spin_once(timeout_sec=0.2)
+        except KeyboardInterrupt:
+            pass
+    finally:
+        w.close()
+    return 0
