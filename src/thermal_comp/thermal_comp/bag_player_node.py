@@ -218,6 +218,7 @@ def main(args=None) -> int:
         holder["node"] = BagPlayerNode(context=context)
         return holder["node"]
 
+    factory.__name__ = "bag_player"
     code = rt.run_node(factory, args)
     node = holder.get("node")
     if code == 0 and node is not None:
