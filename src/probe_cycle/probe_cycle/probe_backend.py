@@ -1,0 +1,85 @@
+"""The one interface every probing backend offers: execute one probing move, report the skip.
+
+A backend turns a :class:`~probe_cycle.cycle_plan.TouchMove` into a :class:`TouchReply`.
+The reply says whether the probe triggered, the axis position read at the skip (mm), and
+the instant of the trigger (s, on the clock of the machine: simulated time on the twin).
+Backends:
+
+* ``twin``: :mod:`probe_cycle.twin_backend`, the machine_sim node's ``twin/touch_probe``
+  service (ROS);
+* ``cnc``: :mod:`probe_cycle.cnc_backend`, the probing programme on a CNC through OPC UA;
+* :class:`ArtefactModelBackend` (here): the physical forward model of
+  :mod:`thermal_twin.artefact_geometry`, in-process, for given errors and offsets. Tests,
+  benchmarks and the test-side TouchProbe provider use it.
+
+A backend that cannot execute a move (no connection, no answer in time, refused) raises
+:class:`ProbeBackendError`, and the message says why.
+"""
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+
+from thermal_twin.artefact_geometry import ArtefactGeometry, touch_trigger_position
+
+from probe_cycle.cycle_plan import TouchMove
+
+
+class ProbeBackendError(RuntimeError):
+    """The backend could not execute a probing move."""
+
+
+@dataclass(frozen=True)
+class TouchReply:
+    triggered: bool
+    position_mm: np.ndarray        # (3,) skip position, or the end of an untriggered move
+    stamp_s: float                 # instant of the trigger on the machine's clock, s
+    message: str = ""
+
+
+class ProbeBackend(abc.ABC):
+    """Executes probing moves on a machine (real or simulated)."""
+
+    name: str = "backend"
+
+    @abc.abstractmethod
+    def touch(self, move: TouchMove) -> TouchReply:
+        """Execute one probing move; raise :class:`ProbeBackendError` if impossible."""
+
+    def close(self) -> None:  # pragma: no cover - default: nothing to release
+        """Release connections."""
+
+
+@dataclass
+class ArtefactModelBackend(ProbeBackend):
+    """Probing on the physical forward model with given true errors and offsets.
+
+    ``errors`` and ``offsets`` can be callables of the current time (s), so a test can
+    drift the errors during a cycle. Each move advances the model clock by its duration,
+    and the trigger is taken at the end of the move.
+    """
+
+    errors: Mapping[str, float] | Callable[[float], Mapping[str, float]] = field(
+        default_factory=dict)
+    offsets_um: Mapping[str, float] | Callable[[float], Mapping[str, float]] = field(
+        default_factory=dict)
+    geometry: ArtefactGeometry | None = None
+    rng: np.random.Generator | None = None
+    time_s: float = 0.0
+    name: str = "artefact_model"
+
+    def touch(self, move: TouchMove) -> TouchReply:
+        self.time_s += move.duration_s
+        errors = self.errors(self.time_s) if callable(self.errors) else self.errors
+        offsets = self.offsets_um(self.time_s) if callable(self.offsets_um) else self.offsets_um
+        try:
+            triggered, pos = touch_trigger_position(
+                move.artefact, move.c_axis_deg, move.b_axis_deg, np.asarray(move.start_mm),
+                np.asarray(move.direction), move.max_travel_mm, errors, offsets,
+                self.geometry, self.rng)
+        except ValueError as exc:
+            raise ProbeBackendError(f"{move.stage}: {exc}") from exc
+        return TouchReply(bool(triggered), np.asarray(pos, dtype=float), self.time_s)
