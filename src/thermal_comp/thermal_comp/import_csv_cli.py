@@ -1,0 +1,77 @@
+"""Import a recording CSV (the twin's CSV, shared/data/fl_thermal) into a rosbag2 MCAP bag."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from thermal_comp.bag_recorder import BagWriteError
+from thermal_comp.csv_to_bag import CsvImportError, csv_to_bag
+from thermal_twin.recording_csv import RecordingError
+
+
+def _rows(text: str) -> tuple[int, int | None]:
+    lo, sep, hi = text.partition(":")
+    try:
+        return (int(lo) if lo else 0), (int(hi) if hi else None)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--rows {text!r}: expected START:STOP (row numbers)") from None
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="thermal-comp import-csv", description=__doc__,
+        epilog="Columns (thermal_twin.recording_csv): <id>_c -> TemperatureArray sensor <id>; E_* and "
+               "<name>_um -> ThermalErrors components; spindle/axis speeds (*_rpm), coolant_on, "
+               "coolant_temp_degc, door_open, probing, *_w, pos_* -> MachineState. Example: "
+               "thermal-comp import-csv ../shared/data/fl_thermal/fl_thermal.csv out/fl --errors measured --every 4")
+    ap.add_argument("csv", metavar="CSV", help="recording CSV file")
+    ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist)")
+    ap.add_argument("--errors", choices=("ground_truth", "measured"), default="ground_truth",
+                    help="publish the error columns as the twin's ground truth (default) or as "
+                         "measured errors (SOURCE_MEASURED on errors/measured)")
+    ap.add_argument("--error-model-kind", default=None,
+                    help="model_kind of the error messages (default 'twin' / 'recording')")
+    ap.add_argument("--temperatures-topic", default="temperatures",
+                    help="relative topic of the temperatures (default temperatures; the twin's raw "
+                         "readings are twin/sensor_readings)")
+    ap.add_argument("--namespace", default="", help="cell namespace prefixed to every topic")
+    ap.add_argument("--start", type=float, default=0.0, metavar="S",
+                    help="stamp of time_s = 0, in seconds (default 0: simulated time)")
+    ap.add_argument("--every", type=int, default=1, metavar="N", help="keep every N-th row")
+    ap.add_argument("--rows", type=_rows, default=(0, None), metavar="START:STOP",
+                    help="import only these rows (0-based, STOP exclusive)")
+    ap.add_argument("--strict", action="store_true",
+                    help="fail if an input column cannot be represented in MachineState")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    bar = None
+    if not args.no_progress:
+        from tqdm import tqdm
+        bar = tqdm(desc="import-csv", unit="row", leave=False, file=sys.stderr)
+    try:
+        res = csv_to_bag(args.csv, args.out, temperatures_topic=args.temperatures_topic,
+                         errors_as=args.errors, error_model_kind=args.error_model_kind,
+                         namespace=args.namespace, start_s=args.start, every=args.every,
+                         rows=args.rows, strict=args.strict,
+                         progress=None if bar is None else bar.update)
+    except (RecordingError, CsvImportError, BagWriteError) as exc:
+        print(f"thermal-comp import-csv: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if bar is not None:
+            bar.close()
+    for w in res.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if res.unmapped:
+        print(f"note: input column(s) {', '.join(res.unmapped)} have no MachineState field; "
+              f"not imported", file=sys.stderr)
+    print(f"{res.bag}: {res.rows} rows -> " + ", ".join(f"{t} {n}" for t, n in res.messages.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
