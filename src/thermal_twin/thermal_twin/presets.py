@@ -1,0 +1,26 @@
+"""The packaged machine presets (YAML files in ``thermal_twin/presets/``)."""
+from __future__ import annotations
+
+import pathlib
+
+PRESET_DIR = pathlib.Path(__file__).with_name("presets")
+
+
+def preset_names() -> list[str]:
+    """Names accepted by ``--machine`` (file stems, '_' written as '-')."""
+    return sorted(p.stem.replace("_", "-") for p in PRESET_DIR.glob("*.yaml"))
+
+
+def preset_path(name: str) -> pathlib.Path:
+    """Path of a preset by name (``swiss-lathe`` or ``swiss_lathe``), or a clear error."""
+    p = PRESET_DIR / f"{name.replace('-', '_')}.yaml"
+    if not p.is_file():
+        from thermal_twin.machine_schema import MachineSpecError
+        raise MachineSpecError(f"machine {name!r}: not a preset and not a file "
+                               f"(presets: {', '.join(preset_names())})")
+    return p
+
+
+def load_preset(name: str):
+    from thermal_twin.machine_schema import load_machine
+    return load_machine(preset_path(name))
