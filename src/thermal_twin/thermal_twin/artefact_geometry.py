@@ -199,11 +199,15 @@ def true_sphere_centre(c_axis_deg: float, b_axis_deg: float, errors: Mapping[str
     r = s.radius_from_c_axis_mm
     # Table frame: origin at the C-axis point in the sphere-centre plane. C' turns the
     # table by -C, so the sphere (at -X for C = 0) goes to +Y at C = 90.
-    v = _rot_z(-c) @ np.array([-r, 0.0, 0.0])
-    v = v * (1.0 + e["E_R0T"] / UM_PER_MM / r)                       # radial growth
-    v = _rot_z(-e["E_C0C"] * 1e-6) @ v                               # zero position of C
-    v = _rot_y(e["E_B0C"] * 1e-6) @ (_rot_x(e["E_A0C"] * 1e-6) @ v)  # orientation of C
-    v = v + np.array([e["E_X0C"], e["E_Y0C"], e["E_Z0T"]]) / UM_PER_MM
+    v0 = _rot_z(-c) @ np.array([-r, 0.0, 0.0])
+    # Each error acts on the nominal geometry and the effects superpose: the thesis's
+    # errors are first-order quantities, and products of two errors (below 1e-3 um here)
+    # are not physics this model claims to know.
+    v = (v0
+         + v0 * (e["E_R0T"] / UM_PER_MM / r)                            # radial growth
+         + (_rot_z(-e["E_C0C"] * 1e-6) @ v0 - v0)                       # zero position of C
+         + (_rot_y(e["E_B0C"] * 1e-6) @ _rot_x(e["E_A0C"] * 1e-6) @ v0 - v0)  # orientation
+         + np.array([e["E_X0C"], e["E_Y0C"], e["E_Z0T"]]) / UM_PER_MM)
     p = v + np.array([s.c_axis_xy_mm[0], s.c_axis_xy_mm[1], s.centre_z_mm])
     if b != 0.0:  # swivel of the table about the B axis (parallel to Y)
         pivot = np.array([s.c_axis_xy_mm[0], 0.0, s.b_pivot_z_mm])
