@@ -45,7 +45,7 @@ def make_recording(path, n_rows: int = 40, dt_s: float = 10.0, seed: int = 7):
         "cold_c": np.round(-12.5 + 0.05 * t, 1),
         "E_X0C": np.zeros(n_rows),
     }
-    cols["spindle_c"][[5, 6, 17]] = np.nan
+    cols["spindle_c"][[k for k in (5, 6, 17) if k < n_rows]] = np.nan
     write_recording_csv(path, t, cols)
     return t, cols
 
