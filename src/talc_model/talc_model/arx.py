@@ -181,6 +181,13 @@ class ArxModel:
     def c(self) -> float:
         return float(self.theta[-1]) if self.orders.intercept else 0.0
 
+    def is_stable(self, margin: float = 0.0) -> bool:
+        """True if every pole of 1/A(q) lies inside the unit circle (radius 1 - margin)."""
+        if self.orders.na == 0:
+            return True
+        poles = np.roots(np.concatenate(([1.0], self.a)))
+        return bool(np.all(np.abs(poles) < 1.0 - margin))
+
     def input_part(self, u: np.ndarray) -> np.ndarray:
         """B(q) u[k] (+ c) for every k >= the largest input lag (NaN before)."""
         u = np.asarray(u, dtype=float)
