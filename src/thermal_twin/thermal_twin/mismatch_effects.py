@@ -225,7 +225,8 @@ def ambient_coupling(spec: dict, node: str) -> Candidate:
         if g_old + v[0] > MAX_CONDUCTANCE_W_K:
             return f"G = {g_old + v[0]:.4g} W/K above {MAX_CONDUCTANCE_W_K:g} W/K: not a machine structure"
         return None
-    return Candidate("ambient_coupling", node, amb, params, apply, check)
+    t_amb = spec["boundaries"][amb].get("temperature")
+    return Candidate("ambient_coupling", node, t_amb if isinstance(t_amb, str) else None, params, apply, check)
 
 
 def time_lag_sensor(spec: dict, sensor: str) -> Candidate:

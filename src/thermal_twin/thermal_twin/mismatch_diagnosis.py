@@ -1,0 +1,197 @@
+"""The mismatch finder end to end: simulate, locate, diagnose, hypothesise, model, report.
+
+:func:`diagnose` takes a twin (YAML path, preset name or mapping) and a
+:class:`~thermal_twin.recording_csv.Recording` and returns a :class:`Diagnosis` holding the
+JSON-ready report (keys as issue 9 lists them), the augmented machine description and the
+series for the plots. The recording is split chronologically: the first
+``1 - holdout_fraction`` is the training window (every fit), the rest is held out (only
+scored). Pure numpy/scipy; the command line is :mod:`thermal_twin.diagnose_cli`.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from thermal_twin import mismatch_locate as locate
+from thermal_twin import mismatch_statistics as stats
+from thermal_twin.machine_schema import Machine, load_machine
+from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
+from thermal_twin.mismatch_fit import FitProblem, Hypothesis, noise_free, run_round
+from thermal_twin.mismatch_report import DiagnosisSeries
+from thermal_twin.recording_csv import Recording, column_kind, error_unit
+
+CORRELATED_NOTE = ("Candidate effects whose fitted output changes are nearly collinear on this "
+                   "recording cannot be told apart by any fit; they are listed under "
+                   "indistinguishable_from, and choosing between them needs a recording with "
+                   "other operating regimes (or a sensor at the suspected place).")
+
+
+class DiagnosisError(ValueError):
+    """Twin and recording cannot be compared; the message names the cause."""
+
+
+@dataclass
+class Diagnosis:
+    report: dict
+    augmented_spec: dict | None          # None when the answer is 'none'
+    series: DiagnosisSeries
+    hypotheses: list[Hypothesis]
+
+
+def _unit(ch: str) -> str:
+    return "degC" if column_kind(ch) == "sensor" else error_unit(ch)
+
+
+def _clean_inputs(rec: Recording) -> Recording:
+    """Interpolate failed readings (NaN) of input columns; the twin needs every input."""
+    cols = dict(rec.columns)
+    warnings = list(rec.warnings)
+    for name in rec.names("input"):
+        v = np.asarray(cols[name], dtype=float)
+        bad = ~np.isfinite(v)
+        if bad.any():
+            if bad.all():
+                raise DiagnosisError(f"recording column '{name}': no valid value")
+            cols[name] = np.interp(rec.time_s, rec.time_s[~bad], v[~bad])
+            warnings.append(f"column '{name}': {int(bad.sum())} missing values interpolated")
+    return Recording(rec.time_s, cols, source=rec.source, warnings=warnings)
+
+
+def shared_channels(machine: Machine, rec: Recording) -> list[str]:
+    chans = [machine.sensors[s].column for s in machine.sensors if machine.sensors[s].column in rec.columns]
+    chans += [e for e in machine.errors if e in rec.columns]
+    return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8]
+
+
+def _rmse(meas: np.ndarray, pred: np.ndarray) -> float:
+    ok = np.isfinite(meas)
+    return float(np.sqrt(np.mean((meas[ok] - pred[ok]) ** 2))) if ok.any() else float("nan")
+
+
+def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
+             max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
+             effects: tuple[str, ...] = EFFECTS, shortlist: int = 6, max_lag_s: float = 6 * 3600.0,
+             progress: bool = False) -> Diagnosis:
+    """Diagnose ``twin`` against ``recording``; see the module docstring."""
+    if not 0.05 <= holdout_fraction <= 0.8:
+        raise DiagnosisError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise DiagnosisError(f"effects: {unknown[0]!r} is not in the vocabulary {list(EFFECTS)}")
+    machine = twin if isinstance(twin, Machine) else load_machine(twin)
+    rec = _clean_inputs(recording)
+    if len(rec) < 30:
+        raise DiagnosisError(f"recording {rec.source}: {len(rec)} rows, need at least 30")
+    channels = shared_channels(machine, rec)
+    if not channels:
+        raise DiagnosisError(
+            f"recording {rec.source}: no channel shared with twin '{machine.name}' (twin sensors "
+            f"{[machine.sensors[s].column for s in machine.sensors]}, errors {list(machine.errors)}; "
+            f"recording columns {list(rec.columns)})")
+    spec_noisy = machine.to_dict()
+    spec0 = noise_free(spec_noisy)
+    n = len(rec)
+    n_train = int(round(n * (1.0 - holdout_fraction)))
+    t = rec.time_s
+    dt = float(np.median(np.diff(t)))
+    problem = FitProblem(rec, channels, n_train)
+    y0 = problem.outputs(spec0)
+    meas = {c: np.asarray(rec.columns[c], dtype=float) for c in channels}
+    units = {c: _unit(c) for c in channels}
+    resid0 = {c: meas[c] - y0[i] for i, c in enumerate(channels)}
+
+    # diagnose the residuals -------------------------------------------------------------
+    drivers_all = stats.derived_drivers(t, rec.inputs, rec.sensors)
+    max_lag = int(max_lag_s / dt)
+    ccf: dict[str, list] = {}
+    chan_report: dict[str, dict] = {}
+    for c in channels:
+        r = resid0[c]
+        own = {c, f"d({c})/dt"}
+        cc = [stats.cross_correlation(r, u, max_lag, name) for name, u in drivers_all.items()
+              if name not in own and np.nanstd(u) > 0]
+        cc.sort(key=lambda x: -abs(x.peak_value) / max(x.band, 1e-12))
+        ccf[c] = [x for x in cc if x.significant][:5]
+        chan_report[c] = {
+            "unit": units[c],
+            "ljung_box": stats.ljung_box(r),
+            "drift": stats.drift(t, r),
+            "spectral_peaks": stats.spectral_peaks(r, dt),
+            "cross_correlation": [x.as_dict(dt) for x in ccf[c]],
+        }
+
+    regimes = locate.operating_regimes(t, rec.inputs, start_hour)
+    windows = locate.locate_windows(t, resid0, regimes, units)
+    reg_eff = locate.regime_effects(resid0, regimes, units)
+
+    # hypothesise and model -----------------------------------------------------------------
+    drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
+    base, base_noisy, y_base = spec0, spec_noisy, y0
+    adopted: list[Hypothesis] = []
+    all_hyps: list[Hypothesis] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(desc="screening candidates", unit="sim", leave=False)
+    for round_no in range(1, max_effects + 1):
+        cands = candidates(base, drivers, channels, effects)
+        hyps = run_round(problem, base, cands, y_base, shortlist=shortlist,
+                         min_improvement_pct=min_improvement_pct, round_no=round_no,
+                         progress=(bar.update if bar else None))
+        all_hyps += hyps
+        best = hyps[0] if hyps else None
+        if best is None or not best.supported(min_improvement_pct):
+            break
+        adopted.append(best)
+        # the same edit on the description that keeps the sensor noise settings
+        base_noisy = best.candidate.apply(base_noisy, best.values)
+        base = best.spec
+        y_base = problem.outputs(base)
+    if bar:
+        bar.close()
+
+    y1 = y_base
+    for c in channels:
+        i = channels.index(c)
+        chan_report[c].update({
+            "rmse_before": _rmse(meas[c], y0[i]), "rmse_after": _rmse(meas[c], y1[i]),
+            "holdout_rmse_before": _rmse(meas[c][n_train:], y0[i][n_train:]),
+            "holdout_rmse_after": _rmse(meas[c][n_train:], y1[i][n_train:]),
+            "train_rmse_before": _rmse(meas[c][:n_train], y0[i][:n_train]),
+            "train_rmse_after": _rmse(meas[c][:n_train], y1[i][:n_train]),
+            "noise_sigma": problem.sigma[c],
+        })
+        chan_report[c] = {k: chan_report[c][k] for k in
+                          ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_after",
+                           "train_rmse_before", "train_rmse_after", "noise_sigma", "ljung_box", "drift",
+                           "spectral_peaks", "cross_correlation")}
+
+    notes = []
+    if any(h.indistinguishable_from for h in all_hyps if h.plausible):
+        notes.append(CORRELATED_NOTE)
+    notes += rec.warnings
+    ranked = sorted(all_hyps, key=lambda h: (h.round, h.rank_key(min_improvement_pct)))
+    report = {
+        "twin": machine.source_path or machine.name,
+        "recording": rec.source,
+        "split": {"train_end_s": float(t[n_train - 1]), "holdout_start_s": float(t[n_train]),
+                  "end_s": float(t[-1]), "holdout_fraction": holdout_fraction},
+        "channels": chan_report,
+        "windows": windows,
+        "regime_effects": reg_eff[:20],
+        "hypotheses": [h.as_dict() for h in ranked],
+        "selected": [h.as_dict() for h in adopted] if adopted else "none",
+        "augmented_twin": None,
+        "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": -10.0,
+                     "max_effects": max_effects},
+        "simulations": problem.n_evals,
+        "notes": notes,
+    }
+    series = DiagnosisSeries(
+        time_s=t, measured=meas, before={c: y0[i] for i, c in enumerate(channels)},
+        after={c: y1[i] for i, c in enumerate(channels)}, holdout_start_s=float(t[n_train]),
+        ccf=ccf, dt_s=dt)
+    return Diagnosis(report, copy.deepcopy(base_noisy) if adopted else None, series, all_hyps)

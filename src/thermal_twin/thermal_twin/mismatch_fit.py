@@ -1,0 +1,293 @@
+"""Fitting and ranking the effect library against a recording.
+
+Procedure (one round; the finder repeats it greedily on the augmented twin):
+
+1. **Weights.** Every shared channel is scaled by its measurement noise (std of the first
+   differences / sqrt 2, floored), so degC and um become comparable and the fit is a
+   weighted least-squares problem.
+2. **Screening.** Each candidate is simulated once at its start value; the change of the
+   outputs is a sensitivity direction s, and the share of the training residual it can
+   explain is the error-reduction ratio (s.r)^2 / (s.s |r|^2) (the ERR of NARX term
+   selection). The best few candidates, and the best of every effect type, go on.
+3. **Fit.** ``scipy.optimize.least_squares`` (trf, bounded) on the training window only,
+   from the best of a few start values of the non-linear parameters.
+4. **Score.** The fitted twin is simulated over the whole recording; ``holdout_improvement_pct``
+   is the fall of the weighted sum of squares on the held-out window (never fitted).
+   The information criterion is BIC on the training window with the effective number of
+   samples n_eff = n (1 - rho)/(1 + rho) (rho: lag-1 autocorrelation of the residual),
+   because thermal residuals are strongly autocorrelated and the raw n would let any
+   term look significant.
+5. **Plausibility.** Each effect checks its fitted values against physical ranges
+   (sign, time constants, energy); implausible fits are ranked last and never adopted.
+
+A hypothesis is adopted when it is plausible, dBIC < -10 and it improves the held-out
+fit by at least ``min_improvement_pct``; if nothing qualifies the answer is ``none``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from thermal_twin.inputs_timeline import timeline_from_recording
+from thermal_twin.machine_schema import MachineSpecError, load_machine
+from thermal_twin.mismatch_effects import Candidate
+from thermal_twin.mismatch_twin_eval import expected_outputs
+from thermal_twin.recording_csv import Recording
+
+BIC_THRESHOLD = -10.0
+
+
+def noise_free(spec: dict) -> dict:
+    """A copy of a machine description with sensor noise and quantisation removed."""
+    import copy
+    s = copy.deepcopy(spec)
+    for d in s.get("sensors", {}).values():
+        d.pop("noise_std", None)
+        d.pop("resolution", None)
+    return s
+
+
+def channel_sigma(x: np.ndarray) -> float:
+    """Measurement noise of a channel: std of first differences / sqrt(2) (robust to
+    slow drift), floored at 1e-3 of the channel's unit."""
+    x = np.asarray(x, dtype=float)
+    d = np.diff(x[np.isfinite(x)])
+    if d.size < 2:
+        return 1.0
+    return max(float(np.std(d)) / math.sqrt(2.0), 1e-3)
+
+
+@dataclass
+class FitProblem:
+    """A recording, the channels shared with the twin, their weights and the split."""
+
+    recording: Recording
+    channels: list[str]
+    n_train: int
+    sigma: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        if not self.sigma:
+            self.sigma = {c: channel_sigma(self.recording.columns[c]) for c in self.channels}
+        meas = np.stack([np.asarray(self.recording.columns[c], dtype=float) for c in self.channels])
+        self._valid = np.isfinite(meas)
+        self._meas = np.where(self._valid, meas, 0.0)
+        self._w = np.array([1.0 / self.sigma[c] for c in self.channels])[:, None]
+        self.n_evals = 0
+
+    @property
+    def n(self) -> int:
+        return len(self.recording)
+
+    def outputs(self, spec: dict, stop: int | None = None) -> np.ndarray:
+        """Noise-free twin outputs for the shared channels, shape (channels, time)."""
+        m = load_machine(spec)
+        vals = timeline_from_recording(m, self.recording).resolved(m)
+        out = expected_outputs(m, self.recording.time_s, vals, stop=stop)
+        self.n_evals += 1
+        return np.stack([out[c] for c in self.channels])
+
+    def weighted_residual(self, y: np.ndarray, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """(measured - y) / sigma on [start, stop), NaN readings count as 0, flattened."""
+        stop = y.shape[1] if stop is None else stop
+        r = (self._meas[:, start:stop] - y[:, start:stop]) * self._w
+        return np.where(self._valid[:, start:stop], r, 0.0)
+
+    def weighted(self, dy: np.ndarray) -> np.ndarray:
+        return dy * self._w
+
+
+@dataclass
+class Hypothesis:
+    candidate: Candidate
+    values: np.ndarray
+    spec: dict
+    err_screen: float
+    sse_train_before: float
+    sse_train_after: float
+    sse_holdout_before: float
+    sse_holdout_after: float
+    delta_bic: float
+    reason: str | None                  # None when plausible
+    change: np.ndarray = field(repr=False, default=None)   # weighted output change on train
+    indistinguishable_from: list[str] = field(default_factory=list)
+    round: int = 1
+
+    @property
+    def plausible(self) -> bool:
+        return self.reason is None
+
+    @property
+    def holdout_improvement_pct(self) -> float:
+        if self.sse_holdout_before <= 0:
+            return 0.0
+        return 100.0 * (1.0 - self.sse_holdout_after / self.sse_holdout_before)
+
+    @property
+    def train_improvement_pct(self) -> float:
+        return 100.0 * (1.0 - self.sse_train_after / max(self.sse_train_before, 1e-300))
+
+    def supported(self, min_improvement_pct: float) -> bool:
+        return (self.plausible and self.delta_bic < BIC_THRESHOLD
+                and self.holdout_improvement_pct >= min_improvement_pct)
+
+    def rank_key(self, min_improvement_pct: float) -> tuple:
+        return (not self.plausible, not self.supported(min_improvement_pct), -self.holdout_improvement_pct)
+
+    def as_dict(self) -> dict:
+        c = self.candidate
+        return {"effect": c.effect, "target": c.target, "driver": c.driver,
+                "params": c.param_dict(self.values),
+                "score": round(self.holdout_improvement_pct, 3),
+                "holdout_improvement_pct": self.holdout_improvement_pct,
+                "train_improvement_pct": self.train_improvement_pct,
+                "delta_bic": self.delta_bic, "screening_err": self.err_screen,
+                "plausible": self.plausible, "reason": self.reason or "",
+                "indistinguishable_from": list(self.indistinguishable_from), "round": self.round}
+
+
+def _lag1(r: np.ndarray) -> float:
+    """Pooled lag-1 autocorrelation of the rows of r."""
+    num = float(np.sum(r[:, 1:] * r[:, :-1]))
+    den = float(np.sum(r * r))
+    return 0.0 if den <= 0 else max(0.0, min(0.999, num / den))
+
+
+def delta_bic(r0: np.ndarray, r1: np.ndarray, k: int) -> float:
+    """BIC(after) - BIC(before) with the effective sample size of the residual before."""
+    n = r0.size
+    rho = _lag1(r0)
+    n_eff = max(10.0, n * (1 - rho) / (1 + rho))
+    s0, s1 = float(np.sum(r0 ** 2)), float(np.sum(r1 ** 2))
+    if s0 <= 0:
+        return 0.0
+    return n_eff * math.log(max(s1, 1e-300) / s0) + k * math.log(n_eff)
+
+
+def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
+           y0_train: np.ndarray, progress: Callable[[], None] | None = None) -> list[tuple[float, Candidate]]:
+    """Error-reduction ratio of every candidate at its start value, best first."""
+    r0 = problem.weighted_residual(y0_train, 0, problem.n_train)
+    rr = float(np.sum(r0 ** 2)) or 1.0
+    out = []
+    for c in cands:
+        try:
+            y = problem.outputs(c.apply(base_spec, [p.x0 for p in c.params]), stop=problem.n_train)
+        except MachineSpecError:
+            out.append((0.0, c))
+            continue
+        finally:
+            if progress:
+                progress()
+        s = problem.weighted(y - y0_train)
+        ss = float(np.sum(s * s))
+        err = 0.0 if ss <= 0 else float(np.sum(s * r0)) ** 2 / (ss * rr)
+        out.append((err, c))
+    out.sort(key=lambda e: -e[0])
+    return out
+
+
+def _starts(c: Candidate) -> list[np.ndarray]:
+    """Start values: x0 plus a spread of the non-linear parameters (time constants, exponents)."""
+    x0 = np.array([p.x0 for p in c.params])
+    starts = [x0]
+    for j, p in enumerate(c.params):
+        if p.name == "tau":
+            for v in (300.0, 7200.0, 21600.0):
+                s = x0.copy(); s[j] = v; starts.append(s)
+        elif p.name == "exponent":
+            for v in (0.8, 2.0):
+                s = x0.copy(); s[j] = v; starts.append(s)
+        elif p.name == "T_coolant":
+            for v in (14.0, 28.0):
+                s = x0.copy(); s[j] = v; starts.append(s)
+    return starts
+
+
+def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: np.ndarray,
+                  err_screen: float = 0.0, max_nfev: int = 60) -> Hypothesis | None:
+    """Fit one candidate on the training window and score it on the held-out window."""
+    nt = problem.n_train
+    lo = np.array([p.lo for p in c.params])
+    hi = np.array([p.hi for p in c.params])
+    scale = np.maximum(np.abs([p.x0 for p in c.params]), 1e-3 * (hi - lo))
+
+    def fun(v):
+        try:
+            y = problem.outputs(c.apply(base_spec, v), stop=nt)
+        except MachineSpecError:
+            return np.full(len(problem.channels) * nt, 1e6)
+        return problem.weighted_residual(y, 0, nt).ravel()
+
+    best = None
+    for s in _starts(c):
+        s = np.clip(s, lo, hi)
+        cost = float(np.sum(fun(s) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, s)
+    try:
+        sol = least_squares(fun, best[1], bounds=(lo, hi), x_scale=scale, method="trf",
+                            max_nfev=max_nfev, xtol=1e-6, ftol=1e-8)
+    except (ValueError, MachineSpecError):
+        return None
+    v = sol.x
+    spec = c.apply(base_spec, v)
+    try:
+        y1 = problem.outputs(spec)
+    except MachineSpecError:
+        return None
+    r0t = problem.weighted_residual(y0_full, 0, nt)
+    r1t = problem.weighted_residual(y1, 0, nt)
+    r0h = problem.weighted_residual(y0_full, nt)
+    r1h = problem.weighted_residual(y1, nt)
+    return Hypothesis(candidate=c, values=v, spec=spec, err_screen=err_screen,
+                      sse_train_before=float(np.sum(r0t ** 2)), sse_train_after=float(np.sum(r1t ** 2)),
+                      sse_holdout_before=float(np.sum(r0h ** 2)), sse_holdout_after=float(np.sum(r1h ** 2)),
+                      delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v),
+                      change=problem.weighted(y1[:, :nt] - y0_full[:, :nt]).ravel())
+
+
+def mark_indistinguishable(hyps: list[Hypothesis], corr_threshold: float = 0.95,
+                           margin_pct: float = 5.0) -> None:
+    """Flag plausible hypotheses whose fitted output changes are nearly collinear and whose
+    held-out improvements are within ``margin_pct`` points: this data cannot tell them apart."""
+    good = [h for h in hyps if h.plausible and h.change is not None and np.any(h.change)]
+    for i, a in enumerate(good):
+        for b in good[i + 1:]:
+            if abs(a.holdout_improvement_pct - b.holdout_improvement_pct) > margin_pct:
+                continue
+            na, nb = np.linalg.norm(a.change), np.linalg.norm(b.change)
+            if na == 0 or nb == 0:
+                continue
+            if float(a.change @ b.change) / (na * nb) >= corr_threshold:
+                a.indistinguishable_from.append(b.candidate.key)
+                b.indistinguishable_from.append(a.candidate.key)
+
+
+def run_round(problem: FitProblem, base_spec: dict, cands: list[Candidate], y0_full: np.ndarray,
+              shortlist: int = 6, min_improvement_pct: float = 5.0, round_no: int = 1,
+              progress: Callable[[], None] | None = None) -> list[Hypothesis]:
+    """Screen, fit the shortlist, rank. Returns hypotheses best first."""
+    nt = problem.n_train
+    ranked = screen(problem, base_spec, cands, y0_full[:, :nt], progress)
+    chosen: dict[str, tuple[float, Candidate]] = {}
+    for err, c in ranked[:shortlist]:
+        chosen[c.key] = (err, c)
+    seen_effects = set()
+    for err, c in ranked:
+        if c.effect not in seen_effects and err > 0:
+            seen_effects.add(c.effect)
+            chosen.setdefault(c.key, (err, c))
+    hyps = []
+    for err, c in chosen.values():
+        h = fit_candidate(problem, base_spec, c, y0_full, err)
+        if h is not None:
+            h.round = round_no
+            hyps.append(h)
+    hyps.sort(key=lambda h: h.rank_key(min_improvement_pct))
+    mark_indistinguishable(hyps)
+    return hyps
