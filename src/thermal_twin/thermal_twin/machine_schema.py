@@ -22,7 +22,9 @@ mismatch finder) can add or alter one item with a one-line, diff-able change::
     boundaries:                        # external temperatures (infinite heat reservoirs)
       ambient: {temperature: ambient_degc}    # an input name or a constant in degC
       c_cooling: {temperature: 21.0}
-    initial_state: steady              # steady (steady state for the inputs at t=0) or
+    initial_state: steady              # steady (equilibrium of the idle machine - machine
+                                       # inputs at their defaults except boundary temperatures -
+                                       # with its environment at t=0) or
                                        # {boundary: ambient} (every node at that temperature)
     nodes:                             # lumped bodies: heat capacity C [J/K]
       table: {capacity: 2.0e5}

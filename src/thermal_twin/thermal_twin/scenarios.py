@@ -32,6 +32,7 @@ class Scenario:
     hours: float
     step_s: float
     builders: dict[str, Builder]          # machine name -> builder(t, rng) -> input arrays
+    seed_name: str = ""                   # draw random numbers as this scenario does (paired sets)
 
 
 # ---------------------------------------------------------------- nmv5000 (5-axis, C table)
@@ -80,15 +81,121 @@ def _load_case(mwf: bool, optimised_h: float = 0.0):
     return build
 
 
-def _iso230_3(speed_input: str, speed: float, extra: dict | None = None):
-    """ISO 230-3 style: 4 h at constant speed, then 4 h stopped; steady hall."""
+def _iso230_3(speeds: dict[str, float]):
+    """ISO 230-3 style: 4 h at constant speed of the heat sources, then 4 h stopped; steady hall."""
     def build(t, rng):
-        amb = np.full_like(t, 20.0) + hall_ambient(t, rng, mean=0.0, day_amplitude=0.2, drift_per_day=0.05)
-        out = {speed_input: np.where(t < 4 * H, speed, 0.0), "ambient_degc": amb}
-        for k, v in (extra or {}).items():
-            out[k] = np.full_like(t, v)
+        amb = hall_ambient(t, rng, mean=20.0, day_amplitude=0.2, drift_per_day=0.05)
+        out = {k: np.where(t < 4 * H, v, 0.0) for k, v in speeds.items()}
+        out["ambient_degc"] = amb
         return out
     return build
+
+
+# ---------------------------------------------------------------- swiss-lathe
+S1_LEVELS = np.arange(0.0, 6001.0, 500.0)
+S11_LEVELS = np.arange(0.0, 4001.0, 500.0)
+
+
+def _lathe_ambient(t, rng):
+    """Hall heated by day with thermostat 'teeth', unheated at night (lathe thesis §6.2)."""
+    return hall_ambient(t, rng, mean=21.0, day_amplitude=1.5, drift_per_day=0.5,
+                        heating_teeth=0.8, teeth_period_s=1800.0)
+
+
+def lathe_random_speed(t, rng):
+    """~70 h of random S1/S11 speeds held 0.5-3 h; cutting-oil set-point changes at 30 h
+    and 50 h (oil follows its set-point with a 45 min lag)."""
+    s1 = random_levels(t, rng, S1_LEVELS, (0.5 * H, 3 * H))
+    s11 = random_levels(t, rng, S11_LEVELS, (0.5 * H, 3 * H))
+    setpoint = step_programme(t, [(0.0, 24.0), (30 * H, float(rng.uniform(32, 40))),
+                                  (50 * H, float(rng.uniform(15, 20)))])
+    return {"s1_rpm": s1, "s11_rpm": s11, "oil_on": np.ones_like(t),
+            "oil_temp_degc": first_order(t, setpoint, 0.75 * H), "ambient_degc": _lathe_ambient(t, rng)}
+
+
+def lathe_oil_steps(t, rng):
+    """Random S1/S11 speeds; cutting-oil set-point stepped every 6-12 h within 15-40 degC
+    (the most disruptive event for a data-driven model, lathe thesis §7)."""
+    s1 = random_levels(t, rng, S1_LEVELS, (0.5 * H, 3 * H))
+    s11 = random_levels(t, rng, S11_LEVELS, (0.5 * H, 3 * H))
+    setpoint = random_levels(t, rng, np.arange(15.0, 40.1, 2.5), (6 * H, 12 * H))
+    return {"s1_rpm": s1, "s11_rpm": s11, "oil_on": np.ones_like(t),
+            "oil_temp_degc": first_order(t, setpoint, 0.75 * H, start=float(setpoint[0])),
+            "ambient_degc": _lathe_ambient(t, rng)}
+
+
+def _stops(t, rng, n, first_s, min_gap_s, dur_s):
+    """n stops at random times after first_s, at least min_gap_s apart: (start, end) list."""
+    starts, last = [], first_s
+    end = t[-1] - 0.5 * H
+    for _ in range(n):
+        lo = last + min_gap_s if starts else first_s
+        if lo >= end:
+            break
+        st = float(rng.uniform(lo, min(end, lo + 2 * min_gap_s)))
+        starts.append((st, st + float(rng.uniform(*dur_s))))
+        last = st
+    return starts
+
+
+def lathe_door_openings(t, rng):
+    """8 h at constant S1 4000 / S11 3000 1/min with several stops of 5-30 min during which
+    the door is open and all spindles stand still; oil drifts 24 -> 31 degC (thesis §6.2.2)."""
+    stops = _stops(t, rng, 4, 1.5 * H, 1.2 * H, (5 * 60.0, 30 * 60.0))
+    stopped = np.zeros_like(t)
+    for a, b in stops:
+        stopped[(t >= a) & (t < b)] = 1.0
+    oil = first_order(t, np.full_like(t, 31.5), 3 * H, start=24.0)
+    return {"s1_rpm": np.where(stopped > 0, 0.0, 4000.0), "s11_rpm": np.where(stopped > 0, 0.0, 3000.0),
+            "oil_on": 1.0 - stopped, "oil_temp_degc": oil, "door_open": stopped,
+            "ambient_degc": _lathe_ambient(t, rng)}
+
+
+def lathe_test_piece(t, rng):
+    """The thermal test piece (thesis ch. 7): 8 h of 6 min part cycles at S1 4000 1/min,
+    the driven tools (S11 3000 1/min) running 2 min of each cycle for the hexagon and holes;
+    a ~30 min lunch stop with the door open after 4 h; oil rising 20 -> 27 degC."""
+    cycle = 360.0
+    in_cycle = t % cycle
+    s11 = np.where((in_cycle >= 120.0) & (in_cycle < 240.0), 3000.0, 0.0)
+    lunch_start = 4 * H + float(rng.uniform(-0.25, 0.25)) * H
+    lunch = (t >= lunch_start) & (t < lunch_start + float(rng.uniform(25, 35)) * 60.0)
+    oil = first_order(t, np.full_like(t, 27.5), 4 * H, start=20.0)
+    return {"s1_rpm": np.where(lunch, 0.0, 4000.0), "s11_rpm": np.where(lunch, 0.0, s11),
+            "oil_on": np.where(lunch, 0.0, 1.0), "oil_temp_degc": oil, "door_open": lunch.astype(float),
+            "ambient_degc": _lathe_ambient(t, rng)}
+
+
+# ---------------------------------------------------------------- spindle stand (FL_THERMAL)
+#: The FL_THERMAL spindle programme (start s, 1/min), from shared/data/fl_thermal/README.md.
+FL_THERMAL_PROGRAMME = [(0, 0), (465, 1250), (14865, 0), (29265, 2500), (43665, 0), (58065, 3750),
+                        (72465, 0), (86865, 5000), (101265, 0), (115665, 3500), (130065, 0),
+                        (144465, 500), (151665, 1500), (158865, 2500), (162465, 4500), (166065, 0)]
+FL_THERMAL_DURATION_S = 11115 * 15.0
+
+
+def fl_thermal_programme(t, rng):
+    amb = hall_ambient(t, rng, mean=26.0, day_amplitude=0.6, drift_per_day=0.3)
+    return {"spindle_rpm": step_programme(t, FL_THERMAL_PROGRAMME), "ambient_degc": amb}
+
+
+# ---------------------------------------------------------------- FE three-body (§2.6)
+def _two_source_draw(t, rng):
+    """Random heat-flux patterns for Q1 and Q2: levels 0-100 W held 1-6 h."""
+    levels = np.arange(0.0, 101.0, 20.0)
+    return (random_levels(t, rng, levels, (1 * H, 6 * H)), random_levels(t, rng, levels, (1 * H, 6 * H)))
+
+
+def fe_two_source(t, rng):
+    q1, q2 = _two_source_draw(t, rng)
+    return {"q1_w": q1, "q2_w": q2, "ambient_degc": np.full_like(t, 20.0)}
+
+
+def fe_two_source_swapped(t, rng):
+    """The validation set of §2.6: the same draw as fe-two-source (same seed) with Q1 and
+    Q2 switched and scaled (x1.3 and x0.7)."""
+    q1, q2 = _two_source_draw(t, rng)
+    return {"q1_w": 1.3 * q2, "q2_w": 0.7 * q1, "ambient_degc": np.full_like(t, 20.0)}
 
 
 # ---------------------------------------------------------------- registry
@@ -115,8 +222,39 @@ _register(Scenario("load-case-C", "104 h: first 32 h the 'optimised' pattern (0-
 _register(Scenario("load-case-D", "144 h random C-axis speeds with MWF on/off (spec §4.7)", 144.0, 60.0,
                    {"nmv5000": _load_case(True)}))
 
+_register(Scenario("iso230-3", "ISO 230-3 style warm-up and cool-down: 4 h at a constant high speed of the "
+                   "main heat source, then 4 h stopped, steady hall", 8.0, 30.0,
+                   {"nmv5000": _iso230_3({"c_speed_rpm": 1200.0}),
+                    "swiss_lathe": _iso230_3({"s1_rpm": 6000.0, "s11_rpm": 3000.0}),
+                    "spindle_stand": _iso230_3({"spindle_rpm": 5000.0})}))
+_register(Scenario("lathe-random-speed", "~70 h random S1 (0-6000) and S11 (0-4000 1/min) speeds, "
+                   "cutting-oil set-point changes at 30 h and 50 h, day/night hall with heating teeth "
+                   "(lathe thesis §6.2.1)", 70.0, 30.0, {"swiss_lathe": lathe_random_speed}))
+_register(Scenario("lathe-door-openings", "8 h constant S1/S11 with stops and door openings; "
+                   "driven tools cool by up to 20 degC within minutes (lathe thesis §6.2.2)", 8.0, 30.0,
+                   {"swiss_lathe": lathe_door_openings}))
+_register(Scenario("lathe-oil-steps", "random S1/S11 speeds with cutting-oil set-point steps within "
+                   "15-40 degC every 6-12 h", 48.0, 30.0, {"swiss_lathe": lathe_oil_steps}))
+_register(Scenario("lathe-test-piece", "thermal test piece run: 8 h of 6 min part cycles, S1 4000 and "
+                   "driven tools 3000 1/min, lunch stop with the door open (lathe thesis ch. 7)", 8.0, 30.0,
+                   {"swiss_lathe": lathe_test_piece}))
+_register(Scenario("fl-thermal-programme", "the FL_THERMAL spindle programme (4 h run / 4 h rest blocks at "
+                   "1250-5000 1/min, then mixed steps), 15 s steps, 46.3 h", FL_THERMAL_DURATION_S / H - 15.0 / H,
+                   15.0, {"spindle_stand": fl_thermal_programme}))
+_register(Scenario("fe-two-source", "48 h random heat fluxes Q1 (base front) and Q2 (spindle top), "
+                   "5 min steps (TALC thesis §4.2 FE study, training set)", 48.0, 300.0,
+                   {"fe_three_body": fe_two_source}))
+_register(Scenario("fe-two-source-swapped", "validation set of fe-two-source: the same loads switched "
+                   "between Q1 and Q2 and scaled", 48.0, 300.0, {"fe_three_body": fe_two_source_swapped},
+                   seed_name="fe-two-source"))
+
+
+def _key(machine: str) -> str:
+    return machine.replace("-", "_")
+
+
 def scenario_names(machine: str | None = None) -> list[str]:
-    return sorted(n for n, s in SCENARIOS.items() if machine is None or machine in s.builders)
+    return sorted(n for n, s in SCENARIOS.items() if machine is None or _key(machine) in s.builders)
 
 
 def make_timeline(machine: str, scenario: str, hours: float | None = None, seed: int = 0,
@@ -125,9 +263,9 @@ def make_timeline(machine: str, scenario: str, hours: float | None = None, seed:
     if scenario not in SCENARIOS:
         raise ScenarioError(f"scenario {scenario!r} is unknown (scenarios: {', '.join(scenario_names())})")
     s = SCENARIOS[scenario]
-    if machine not in s.builders:
+    if _key(machine) not in s.builders:
         raise ScenarioError(f"scenario {scenario!r} does not fit machine {machine!r} "
-                            f"(it runs on: {', '.join(s.builders)}; scenarios for {machine}: "
+                            f"(it runs on: {', '.join(b.replace('_', '-') for b in s.builders)}; scenarios for {machine}: "
                             f"{', '.join(scenario_names(machine)) or 'none'})")
     hours = s.hours if hours is None else float(hours)
     step = s.step_s if step_s is None else float(step_s)
@@ -137,8 +275,8 @@ def make_timeline(machine: str, scenario: str, hours: float | None = None, seed:
         raise ScenarioError(f"step_s: {step!r} must be > 0")
     t = np.arange(0.0, hours * H + 0.5 * step, step)
     # the scenario name is part of the seed: load-case-A and -B are different draws
-    rng = np.random.default_rng([int(seed), _stable_hash(scenario)])
-    values = s.builders[machine](t, rng)
+    rng = np.random.default_rng([int(seed), _stable_hash(s.seed_name or scenario)])
+    values = s.builders[_key(machine)](t, rng)
     return InputsTimeline(t, values, name=scenario)
 
 

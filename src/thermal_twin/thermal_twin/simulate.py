@@ -23,11 +23,23 @@ def _as_machine(machine: Machine | str | Mapping) -> Machine:
     return machine if isinstance(machine, Machine) else load_machine(machine)
 
 
+def idle_inputs(machine: Machine, inputs: Mapping[str, float]) -> dict[str, float]:
+    """The inputs of an idle machine in its environment at this instant: environment inputs
+    and boundary temperatures (coolant supply, oil) as given, every other machine input
+    (speeds, powers, switches) at its default."""
+    keep = {n for n, s in machine.inputs.items() if s.kind == "environment"}
+    keep |= {b.temperature for b in machine.boundaries.values() if isinstance(b.temperature, str)}
+    return {n: (float(inputs[n]) if n in keep and n in inputs else s.default)
+            for n, s in machine.inputs.items()}
+
+
 def initial_temperatures(net: ThermalNetwork, inputs: Mapping[str, float]) -> np.ndarray:
-    """Node temperatures at t = 0 as the machine's ``initial_state`` says."""
+    """Node temperatures at t = 0 as the machine's ``initial_state`` says: ``steady`` is
+    the equilibrium of the idle machine with its environment at t = 0 (:func:`idle_inputs`),
+    i.e. a machine that has stood still long enough, as at the start of a test."""
     init = net.machine.initial_state
     if init == "steady":
-        return net.steady_state(inputs, 0.0)
+        return net.steady_state(idle_inputs(net.machine, inputs), 0.0)
     tb = net.boundary_temperatures(inputs)
     return np.full(net.n, tb[net.boundary_names.index(init["boundary"])])
 
