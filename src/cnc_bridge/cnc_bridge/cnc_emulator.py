@@ -50,7 +50,6 @@ import math
 import signal
 import socket
 import sys
-import threading
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
 
@@ -58,6 +57,8 @@ import numpy as np
 from asyncua import Server, ua
 from asyncua.common.callback import CallbackType
 from asyncua.crypto.permission_rules import User, UserRole
+
+from .loop_thread import LoopThread
 
 NAMESPACE_URI = "urn:thermal-comp:cnc-emulator"
 ENDPOINT_PATH = "/thermal-comp/cnc"
@@ -337,15 +338,12 @@ class CncEmulatorThread:
         self.config = config
         self._probe_move = probe_move
         self._on_comp = on_compensation
-        self._loop = asyncio.new_event_loop()
-        self._thread = threading.Thread(target=self._loop.run_forever, name="cnc-emulator",
-                                        daemon=True)
-        self._thread.start()
+        self._io = LoopThread("cnc-emulator")
         self.emulator: CncEmulator | None = None
         self.write_log: list[tuple[str, float]] = []   # accumulated over restarts
 
     def _run(self, coro, timeout: float = 20.0):
-        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(timeout)
+        return self._io.run(coro, timeout)
 
     def start(self, state: EmulatorState | None = None) -> "CncEmulatorThread":
         self.emulator = CncEmulator(self.config, self._probe_move, self._on_comp, state)
@@ -364,8 +362,7 @@ class CncEmulatorThread:
 
     def close(self) -> None:
         self.stop()
-        self._loop.call_soon_threadsafe(self._loop.stop)
-        self._thread.join(5.0)
+        self._io.stop()
 
     def applied_um(self) -> dict[str, float]:
         return self._run(_call(self.emulator.applied_um))

@@ -1,0 +1,45 @@
+"""The one interface through which offsets reach a machine, and the `twin` backend.
+
+A backend writes the envelope's offsets (axis -> um) and answers, per axis, what the
+machine confirmed holding (read back), or ``None`` when the write was not confirmed. The
+node never talks to a machine any other way.
+
+* ``twin`` (:class:`TwinBackend`): no protocol. The simulated machine (the ``machine_sim``
+  node) applies ``applied_offsets_um`` from the ``offsets`` topic that the bridge publishes,
+  so publishing *is* the write and the read-back is the value itself.
+* ``opcua`` (:class:`cnc_bridge.opcua_backend.OpcUaBackend`): an asyncua client against a
+  real (or emulated) CNC.
+"""
+from __future__ import annotations
+
+from typing import Mapping, Protocol
+
+
+class CncBackend(Protocol):
+    """What the cnc_bridge node needs from a machine connection."""
+
+    name: str
+
+    def write_offsets(self, offsets_um: Mapping[str, float]) -> dict[str, float | None]:
+        """Write every axis' offset [um]; return axis -> read-back [um] or None (not confirmed)."""
+
+    def axis_positions(self) -> dict[str, float]:
+        """Axis positions the machine itself reports (mm / deg); empty if it reports none."""
+
+    def close(self) -> None:
+        """Release the connection."""
+
+
+class TwinBackend:
+    """Closes the loop into machine_sim through the ``offsets`` topic (nothing to connect)."""
+
+    name = "twin"
+
+    def write_offsets(self, offsets_um: Mapping[str, float]) -> dict[str, float | None]:
+        return {axis: float(v) for axis, v in offsets_um.items()}
+
+    def axis_positions(self) -> dict[str, float]:
+        return {}
+
+    def close(self) -> None:
+        pass

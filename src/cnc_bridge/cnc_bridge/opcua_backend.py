@@ -1,0 +1,354 @@
+"""OPC UA backend: an asyncua client that writes compensation offsets to a CNC.
+
+* **Node ids** are configurable per axis (:class:`AxisNodes`, loaded from a YAML node-id
+  map with :func:`load_node_map`); the default (:func:`default_node_map`) is modelled on
+  SINUMERIK's temperature compensation and matches :mod:`cnc_bridge.cnc_emulator`:
+  SD43900 offset [mm], SD43910 slope, SD43920 reference position [mm], MD32750 enable.
+  The bridge computes position-dependent terms itself (eq. 6.3-6.5 at the current
+  position), so on every (re)connection it writes slope 0, reference position 0 and enable
+  1 once; every update then writes only the offsets.
+* **Read-back**: every write is followed by a read of the same nodes; an axis counts as
+  applied only if the value read equals the value written. The backend returns the
+  read-back in um, or None for an axis whose write was not confirmed.
+* **Reconnect**: a supervisor task checks the session, and on any failure disconnects,
+  waits with exponential back-off, reconnects, re-creates the subscription on the axis
+  positions and re-applies the last confirmed offsets (a CNC that restarted with its
+  compensation reset gets back what it held). Writes asked for while disconnected fail
+  at once (they are never queued and replayed later, so none is applied twice or late).
+* **Security**: user name/password and Basic256Sha256 Sign&Encrypt with certificates;
+  ``security_required`` refuses to connect without it.
+* The asyncio client runs in a dedicated thread with its own event loop; the public
+  methods are synchronous, with deadlines, so a ROS node stays single-threaded.
+"""
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import logging
+import math
+import pathlib
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Mapping
+
+from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+from .loop_thread import LoopThread
+
+log = logging.getLogger("cnc_bridge.opcua")
+
+
+class OpcUaConfigError(ValueError):
+    """The OPC UA backend's settings are inconsistent (the message names the setting)."""
+
+
+@dataclass(frozen=True)
+class AxisNodes:
+    """Node ids of one axis (``None`` = the CNC has no such node)."""
+
+    offset: str
+    slope: str | None = None
+    ref_position: str | None = None
+    enable: str | None = None
+    position: str | None = None
+
+
+def default_node_map(axes=("X", "Y", "Z"), position_axes=("X", "Y", "Z", "B", "C"),
+                     ns: int = 2) -> dict[str, AxisNodes]:
+    """SINUMERIK-like default layout (that of the CNC emulator)."""
+    out = {}
+    for a in axes:
+        comp = f"ns={ns};s=TempComp.{a}."
+        out[a] = AxisNodes(offset=comp + "SD43900", slope=comp + "SD43910",
+                           ref_position=comp + "SD43920", enable=comp + "MD32750",
+                           position=f"ns={ns};s=Axis.{a}.Position" if a in position_axes else None)
+    for a in position_axes:
+        if a not in out:          # rotary axes: read positions only (B for eq. 6.3-6.5)
+            out[a] = AxisNodes(offset="", position=f"ns={ns};s=Axis.{a}.Position")
+    return out
+
+
+def load_node_map(path: str | pathlib.Path) -> tuple[dict[str, AxisNodes], float]:
+    """Read a node-id map YAML; returns (axis -> nodes, node units per um).
+
+    Format::
+
+        offset_units_per_um: 0.001      # SD43900 holds mm
+        axes:
+          X: {offset: "ns=2;s=TempComp.X.SD43900", slope: "...", ref_position: "...",
+              enable: "...", position: "ns=2;s=Axis.X.Position"}
+          B: {position: "ns=2;s=Axis.B.Position"}
+    """
+    import yaml
+    p = pathlib.Path(path)
+    try:
+        spec = yaml.safe_load(p.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise OpcUaConfigError(f"node map '{p}': {exc}") from exc
+    if not isinstance(spec, dict) or not isinstance(spec.get("axes"), dict) or not spec["axes"]:
+        raise OpcUaConfigError(f"node map '{p}': needs a non-empty mapping 'axes'")
+    scale = spec.get("offset_units_per_um", 0.001)
+    if not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+        raise OpcUaConfigError(f"node map '{p}': 'offset_units_per_um' must be > 0, got {scale!r}")
+    out = {}
+    for axis, nodes in spec["axes"].items():
+        if not isinstance(nodes, dict):
+            raise OpcUaConfigError(f"node map '{p}': axes.{axis} must be a mapping, got {nodes!r}")
+        unknown = set(nodes) - {"offset", "slope", "ref_position", "enable", "position"}
+        if unknown:
+            raise OpcUaConfigError(f"node map '{p}': axes.{axis}: unknown key(s) {sorted(unknown)}")
+        for k, v in nodes.items():
+            try:
+                ua.NodeId.from_string(v)
+            except Exception:
+                raise OpcUaConfigError(f"node map '{p}': axes.{axis}.{k}: bad node id {v!r}") from None
+        out[str(axis)] = AxisNodes(offset=nodes.get("offset", ""), slope=nodes.get("slope"),
+                                   ref_position=nodes.get("ref_position"),
+                                   enable=nodes.get("enable"), position=nodes.get("position"))
+    return out, float(scale)
+
+
+@dataclass(frozen=True)
+class OpcUaConfig:
+    endpoint: str
+    node_map: Mapping[str, AxisNodes] = field(default_factory=default_node_map)
+    offset_units_per_um: float = 0.001        # SD43900 is in mm
+    user: str | None = None
+    password: str | None = None
+    certificate: str | None = None            # client certificate (DER/PEM)
+    private_key: str | None = None            # its private key (PEM)
+    server_certificate: str | None = None     # pin the server's certificate (optional)
+    security_required: bool = False
+    application_uri: str = "urn:thermal-comp:cnc-bridge"
+    timeout_s: float = 2.0                    # per request
+    check_period_s: float = 0.5               # session health check
+    reconnect_min_s: float = 0.1
+    reconnect_max_s: float = 5.0
+    readback_tolerance: float = 1e-9          # in node units
+
+    def __post_init__(self):
+        if not self.endpoint.startswith("opc.tcp://"):
+            raise OpcUaConfigError(f"endpoint: must start with opc.tcp://, got {self.endpoint!r}")
+        if bool(self.certificate) != bool(self.private_key):
+            raise OpcUaConfigError("certificate and private_key must be given together")
+        if self.security_required and not self.certificate:
+            raise OpcUaConfigError(
+                "security_required: a client certificate and private key are needed for "
+                "Basic256Sha256 Sign&Encrypt; refusing an insecure connection")
+        if (self.user is None) != (self.password is None):
+            raise OpcUaConfigError("user and password must be given together")
+        for name in ("timeout_s", "check_period_s", "reconnect_min_s", "reconnect_max_s",
+                     "offset_units_per_um"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise OpcUaConfigError(f"{name}: must be > 0, got {v!r}")
+
+
+class _PositionHandler:
+    def __init__(self, backend: "OpcUaBackend", by_node: dict[str, str]):
+        self._backend, self._by_node = backend, by_node
+
+    def datachange_notification(self, node, val, data):
+        axis = self._by_node.get(node.nodeid.to_string())
+        if axis is not None and isinstance(val, (int, float)):
+            self._backend._positions[axis] = float(val)
+
+    def status_change_notification(self, status):
+        # the server changed our subscription's status (closed, timed out): start over
+        log.warning("subscription status changed: %s", status)
+        self._backend._mark_lost()   # called on the client's own loop
+
+
+class OpcUaBackend:
+    """CncBackend over OPC UA; see the module docstring."""
+
+    name = "opcua"
+
+    def __init__(self, config: OpcUaConfig):
+        self.config = config
+        self._offset_axes = [a for a, n in config.node_map.items() if n.offset]
+        self._positions: dict[str, float] = {}
+        self._confirmed_um: dict[str, float] = {}
+        self.connections = 0                  # successful (re)connections so far
+        self.last_error: str = ""
+        self._client: Client | None = None
+        self._connected = threading.Event()
+        self._lost: asyncio.Event | None = None
+        self._lock: asyncio.Lock | None = None
+        self._closing = False
+        self._io = LoopThread("opcua-client")
+        self._loop = self._io.loop
+        self._supervisor = self._io.submit(self._supervise())
+
+    # ------------------------------------------------------------------ public, sync
+    @property
+    def connected(self) -> bool:
+        return self._connected.is_set()
+
+    def wait_connected(self, timeout_s: float) -> bool:
+        return self._connected.wait(timeout_s)
+
+    def axis_positions(self) -> dict[str, float]:
+        return dict(self._positions)
+
+    def write_offsets(self, offsets_um: Mapping[str, float]) -> dict[str, float | None]:
+        unknown = set(offsets_um) - set(self._offset_axes)
+        if unknown:
+            raise OpcUaConfigError(
+                f"no offset node for axis {sorted(unknown)} in the node map (have {self._offset_axes})")
+        if not self._connected.is_set():
+            return {a: None for a in offsets_um}
+        try:
+            return self._io.run(self._write(dict(offsets_um)), self.config.timeout_s * 2 + 1.0)
+        except concurrent.futures.TimeoutError:
+            self.last_error = "write timed out"
+            return {a: None for a in offsets_um}
+
+    def close(self) -> None:
+        if self._closing:
+            return
+        self._closing = True
+        self._supervisor.cancel()
+        try:
+            self._io.run(self._disconnect(), 5.0)
+        except Exception:
+            pass   # closing anyway
+        self._io.stop()
+
+    # ------------------------------------------------------------------ async internals
+    async def _connect(self) -> Client:
+        cfg = self.config
+        client = Client(cfg.endpoint, timeout=cfg.timeout_s)
+        client.application_uri = cfg.application_uri
+        if cfg.user is not None:
+            client.set_user(cfg.user)
+            client.set_password(cfg.password)
+        if cfg.certificate:
+            await client.set_security(SecurityPolicyBasic256Sha256, certificate=cfg.certificate,
+                                      private_key=cfg.private_key,
+                                      server_certificate=cfg.server_certificate,
+                                      mode=ua.MessageSecurityMode.SignAndEncrypt)
+        await client.connect()
+        try:
+            if cfg.security_required and client.security_policy.Mode != \
+                    ua.MessageSecurityMode.SignAndEncrypt:
+                raise OpcUaConfigError("security_required but the channel is not Sign&Encrypt")
+            await self._subscribe_positions(client)
+            await self._reapply(client)
+        except BaseException:
+            await client.disconnect()
+            raise
+        return client
+
+    async def _subscribe_positions(self, client: Client) -> None:
+        by_node = {n.position: a for a, n in self.config.node_map.items() if n.position}
+        if not by_node:
+            return
+        sub = await client.create_subscription(100, _PositionHandler(self, by_node))
+        await sub.subscribe_data_change([client.get_node(n) for n in by_node])
+
+    async def _reapply(self, client: Client) -> None:
+        """After a (re)connection: slope 0, reference 0, enable 1, last confirmed offsets."""
+        nodes, values = [], []
+        scale = self.config.offset_units_per_um
+        for a in self._offset_axes:
+            n = self.config.node_map[a]
+            for nid, v, vt in ((n.slope, 0.0, ua.VariantType.Double),
+                               (n.ref_position, 0.0, ua.VariantType.Double),
+                               (n.offset, self._confirmed_um.get(a, 0.0) * scale, ua.VariantType.Double),
+                               (n.enable, 1, ua.VariantType.Int32)):
+                if nid:
+                    nodes.append(client.get_node(nid))
+                    values.append(ua.DataValue(ua.Variant(v, vt)))
+        await client.write_values(nodes, values)
+        back = await client.read_values(nodes)
+        for node, want, got in zip(nodes, values, back):
+            if not _equal(want.Value.Value, got, self.config.readback_tolerance):
+                raise ConnectionError(f"re-apply of {node.nodeid.to_string()} not confirmed: "
+                                      f"wrote {want.Value.Value!r}, read {got!r}")
+
+    async def _write(self, offsets_um: dict[str, float]) -> dict[str, float | None]:
+        scale = self.config.offset_units_per_um
+        async with self._lock:
+            client = self._client
+            if client is None or not self._connected.is_set():
+                return {a: None for a in offsets_um}
+            axes = list(offsets_um)
+            nodes = [client.get_node(self.config.node_map[a].offset) for a in axes]
+            values = [float(offsets_um[a]) * scale for a in axes]
+            try:
+                await asyncio.wait_for(client.write_values(
+                    nodes, [ua.DataValue(ua.Variant(v, ua.VariantType.Double)) for v in values]),
+                    self.config.timeout_s)
+                back = await asyncio.wait_for(client.read_values(nodes), self.config.timeout_s)
+            except (Exception, asyncio.TimeoutError) as exc:
+                self.last_error = f"write failed: {exc!r}"
+                log.warning("%s", self.last_error)
+                self._mark_lost()
+                return {a: None for a in axes}
+            out: dict[str, float | None] = {}
+            for a, want, got in zip(axes, values, back):
+                if _equal(want, got, self.config.readback_tolerance):
+                    out[a] = float(got) / scale
+                    self._confirmed_um[a] = out[a]
+                else:
+                    self.last_error = f"read-back of axis {a}: wrote {want!r}, read {got!r}"
+                    out[a] = None
+            return out
+
+    def _mark_lost(self) -> None:
+        self._connected.clear()
+        if self._lost is not None:
+            self._lost.set()
+
+    async def _disconnect(self) -> None:
+        self._connected.clear()
+        client, self._client = self._client, None
+        if client is not None:
+            try:
+                await asyncio.wait_for(client.disconnect(), self.config.timeout_s)
+            except (Exception, asyncio.TimeoutError):
+                pass   # the server is gone already; the socket is closed either way
+
+    async def _supervise(self) -> None:
+        cfg = self.config
+        self._lock = asyncio.Lock()
+        self._lost = asyncio.Event()
+        backoff = cfg.reconnect_min_s
+        while True:
+            try:
+                async with self._lock:
+                    self._client = await asyncio.wait_for(self._connect(), cfg.timeout_s * 3)
+                    self._lost.clear()
+                    self.connections += 1
+                    self._connected.set()
+                log.info("connected to %s (connection %d)", cfg.endpoint, self.connections)
+                backoff = cfg.reconnect_min_s
+                while not self._lost.is_set():
+                    try:
+                        await asyncio.wait_for(self._lost.wait(), cfg.check_period_s)
+                    except asyncio.TimeoutError:
+                        async with self._lock:
+                            await asyncio.wait_for(
+                                self._client.nodes.server_state.read_value(), cfg.timeout_s)
+            except asyncio.CancelledError:
+                raise
+            except OpcUaConfigError as exc:
+                self.last_error = str(exc)
+            except (Exception, asyncio.TimeoutError) as exc:
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                log.warning("OPC UA connection to %s: %s; retrying in %.1f s",
+                            cfg.endpoint, self.last_error, backoff)
+            self._connected.clear()
+            await self._disconnect()
+            await asyncio.sleep(backoff)
+            backoff = min(backoff * 2.0, cfg.reconnect_max_s)
+
+
+def _equal(want, got, tol: float) -> bool:
+    try:
+        return abs(float(want) - float(got)) <= tol
+    except (TypeError, ValueError):
+        return False

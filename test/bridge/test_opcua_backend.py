@@ -1,0 +1,195 @@
+"""The OPC UA backend against the asyncua CNC emulator: read-back, restart, credentials, security."""
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+import pytest
+
+from bridge_certs import make_certificate
+from cnc_bridge.cnc_emulator import (ENDPOINT_PATH, PROBE_METHOD_ID, PROBE_OBJECT_ID,
+                                     CncEmulatorThread, EmulatorConfig, artefact_probe,
+                                     compensation_node_id, free_tcp_port)
+from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, OpcUaConfigError, load_node_map
+
+logging.getLogger("asyncua").setLevel(logging.ERROR)
+
+
+def wait_for(condition, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        time.sleep(0.01)
+
+
+@pytest.fixture
+def port():
+    return free_tcp_port()
+
+
+def endpoint(port):
+    return f"opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}"
+
+
+@pytest.fixture
+def emulator(port):
+    emu = CncEmulatorThread(EmulatorConfig(port=port)).start()
+    yield emu
+    emu.close()
+
+
+def backend(port, **kw) -> OpcUaBackend:
+    kw.setdefault("reconnect_max_s", 0.3)
+    return OpcUaBackend(OpcUaConfig(endpoint=endpoint(port), **kw))
+
+
+def offset_writes(emu, axis):
+    nid = compensation_node_id(axis, "SD43900")
+    return [v for n, v in emu.write_log if n == nid]
+
+
+def test_writes_are_read_back_and_the_cnc_applies_them(emulator, port):
+    be = backend(port)
+    try:
+        assert be.wait_connected(10), be.last_error
+        back = be.write_offsets({"X": 1.5, "Y": -2.0, "Z": 12.25})
+        assert back == pytest.approx({"X": 1.5, "Y": -2.0, "Z": 12.25})
+        assert emulator.applied_um() == pytest.approx({"X": 1.5, "Y": -2.0, "Z": 12.25})
+        emulator.set_position("Z", -250.0)           # positions arrive by subscription
+        wait_for(lambda: be.axis_positions().get("Z") == -250.0, 5, "Z position")
+        with pytest.raises(OpcUaConfigError, match="B"):
+            be.write_offsets({"B": 1.0})              # B has no offset node: a clear error
+    finally:
+        be.close()
+
+
+def test_server_restart_mid_run_loses_no_write_and_duplicates_none(emulator, port):
+    be = backend(port)
+    try:
+        assert be.wait_connected(10), be.last_error
+        confirmed = []
+        for k in range(1, 6):
+            v = be.write_offsets({"X": 0.5 * k})["X"]
+            assert v == pytest.approx(0.5 * k)
+            confirmed.append(v)
+        emulator.stop()                               # the CNC goes away ...
+        assert be.write_offsets({"X": 99.0}) == {"X": None}   # ... a write now fails, visibly
+        emulator.start()                              # ... and comes back with its compensation reset
+        wait_for(lambda: be.connected and be.connections == 2, 15, "reconnection")
+        assert emulator.applied_um()["X"] == pytest.approx(confirmed[-1])   # re-applied
+        emulator.set_position("Y", 42.0)                                    # re-subscribed
+        wait_for(lambda: be.axis_positions().get("Y") == 42.0, 5, "Y position after restart")
+        for k in range(6, 9):
+            assert be.write_offsets({"X": 0.5 * k})["X"] == pytest.approx(0.5 * k)
+            confirmed.append(0.5 * k)
+        # the CNC saw: initial state, each confirmed write once, the re-apply, the rest; never 99
+        seen = [v * 1000.0 for v in offset_writes(emulator, "X")]
+        assert seen == pytest.approx([0.0] + confirmed[:5] + [confirmed[4]] + confirmed[5:])
+        assert emulator.applied_um()["X"] == pytest.approx(4.0)
+    finally:
+        be.close()
+
+
+def test_wrong_credentials_are_rejected(port):
+    emu = CncEmulatorThread(EmulatorConfig(port=port, user="cnc", password="s3cret")).start()
+    try:
+        bad = backend(port, user="cnc", password="wrong")
+        try:
+            wait_for(lambda: bad.last_error, 10, "the refusal")
+            assert not bad.connected
+            assert "Denied" in bad.last_error or "Identity" in bad.last_error, bad.last_error
+            assert bad.write_offsets({"X": 1.0}) == {"X": None}
+        finally:
+            bad.close()
+        anonymous = backend(port)
+        try:
+            wait_for(lambda: anonymous.last_error, 10, "the refusal")
+            assert not anonymous.connected
+        finally:
+            anonymous.close()
+        good = backend(port, user="cnc", password="s3cret")
+        try:
+            assert good.wait_connected(10), good.last_error
+            assert good.write_offsets({"X": 1.0}) == {"X": pytest.approx(1.0)}
+        finally:
+            good.close()
+        assert offset_writes(emu, "X")[-1] == pytest.approx(0.001)
+    finally:
+        emu.close()
+
+
+def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
+    server_cert, server_key = make_certificate(tmp_path, "cnc", "urn:thermal-comp:cnc-emulator:server",
+                                               server=True)
+    client_cert, client_key = make_certificate(tmp_path, "bridge", "urn:thermal-comp:cnc-bridge",
+                                               server=False)
+    emu = CncEmulatorThread(EmulatorConfig(port=port, certificate=server_cert, private_key=server_key,
+                                           security="required", user="cnc", password="pw")).start()
+    try:
+        plain = backend(port, user="cnc", password="pw")
+        try:
+            wait_for(lambda: plain.last_error, 10, "the refusal")
+            assert not plain.connected
+        finally:
+            plain.close()
+        assert offset_writes(emu, "X") == []          # nothing reached the CNC unencrypted
+        with pytest.raises(OpcUaConfigError, match="refusing an insecure connection"):
+            OpcUaConfig(endpoint=endpoint(port), security_required=True)
+        secure = backend(port, user="cnc", password="pw", certificate=client_cert,
+                         private_key=client_key, security_required=True)
+        try:
+            assert secure.wait_connected(15), secure.last_error
+            assert secure.write_offsets({"Z": -3.0}) == {"Z": pytest.approx(-3.0)}
+        finally:
+            secure.close()
+        assert emu.applied_um()["Z"] == pytest.approx(-3.0)
+    finally:
+        emu.close()
+
+
+def test_probe_move_answers_through_opcua_with_the_applied_compensation(port):
+    """The probing interface other nodes use: a real method call, answered by the twin geometry."""
+    import asyncio
+
+    from asyncua import Client, ua
+    from thermal_twin.artefact_geometry import nominal_sphere_centre
+
+    emu = CncEmulatorThread(EmulatorConfig(port=port),
+                            probe_move=artefact_probe(lambda: {"E_Z0T": 10.0})).start()
+    be = backend(port)
+
+    async def probe_top():
+        centre = nominal_sphere_centre(0.0)
+        async with Client(endpoint(port)) as c:
+            return await c.get_node(PROBE_OBJECT_ID).call_method(
+                ua.NodeId.from_string(PROBE_METHOD_ID), ua.Variant(0, ua.VariantType.UInt32),
+                0.0, 0.0, [float(centre[0]), float(centre[1]), float(centre[2]) + 50.0],
+                [0.0, 0.0, -1.0], 100.0)
+    try:
+        hit_uncompensated = asyncio.run(probe_top())
+        assert be.wait_connected(10), be.last_error
+        assert be.write_offsets({"Z": 4.0}) == {"Z": pytest.approx(4.0)}
+        hit_compensated = asyncio.run(probe_top())
+        assert hit_uncompensated[0] and hit_compensated[0]
+        # the probe sees true error minus applied compensation: 10 um -> 6 um (1 um resolution)
+        dz_um = (hit_uncompensated[1][2] - hit_compensated[1][2]) * 1000.0
+        assert dz_um == pytest.approx(4.0, abs=1.0)
+    finally:
+        be.close()
+        emu.close()
+
+
+def test_node_map_file_is_validated(tmp_path):
+    good = tmp_path / "map.yaml"
+    good.write_text("offset_units_per_um: 0.0001\naxes:\n  X: {offset: 'ns=2;s=P.X', enable: 'ns=2;s=P.E'}\n")
+    nodes, scale = load_node_map(good)
+    assert scale == 0.0001 and nodes["X"].offset == "ns=2;s=P.X" and nodes["X"].slope is None
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("axes:\n  X: {ofset: 'ns=2;s=P.X'}\n")
+    with pytest.raises(OpcUaConfigError, match=r"axes\.X.*ofset"):
+        load_node_map(bad)
+    bad.write_text("axes:\n  X: {offset: 'ns=2;q=P.X'}\n")
+    with pytest.raises(OpcUaConfigError, match=r"axes\.X\.offset"):
+        load_node_map(bad)
