@@ -56,3 +56,23 @@ def test_twin_missing_or_failed_sensors_are_failed_and_extra_ones_ignored():
     assert f.temperatures_degc[0] == 20.1 and np.isnan(f.temperatures_degc[1:]).all()
     with pytest.raises(ValueError, match="2 ids, 1 values"):
         src.accept(11.0, ["a", "b"], [1.0])
+
+
+def test_shipped_spindle_stand_config_raises_no_false_flag_on_the_real_recording(shared_dir):
+    """46 h of real FL_THERMAL data: healthy sensors, so every sample must be OK."""
+    from thermal_sensors.sensor_config import load_sensor_config, resolve_sensor_config
+    config = load_sensor_config(resolve_sensor_config("spindle_stand"))
+    src = ReplaySource.from_csv(shared_dir / "data/fl_thermal/fl_thermal.csv", config)
+    b = TemperatureFrameBuilder(config)
+    status = np.array([b.build(src.sample(float(tk))).status for tk in src.time_s])
+    assert status.shape == (11115, 16) and (status == SensorStatus.OK).all()
+
+
+def test_shipped_configs_resolve_by_name_and_unknown_names_list_them():
+    from thermal_sensors.sensor_config import load_sensor_config, resolve_sensor_config, shipped_configs
+    assert {"nmv5000", "swiss_lathe", "spindle_stand", "rtd_modules_example"} <= set(shipped_configs())
+    for name in shipped_configs():
+        assert load_sensor_config(resolve_sensor_config(name)).sensors
+    assert load_sensor_config(resolve_sensor_config("swiss-lathe")).sensor_ids[0] == "ambient"
+    with pytest.raises(SensorConfigError, match=r"'nmv9000'.*shipped: \["):
+        resolve_sensor_config("nmv9000")

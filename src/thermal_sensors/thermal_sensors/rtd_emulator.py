@@ -31,7 +31,8 @@ from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from thermal_sensors.modbus_register_map import encode_temperature
-from thermal_sensors.sensor_config import ModbusModule, SensorConfig, load_sensor_config, require_modbus
+from thermal_sensors.sensor_config import (ModbusModule, SensorConfig, load_sensor_config,
+                                           require_modbus, resolve_sensor_config)
 
 _FC_KIND = {3: "holding", 4: "input"}
 
@@ -208,7 +209,9 @@ def main(argv: list[str] | None = None) -> int:
         prog="thermal-comp rtd-emulator",
         description="Serve the Modbus RTD modules of a sensor YAML (register map, unit ids, "
                     "ports) with temperatures from a recording CSV, for bench setups and tests.")
-    p.add_argument("--config", required=True, help="sensor YAML with sensors[].modbus and modbus.modules")
+    p.add_argument("--config", required=True,
+                   help="sensor YAML with sensors[].modbus and modbus.modules, or a shipped one by name "
+                        "(rtd_modules_example)")
     p.add_argument("--csv", required=True, help="recording CSV (shared format); column = channel + '_c'")
     p.add_argument("--speed", type=float, default=1.0,
                    help="playback speed: recording seconds per wall second (default 1)")
@@ -222,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     from thermal_sensors.sensor_config import SensorConfigError
     from thermal_twin.recording_csv import RecordingError, read_recording_csv
     try:
-        config = load_sensor_config(args.config)
+        config = load_sensor_config(resolve_sensor_config(args.config))
         require_modbus(config)
         recording = read_recording_csv(args.csv)
     except (SensorConfigError, RecordingError) as exc:
@@ -240,6 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         where = m.serial_port if m.transport == "rtu" else f"{m.host}:{m.port}"
         print(f"rtd-emulator: module {m.name} ({m.transport}, unit {m.unit_id}) on {where}", flush=True)
     stop = threading.Event()
+    import signal
+    signal.signal(signal.SIGTERM, lambda signum, frame: stop.set())  # polite stop: close endpoints
     from tqdm import tqdm
     bar = tqdm(total=len(recording), unit="row", desc="serving", disable=not sys.stderr.isatty())
 
@@ -250,7 +255,7 @@ def main(argv: list[str] | None = None) -> int:
         served = play_recording(emu, recording, args.speed, args.loop, stop, progress)
         bar.close()
         print(f"rtd-emulator: served {served} rows", flush=True)
-        if args.hold:
+        if args.hold and not stop.is_set():
             print("rtd-emulator: holding the last row (Ctrl-C to stop)", flush=True)
             while not stop.wait(3600):
                 pass

@@ -336,3 +336,23 @@ def config_from_channels(channels: list[str], range_degc: tuple[float, float] = 
     """A default configuration with one uncalibrated sensor per channel (ids = channels)."""
     return SensorConfig(sensors=tuple(SensorSpec(id=c, channel=c, range_degc=range_degc)
                                       for c in channels), max_age_s=max_age_s)
+
+
+SHIPPED_CONFIG_DIR = pathlib.Path(__file__).resolve().parent / "config"
+
+
+def shipped_configs() -> list[str]:
+    """Names of the sensor YAMLs shipped with the package (``<name>_sensors.yaml``)."""
+    return sorted(p.name[: -len("_sensors.yaml")] for p in SHIPPED_CONFIG_DIR.glob("*_sensors.yaml"))
+
+
+def resolve_sensor_config(name_or_path: str) -> pathlib.Path:
+    """A path as given, or a shipped configuration by name (``nmv5000``, ``spindle_stand`` ...)."""
+    p = pathlib.Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or "/" in name_or_path:
+        return p
+    shipped = SHIPPED_CONFIG_DIR / f"{name_or_path.replace('-', '_')}_sensors.yaml"
+    if not shipped.is_file():
+        raise SensorConfigError(f"sensor config {name_or_path!r}: neither a .yaml path nor a shipped "
+                                f"configuration (shipped: {shipped_configs()})")
+    return shipped

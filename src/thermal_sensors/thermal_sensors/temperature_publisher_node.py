@@ -32,7 +32,7 @@ from thermal_comp.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERA
                                        s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import SimSync, TemperatureArray
 from thermal_sensors.replay_source import ReplaySource
-from thermal_sensors.sensor_config import load_sensor_config
+from thermal_sensors.sensor_config import load_sensor_config, resolve_sensor_config
 from thermal_sensors.sensor_status import SensorStatus
 from thermal_sensors.temperature_frame import TemperatureFrame, TemperatureFrameBuilder
 from thermal_sensors.temperature_source import SOURCE_KINDS
@@ -43,7 +43,8 @@ SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
 PARAMS = [
     Param("source", "twin", "where raw readings come from", choices=SOURCE_KINDS),
-    Param("sensor_config", "", "sensor YAML (ids, ranges, calibration, stale time, Modbus map); "
+    Param("sensor_config", "", "sensor YAML (ids, ranges, calibration, stale time, Modbus map) "
+          "or a shipped one by name (nmv5000, swiss_lathe, spindle_stand, rtd_modules_example); "
           "may be empty for replay (every *_c column, uncalibrated)"),
     Param("csv_path", "", "replay: recording CSV in the shared format"),
     Param("period_s", 0.0, "publish period in (sim) seconds; 0 = every twin message / every CSV "
@@ -69,7 +70,8 @@ class TemperaturePublisher(Node):
         if self.time_master and self.source_kind != "replay":
             raise ValueError(f"parameter 'time_master': only the replay source can own time "
                              f"(source is {self.source_kind!r})")
-        config = load_sensor_config(p["sensor_config"]) if p["sensor_config"] else None
+        config = (load_sensor_config(resolve_sensor_config(p["sensor_config"]))
+                  if p["sensor_config"] else None)
         if config is None and self.source_kind != "replay":
             raise ValueError(f"parameter 'sensor_config': required for source {self.source_kind!r}")
 
