@@ -140,7 +140,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         cands = candidates(base, drivers, channels, effects)
         hyps = run_round(problem, base, cands, y_base, shortlist=shortlist,
                          min_improvement_pct=min_improvement_pct, round_no=round_no,
-                         progress=(bar.update if bar else None))
+                         progress=(bar.update if bar is not None else None))
         all_hyps += hyps
         best = hyps[0] if hyps else None
         if best is None or not best.supported(min_improvement_pct):
@@ -150,7 +150,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         base_noisy = best.candidate.apply(base_noisy, best.values)
         base = best.spec
         y_base = problem.outputs(base)
-    if bar:
+    if bar is not None:
         bar.close()
 
     y1 = y_base

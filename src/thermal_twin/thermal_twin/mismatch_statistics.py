@@ -5,9 +5,9 @@ Pure numpy/scipy/statsmodels; every function takes plain arrays.
 - :func:`ljung_box`: is a residual white (Ljung-Box Q over a set of lags)?
 - :func:`derived_drivers`: candidate drivers from a recording's inputs and sensors: each
   input, speed and speed^2 of speed-like inputs, recorded power, temperature rates dT/dt.
-- :func:`cross_correlation`: residual vs. driver over lags with a 95 % band from Bartlett's
-  formula (the band widens with the autocorrelation of both series, as it must for slow
-  thermal signals; the textbook 1.96/sqrt(N) band would flag everything).
+- :func:`cross_correlation`: residual vs. driver over lags after prewhitening the driver
+  (Box-Jenkins), with a 95 % band from Bartlett's formula (without prewhitening, slow
+  thermal signals correlate with everything and the textbook band would flag every driver).
 - :func:`spectral_peaks`: periodogram peaks of a residual; a period near 24 h points to ambient.
 - :func:`drift`: linear trend with Newey-West (HAC) standard errors.
 """
@@ -124,27 +124,41 @@ class CrossCorrelation:
                 "significant": bool(self.significant)}
 
 
-def cross_correlation(residual: np.ndarray, driver: np.ndarray, max_lag: int,
-                      name: str = "") -> CrossCorrelation:
-    """Cross-correlation r_eu(k) = corr(e(t), u(t-k)) for k = -max_lag..max_lag.
+def _ar_prewhitener(u: np.ndarray, order: int) -> np.ndarray:
+    """Coefficients a (length order+1, a[0] = 1) of the AR filter that whitens u."""
+    p = int(max(1, min(order, u.size // 10)))
+    X = np.column_stack([u[p - k - 1: u.size - k - 1] for k in range(p)])
+    coef, *_ = np.linalg.lstsq(X, u[p:], rcond=None)
+    return np.concatenate([[1.0], -coef])
 
-    Both series are made stationary-ish by removing a linear trend. The 95 % band uses
-    Bartlett's variance: var(r_eu) ~ (1/N) sum_k r_ee(k) r_uu(k), which is honest for
-    autocorrelated series (for white series it is the usual 1.96/sqrt(N)).
+
+def cross_correlation(residual: np.ndarray, driver: np.ndarray, max_lag: int,
+                      name: str = "", ar_order: int = 8) -> CrossCorrelation:
+    """Cross-correlation r_eu(k) = corr(e(t), u(t-k)) for k = -max_lag..max_lag after
+    prewhitening (Box-Jenkins): an AR model fitted to the driver whitens it, and the same
+    filter is applied to the residual, so r_eu(k) estimates the (scaled) impulse response
+    of the unmodelled path from u to e and a peak at lag k means the path from u(t-k) is
+    mis-modelled. The 95 % band uses Bartlett's variance (1/N) sum_k r_ee(k) r_uu(k) of the
+    filtered series, which reduces to 1.96/sqrt(N) once the driver is white.
     """
     e = scipy.signal.detrend(_finite(residual))
     u = scipy.signal.detrend(_finite(driver))
     n = e.size
     max_lag = int(max(0, min(max_lag, n // 3)))
     lags = np.arange(-max_lag, max_lag + 1)
+    if e.std() == 0 or u.std() == 0:
+        return CrossCorrelation(name, lags, np.zeros(lags.size), 1.0, 0, 0.0)
+    a = _ar_prewhitener(u / u.std(), ar_order)
+    u = scipy.signal.lfilter(a, [1.0], u)[a.size:]
+    e = scipy.signal.lfilter(a, [1.0], e)[a.size:]
+    n = e.size
     se, su = e.std(), u.std()
     if se == 0 or su == 0:
-        z = np.zeros(lags.size)
-        return CrossCorrelation(name, lags, z, 1.0, 0, 0.0)
+        return CrossCorrelation(name, lags, np.zeros(lags.size), 1.0, 0, 0.0)
     full = np.correlate(e - e.mean(), u - u.mean(), mode="full") / (n * se * su)
     mid = n - 1
     ccf = full[mid - max_lag: mid + max_lag + 1]
-    m = int(min(n - 1, max(max_lag, 50) * 4))
+    m = int(min(n - 1, max(max_lag, 50) * 2))
     ree, ruu = _acf(e, m), _acf(u, m)
     var = (1.0 + 2.0 * float(np.sum(ree[1:] * ruu[1:]))) / n
     band = 1.96 * math.sqrt(max(var, 1.0 / n))

@@ -1,0 +1,91 @@
+"""Find what physics the twin lacks: compare it with a recording, locate, name, model, prove.
+
+``thermal-comp diagnose --twin MACHINE.yaml --recording REC.csv --out DIR`` simulates the
+twin with the recording's inputs, locates and diagnoses the residuals, fits the effect
+library on a training window, adopts what improves the held-out window, and writes
+``DIR/report.json``, ``DIR/report.md`` (PNG plots beside it), ``DIR/diagnosis.rrd`` (rerun)
+and, when an effect is adopted, ``DIR/twin_augmented.yaml``.
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
+from thermal_twin.mismatch_diagnosis import DiagnosisError, diagnose
+from thermal_twin.mismatch_effects import EFFECTS
+from thermal_twin.mismatch_report import write_report
+from thermal_twin.recording_csv import RecordingError, read_recording_csv
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="thermal-comp diagnose", description=__doc__.split("\n\n")[0])
+    p.add_argument("--twin", required=True, help="machine YAML file or preset name (e.g. spindle-stand)")
+    p.add_argument("--recording", required=True,
+                   help="recording CSV in the twin's CSV format (time_s, inputs, <sensor>_c, error channels)")
+    p.add_argument("--out", required=True, help="output directory (created)")
+    p.add_argument("--holdout-fraction", type=float, default=1 / 3,
+                   help="last fraction of the recording kept out of every fit (default 1/3)")
+    p.add_argument("--max-effects", type=int, default=2, help="at most this many effects adopted (default 2)")
+    p.add_argument("--min-improvement", type=float, default=5.0,
+                   help="held-out improvement in %% an effect needs to be adopted (default 5)")
+    p.add_argument("--effects", default=",".join(e for e in EFFECTS if e != "none"),
+                   help="comma-separated subset of the effect vocabulary to try")
+    p.add_argument("--start-hour", type=float, default=0.0,
+                   help="clock hour at time_s = 0, for the day/night regimes (default 0)")
+    p.add_argument("--max-lag-h", type=float, default=6.0, help="cross-correlation lags up to this (h)")
+    p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
+    bad = [e for e in effects if e not in EFFECTS]
+    if bad:
+        print(f"thermal-comp diagnose: --effects: {bad[0]!r} is not one of {', '.join(EFFECTS)}", file=sys.stderr)
+        return 2
+    if args.max_effects < 0:
+        print(f"thermal-comp diagnose: --max-effects: {args.max_effects} must be >= 0", file=sys.stderr)
+        return 2
+    rec_path = pathlib.Path(args.recording)
+    if rec_path.suffix.lower() != ".csv":
+        print(f"thermal-comp diagnose: --recording: {rec_path} is not a CSV; convert a bag first "
+              f"(the finder reads the recording CSV format of thermal_twin.recording_csv)", file=sys.stderr)
+        return 2
+    try:
+        machine = load_machine(args.twin)
+        rec = read_recording_csv(rec_path)
+        for w in rec.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        d = diagnose(machine, rec, holdout_fraction=args.holdout_fraction, max_effects=args.max_effects,
+                     min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
+                     effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet)
+    except (MachineSpecError, RecordingError, DiagnosisError) as exc:
+        print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
+        return 1
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if d.augmented_spec is not None:
+        save_machine(d.augmented_spec, out / "twin_augmented.yaml")
+        d.report["augmented_twin"] = "twin_augmented.yaml"
+    paths = write_report(d.report, d.series, out, rerun=not args.no_rerun)
+    sel = d.report["selected"]
+    if sel == "none":
+        print("selected: none (no effect improves the held-out fit significantly)")
+    else:
+        for h in sel:
+            ps = ", ".join(f"{k}={v['value']:.4g} {v['unit']}" for k, v in h["params"].items())
+            print(f"selected: {h['effect']} on {h['target']}"
+                  + (f" driven by {h['driver']}" if h["driver"] else "")
+                  + f" ({ps}); held-out improvement {h['holdout_improvement_pct']:.1f} %")
+    for ch, c in d.report["channels"].items():
+        print(f"  {ch:10s} held-out RMSE {c['holdout_rmse_before']:.4g} -> {c['holdout_rmse_after']:.4g} {c['unit']}")
+    print("report: " + ", ".join(str(p) for p in paths.values()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
