@@ -70,7 +70,7 @@ def test_shipped_spindle_stand_config_raises_no_false_flag_on_the_real_recording
 
 def test_shipped_configs_resolve_by_name_and_unknown_names_list_them():
     from thermal_sensors.sensor_config import load_sensor_config, resolve_sensor_config, shipped_configs
-    assert {"nmv5000", "swiss_lathe", "spindle_stand", "rtd_modules_example"} <= set(shipped_configs())
+    assert {"nmv5000", "swiss_lathe", "spindle_stand", "rtd_bench"} <= set(shipped_configs())
     for name in shipped_configs():
         assert load_sensor_config(resolve_sensor_config(name)).sensors
     assert load_sensor_config(resolve_sensor_config("swiss-lathe")).sensor_ids[0] == "ambient"

@@ -211,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
                     "ports) with temperatures from a recording CSV, for bench setups and tests.")
     p.add_argument("--config", required=True,
                    help="sensor YAML with sensors[].modbus and modbus.modules, or a shipped one by name "
-                        "(rtd_modules_example)")
+                        "(rtd_bench)")
     p.add_argument("--csv", required=True, help="recording CSV (shared format); column = channel + '_c'")
     p.add_argument("--speed", type=float, default=1.0,
                    help="playback speed: recording seconds per wall second (default 1)")

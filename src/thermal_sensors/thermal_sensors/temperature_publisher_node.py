@@ -44,7 +44,7 @@ SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 PARAMS = [
     Param("source", "twin", "where raw readings come from", choices=SOURCE_KINDS),
     Param("sensor_config", "", "sensor YAML (ids, ranges, calibration, stale time, Modbus map) "
-          "or a shipped one by name (nmv5000, swiss_lathe, spindle_stand, rtd_modules_example); "
+          "or a shipped one by name (nmv5000, swiss_lathe, spindle_stand, rtd_bench); "
           "may be empty for replay (every *_c column, uncalibrated)"),
     Param("csv_path", "", "replay: recording CSV in the shared format"),
     Param("period_s", 0.0, "publish period in (sim) seconds; 0 = every twin message / every CSV "
