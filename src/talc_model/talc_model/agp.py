@@ -25,7 +25,11 @@ Spec: ``shared/spec/agp-swiss-lathe-thesis.md`` §2-5, §11. Pieces:
 
 Choices for the thesis's gaps (§9), each a config key: inputs are the temperatures as given
 (absolute), standardised at every fit with a scale floor ``min_input_scale``; length-scale
-bounds [0.01, 1e4] in standardised units; ``noise_guard_factor``: the effective threshold is
+bounds [0.01, 100] in standardised units - the upper bound is lower than the 1e4 of the peer
+implementation on purpose: an input that hardly moved during training (cutting oil held
+constant) must not be switched off for good by ARD, else a later step in it leaves the std low
+while the error runs away; with the bound, a move of many training spreads makes the state
+"unseen" and the std rise, which is what triggers recalibration (thesis §5.2.3); ``noise_guard_factor``: the effective threshold is
 max(sigma_max, factor x fitted noise std) so that recalibration cannot fire every cycle (gap 2);
 sensors reading NaN are held at their last valid value and reported as excluded; TLS smoothing
 by an optional EWMA (``tls_ewma_alpha``, 1 = none); before any measurement the prediction is 0
@@ -45,6 +49,7 @@ from sklearn.cluster import KMeans
 from sklearn.exceptions import ConvergenceWarning
 from sklearn.gaussian_process import GaussianProcessRegressor
 from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+from threadpoolctl import threadpool_limits
 
 from talc_model.adaptive_model import (PHASE_CALIBRATION, PHASE_COMPENSATION, ModelStatusData,
                                        register_model)
@@ -70,7 +75,7 @@ class ArdGaussianProcess:
     starts); with ``warm_start`` the optimiser starts from the previous fit's hyperparameters.
     """
 
-    def __init__(self, *, length_scale_bounds: tuple[float, float] = (1e-2, 1e4),
+    def __init__(self, *, length_scale_bounds: tuple[float, float] = (1e-2, 1e2),
                  noise_bounds: tuple[float, float] = (1e-6, 1.0), n_restarts: int = 0,
                  min_input_scale: float = 0.05, seed: int = 0):
         self.length_scale_bounds = tuple(float(v) for v in length_scale_bounds)
@@ -159,7 +164,7 @@ class ArdGaussianProcess:
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "ArdGaussianProcess":
         try:
-            gp = cls(length_scale_bounds=tuple(state.get("length_scale_bounds", (1e-2, 1e4))),
+            gp = cls(length_scale_bounds=tuple(state.get("length_scale_bounds", (1e-2, 1e2))),
                      noise_bounds=tuple(state.get("noise_bounds", (1e-6, 1.0))),
                      n_restarts=int(state.get("n_restarts", 0)),
                      min_input_scale=float(state.get("min_input_scale", 0.05)),
@@ -216,7 +221,8 @@ def sensor_groups(series, *, max_groups: int = 10, seed: int = 0) -> SensorGroup
     wcss = [float(np.sum(z ** 2))]
     fits = {}
     for k in range(1, k_max + 1):
-        km = KMeans(n_clusters=k, n_init=10, random_state=seed).fit(z)
+        with threadpool_limits(1):   # tiny problem: OpenMP threads only contend on a shared machine
+            km = KMeans(n_clusters=k, n_init=10, random_state=seed).fit(z)
         fits[k] = km
         wcss.append(float(km.inertia_))
     ks = np.arange(0, k_max + 1, dtype=float)
@@ -318,7 +324,7 @@ class AgpConfig:
     control_tolerance_um: float = 2.0         # e_tol
     tls_ewma_alpha: float = 1.0               # TLS smoothing (1 = none)
     probe_duration_s: float = 95.0
-    length_scale_bounds: tuple[float, float] = (1e-2, 1e4)
+    length_scale_bounds: tuple[float, float] = (1e-2, 1e2)
     noise_bounds: tuple[float, float] = (1e-6, 1.0)
     n_restarts: int = 0
     min_input_scale: float = 0.05
@@ -478,6 +484,15 @@ class AdaptiveGaussianProcess:
             stds[om.component] = math.sqrt(std[om.base] ** 2 + ds ** 2) if math.isfinite(std[om.base]) else math.nan
         return values, stds
 
+    def _prior_std(self) -> dict[str, float]:
+        """Std far from all training data: sqrt(signal + noise variance) in um, per component."""
+        out = {}
+        for c, gp in self.gps.items():
+            if gp.fitted:
+                k = gp.gpr.kernel_
+                out[c] = math.sqrt(k.k1.k1.constant_value + k.k2.noise_level) * float(np.ravel(gp.gpr._y_train_std)[0])
+        return out
+
     def effective_sigma_max(self) -> float:
         """sigma_max, raised to noise_guard_factor x the largest fitted noise std (gap 2)."""
         noise = max((gp.noise_std for gp in self.gps.values() if gp.fitted), default=0.0)
@@ -581,7 +596,8 @@ class AdaptiveGaussianProcess:
         cfg = self.config
         elapsed = t_s - (self.t_start if self.t_start is not None else t_s)
         n = len(self.train_x)
-        if len(self.history) >= 3:
+        # the grouping only matters once the minimum calibration time is over
+        if len(self.history) >= 3 and (elapsed >= cfg.min_calibration_s or elapsed >= cfg.max_calibration_s):
             self.n_min, groups = calibration_points_needed(np.asarray(self.history), points_per_group=cfg.points_per_group,
                                                            max_groups=cfg.max_groups, seed=cfg.seed)
             self.n_groups = groups.n_groups
@@ -596,6 +612,12 @@ class AdaptiveGaussianProcess:
         self.history = []
         self.message = (f"calibration finished at t={t_s:.0f} s with {n} points "
                         f"({self.n_groups} sensor groups); predicting")
+        prior = min(self._prior_std().values())
+        if cfg.recalibration and prior <= self.effective_sigma_max():
+            # an unseen state can raise the std at most to the prior std: sigma_max above it
+            # means recalibration can never fire (the calibration saw too little variation)
+            self.message += (f"; warning: prior std {prior:.2f} um <= sigma_max "
+                             f"{self.effective_sigma_max():.2f} um, recalibration cannot trigger")
 
     # ------------------------------------------------------------------ status and state
     def status(self, t_s: float) -> ModelStatusData:
