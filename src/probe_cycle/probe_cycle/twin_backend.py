@@ -1,0 +1,66 @@
+"""Twin backend: probing moves served by machine_sim's ``twin/touch_probe`` service.
+
+Each request carries the move and its ``duration_s``. machine_sim advances the twin by
+that much simulated time, with the machine idle and the currently applied offsets, and
+answers from the true geometry at that instant (thermal_twin.artefact_geometry). So the
+cycle's 95 s are spent in simulated time, and the reply's stamp is the simulated instant
+of the trigger.
+
+Calls block the calling thread. The node runs a multi-threaded executor, and the
+response is processed by another thread. A service that is missing, or that gives no
+answer within ``call_timeout_s`` of wall time, raises ``ProbeBackendError``.
+"""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.node import Node
+
+from thermal_comp.node_runtime import SERVICE_TOUCH_PROBE, stamp_to_s
+from thermal_comp_msgs.srv import TouchProbe
+
+from probe_cycle.cycle_plan import TouchMove
+from probe_cycle.probe_backend import ProbeBackend, ProbeBackendError, TouchReply
+
+
+class TwinProbeBackend(ProbeBackend):
+    name = "twin"
+
+    def __init__(self, node: Node, call_timeout_s: float = 30.0,
+                 service_wait_s: float = 10.0, service_name: str = SERVICE_TOUCH_PROBE):
+        self.node = node
+        self.call_timeout_s = float(call_timeout_s)
+        self.service_wait_s = float(service_wait_s)
+        self.client = node.create_client(TouchProbe, service_name,
+                                         callback_group=ReentrantCallbackGroup())
+
+    def touch(self, move: TouchMove) -> TouchReply:
+        if not self.client.service_is_ready() and \
+                not self.client.wait_for_service(timeout_sec=self.service_wait_s):
+            raise ProbeBackendError(f"service '{self.client.service_name}' is not available "
+                                    f"(waited {self.service_wait_s:g} s)")
+        req = TouchProbe.Request()
+        req.artefact = int(move.artefact)
+        req.c_axis_deg = float(move.c_axis_deg)
+        req.b_axis_deg = float(move.b_axis_deg)
+        req.start_mm = [float(v) for v in move.start_mm]
+        req.direction = [float(v) for v in move.direction]
+        req.max_travel_mm = float(move.max_travel_mm)
+        req.duration_s = float(move.duration_s)
+        done = threading.Event()
+        future = self.client.call_async(req)
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(self.call_timeout_s):
+            self.client.remove_pending_request(future)
+            raise ProbeBackendError(f"no answer from '{self.client.service_name}' within "
+                                    f"{self.call_timeout_s:g} s")
+        if future.exception() is not None:
+            raise ProbeBackendError(f"'{self.client.service_name}' failed: {future.exception()}")
+        res = future.result()
+        return TouchReply(bool(res.triggered), np.asarray(res.trigger_position_mm, dtype=float),
+                          stamp_to_s(res.stamp), res.message)
+
+    def close(self) -> None:
+        self.node.destroy_client(self.client)
