@@ -17,7 +17,8 @@ d = number of parameters:
   N_ord >= 3, so it rewards larger orders instead of penalising them (see spec §2.5 [GAP]).
 - ``"aic"``: N ln V + 2 d;  ``"bic"``: N ln V + d ln N.
 
-Candidates whose training regression matrix is rank deficient are skipped. An exhaustive
+Candidates whose training regression matrix is rank deficient, or (by default) whose
+estimate is unstable, are skipped. An exhaustive
 search is used while the grid has at most ``exhaustive_limit`` candidates; above that a
 coordinate search (one order at a time, repeated until no improvement) is used, which
 needs far fewer fits for the n_b <= 20 grids of the thesis's 144 h experiment.
@@ -82,13 +83,16 @@ def select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_ra
                   *, nk: int = 0, intercept: bool = False, criterion: str = "mdl",
                   train_fraction: float = 0.6, weights: np.ndarray | None = None,
                   measured: np.ndarray | None = None, exhaustive_limit: int = 4000,
-                  refit_on_all: bool = True) -> OrderSelection:
+                  refit_on_all: bool = True, require_stable: bool = True) -> OrderSelection:
     """Choose ARX orders for output ``y`` and inputs ``u`` (N x r) by ``criterion``.
 
     ``na_range``/``nb_range`` are inclusive (min, max); the same n_b range applies to every
     input. ``measured[k]`` marks samples whose output was measured (validation is scored
     there only; default all). ``weights`` are the WLS weights of the training fit.
-    The chosen model is refitted on all data (``refit_on_all``) before it is returned.
+    The chosen model is refitted on all data (``refit_on_all``, kept only if still stable)
+    before it is returned. With ``require_stable`` candidates whose A(q) has a pole on or
+    outside the unit circle are skipped: a thermal system is stable, and an unstable
+    recursion fed back in simulation mode diverges between measurements.
     Raises :class:`RankDeficientError` if no candidate is identifiable.
     """
     if criterion not in CRITERIA:
@@ -130,6 +134,9 @@ def select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_ra
             m = fit_arx(y, u, orders, weights, start=start, stop=split)
         except RankDeficientError:
             deficient += 1
+            cache[key] = (math.inf, None, math.nan)
+            return math.inf
+        if require_stable and not m.is_stable():
             cache[key] = (math.inf, None, math.nan)
             return math.inf
         res = _validation_residuals(m, y, u, split, scored)
@@ -180,8 +187,8 @@ def select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_ra
     if refit_on_all:
         try:
             full = fit_arx(y, u, orders, weights, start=start)
-            full.extra["validation_rms"] = rms
-            model = full
+            if full.is_stable() or not require_stable:
+                model = full
         except RankDeficientError:
             pass
     model.extra["validation_rms"] = rms

@@ -89,7 +89,8 @@ class TalcConfig:
     intercept: bool = False
     criterion: str = "mdl"
     train_fraction: float = 0.6
-    reselect_orders_on_update: bool = False
+    reselect_orders_on_update: bool = True  # spec §4.5 suggestion; False = refit with fixed orders
+    order_search_exhaustive_limit: int = 4000  # above: coordinate search (order_selection)
     # --- weighted least squares
     predicted_weight: float = 0.05         # weight of samples that only carry a prediction
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
@@ -117,7 +118,8 @@ class TalcConfig:
                 raise ValueError(f"TALC config '{name}': {v!r} must be a number >= 0 (inf allowed)")
         if self.post_cp_interval_h == 0 or self.ng_measurements == 0:
             raise ValueError("TALC config 'post_cp_interval_h' and 'ng_measurements' must be > 0")
-        for name in ("na_max", "nb_max", "na_min", "nb_min", "nb_max_final", "nk", "uncertainty_window"):
+        for name in ("na_max", "nb_max", "na_min", "nb_min", "nb_max_final", "nk", "uncertainty_window",
+                     "order_search_exhaustive_limit"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise ValueError(f"TALC config '{name}': {v!r} must be an integer >= 0")
@@ -154,7 +156,8 @@ class TalcConfig:
         for k, v in list(values.items()):
             if isinstance(v, str) and v.strip().lower() in ("inf", "infinity", ".inf"):
                 values[k] = math.inf
-        for name in ("na_max", "nb_max", "na_min", "nb_min", "nb_max_final", "nk", "uncertainty_window"):
+        for name in ("na_max", "nb_max", "na_min", "nb_min", "nb_max_final", "nk", "uncertainty_window",
+                     "order_search_exhaustive_limit"):
             v = values.get(name)
             if isinstance(v, float) and v.is_integer():
                 values[name] = int(v)
@@ -544,10 +547,13 @@ class TalcModel:
         g = self.grid
         for j, name in enumerate(self.component_names):
             y, m = self._training_outputs(j)
-            phi, target, rows = regression_matrix(y, g.u[: g.n], orders)
+            # the first fit estimates on the training part of the split: it must be identifiable
+            first = int(np.flatnonzero(np.isfinite(y))[0]) if np.any(np.isfinite(y)) else 0
+            split = first + int(round(c.train_fraction * (g.n - first)))
+            phi, target, rows = regression_matrix(y[:split], g.u[:split], orders, start=first + orders.max_lag)
             ok = np.isfinite(target) & np.all(np.isfinite(phi), axis=1)
             try:
-                check_full_rank(phi[ok], f"{name} regression matrix")
+                check_full_rank(phi[ok], f"{name} regression matrix (training part)")
             except RankDeficientError as exc:
                 self.message = f"calibration phase continues: {exc}"
                 return False
@@ -565,7 +571,7 @@ class TalcModel:
             sel = select_orders(y[first:], g.u[first: g.n], (c.na_min, c.na_max), (c.nb_min, nb_max),
                                 nk=c.nk, intercept=c.intercept, criterion=c.criterion,
                                 train_fraction=c.train_fraction, weights=w[first:],
-                                measured=m[first:])
+                                measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit)
             models[name] = sel.model
         self.nb_max_selected = nb_max
         return models
