@@ -24,6 +24,10 @@ setup(
         "thermal_comp.commands": [
 
         ],
+        # `thermal-comp bench SUITE`: "suite = module:function", function(args) -> dict of figures.
+        "thermal_comp.bench": [
+            "probe = probe_cycle.bench_probe:run",
+        ],
         "console_scripts": [
             "probe_cycle_server = probe_cycle.probe_cycle_node:main",
         ],
