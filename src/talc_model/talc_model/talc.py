@@ -698,11 +698,14 @@ class TalcModel:
         if state.get("version") != STATE_VERSION:
             raise ValueError(f"TALC state: 'version' {state.get('version')!r} is not {STATE_VERSION}")
         cfg = dict(state["config"])
+        cfg["input_names"] = list(state["input_names"])
         model = cls(TalcConfig.from_mapping(cfg))
         model.input_names = list(state["input_names"])
-        if state.get("grid") is not None:
+        grid = state["grid"]
+        if model.input_names:
             model._init_grid()
-            model.grid = _Grid.from_dict(state["grid"], len(model.input_names), len(model.component_names))
+        if grid is not None:
+            model.grid = _Grid.from_dict(grid, len(model.input_names), len(model.component_names))
         model.t0, model.t_last = state["t0"], state["t_last"]
         if state["phase"] not in (PHASE_CALIBRATION, PHASE_COMPENSATION, PHASE_NO_GOOD):
             raise ValueError(f"TALC state: 'phase' {state['phase']!r} is not a phase")
