@@ -5,8 +5,9 @@ TCP endpoint or an RS-485 line; several modules/unit ids may share it). Every re
 a timeout (the largest ``timeout_s`` of the link's modules); a module that does not
 answer, answers with an exception or sends a fault code marks its sensors FAILED, the
 others keep going. Failed connections and failed modules are retried with exponential
-back-off from ``reconnect_min_s`` to ``reconnect_max_s``; after a failed read the
-connection is re-opened so that a late answer can never be taken for a new one.
+back-off from ``reconnect_min_s`` to ``reconnect_max_s``; after a failed read a TCP
+connection is re-opened so that a late answer can never be taken for a new one (a serial
+line stays open: pymodbus flushes its input before each request).
 
 :meth:`ModbusSource.sample` never blocks: it returns the newest readings with their
 age, and the status rules turn readings older than ``max_age_s`` into FAILED.
@@ -71,6 +72,7 @@ class ModbusLink:
                  store: _ReadingStore, clock: Callable[[], float]):
         self.modules = {m.name: m for m in modules}
         first = modules[0]
+        self.transport = first.transport
         self.description = (f"{first.transport}://{first.serial_port}" if first.transport == "rtu"
                             else f"{first.transport}://{first.host}:{first.port}")
         self.timeout_s = max(m.timeout_s for m in modules)
@@ -147,7 +149,10 @@ class ModbusLink:
                 if why:
                     delay = backoff.failed(self.clock())
                     self._fail_module(name, f"{why}; retry in {delay:.2g} s")
-                    self.close()  # drop any late answer with the connection
+                    if self.transport != "rtu" or not self.client.connected:
+                        # TCP: drop any late answer with the connection. A serial line stays
+                        # open (re-opening costs, pymodbus flushes its input before a send).
+                        self.close()
                     break
             else:
                 backoff.succeeded()
