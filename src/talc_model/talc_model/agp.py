@@ -32,7 +32,9 @@ while the error runs away; with the bound, a move of many training spreads makes
 "unseen" and the std rise, which is what triggers recalibration (thesis §5.2.3); ``noise_guard_factor``: the effective threshold is
 max(sigma_max, factor x fitted noise std) so that recalibration cannot fire every cycle (gap 2);
 sensors reading NaN are held at their last valid value and reported as excluded; TLS smoothing
-by an optional EWMA (``tls_ewma_alpha``, 1 = none); before any measurement the prediction is 0
+by an optional EWMA (``tls_ewma_alpha``, 1 = none); a floor on the GP's prior std
+(``min_signal_std_ratio`` x the expected maximum error, see :class:`ArdGaussianProcess`) so that
+an unseen state can always raise the std above sigma_max; before any measurement the prediction is 0
 (errors are relative to the start, §5.3).
 
 No rclpy here.
@@ -63,8 +65,9 @@ class AgpConfigError(ValueError):
 # The GP regressor
 
 def _kernel(n_inputs: int, length_scale_bounds: tuple[float, float],
-            noise_bounds: tuple[float, float]):
-    return (ConstantKernel(1.0, (1e-3, 1e3)) * RBF(np.ones(n_inputs), length_scale_bounds)
+            noise_bounds: tuple[float, float], signal_var_lower: float = 1e-3):
+    lower = min(max(float(signal_var_lower), 1e-3), 1.0)
+    return (ConstantKernel(1.0, (lower, 1e3)) * RBF(np.ones(n_inputs), length_scale_bounds)
             + WhiteKernel(1e-2, noise_bounds))
 
 
@@ -73,19 +76,29 @@ class ArdGaussianProcess:
 
     ``fit`` maximises the log marginal likelihood with L-BFGS-B (``n_restarts`` extra random
     starts); with ``warm_start`` the optimiser starts from the previous fit's hyperparameters.
+
+    ``min_signal_std`` (output units, 0 = off) is a floor on the prior std of the latent
+    function: outputs are scaled by max(std(y), min_signal_std) and the signal variance is
+    bounded below accordingly. It encodes the prior belief that a state unlike all training
+    states may carry an error of that size; without it a calibration that saw little error
+    variation yields a prior std below sigma_max, and an unseen state could never trigger a
+    recalibration (observed on the twin's lathe-random-speed, whose first hours are calm).
     """
 
     def __init__(self, *, length_scale_bounds: tuple[float, float] = (1e-2, 1e2),
                  noise_bounds: tuple[float, float] = (1e-6, 1.0), n_restarts: int = 0,
-                 min_input_scale: float = 0.05, seed: int = 0):
+                 min_input_scale: float = 0.05, min_signal_std: float = 0.0, seed: int = 0):
         self.length_scale_bounds = tuple(float(v) for v in length_scale_bounds)
         self.noise_bounds = tuple(float(v) for v in noise_bounds)
         self.n_restarts = int(n_restarts)
         self.min_input_scale = float(min_input_scale)
+        self.min_signal_std = float(min_signal_std)
         self.seed = int(seed)
         self.gpr: GaussianProcessRegressor | None = None
         self.x_mean: np.ndarray | None = None
         self.x_scale: np.ndarray | None = None
+        self.y_mean = 0.0
+        self.y_scale = 1.0
         self.optimizer_warnings = 0
 
     @property
@@ -96,6 +109,8 @@ class ArdGaussianProcess:
         return (x - self.x_mean) / self.x_scale
 
     def fit(self, x, y, *, warm_start: bool = True, optimize: bool = True) -> "ArdGaussianProcess":
+        """Fit on (x, y). ``optimize=False`` keeps the hyperparameters and scalings of the last
+        fit and only conditions on the data (cheap update after a control measurement)."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float).ravel()
         if x.ndim != 2 or x.shape[0] != y.shape[0]:
@@ -104,20 +119,26 @@ class ArdGaussianProcess:
             raise AgpConfigError(f"GP fit: needs >= 2 training points, got {x.shape[0]}")
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
             raise AgpConfigError("GP fit: training inputs/outputs contain NaN or inf")
-        previous = self.gpr.kernel_ if (warm_start and self.gpr is not None
+        previous = self.gpr.kernel_ if (self.gpr is not None
                                         and self.gpr.kernel_.k1.k2.length_scale.size == x.shape[1]) else None
         if optimize or previous is None:
             self.x_mean = x.mean(axis=0)
             self.x_scale = np.maximum(x.std(axis=0), self.min_input_scale)
-        kernel = previous if previous is not None else _kernel(x.shape[1], self.length_scale_bounds,
-                                                               self.noise_bounds)
-        gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=True,
+            self.y_mean = float(y.mean())
+            self.y_scale = max(float(y.std()), self.min_signal_std, 1e-9)
+        lower = (self.min_signal_std / self.y_scale) ** 2 if self.min_signal_std > 0 else 1e-3
+        kernel = _kernel(x.shape[1], self.length_scale_bounds, self.noise_bounds, lower)
+        if previous is not None and (warm_start or not optimize):
+            theta = previous.theta.copy()
+            b = kernel.bounds
+            kernel.theta = np.clip(theta, b[:, 0], b[:, 1])
+        gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=False,
                                        optimizer="fmin_l_bfgs_b" if optimize else None,
                                        n_restarts_optimizer=self.n_restarts if optimize else 0,
                                        random_state=self.seed)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
-            gpr.fit(self._scale(x), y)
+            gpr.fit(self._scale(x), (y - self.y_mean) / self.y_scale)
         self.optimizer_warnings += sum(issubclass(w.category, ConvergenceWarning) for w in caught)
         self.gpr = gpr
         return self
@@ -128,14 +149,23 @@ class ArdGaussianProcess:
             raise AgpConfigError("GP is not fitted")
         x = np.atleast_2d(np.asarray(x, dtype=float))
         mean, std = self.gpr.predict(self._scale(x), return_std=True)
-        return np.asarray(mean, dtype=float), np.asarray(std, dtype=float)
+        return (np.asarray(mean, dtype=float) * self.y_scale + self.y_mean,
+                np.asarray(std, dtype=float) * self.y_scale)
 
     @property
     def noise_std(self) -> float:
         """Fitted white-noise std in output units."""
         if self.gpr is None:
             return math.nan
-        return float(math.sqrt(self.gpr.kernel_.k2.noise_level) * float(np.ravel(self.gpr._y_train_std)[0]))
+        return float(math.sqrt(self.gpr.kernel_.k2.noise_level) * self.y_scale)
+
+    @property
+    def prior_std(self) -> float:
+        """Predictive std far from all training data (signal and noise) in output units."""
+        if self.gpr is None:
+            return math.nan
+        k = self.gpr.kernel_
+        return float(math.sqrt(k.k1.k1.constant_value + k.k2.noise_level) * self.y_scale)
 
     @property
     def length_scales(self) -> np.ndarray:
@@ -149,38 +179,38 @@ class ArdGaussianProcess:
         return float(self.gpr.log_marginal_likelihood_value_) if self.gpr is not None else math.nan
 
     def to_state(self) -> dict:
+        base = {"length_scale_bounds": list(self.length_scale_bounds), "noise_bounds": list(self.noise_bounds),
+                "n_restarts": self.n_restarts, "min_input_scale": self.min_input_scale,
+                "min_signal_std": self.min_signal_std, "seed": self.seed}
         if self.gpr is None:
-            return {"fitted": False}
+            return {"fitted": False, **base}
         x_train = self.gpr.X_train_ * self.x_scale + self.x_mean
-        y_train = np.asarray(self.gpr.y_train_).ravel() * float(np.ravel(self.gpr._y_train_std)[0]) + \
-            float(np.ravel(self.gpr._y_train_mean)[0])
-        return {"fitted": True, "theta": self.gpr.kernel_.theta.tolist(),
+        y_train = np.asarray(self.gpr.y_train_).ravel() * self.y_scale + self.y_mean
+        return {"fitted": True, **base, "theta": self.gpr.kernel_.theta.tolist(),
                 "x_mean": self.x_mean.tolist(), "x_scale": self.x_scale.tolist(),
-                "x_train": x_train.tolist(), "y_train": y_train.tolist(),
-                "length_scale_bounds": list(self.length_scale_bounds),
-                "noise_bounds": list(self.noise_bounds), "n_restarts": self.n_restarts,
-                "min_input_scale": self.min_input_scale, "seed": self.seed}
+                "y_mean": self.y_mean, "y_scale": self.y_scale,
+                "x_train": x_train.tolist(), "y_train": y_train.tolist()}
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "ArdGaussianProcess":
         try:
-            gp = cls(length_scale_bounds=tuple(state.get("length_scale_bounds", (1e-2, 1e2))),
-                     noise_bounds=tuple(state.get("noise_bounds", (1e-6, 1.0))),
-                     n_restarts=int(state.get("n_restarts", 0)),
-                     min_input_scale=float(state.get("min_input_scale", 0.05)),
-                     seed=int(state.get("seed", 0)))
+            gp = cls(length_scale_bounds=tuple(state["length_scale_bounds"]),
+                     noise_bounds=tuple(state["noise_bounds"]), n_restarts=int(state["n_restarts"]),
+                     min_input_scale=float(state["min_input_scale"]),
+                     min_signal_std=float(state["min_signal_std"]), seed=int(state["seed"]))
             if not state.get("fitted", False):
                 return gp
             x = np.asarray(state["x_train"], dtype=float)
             y = np.asarray(state["y_train"], dtype=float)
             gp.x_mean = np.asarray(state["x_mean"], dtype=float)
             gp.x_scale = np.asarray(state["x_scale"], dtype=float)
-            kernel = _kernel(x.shape[1], gp.length_scale_bounds, gp.noise_bounds)
+            gp.y_mean, gp.y_scale = float(state["y_mean"]), float(state["y_scale"])
+            kernel = _kernel(x.shape[1], gp.length_scale_bounds, gp.noise_bounds, 1e-3)
             kernel.theta = np.asarray(state["theta"], dtype=float)
         except KeyError as exc:
             raise AgpConfigError(f"GP state: missing key {exc}") from None
-        gp.gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=True, optimizer=None)
-        gp.gpr.fit(gp._scale(x), y)
+        gp.gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=False, optimizer=None)
+        gp.gpr.fit(gp._scale(x), (y - gp.y_mean) / gp.y_scale)
         return gp
 
 
@@ -328,6 +358,7 @@ class AgpConfig:
     noise_bounds: tuple[float, float] = (1e-6, 1.0)
     n_restarts: int = 0
     min_input_scale: float = 0.05
+    min_signal_std_ratio: float = 0.25       # prior std floor = ratio x max expected error (0 = off)
     max_history_rows: int = 20000             # input history kept for the k-means grouping
     seed: int = 0
     offset_models: list[dict] = field(default_factory=list)   # OffsetModel.to_state() dicts
@@ -351,7 +382,7 @@ class AgpConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise AgpConfigError(f"agp config: '{name}' must be a positive number, got {v!r}")
-        for name in ("min_calibration_s", "max_calibration_s", "min_probe_interval_s", "control_interval_s",
+        for name in ("min_signal_std_ratio", "min_calibration_s", "max_calibration_s", "min_probe_interval_s", "control_interval_s",
                      "control_tolerance_um"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -418,7 +449,8 @@ class AdaptiveGaussianProcess:
         c = self.config
         return ArdGaussianProcess(length_scale_bounds=tuple(c.length_scale_bounds),
                                   noise_bounds=tuple(c.noise_bounds), n_restarts=c.n_restarts,
-                                  min_input_scale=c.min_input_scale, seed=c.seed)
+                                  min_input_scale=c.min_input_scale,
+                                  min_signal_std=c.min_signal_std_ratio * c.max_expected_error_um, seed=c.seed)
 
     # ------------------------------------------------------------------ inputs
     def update_inputs(self, t_s: float, temperatures: Mapping[str, float],
@@ -485,13 +517,8 @@ class AdaptiveGaussianProcess:
         return values, stds
 
     def _prior_std(self) -> dict[str, float]:
-        """Std far from all training data: sqrt(signal + noise variance) in um, per component."""
-        out = {}
-        for c, gp in self.gps.items():
-            if gp.fitted:
-                k = gp.gpr.kernel_
-                out[c] = math.sqrt(k.k1.k1.constant_value + k.k2.noise_level) * float(np.ravel(gp.gpr._y_train_std)[0])
-        return out
+        """Std far from all training data, in um, per component."""
+        return {c: gp.prior_std for c, gp in self.gps.items() if gp.fitted}
 
     def effective_sigma_max(self) -> float:
         """sigma_max, raised to noise_guard_factor x the largest fitted noise std (gap 2)."""
