@@ -158,3 +158,11 @@ def test_cancel_and_timeout_end_the_goal_without_measured_errors(graph):
     assert not res.success and "timeout" in res.message
     assert len(res.errors.values) == 0
     assert len(fb) < 25
+
+
+def test_bad_parameter_stops_the_server_naming_it(ros_domain_id):
+    p = subprocess.run([sys.executable, "-m", "probe_cycle.probe_cycle_node", "--ros-args",
+                        "-p", "backend:=serial"], env=dict(os.environ), capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 2
+    assert "backend" in p.stderr and "serial" in p.stderr
