@@ -2,9 +2,9 @@
 
 Procedure (one round; the finder repeats it greedily on the augmented twin):
 
-1. **Weights.** Every shared channel is scaled by its measurement noise (std of the first
-   differences / sqrt 2, floored), so degC and um become comparable and the fit is a
-   weighted least-squares problem.
+1. **Weights.** Every shared channel is scaled by its measurement noise (robust estimate
+   from the second differences, see :func:`channel_sigma`), so degC and um become
+   comparable and the fit is a weighted least-squares problem.
 2. **Screening.** Each candidate is simulated once at its start value; the change of the
    outputs is a sensitivity direction s, and the share of the training residual it can
    explain is the error-reduction ratio (s.r)^2 / (s.s |r|^2) (the ERR of NARX term
@@ -52,13 +52,17 @@ def noise_free(spec: dict) -> dict:
 
 
 def channel_sigma(x: np.ndarray) -> float:
-    """Measurement noise of a channel: std of first differences / sqrt(2) (robust to
-    slow drift), floored at 1e-3 of the channel's unit."""
+    """Measurement noise of a channel from its second differences (var = 6 sigma^2 for
+    white noise; smooth thermal transients nearly cancel): the MAD estimate (robust to the
+    kinks of steps), but at least a quarter of the plain std estimate (a quantised, slowly
+    varying reading has a zero MAD), floored at 1e-3."""
     x = np.asarray(x, dtype=float)
-    d = np.diff(x[np.isfinite(x)])
+    d = np.diff(x[np.isfinite(x)], n=2)
     if d.size < 2:
         return 1.0
-    return max(float(np.std(d)) / math.sqrt(2.0), 1e-3)
+    s_mad = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(6.0)
+    s_std = float(np.std(d)) / math.sqrt(6.0)
+    return max(s_mad, 0.25 * s_std, 1e-3)
 
 
 @dataclass
