@@ -9,7 +9,7 @@ import pytest
 
 from thermal_twin.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
                                             SPHERE_COMPONENTS, ArtefactGeometry,
-                                            GuideBushArtefact, TouchProbeModel,
+                                            GuideBushArtefact, SphereArtefact, TouchProbeModel,
                                             nominal_sphere_centre, touch_trigger_position)
 from probe_cycle.cycle_plan import CyclePlan, PlanError, plan_sphere_cycle
 from probe_cycle.cycle_reference import ReferenceFileError, ReferenceStore
@@ -37,12 +37,18 @@ def _reference(engine, backend):
     return r
 
 
-@pytest.mark.parametrize("seed", [1, 2, 3])
-def test_noise_free_sphere_cycle_recovers_all_seven_errors(seed):
+OTHER_MACHINE = dataclasses.replace(
+    IDEAL, sphere=SphereArtefact(radius_from_c_axis_mm=120.0, diameter_mm=20.0,
+                                 centre_height_mm=60.0, c_axis_xy_mm=(250.0, -40.0),
+                                 table_surface_z_mm=300.0))
+
+
+@pytest.mark.parametrize("seed, geometry", [(1, IDEAL), (2, IDEAL), (3, OTHER_MACHINE)])
+def test_noise_free_sphere_cycle_recovers_all_seven_errors(seed, geometry):
     rng = np.random.default_rng(seed)
-    engine = _engine()
+    engine = _engine(geometry)
     base = {c: float(v) for c, v in zip(SPHERE_COMPONENTS, rng.uniform(-30, 30, 7))}
-    backend = ArtefactModelBackend(errors=base, geometry=IDEAL)
+    backend = ArtefactModelBackend(errors=base, geometry=geometry)
     _reference(engine, backend)
     delta = {c: float(v) for c, v in zip(SPHERE_COMPONENTS, rng.uniform(-40, 40, 7))}
     backend.errors = {c: base[c] + delta[c] for c in SPHERE_COMPONENTS}
@@ -264,6 +270,7 @@ def test_cancel_stops_before_the_next_point():
 
 @pytest.mark.parametrize("goal, text", [
     (GoalSpec(points_per_indexing=3), "points_per_indexing"),
+    (GoalSpec(points_per_indexing=1000), "points_per_indexing"),
     (GoalSpec(c_angles_deg=(0.0, 90.0, 180.0)), "missing 270"),
     (GoalSpec(artefact=5), "artefact"),
     (GoalSpec(artefact=ARTEFACT_GUIDE_BUSH, tool_position="T01"), "tool_position"),

@@ -31,6 +31,7 @@ from probe_cycle.sphere_cycle import evaluate_sphere_cycle
 from probe_cycle.sphere_fit import probe_point_sigma_um
 
 GUIDE_BUSH_TOOL_POSITION = GUIDE_BUSH_COMPONENT.split("_")[0]   # "GB"
+MAX_POINTS_PER_INDEXING = 64   # a plausible upper end; more only lengthens the cycle
 
 
 @dataclass(frozen=True)
@@ -70,8 +71,9 @@ class ProbeCycleEngine:
 
     # ------------------------------------------------------------------ planning
     def plan(self, goal: GoalSpec) -> CyclePlan:
-        if goal.points_per_indexing < 0:
-            raise PlanError(f"points_per_indexing: {goal.points_per_indexing} is negative")
+        if not 0 <= goal.points_per_indexing <= MAX_POINTS_PER_INDEXING:
+            raise PlanError(f"points_per_indexing: {goal.points_per_indexing} is outside "
+                            f"0..{MAX_POINTS_PER_INDEXING} (0 = default)")
         if goal.artefact == ARTEFACT_SPHERE:
             if goal.tool_position:
                 raise PlanError(f"tool_position: {goal.tool_position!r} given for the sphere "
