@@ -32,14 +32,15 @@ class InputsTimeline:
             raise TimelineError(f"time_s: need a 1-D array with at least one instant, got shape {self.time_s.shape}")
         if np.any(np.diff(self.time_s) <= 0):
             k = int(np.flatnonzero(np.diff(self.time_s) <= 0)[0]) + 1
-            raise TimelineError(f"time_s[{k}]: {self.time_s[k]!r} does not increase (previous {self.time_s[k-1]!r})")
+            raise TimelineError(f"time_s[{k}]: {float(self.time_s[k])!r} does not increase "
+                                f"(previous {float(self.time_s[k - 1])!r})")
         for k, v in list(self.values.items()):
             a = np.asarray(v, dtype=float)
             if a.shape != self.time_s.shape:
                 raise TimelineError(f"input '{k}': {a.shape} values, time_s has {self.time_s.shape}")
             if not np.all(np.isfinite(a)):
                 j = int(np.flatnonzero(~np.isfinite(a))[0])
-                raise TimelineError(f"input '{k}': value {a[j]!r} at t={self.time_s[j]} s is not finite")
+                raise TimelineError(f"input '{k}': value {float(a[j])!r} at t={float(self.time_s[j])} s is not finite")
             self.values[k] = a
 
     def __len__(self) -> int:
@@ -59,7 +60,7 @@ class InputsTimeline:
             bad = (a < spec.min) | (a > spec.max)
             if np.any(bad):
                 j = int(np.flatnonzero(bad)[0])
-                raise TimelineError(f"input '{name}': {a[j]!r} at t={self.time_s[j]} s is outside "
+                raise TimelineError(f"input '{name}': {float(a[j])!r} at t={float(self.time_s[j])} s is outside "
                                     f"[{spec.min}, {spec.max}] {spec.unit}")
             out[name] = a
         return out

@@ -47,8 +47,10 @@ def initial_temperatures(net: ThermalNetwork, inputs: Mapping[str, float]) -> np
 class TwinStepper:
     """The twin advanced in increments (used by the machine_sim node).
 
-    ``advance(dt, inputs)`` holds ``inputs`` constant for ``dt`` seconds (exact);
-    ``sensor_readings()`` and ``errors()`` describe the current instant.
+    ``set_inputs(u)`` sets the inputs that hold from now on (they also set the boundary
+    temperatures seen now), ``advance(dt)`` integrates ``dt`` seconds with them (exact);
+    ``sensor_readings()`` and ``errors()`` describe the current instant. Sampling
+    set_inputs(u_k) then reading at every t_k reproduces :func:`simulate`.
     """
 
     def __init__(self, machine: Machine | str | Mapping, initial_inputs: Mapping[str, float],
@@ -64,10 +66,16 @@ class TwinStepper:
         self.x_ref = self.x.copy()
         self._last_read_t: float | None = None
 
-    def advance(self, dt: float, inputs: Mapping[str, float]) -> None:
-        if dt < 0:
+    def set_inputs(self, inputs: Mapping[str, float]) -> None:
+        unknown = [k for k in inputs if k not in self.machine.inputs]
+        if unknown:
+            raise ValueError(f"input '{unknown[0]}' is not declared by machine '{self.machine.name}'")
+        self.inputs = {**self.inputs, **{k: float(v) for k, v in inputs.items()}}
+
+    def advance(self, dt: float) -> None:
+        """Integrate ``dt`` seconds with the current inputs held constant (exact)."""
+        if not dt >= 0:
             raise ValueError(f"dt: {dt!r} must be >= 0")
-        self.inputs = dict(inputs)
         if dt > 0:
             self.x = self.net.step(self.x, self.inputs, self.t_s, dt)
             self.t_s += dt
