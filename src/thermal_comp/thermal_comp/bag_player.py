@@ -161,7 +161,9 @@ def _read_mcap(path: pathlib.Path, contents: BagContents) -> None:
                 if isinstance(rec, (DataEnd, Footer)):
                     finished = True
         except Exception as exc:  # any damage: keep what was read, report where it stopped
-            if isinstance(exc, (EndOfFile, RecordLengthLimitExceeded)):
+            if isinstance(exc, EndOfFile) and good_offset == size:
+                reason = "the file ends without MCAP footer: the recording was not closed"
+            elif isinstance(exc, (EndOfFile, RecordLengthLimitExceeded)):
                 reason = ("the record there runs past the end of the file: truncated "
                           "(recording not closed) or corrupt")
             else:

@@ -17,6 +17,9 @@ which is logged; ``result`` holds the outcome. Run: ``thermal-comp play BAG`` or
 """
 from __future__ import annotations
 
+import os
+import pathlib
+import tempfile
 import threading
 import time
 
@@ -211,7 +214,39 @@ class BagPlayerNode(Node):
         self._thread.join(timeout=5.0)
 
 
+#: Fast DDS (Jazzy: Fast DDS 2.x) writer profile of the player: a reliable writer learns that a
+#: sample was received from the reader's ACKNACK, which Fast DDS sends in answer to a writer
+#: heartbeat - every 3 s by default, which made each acknowledged instant take ~3 s. 5 ms
+#: makes ``wait_for_all_acked`` return within milliseconds. QoS still comes from the code.
+PLAYER_DDS_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <data_writer profile_name="thermal_comp_bag_player" is_default_profile="true">
+    <times><heartbeatPeriod><sec>0</sec><nanosec>5000000</nanosec></heartbeatPeriod></times>
+  </data_writer>
+</profiles>
+"""
+PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+
+
+def use_fast_heartbeat() -> str | None:
+    """Point Fast DDS at :data:`PLAYER_DDS_PROFILE` unless the user set a profile file.
+
+    Must run before the ROS context is created. Returns the profile path used (None if the
+    user's own file is kept).
+    """
+    if os.environ.get(PROFILES_ENV):
+        return None
+    path = pathlib.Path(tempfile.gettempdir()) / f"thermal_comp_bag_player_{os.getuid()}.xml"
+    if not path.is_file() or path.read_text() != PLAYER_DDS_PROFILE:
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(PLAYER_DDS_PROFILE)
+        tmp.replace(path)
+    os.environ[PROFILES_ENV] = str(path)
+    return str(path)
+
+
 def main(args=None) -> int:
+    use_fast_heartbeat()
     holder: dict = {}
 
     def factory(context):

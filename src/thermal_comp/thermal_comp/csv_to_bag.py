@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from thermal_comp import msg_definitions
-from thermal_comp.bag_recorder import BagWriter, TopicInfo, qos_dict
+from thermal_comp.bag_recorder import DEFAULT_CHUNK_BYTES, BagWriter, TopicInfo, qos_dict
 from thermal_twin.recording_csv import Recording, error_unit, read_recording_csv
 
 T_TEMPS = "thermal_comp_msgs/msg/TemperatureArray"
@@ -114,7 +114,8 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
                      errors_as: str = "ground_truth", error_model_kind: str | None = None,
                      namespace: str = "", start_s: float = 0.0, every: int = 1,
                      rows: tuple[int, int | None] = (0, None), strict: bool = False,
-                     frame_id: str = "", progress: Callable[[int], None] | None = None) -> ImportResult:
+                     frame_id: str = "", chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                     progress: Callable[[int], None] | None = None) -> ImportResult:
     """Write ``rec`` as a bag folder ``out`` (see module doc). ``every`` keeps every n-th row."""
     if errors_as not in ERROR_TOPICS:
         raise CsvImportError(f"errors_as: {errors_as!r} is not one of {list(ERROR_TOPICS)}")
@@ -158,7 +159,7 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
     sens_mat = np.column_stack([rec.columns[c] for c in sensors]) if sensors else None
     err_mat = np.column_stack([rec.columns[c] for c in errors]) if errors else None
     counts = {t.name: 0 for t in topics}
-    with BagWriter(out, topics, custom_data={"imported_from": str(rec.source)}) as bag:
+    with BagWriter(out, topics, chunk_bytes=chunk_bytes, custom_data={"imported_from": str(rec.source)}) as bag:
         for done, k in enumerate(idx):
             t_ns = int(round((start_s + float(rec.time_s[k])) * 1e9))
             sec, nsec = divmod(t_ns, 1_000_000_000)
