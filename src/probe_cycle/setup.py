@@ -22,7 +22,7 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-
+            "probe = probe_cycle.probe_cli:main",
         ],
         # `thermal-comp bench SUITE`: "suite = module:function", function(args) -> dict of figures.
         "thermal_comp.bench": [

@@ -1,0 +1,147 @@
+"""Run one probing cycle on a running probe_cycle server and print the measured errors.
+
+``thermal-comp probe [--guide-bush] [--set-reference] [--points N] [--angles 0,90,180,270,360]
+[--timeout S] [--namespace NS] [--wait S]``. It shows a progress bar per point and
+prints the errors with their expanded uncertainty U (k=2). Exit code: 0 if the cycle
+succeeded, 1 if it failed or was refused, 2 on bad arguments or when no server answers.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="thermal-comp probe", description=__doc__.split("\n\n")[0])
+    p.add_argument("--guide-bush", action="store_true",
+                   help="probe the guide bush (lathe) instead of the sphere (5-axis)")
+    p.add_argument("--set-reference", action="store_true",
+                   help="this cycle becomes the reference (zero) of later cycles")
+    p.add_argument("--points", type=int, default=0,
+                   help="touch points per C indexing (sphere) or repeats (guide bush); 0 = default")
+    p.add_argument("--angles", default="",
+                   help="C indexings in degrees, comma-separated (default 0,90,180,270,360)")
+    p.add_argument("--timeout", type=float, default=0.0,
+                   help="cycle timeout on the machine's clock, s (0 = server default)")
+    p.add_argument("--namespace", default="", help="cell namespace of the server, e.g. /cell1")
+    p.add_argument("--wait", type=float, default=10.0,
+                   help="wall-clock seconds to wait for the server to appear (default 10)")
+    p.add_argument("--deadline", type=float, default=600.0,
+                   help="wall-clock seconds to wait for the result (default 600)")
+    return p
+
+
+def _angles(text: str) -> list[float]:
+    out = []
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        try:
+            v = float(item)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"--angles: '{item}' is not a number") from None
+        if not math.isfinite(v):
+            raise argparse.ArgumentTypeError(f"--angles: '{item}' is not finite")
+        out.append(v)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        angles = _angles(args.angles)
+    except argparse.ArgumentTypeError as exc:
+        print(f"thermal-comp probe: {exc}", file=sys.stderr)
+        return 2
+    if args.points < 0:
+        print(f"thermal-comp probe: --points: {args.points} is negative", file=sys.stderr)
+        return 2
+
+    import rclpy
+    from rclpy.action import ActionClient
+    from rclpy.executors import SingleThreadedExecutor
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from thermal_comp.node_runtime import ACTION_PROBE_CYCLE
+    from thermal_comp_msgs.action import ProbeCycle
+    from thermal_comp_msgs.msg import ThermalErrors
+
+    console = Console()
+    ctx = rclpy.context.Context()
+    rclpy.init(args=[], context=ctx)
+    node = rclpy.create_node("probe_cli", namespace=args.namespace or None, context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    client = ActionClient(node, ProbeCycle, ACTION_PROBE_CYCLE)
+    try:
+        end = time.monotonic() + args.wait
+        while not client.server_is_ready():
+            if time.monotonic() > end:
+                print(f"thermal-comp probe: no '{ACTION_PROBE_CYCLE}' action server answered "
+                      f"within {args.wait:g} s (namespace '{args.namespace or '/'}')",
+                      file=sys.stderr)
+                return 2
+            ex.spin_once(timeout_sec=0.1)
+        goal = ProbeCycle.Goal()
+        goal.artefact = (ProbeCycle.Goal.ARTEFACT_GUIDE_BUSH if args.guide_bush
+                         else ProbeCycle.Goal.ARTEFACT_SPHERE)
+        goal.set_reference = args.set_reference
+        goal.points_per_indexing = args.points
+        goal.c_angles_deg = angles
+        goal.timeout_s = args.timeout
+        with Progress(console=console, transient=True) as progress:
+            task = progress.add_task("probing", total=None)
+
+            def on_feedback(msg):
+                fb = msg.feedback
+                progress.update(task, total=fb.points_total, completed=fb.points_done,
+                                description=fb.stage)
+
+            send = client.send_goal_async(goal, feedback_callback=on_feedback)
+            deadline = time.monotonic() + args.deadline
+            while not send.done():
+                if time.monotonic() > deadline:
+                    print("thermal-comp probe: the goal was not answered", file=sys.stderr)
+                    return 1
+                ex.spin_once(timeout_sec=0.1)
+            handle = send.result()
+            if not handle.accepted:
+                print("thermal-comp probe: goal refused (a cycle is already running?)",
+                      file=sys.stderr)
+                return 1
+            res_future = handle.get_result_async()
+            while not res_future.done():
+                if time.monotonic() > deadline:
+                    handle.cancel_goal_async()
+                    print(f"thermal-comp probe: no result within {args.deadline:g} s; "
+                          "cancel sent", file=sys.stderr)
+                    return 1
+                ex.spin_once(timeout_sec=0.1)
+        result = res_future.result().result
+        if not result.success:
+            console.print(f"[red]probe cycle failed:[/red] {result.message}")
+            return 1
+        e = result.errors
+        table = Table(title=f"{e.model_kind}: {result.message.split(':')[0]}")
+        for col in ("component", "value", "U (k=2)", "unit"):
+            table.add_column(col, justify="left" if col in ("component", "unit") else "right")
+        for name, v, u, unit in zip(e.component_names, e.values, e.uncertainties, e.units):
+            table.add_row(name, f"{v:+.2f}", f"{2 * u:.2f}",
+                          "um/m" if unit == ThermalErrors.UNIT_UM_PER_M else "um")
+        console.print(table)
+        console.print(f"duration {result.duration_s:.1f} s, fit RMS "
+                      f"{result.fit_residual_rms_um:.2f} um, 360/0 check "
+                      f"{result.repeatability_check_um:.2f} um")
+        return 0
+    finally:
+        client.destroy()
+        node.destroy_node()
+        ex.shutdown()
+        rclpy.shutdown(context=ctx)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
