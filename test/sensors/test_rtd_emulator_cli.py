@@ -6,6 +6,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from thermal_sensors.modbus_source import ModbusSource
@@ -72,3 +73,58 @@ def test_serves_a_recording_to_a_modbus_client_across_processes(tmp_path, ports)
         out, _ = proc.communicate(timeout=20)
     assert proc.returncode == 0, out
     assert "served 8 rows" in out
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_serves_the_live_twin_readings(tmp_path, ports, ros_context):
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from std_msgs.msg import Header
+    from thermal_comp.node_runtime import SENSOR_QOS, s_to_stamp
+    from thermal_comp_msgs.msg import TemperatureArray
+
+    cfg = tmp_path / "s.yaml"
+    cfg.write_text(sensors_yaml(ports))
+    config = load_sensor_config(cfg)
+    proc = subprocess.Popen([sys.executable, "-m", "thermal_sensors.rtd_emulator", "--config", str(cfg),
+                             "--twin"], env=dict(os.environ), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    node = Node("fake_machine_sim", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    pub = node.create_publisher(TemperatureArray, "twin/sensor_readings", SENSOR_QOS)
+    source = ModbusSource(config)
+    builder = TemperatureFrameBuilder(config)
+    ids = ["ambient", "spindle", "stuck", "hot", "cold"]
+
+    def serve_and_read(values, status, expect_status):
+        deadline = time.monotonic() + 30
+        k = 0
+        while time.monotonic() < deadline and proc.poll() is None:
+            k += 1
+            pub.publish(TemperatureArray(header=Header(stamp=s_to_stamp(float(k))), sensor_ids=ids,
+                                         temperatures_degc=values, status=status))
+            ex.spin_once(timeout_sec=0.05)
+            source.poll_once()
+            frame = builder.build(source.sample(float(k)))
+            if list(frame.status) == expect_status:
+                return frame
+        return None
+    try:
+        deadline = time.monotonic() + 30
+        while pub.get_subscription_count() < 1 and time.monotonic() < deadline and proc.poll() is None:
+            ex.spin_once(timeout_sec=0.05)
+        frame = serve_and_read([21.3, 30.2, 24.3, 55.5, -7.9], [0] * 5, [0] * 5)
+        assert frame is not None
+        np.testing.assert_allclose(frame.temperatures_degc, [21.8, 1.01 * 30.2 - 0.2, 24.3, 55.5, -7.9],
+                                   atol=1e-9)
+        frame = serve_and_read([21.3, 30.2, 24.3, 55.5, -7.9], [0, 0, 0, 3, 0], [0, 0, 0, 3, 0])
+        assert frame is not None and "sensor fault" in frame.reasons[3]
+    finally:
+        source.close()
+        proc.terminate()
+        out, _ = proc.communicate(timeout=20)
+        ex.shutdown()
+        node.destroy_node()
+    assert proc.returncode == 0, out

@@ -1,4 +1,4 @@
-"""Emulate Pt100/RTD Modbus modules on loopback, serving temperatures from a CSV.
+"""Emulate Pt100/RTD Modbus modules on loopback, serving temperatures from a CSV or the twin.
 
 The emulator serves the modules and register map of a sensor YAML (the same file the
 ``modbus`` source reads), so a bench setup or a test talks real Modbus to it:
@@ -203,23 +203,50 @@ def play_recording(emulator: RtdEmulator, recording, speed: float, loop: bool,
             return served
 
 
+def _serve_twin(config: SensorConfig, ros_args: list[str]) -> int:
+    """Serve the twin's live readings until Ctrl-C / SIGTERM (an rclpy node in this process)."""
+    from thermal_comp.node_runtime import run_node
+    from thermal_sensors.rtd_twin_feed_node import RtdTwinFeed
+    emu = RtdEmulator(config)
+    try:
+        emu.start()
+    except RuntimeError as exc:
+        print(f"rtd-emulator: {exc}", file=sys.stderr)
+        return 1
+
+    def feed(context):
+        return RtdTwinFeed(context=context, emulator=emu)
+    feed.__name__ = "rtd-emulator"
+    try:
+        return run_node(feed, ["rtd-emulator"] + ros_args)
+    finally:
+        emu.stop()
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Emulate Pt100/RTD Modbus modules on loopback, serving temperatures from a CSV."""
+    """Emulate Pt100/RTD Modbus modules on loopback, serving temperatures from a CSV or the twin."""
     p = argparse.ArgumentParser(
         prog="thermal-comp rtd-emulator",
         description="Serve the Modbus RTD modules of a sensor YAML (register map, unit ids, "
-                    "ports) with temperatures from a recording CSV, for bench setups and tests.")
+                    "ports) with temperatures from a recording CSV or from the running twin, "
+                    "for bench setups and tests.")
     p.add_argument("--config", required=True,
                    help="sensor YAML with sensors[].modbus and modbus.modules, or a shipped one by name "
                         "(rtd_bench)")
-    p.add_argument("--csv", required=True, help="recording CSV (shared format); column = channel + '_c'")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--csv", help="recording CSV (shared format); column = channel + '_c'")
+    src.add_argument("--twin", action="store_true",
+                     help="serve machine_sim's live twin/sensor_readings (ROS; matched by channel); "
+                          "ROS arguments may follow after --ros-args")
     p.add_argument("--speed", type=float, default=1.0,
                    help="playback speed: recording seconds per wall second (default 1)")
     p.add_argument("--loop", action="store_true", help="start over at the end of the recording")
     p.add_argument("--hold", action="store_true",
                    help="after the last row keep serving it until Ctrl-C (a stuck value: clients "
                         "will flag it stale) instead of exiting")
-    args = p.parse_args(argv)
+    args, ros_args = p.parse_known_args(argv)
+    if ros_args and not (args.twin and ros_args[0] == "--ros-args"):
+        p.error(f"unrecognized arguments: {' '.join(ros_args)}")
     if not (args.speed > 0 and math.isfinite(args.speed)):
         p.error(f"--speed: {args.speed!r} must be > 0")
     from thermal_sensors.sensor_config import SensorConfigError
@@ -227,10 +254,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_sensor_config(resolve_sensor_config(args.config))
         require_modbus(config)
-        recording = read_recording_csv(args.csv)
+        recording = None if args.twin else read_recording_csv(args.csv)
     except (SensorConfigError, RecordingError) as exc:
         print(f"rtd-emulator: {exc}", file=sys.stderr)
         return 2
+    if args.twin:
+        return _serve_twin(config, ros_args)
     for w in recording.warnings:
         print(f"rtd-emulator: warning: {w}", file=sys.stderr)
     emu = RtdEmulator(config)
