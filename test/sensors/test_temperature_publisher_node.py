@@ -204,3 +204,15 @@ def test_modbus_source_node_flags_a_silent_module_and_keeps_publishing(setup, ro
         node.destroy_node()
         emu.stop()
     assert "sensor cold: failed" in out and "sensor cold: ok again" in out
+
+
+def test_bad_sensor_config_stops_the_node_with_one_line_naming_the_key(tmp_path):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text("sensors:\n  - {id: a, range_degc: [30, 10]}\n")
+    proc = spawn_node({"source": "twin", "sensor_config": str(cfg)}, "sensors")
+    out = proc.communicate(timeout=60)[0]
+    assert proc.returncode == 2, out
+    assert "sensors[0].range_degc: [30, 10]" in out
+    proc = spawn_node({"source": "modbus", "sensor_config": str(cfg).replace("bad", "none")}, "sensors")
+    out = proc.communicate(timeout=60)[0]
+    assert proc.returncode == 2 and "no such sensor config file" in out, out
