@@ -332,3 +332,22 @@ def test_bad_reference_file_names_the_key(tmp_path):
     path.write_text("{not json")
     with pytest.raises(ReferenceFileError, match="not valid JSON"):
         ReferenceStore.load(path)
+
+
+def test_analytic_jacobian_of_the_fit_matches_finite_differences():
+    from probe_cycle.sphere_fit import _along_move_jacobian, _along_move_residuals
+    rng = np.random.default_rng(11)
+    plan = plan_sphere_cycle(ArtefactGeometry())
+    moves = plan.moves_of_group(1)
+    pts = np.array([m.start_mm for m in moves]) - [0, 0, 2.0]      # about on the sphere
+    pts_um = (pts - np.asarray(plan.nominal_centres_mm[1])) * 1000.0
+    dirs = np.array([m.direction for m in moves])
+    r_um = plan.contact_radius_mm * 1000.0
+    for _ in range(5):
+        c = rng.normal(0.0, 30.0, 3)
+        jac = _along_move_jacobian(c, pts_um, dirs, r_um)
+        num = np.column_stack([
+            (_along_move_residuals(c + h, pts_um, dirs, r_um)
+             - _along_move_residuals(c - h, pts_um, dirs, r_um)) / 2e-3
+            for h in np.eye(3) * 1e-3])
+        assert np.allclose(jac, num, atol=1e-6)

@@ -60,6 +60,21 @@ def _along_move_residuals(centre_um: np.ndarray, points_um: np.ndarray,
     return out
 
 
+def _along_move_jacobian(centre_um: np.ndarray, points_um: np.ndarray,
+                         directions: np.ndarray, radius_um: float) -> np.ndarray:
+    """d residual / d centre, (n, 3): -d + (w - (w.d) d) / sqrt(disc) on the hit branch."""
+    w = points_um - centre_um
+    wd = np.einsum("ij,ij->i", w, directions)
+    ww = np.einsum("ij,ij->i", w, w)
+    disc = wd * wd - (ww - radius_um * radius_um)
+    out = np.empty((len(points_um), 3))
+    hit = disc > 1e-9 * radius_um * radius_um          # away from a grazing line
+    root = np.sqrt(disc[hit])[:, None]
+    out[hit] = -directions[hit] + (w[hit] - wd[hit, None] * directions[hit]) / root
+    out[~hit] = -w[~hit] / np.sqrt(ww[~hit])[:, None]
+    return out
+
+
 def fit_sphere_centre(points_mm: np.ndarray, directions: np.ndarray, radius_mm: float,
                       point_sigma_um: float, initial_centre_mm: np.ndarray) -> SphereFit:
     """Centre of a sphere of known ``radius_mm`` through ``points_mm`` (n, 3)."""
@@ -81,7 +96,10 @@ def fit_sphere_centre(points_mm: np.ndarray, directions: np.ndarray, radius_mm: 
     def fun(c):
         return _along_move_residuals(c, pts_um, dirs, r_um)
 
-    sol = least_squares(fun, np.zeros(3), method="lm", x_scale=1.0, xtol=1e-12,
+    def jac(c):
+        return _along_move_jacobian(c, pts_um, dirs, r_um)
+
+    sol = least_squares(fun, np.zeros(3), jac=jac, method="lm", x_scale=1.0, xtol=1e-12,
                         ftol=1e-12, gtol=1e-12)
     if not sol.success:
         raise SphereFitError(f"sphere fit did not converge: {sol.message}")
