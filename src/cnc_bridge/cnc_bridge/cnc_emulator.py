@@ -436,6 +436,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"cnc-emulator: {exc}", file=sys.stderr)
         return 2
+    if not args.verbose:
+        logging.getLogger("asyncua").setLevel(logging.ERROR)
+    if cfg.password is not None and not cfg.certificate:
+        print("cnc-emulator: warning: a password without --certificate travels unencrypted",
+              file=sys.stderr)
     errors = dict(args.true_errors)
     probe = artefact_probe(lambda: errors) if args.probe_artefact else None
 
