@@ -4,10 +4,9 @@ from __future__ import annotations
 import logging
 import time
 
-import numpy as np
 import pytest
 
-from bridge_certs import make_certificate
+from cnc_bridge.certificates import make_certificate
 from cnc_bridge.cnc_emulator import (ENDPOINT_PATH, PROBE_METHOD_ID, PROBE_OBJECT_ID,
                                      CncEmulatorThread, EmulatorConfig, artefact_probe,
                                      compensation_node_id, free_tcp_port)

@@ -1,8 +1,13 @@
-"""Self-signed test certificates for OPC UA Basic256Sha256, made with `cryptography`."""
+"""Self-signed certificates for OPC UA Basic256Sha256 (tests, benchmarks, demos), via `cryptography`.
+
+For a real machine use certificates from the plant's PKI; these are for loopback trials.
+The subject alternative name carries the application URI, as OPC UA requires.
+"""
 from __future__ import annotations
 
 import datetime as dt
 import pathlib
+import socket
 
 from cryptography import x509
 from cryptography.hazmat.primitives import hashes, serialization
@@ -24,7 +29,7 @@ def make_certificate(folder: pathlib.Path, name: str, application_uri: str,
             .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=30))
             .add_extension(x509.SubjectAlternativeName(
                 [x509.UniformResourceIdentifier(application_uri), x509.DNSName("localhost"),
-                 x509.DNSName("127.0.0.1")]), critical=False)
+                 x509.DNSName(socket.gethostname())]), critical=False)
             .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
             .add_extension(x509.KeyUsage(digital_signature=True, content_commitment=True,
                                          key_encipherment=True, data_encipherment=True,
@@ -32,6 +37,8 @@ def make_certificate(folder: pathlib.Path, name: str, application_uri: str,
                                          encipher_only=False, decipher_only=False), critical=True)
             .add_extension(x509.ExtendedKeyUsage(usage), critical=False)
             .sign(key, hashes.SHA256()))
+    folder = pathlib.Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     cert_path, key_path = folder / f"{name}.der", folder / f"{name}.pem"
     cert_path.write_bytes(cert.public_bytes(serialization.Encoding.DER))
     key_path.write_bytes(key.private_bytes(serialization.Encoding.PEM,
