@@ -23,12 +23,19 @@ def _as_machine(machine: Machine | str | Mapping) -> Machine:
     return machine if isinstance(machine, Machine) else load_machine(machine)
 
 
+def environment_input_names(machine: Machine) -> set[str]:
+    """Inputs that go on while the machine stands still: environment inputs and the
+    temperatures of boundaries (hall, coolant tank, oil)."""
+    keep = {n for n, s in machine.inputs.items() if s.kind == "environment"}
+    keep |= {b.temperature for b in machine.boundaries.values() if isinstance(b.temperature, str)}
+    return keep
+
+
 def idle_inputs(machine: Machine, inputs: Mapping[str, float]) -> dict[str, float]:
     """The inputs of an idle machine in its environment at this instant: environment inputs
     and boundary temperatures (coolant supply, oil) as given, every other machine input
     (speeds, powers, switches) at its default."""
-    keep = {n for n, s in machine.inputs.items() if s.kind == "environment"}
-    keep |= {b.temperature for b in machine.boundaries.values() if isinstance(b.temperature, str)}
+    keep = environment_input_names(machine)
     return {n: (float(inputs[n]) if n in keep and n in inputs else s.default)
             for n, s in machine.inputs.items()}
 

@@ -1,0 +1,229 @@
+"""machine_sim: the twin as a ROS node that owns simulated time.
+
+Every step it publishes /clock, ``machine_state``, ``twin/sensor_readings`` and (optionally)
+``errors/ground_truth`` for the new instant t_k, then advances to t_{k+1}
+- in lock-step, once every node in ``lockstep_participants`` has published a SimSync with
+  ``processed_until >= t_k`` (docs/architecture.md); it starts once all of them publish on
+  ``sim_sync`` and re-sends the current instant if no acknowledgement arrives within
+  ``resend_after_s`` wall seconds (a subscriber that matched late);
+- free-running otherwise, at ``real_time_factor`` (0 = as fast as possible).
+It keeps the offsets applied by the CNC (``offsets``) and answers ``twin/touch_probe``: the
+twin idles for the request's ``duration_s`` (programme paused, hall goes on), then
+``thermal_twin.artefact_geometry.touch_trigger_position`` says where the probe triggers
+(true error minus applied compensation). The physics is in scenario_runner / simulate.
+
+Run: python -m thermal_twin.machine_sim_node --ros-args -p machine:=nmv5000 -p scenario:=talc-178h-dry
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock
+
+from thermal_comp.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
+                                       TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC, TOPIC_TWIN_SENSORS,
+                                       Param, declare_parameters, s_to_stamp, stamp_to_s)
+from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, TemperatureArray, ThermalErrors
+from thermal_comp_msgs.srv import TouchProbe
+from thermal_twin.machine_schema import load_machine
+from thermal_twin.machine_state_fields import error_components, machine_state_fields
+from thermal_twin.scenario_runner import ScenarioRunner
+from thermal_twin.scenarios import make_timeline
+
+PARAMS = [
+    Param("machine", "nmv5000", "machine preset (nmv5000, swiss-lathe, spindle-stand, fe-three-body) or YAML path"),
+    Param("scenario", "talc-178h-dry", "scenario name (thermal-comp sim --help lists them)"),
+    Param("seed", 0, "seed of the scenario and of sensor and probe noise", 0, 2**31 - 1),
+    Param("hours", 0.0, "scenario duration in hours (0 = the scenario's default)", 0.0, 10000.0),
+    Param("step_s", 0.0, "time step in s (0 = the scenario's default)", 0.0, 3600.0),
+    Param("publish_ground_truth", True, "publish errors/ground_truth (evaluation only)"),
+    Param("lockstep_participants", Parameter.Type.STRING_ARRAY,
+          "node names that must acknowledge every instant on sim_sync (empty = free-running)"),
+    Param("real_time_factor", 0.0, "free-running speed: simulated s per wall s (0 = as fast as possible)",
+          0.0, 1.0e6),
+    Param("resend_after_s", 2.0, "lock-step: re-send the current instant after this many wall s without "
+          "all acknowledgements", 0.1, 600.0),
+    Param("probe_noise", True, "touch probe repeatability scatter (False: ideal probe, readout still quantised)"),
+    Param("shutdown_when_done", False, "stop the node when the scenario has ended"),
+]
+
+
+class MachineSimNode(Node):
+    def __init__(self, context=None):
+        super().__init__("machine_sim", context=context)
+        p = declare_parameters(self, PARAMS)
+        self.machine = load_machine(p["machine"])
+        timeline = make_timeline(self.machine.name, p["scenario"], hours=p["hours"] or None,
+                                 seed=p["seed"], step_s=p["step_s"] or None)
+        self.runner = ScenarioRunner(self.machine, timeline, seed=p["seed"])
+        self.participants = [n for n in (p["lockstep_participants"] or []) if n]
+        self.publish_truth = p["publish_ground_truth"]
+        self.resend_after_s = p["resend_after_s"]
+        self.shutdown_when_done = p["shutdown_when_done"]
+        self.probe_rng = np.random.default_rng([p["seed"], 7]) if p["probe_noise"] else None
+        self.units = {e: s.unit for e, s in self.machine.errors.items()}
+        self.applied_offsets: dict[str, float] = {}
+        self.acks: dict[str, float] = {}
+        self.started = False
+        self.last_publish_wall = 0.0
+        self.published_t = -math.inf
+
+        self.pub_clock = self.create_publisher(Clock, "/clock", SENSOR_QOS)
+        self.pub_state = self.create_publisher(MachineState, TOPIC_MACHINE_STATE, SENSOR_QOS)
+        self.pub_sensors = self.create_publisher(TemperatureArray, TOPIC_TWIN_SENSORS, SENSOR_QOS)
+        self.pub_truth = self.create_publisher(ThermalErrors, TOPIC_ERRORS_TRUE, EVENT_QOS)
+        self.create_subscription(AxisOffsets, TOPIC_OFFSETS, self._on_offsets, EVENT_QOS)
+        self.create_subscription(SimSync, TOPIC_SIM_SYNC, self._on_sync, EVENT_QOS)
+        self.create_service(TouchProbe, SERVICE_TOUCH_PROBE, self._on_touch_probe)
+
+        if self.participants:
+            self.timer = self.create_timer(0.05, self._lockstep_tick)
+        else:
+            rtf = p["real_time_factor"]
+            step = float(timeline.time_s[1] - timeline.time_s[0]) if len(timeline) > 1 else 1.0
+            self.timer = self.create_timer(step / rtf if rtf > 0 else 0.001, self._free_tick)
+        self.get_logger().info(
+            f"{self.machine.name}/{p['scenario']}: {len(timeline)} instants, "
+            f"{'lock-step with ' + ', '.join(self.participants) if self.participants else 'free-running'}")
+
+    # ------------------------------------------------------------------ publishing
+    def _publish_instant(self) -> None:
+        r = self.runner
+        stamp = s_to_stamp(r.t_s)
+        self.pub_clock.publish(Clock(clock=stamp))
+        fields = machine_state_fields(r.inputs())
+        state = MachineState(machine_busy_probing=r.busy_probing, **fields)
+        state.header.stamp = stamp
+        self.pub_state.publish(state)
+        readings = r.sensor_readings()
+        temps = TemperatureArray(sensor_ids=list(readings), temperatures_degc=list(readings.values()),
+                                 status=[TemperatureArray.STATUS_OK] * len(readings))
+        temps.header.stamp = stamp
+        self.pub_sensors.publish(temps)
+        if self.publish_truth:
+            names, values, codes = error_components(r.errors(), self.units)
+            msg = ThermalErrors(source=ThermalErrors.SOURCE_GROUND_TRUTH, model_kind="twin",
+                                component_names=names, values=values, units=codes,
+                                uncertainties=[0.0] * len(values))
+            msg.header.stamp = stamp
+            self.pub_truth.publish(msg)
+        self.last_publish_wall = time.monotonic()
+        self.published_t = r.t_s
+        self._last_published = (stamp, state, temps)
+
+    def _republish(self) -> None:
+        """Send the current instant again (same stamps, same readings) to late subscribers."""
+        stamp, state, temps = self._last_published
+        self.pub_clock.publish(Clock(clock=stamp))
+        self.pub_state.publish(state)
+        self.pub_sensors.publish(temps)
+        self.last_publish_wall = time.monotonic()
+
+    def _finish_if_done(self) -> bool:
+        if not self.runner.done:
+            return False
+        self.timer.cancel()
+        self.get_logger().info(f"scenario finished at t = {self.runner.t_s:.0f} s")
+        if self.shutdown_when_done:
+            self.context.try_shutdown()
+        return True
+
+    # ------------------------------------------------------------------ free-running
+    def _free_tick(self) -> None:
+        if not self.started:
+            self.started = True
+            self._publish_instant()
+            return
+        if self._finish_if_done():
+            return
+        self.runner.step()
+        self._publish_instant()
+
+    # ------------------------------------------------------------------ lock-step
+    def _participants_present(self) -> bool:
+        names = {i.node_name for i in self.get_publishers_info_by_topic(self.resolve_topic_name(TOPIC_SIM_SYNC))}
+        return all(n in names for n in self.participants)
+
+    def _all_acked(self) -> bool:
+        """Every participant has processed the last published instant (probing may have
+        moved simulated time on since; the acknowledgement refers to the instant)."""
+        t = self.published_t
+        return all(self.acks.get(n, -math.inf) >= t - 1e-6 for n in self.participants)
+
+    def _lockstep_tick(self) -> None:
+        if not self.started:
+            if self._participants_present():
+                self.started = True
+                self._publish_instant()
+            return
+        if self._all_acked():
+            self._advance_lockstep()
+        elif time.monotonic() - self.last_publish_wall > self.resend_after_s and not self.runner.done:
+            self._republish()
+
+    def _on_sync(self, msg: SimSync) -> None:
+        t = stamp_to_s(msg.processed_until)
+        if msg.node_name in self.participants:
+            self.acks[msg.node_name] = max(t, self.acks.get(msg.node_name, -math.inf))
+        if self.started and self.participants and self._all_acked():
+            self._advance_lockstep()
+
+    def _advance_lockstep(self) -> None:
+        if self._finish_if_done():
+            return
+        self.runner.step()
+        self._publish_instant()
+
+    # ------------------------------------------------------------------ CNC and probe
+    def _on_offsets(self, msg: AxisOffsets) -> None:
+        if len(msg.axis_names) != len(msg.applied_offsets_um):
+            self.get_logger().error(f"offsets: {len(msg.axis_names)} axis names but "
+                                    f"{len(msg.applied_offsets_um)} applied offsets; message ignored")
+            return
+        for name, v in zip(msg.axis_names, msg.applied_offsets_um):
+            if math.isfinite(v):
+                self.applied_offsets[name] = float(v)
+            else:
+                self.get_logger().error(f"offsets: axis '{name}' applied offset {v!r} is not finite; "
+                                        "keeping the previous value")
+
+    def _on_touch_probe(self, request: TouchProbe.Request, response: TouchProbe.Response):
+        from thermal_twin.artefact_geometry import touch_trigger_position
+        r = self.runner
+        try:
+            if not (math.isfinite(request.duration_s) and request.duration_s >= 0):
+                raise ValueError(f"duration_s: {request.duration_s!r} must be a finite number >= 0")
+            r.busy_probing = True
+            r.idle(request.duration_s)
+            errors = {k[:-3] if k.endswith("_um") else k: v for k, v in r.errors().items()}
+            triggered, pos = touch_trigger_position(
+                int(request.artefact), float(request.c_axis_deg), float(request.b_axis_deg),
+                np.asarray(request.start_mm, dtype=float), np.asarray(request.direction, dtype=float),
+                float(request.max_travel_mm), errors, dict(self.applied_offsets), rng=self.probe_rng)
+            response.triggered = bool(triggered)
+            response.trigger_position_mm = [float(x) for x in pos]
+            response.message = "" if triggered else f"no trigger within {request.max_travel_mm} mm"
+        except ValueError as exc:
+            response.triggered = False
+            response.trigger_position_mm = [math.nan] * 3
+            response.message = f"bad touch-probe request: {exc}"
+        finally:
+            r.resume()
+            r.busy_probing = False
+        response.stamp = s_to_stamp(r.t_s)
+        self.pub_clock.publish(Clock(clock=response.stamp))
+        return response
+
+
+def main(args=None) -> int:
+    from thermal_comp.node_runtime import run_node
+    return run_node(MachineSimNode, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())
