@@ -21,7 +21,6 @@ import time
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock
 
 from thermal_comp.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
@@ -41,8 +40,10 @@ PARAMS = [
     Param("hours", 0.0, "scenario duration in hours (0 = the scenario's default)", 0.0, 10000.0),
     Param("step_s", 0.0, "time step in s (0 = the scenario's default)", 0.0, 3600.0),
     Param("publish_ground_truth", True, "publish errors/ground_truth (evaluation only)"),
-    Param("lockstep_participants", Parameter.Type.STRING_ARRAY,
-          "node names that must acknowledge every instant on sim_sync (empty = free-running)"),
+    # default [""]: a typed string array (an empty list would be typed as bytes by rclpy);
+    # empty names are ignored, so the default means free-running
+    Param("lockstep_participants", [""],
+          "node names that must acknowledge every instant on sim_sync (none = free-running)"),
     Param("real_time_factor", 0.0, "free-running speed: simulated s per wall s (0 = as fast as possible)",
           0.0, 1.0e6),
     Param("resend_after_s", 2.0, "lock-step: re-send the current instant after this many wall s without "

@@ -264,8 +264,9 @@ def make_timeline(machine: str, scenario: str, hours: float | None = None, seed:
         raise ScenarioError(f"scenario {scenario!r} is unknown (scenarios: {', '.join(scenario_names())})")
     s = SCENARIOS[scenario]
     if _key(machine) not in s.builders:
-        raise ScenarioError(f"scenario {scenario!r} does not fit machine {machine!r} "
-                            f"(it runs on: {', '.join(b.replace('_', '-') for b in s.builders)}; scenarios for {machine}: "
+        shown = _key(machine).replace("_", "-")
+        raise ScenarioError(f"scenario {scenario!r} does not fit machine {shown!r} "
+                            f"(it runs on: {', '.join(b.replace('_', '-') for b in s.builders)}; scenarios for {shown}: "
                             f"{', '.join(scenario_names(machine)) or 'none'})")
     hours = s.hours if hours is None else float(hours)
     step = s.step_s if step_s is None else float(step_s)
