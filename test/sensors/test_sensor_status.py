@@ -101,3 +101,9 @@ def test_frame_builder_calibrates_before_checking_the_range():
     assert "31 degC outside the range [0, 30]" in frame.reasons[0] and frame.reasons[1] == ""
     with pytest.raises(ValueError, match="3 values"):
         b.build(RawSample(6.0, np.zeros(3), np.ones(3, bool), np.zeros(3), [""] * 3))
+
+
+def test_status_codes_are_the_message_constants():
+    from thermal_comp_msgs.msg import TemperatureArray as T
+    assert [SensorStatus.OK, SensorStatus.STALE, SensorStatus.OUT_OF_RANGE, SensorStatus.FAILED] == \
+        [T.STATUS_OK, T.STATUS_STALE, T.STATUS_OUT_OF_RANGE, T.STATUS_FAILED]
