@@ -10,7 +10,8 @@ from thermal_twin.sim_cli import main
 def test_sim_writes_a_recording_csv(tmp_path):
     out = tmp_path / "dry.csv"
     assert main(["--machine", "nmv5000", "--scenario", "talc-178h-dry", "--hours", "6", "--seed", "3",
-                 "--csv", str(out), "--quiet"]) == 0
+                 "--csv", str(out), "--plot", str(tmp_path / "dry.png"), "--quiet"]) == 0
+    assert (tmp_path / "dry.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     rec = read_recording_csv(out)
     assert rec.names("error") == ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]
     assert rec.names("sensor") == ["ambient_c", "ws_mwf_c", "c_coolant_delta_c", "c_motor_internal_c"]

@@ -30,6 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed of scenario and sensor noise (default 0)")
     p.add_argument("--step", type=float, default=None, help="time step in s (default: the scenario's)")
     p.add_argument("--csv", required=True, help="output recording CSV")
+    p.add_argument("--plot", default=None, help="also write a PNG overview (inputs, readings, errors)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -57,6 +58,9 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, RecordingError) as exc:
         print(f"thermal-comp sim: cannot write {args.csv}: {exc}", file=sys.stderr)
         return 1
+    if args.plot:
+        from thermal_twin.recording_plot import plot_recording
+        plot_recording(result.to_recording(), args.plot, title=f"{machine.name} / {args.scenario} (seed {args.seed})")
     if not args.quiet:
         print(f"wrote {args.csv}: {len(result.time_s)} rows, "
               f"{len(result.sensors)} sensors, errors {', '.join(result.errors)}", file=sys.stderr)
