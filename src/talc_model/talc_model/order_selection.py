@@ -112,6 +112,9 @@ def select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_ra
         raise ValueError(f"order ranges: na {na_range}, nb {nb_range} are not valid (min <= max, >= 0)")
     scored = np.isfinite(y) if measured is None else (np.asarray(measured, bool) & np.isfinite(y))
     split = int(round(train_fraction * n))
+    # simulation starts from measured outputs: move the split back past missing samples
+    while split > 0 and not np.all(np.isfinite(y[max(0, split - max(na_hi, 1)):split])):
+        split -= 1
     max_orders = ArxOrders(na_hi, (nb_hi,) * r, nk, intercept)
     # common first row so that every candidate is scored on the same samples
     start = max_orders.max_lag

@@ -28,8 +28,11 @@ Choices where the thesis leaves a gap (each is a config field):
 
 - intervals count from the *end* of a cycle (``interval_from_cycle_end``; spec §4.5 [D]:
   a CP period is 300 + 95 s, which reproduces the reported CP productivity of ~75 %);
-- measurements fall on the nearest grid sample; CP grid samples without a measurement are
-  filled by linear interpolation of the neighbouring measurements, flagged "predicted";
+- measurements fall on the nearest grid sample; CP grid samples without a measurement
+  (a 300 + 95 s CP period on a 300 s grid leaves gaps, failed cycles too) are left out of
+  the first fit and then filled with the fitted model's predictions (``cp_gap_fill =
+  "predict"``, the thesis's "fill the output lags with model predictions"), or filled by
+  linear interpolation (``"interpolate"``); either way they are flagged "predicted";
 - inputs are deltas from each input's first finite value; an unavailable input (NaN) holds
   its last value (``input_names`` entries may be differences, ``"a - b"``, for the
   C-axis coolant inlet-outlet temperature difference);
@@ -94,6 +97,9 @@ class TalcConfig:
     # --- weighted least squares
     predicted_weight: float = 0.05         # weight of samples that only carry a prediction
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
+    cp_gap_fill: str = "predict"           # CP grid samples without a measurement: "predict"
+    #                                        (rows with gaps left out of the first fit, then filled
+    #                                        with the fitted model's predictions) or "interpolate"
     forgetting_factor: float = 1.0         # weight multiplier per forgetting_period_h of age (1 = off)
     forgetting_period_h: float = 24.0
     history_window_h: float = math.inf     # only samples this recent are fitted
@@ -135,6 +141,8 @@ class TalcConfig:
             raise ValueError(f"TALC config 'forgetting_factor': {self.forgetting_factor!r} must be in (0, 1]")
         if not 0.1 <= self.train_fraction <= 0.95:
             raise ValueError(f"TALC config 'train_fraction': {self.train_fraction!r} must be in [0.1, 0.95]")
+        if self.cp_gap_fill not in ("predict", "interpolate"):
+            raise ValueError(f"TALC config 'cp_gap_fill': {self.cp_gap_fill!r} is not 'predict' or 'interpolate'")
         if not self.component_names:
             raise ValueError("TALC config 'component_names': empty")
 
@@ -520,7 +528,7 @@ class TalcModel:
         y = g.y[: g.n, j].copy()
         m = g.measured[: g.n, j].copy()
         missing = ~np.isfinite(y)
-        if np.any(missing) and np.sum(m) >= 2:
+        if self.config.cp_gap_fill == "interpolate" and np.any(missing) and np.sum(m) >= 2:
             idx = np.flatnonzero(m)
             inside = missing & (np.arange(g.n) > idx[0]) & (np.arange(g.n) < idx[-1])
             y[inside] = np.interp(np.flatnonzero(inside), idx, y[idx])
@@ -583,7 +591,7 @@ class TalcModel:
             self.message = f"calibration phase continues: {exc}"
             return
         self.models = models
-        # CP gaps become interpolated ("predicted") outputs so that the lags are defined
+        # CP gaps become "predicted" outputs (interpolated, or the new model's predictions)
         g = self.grid
         for j in range(len(self.component_names)):
             y, _ = self._training_outputs(j)
@@ -591,7 +599,8 @@ class TalcModel:
         self.phase = PHASE_COMPENSATION
         self.t_last_update = t_s
         self.parameter_updates += 1
-        self._resimulate_after(-1 if self.config.resimulate_history_on_update else self._last_measured_index())
+        self._resimulate_after(-1 if self.config.resimulate_history_on_update or
+                               self.config.cp_gap_fill == "predict" else self._last_measured_index())
         summary = ", ".join(f"{n}: na={m.orders.na} nb={list(m.orders.nb)}" for n, m in models.items())
         self.message = (f"calibration phase ended after {(t_s - self.t0) / 3600:.2f} h, "
                         f"{self.probing_cycles} measurements; orders {summary}")
