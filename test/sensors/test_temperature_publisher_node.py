@@ -216,3 +216,48 @@ def test_bad_sensor_config_stops_the_node_with_one_line_naming_the_key(tmp_path)
     proc = spawn_node({"source": "modbus", "sensor_config": str(cfg).replace("bad", "none")}, "sensors")
     out = proc.communicate(timeout=60)[0]
     assert proc.returncode == 2 and "no such sensor config file" in out, out
+
+
+def test_with_the_real_machine_sim_in_lockstep(ros_context):
+    """machine_sim (nmv5000, 30 min at its default step) waits for this node on every instant;
+    every twin reading comes out once, stamped alike, uncalibrated values unchanged."""
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+    from thermal_comp.node_runtime import SENSOR_QOS
+    from thermal_comp_msgs.msg import TemperatureArray
+
+    node = Node("observer", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    twin, temps = {}, {}
+    node.create_subscription(TemperatureArray, "twin/sensor_readings",
+                             lambda m: twin.setdefault((m.header.stamp.sec, m.header.stamp.nanosec), m),
+                             SENSOR_QOS)
+    node.create_subscription(TemperatureArray, "temperatures",
+                             lambda m: temps.setdefault((m.header.stamp.sec, m.header.stamp.nanosec), []).append(m),
+                             SENSOR_QOS)
+    pub = spawn_node({"source": "twin", "sensor_config": "nmv5000", "lockstep_participant": True,
+                      "use_sim_time": True}, "sensors")
+    # the observer must be matched before time starts, or it would miss the first instants
+    spin_until(ex, lambda: node.count_publishers("temperatures") >= 1, 30.0, pub)
+    sim = subprocess.Popen([sys.executable, "-m", "thermal_twin.machine_sim_node", "--ros-args",
+                            "-p", "machine:=nmv5000", "-p", "scenario:=talc-178h-dry", "-p", "hours:=0.5",
+                            "-p", "lockstep_participants:=['sensors']", "-p", "shutdown_when_done:=true"],
+                           env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        spin_until(ex, lambda: sim.poll() is not None, 90.0)
+        spin_until(ex, lambda: len(temps) >= len(twin) > 0, 5.0)
+    finally:
+        sim_out = stop_node(sim)
+        out = stop_node(pub)
+        ex.shutdown()
+        node.destroy_node()
+    assert sim.returncode == 0, sim_out
+    assert len(twin) > 10 and sorted(temps) == sorted(twin), (len(twin), len(temps), out)
+    for key, msgs in temps.items():
+        assert len(msgs) == 1                      # never the same instant twice
+        m, raw = msgs[0], twin[key]
+        assert list(m.sensor_ids) == ["ambient", "ws_mwf", "c_coolant_delta", "c_motor_internal"]
+        by_id = dict(zip(raw.sensor_ids, raw.temperatures_degc))
+        np.testing.assert_array_equal(m.temperatures_degc, [by_id[s] for s in m.sensor_ids])
+        assert list(m.status) == [0, 0, 0, 0]       # healthy, in range, 30 min < stale_after_s

@@ -100,6 +100,7 @@ class TemperaturePublisher(Node):
 
         if self.source_kind == "twin":
             self._next_due = -math.inf
+            self._last_twin_t = -math.inf
             self.create_subscription(TemperatureArray, TOPIC_TWIN_SENSORS, self._on_twin, SENSOR_QOS)
         elif self.time_master:
             self._setup_time_master(float(p["real_time_factor"]))
@@ -145,6 +146,12 @@ class TemperaturePublisher(Node):
     # -- twin -----------------------------------------------------------------------------
     def _on_twin(self, msg: TemperatureArray) -> None:
         t = stamp_to_s(msg.header.stamp)
+        if t <= self._last_twin_t:
+            # machine_sim re-sent an instant (an acknowledgement was lost): acknowledge again,
+            # never publish the same instant twice
+            self._ack(t)
+            return
+        self._last_twin_t = t
         try:
             self.source.accept(t, list(msg.sensor_ids), list(msg.temperatures_degc), list(msg.status))
         except ValueError as exc:  # a malformed message: every sensor failed for this instant
