@@ -104,3 +104,17 @@ def test_fe_swapped_validation_set_is_the_training_loads_switched_and_scaled():
     b = make_timeline("fe-three-body", "fe-two-source-swapped", seed=4)
     np.testing.assert_allclose(b.values["q1_w"], 1.3 * a.values["q2_w"])
     np.testing.assert_allclose(b.values["q2_w"], 0.7 * a.values["q1_w"])
+
+
+def test_load_case_c_optimised_pattern_holds_successive_speed_pairs():
+    from thermal_twin.profiles import de_bruijn_pairs
+    seq = de_bruijn_pairs(5)
+    pairs = list(zip(seq[:-1], seq[1:]))
+    assert len(pairs) == 25 and len(set(pairs)) == 25            # every ordered pair once
+    tl = make_timeline("nmv5000", "load-case-C", seed=0)
+    c, t = tl.values["c_speed_rpm"], tl.time_s
+    first = c[t < 32 * H]
+    assert set(np.unique(first)) <= {0.0, 300.0, 600.0, 900.0, 1200.0}
+    changes = np.flatnonzero(np.diff(first)) + 1
+    holds = np.diff(t[changes]) / H
+    assert np.all(np.isclose(holds % 1.5, 0.0) | np.isclose(holds % 1.5, 1.5))   # 1.5 h blocks
