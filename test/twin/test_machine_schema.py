@@ -96,3 +96,14 @@ def test_timeline_from_a_recording_uses_the_ambient_sensor_when_true_ambient_is_
     tl = timeline_from_recording(m, rec)
     assert np.allclose(tl.values["ambient_degc"], rec.columns["t11_c"])
     assert np.allclose(tl.values["spindle_rpm"], 1000.0)
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_presets_place_every_sensor_for_viewers(name):
+    m = load_machine(name)
+    assert all(s.position_mm is not None and len(s.position_mm) == 3 for s in m.sensors.values())
+    d = m.to_dict()
+    sid = next(iter(d["sensors"]))
+    d["sensors"][sid]["position_mm"] = [1.0, "a", 3.0]
+    with pytest.raises(MachineSpecError, match=rf"sensors.{sid}.position_mm: \[1.0, 'a', 3.0\] must be \[x, y, z\]"):
+        load_machine(d)

@@ -47,7 +47,8 @@ mismatch finder) can add or alter one item with a one-line, diff-able change::
       ambient: {of: ambient}           # a node or boundary name, or weights
       c_delta: {of: {c_coolant_out: 1.0, c_cooling: -1.0}}   # weighted sum (placement, differences)
         # options: noise_std [K] (default 0), resolution [K] (quantisation, 0 = none),
-        # lag_s (first-order sensor time constant, 0 = none), bias [K], gain (default 1)
+        # lag_s (first-order sensor time constant, 0 = none), bias [K], gain (default 1),
+        # position_mm [x, y, z] (where it sits, machine coordinates; for viewers only)
     errors:                            # thermo-elastic map: error = offset + sum(g * (T - T_ref))
       E_Y0C: {unit: um, terms: {table: 3.0, column: -6.5}}   # um per K (um/m per K if angular)
         # T_ref is each node's temperature at t = 0; options: offset, unit um | um/m
@@ -149,6 +150,7 @@ class SensorSpec:
     lag_s: float
     bias: float
     gain: float
+    position_mm: tuple[float, float, float] | None = None
 
     @property
     def column(self) -> str:
@@ -446,7 +448,14 @@ def _validate(raw: dict) -> Machine:
         p = f"sensors.{sid}"
         _check_name(sid, p)
         d = _mapping(d, p)
-        _check_keys(d, {"of", "noise_std", "resolution", "lag_s", "bias", "gain", "note"}, p)
+        _check_keys(d, {"of", "noise_std", "resolution", "lag_s", "bias", "gain", "position_mm", "note"}, p)
+        pos = d.get("position_mm")
+        if pos is not None:
+            if (not isinstance(pos, (list, tuple)) or len(pos) != 3
+                    or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                               for v in pos)):
+                raise _fail(f"{p}.position_mm", pos, "must be [x, y, z] in mm (three finite numbers)")
+            pos = tuple(float(v) for v in pos)
         of = d.get("of")
         if isinstance(of, str):
             weights = ((of, 1.0),)
@@ -461,7 +470,7 @@ def _validate(raw: dict) -> Machine:
                                   _number(d, "resolution", p, default=0.0, lo=0.0),
                                   _number(d, "lag_s", p, default=0.0, lo=0.0),
                                   _number(d, "bias", p, default=0.0),
-                                  _number(d, "gain", p, default=1.0))
+                                  _number(d, "gain", p, default=1.0), pos)
         spec["sensors"][sid] = dict(d)
     for iname, ispec in inputs.items():
         if ispec.from_sensor is not None and ispec.from_sensor not in sensors:
