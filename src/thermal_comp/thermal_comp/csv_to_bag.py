@@ -8,9 +8,10 @@ Per CSV row at time ``t`` (stamp = ``start_s + t``, simulated time):
   ``errors/measured`` (SOURCE_MEASURED): every error column, ``E_*`` keeping its name and
   ``<name>_um`` becoming ``<name>``; ``E_A0C E_B0C E_C0C`` in um/m, the rest in um;
   uncertainty NaN (unknown).
-- ``MachineState`` on ``machine_state`` from the input columns it can represent (see
-  :func:`machine_state_fields`); inputs it cannot represent are listed in
-  :attr:`ImportResult.unmapped` (``strict=True`` makes them an error).
+- ``MachineState`` on ``machine_state`` from the input columns it can represent, named as
+  machine_sim names them (:func:`represented_inputs`); inputs it cannot represent (e.g. the
+  twin's ``ambient_degc`` boundary) are listed in :attr:`ImportResult.unmapped`
+  (``strict=True`` makes them an error).
 
 Serialization uses the ``rosbags`` typestore built from the installed .msg files, so no
 rclpy is needed. No rclpy import here; the command is :mod:`thermal_comp.import_csv_cli`.
@@ -20,7 +21,6 @@ from __future__ import annotations
 import math
 import os
 import pathlib
-import re
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -28,6 +28,7 @@ import numpy as np
 
 from thermal_comp import msg_definitions
 from thermal_comp.bag_recorder import DEFAULT_CHUNK_BYTES, BagWriter, TopicInfo, qos_dict
+from thermal_twin.machine_state_fields import component_name, machine_state_fields
 from thermal_twin.recording_csv import Recording, error_unit, read_recording_csv
 
 T_TEMPS = "thermal_comp_msgs/msg/TemperatureArray"
@@ -53,56 +54,17 @@ class ImportResult:
     warnings: list[str] = field(default_factory=list)
 
 
-def _stem(name: str, suffixes: tuple[str, ...]) -> str:
-    for s in suffixes:
-        if name.endswith(s):
-            return name[: -len(s)]
-    return name
+def represented_inputs(columns: list[str]) -> tuple[list[str], list[str]]:
+    """(input columns MachineState represents, the others) under the twin's naming rules.
 
-
-def _axis_label(stem: str) -> str:
-    return stem.upper() if len(stem) <= 2 else stem
-
-
-def machine_state_fields(columns: list[str]) -> tuple[dict[str, list[tuple[str, str]]], list[str]]:
-    """Map input columns to MachineState fields.
-
-    Returns ({field group: [(name in the message, column)]}, unmapped columns). Rules:
-    ``*spindle*_rpm`` -> spindle (name = column stem), other ``<x>_speed_rpm`` / ``<x>_rpm``
-    -> rotary axis ``X``; ``coolant_on``, ``door_open``, ``machine_busy_probing`` /
-    ``probing`` -> booleans; ``coolant_temp_degc`` / ``coolant_temperature_degc`` -> the
-    coolant supply temperature; ``<x>_power_w`` / ``<x>_w`` -> drive ``X`` power;
-    ``pos_<x>`` / ``<x>_pos_mm`` / ``<x>_pos_deg`` -> axis position.
+    The mapping is :func:`thermal_twin.machine_state_fields.machine_state_fields`, the one
+    machine_sim publishes with, so an imported bag looks like the live graph's.
     """
-    groups: dict[str, list[tuple[str, str]]] = {k: [] for k in (
-        "spindle", "rotary", "axis", "drive", "coolant_on", "coolant_temp", "door_open", "probing")}
-    unmapped = []
+    empty = machine_state_fields({})
+    used, unmapped = [], []
     for c in columns:
-        if c.endswith("_rpm") and "spindle" in c:
-            groups["spindle"].append((_stem(c, ("_speed_rpm", "_rpm")), c))
-        elif c.endswith("_rpm"):
-            groups["rotary"].append((_axis_label(_stem(c, ("_speed_rpm", "_rpm"))), c))
-        elif c == "coolant_on":
-            groups["coolant_on"].append((c, c))
-        elif c in ("coolant_temp_degc", "coolant_temperature_degc"):
-            groups["coolant_temp"].append((c, c))
-        elif c == "door_open":
-            groups["door_open"].append((c, c))
-        elif c in ("machine_busy_probing", "probing"):
-            groups["probing"].append((c, c))
-        elif c.endswith("_w"):
-            groups["drive"].append((_axis_label(_stem(c, ("_power_w", "_w"))), c))
-        elif re.fullmatch(r"pos_\w+", c) or re.fullmatch(r"\w+_pos_(mm|deg)", c):
-            stem = c[4:] if c.startswith("pos_") else c.rsplit("_pos_", 1)[0]
-            groups["axis"].append((_axis_label(stem), c))
-        else:
-            unmapped.append(c)
-    return groups, unmapped
-
-
-def error_component(column: str) -> str:
-    """Component name of an error column: 'E_X0C' stays, 'ch1_um' -> 'ch1'."""
-    return column[:-3] if column.endswith("_um") else column
+        (used if machine_state_fields({c: 1.0}) != empty else unmapped).append(c)
+    return used, unmapped
 
 
 def _topic(namespace: str, rel: str) -> str:
@@ -132,10 +94,10 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
     idx = np.arange(lo, hi, every)
     sensors = rec.names("sensor")
     errors = rec.names("error")
-    groups, unmapped = machine_state_fields(rec.names("input"))
+    state_cols, unmapped = represented_inputs(rec.names("input"))
     if unmapped and strict:
         raise CsvImportError(f"input column(s) {unmapped} cannot be represented in MachineState")
-    has_state = any(groups.values())
+    has_state = bool(state_cols)
     store = msg_definitions.typestore()
     Time = store.types["builtin_interfaces/msg/Time"]
     Header = store.types["std_msgs/msg/Header"]
@@ -154,7 +116,7 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
     if not topics:
         raise CsvImportError(f"{rec.source}: no sensor, error or machine-state column to import")
     names = [c[:-2] for c in sensors]
-    comps = [error_component(c) for c in errors]
+    comps = [component_name(c) for c in errors]
     units = np.array([UNIT_UM_PER_M if error_unit(c) == "um/m" else UNIT_UM for c in errors], dtype=np.uint8)
     sens_mat = np.column_stack([rec.columns[c] for c in sensors]) if sensors else None
     err_mat = np.column_stack([rec.columns[c] for c in errors]) if errors else None
@@ -165,23 +127,19 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
             sec, nsec = divmod(t_ns, 1_000_000_000)
             header = Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=frame_id)
             if has_state:
-                def vals(group):
-                    return np.array([float(rec.columns[c][k]) for _, c in groups[group]], dtype=np.float64)
-
-                def flag(group):
-                    return bool(groups[group]) and float(rec.columns[groups[group][0][1]][k]) > 0.5
-
-                coolant_t = (float(rec.columns[groups["coolant_temp"][0][1]][k])
-                             if groups["coolant_temp"] else math.nan)
+                f = machine_state_fields({c: float(rec.columns[c][k]) for c in state_cols})
                 msg = MachineState(
                     header=header,
-                    spindle_names=[n for n, _ in groups["spindle"]], spindle_speeds_rpm=vals("spindle"),
-                    rotary_axis_names=[n for n, _ in groups["rotary"]], rotary_axis_speeds_rpm=vals("rotary"),
-                    axis_names=[n for n, _ in groups["axis"]], axis_positions=vals("axis"),
-                    coolant_on=flag("coolant_on"), coolant_temperature_degc=coolant_t,
-                    door_open=flag("door_open"),
-                    drive_names=[n for n, _ in groups["drive"]], drive_powers_w=vals("drive"),
-                    machine_busy_probing=flag("probing"))
+                    spindle_names=f["spindle_names"],
+                    spindle_speeds_rpm=np.asarray(f["spindle_speeds_rpm"], dtype=np.float64),
+                    rotary_axis_names=f["rotary_axis_names"],
+                    rotary_axis_speeds_rpm=np.asarray(f["rotary_axis_speeds_rpm"], dtype=np.float64),
+                    axis_names=[], axis_positions=np.zeros(0),
+                    coolant_on=f["coolant_on"], coolant_temperature_degc=f["coolant_temperature_degc"],
+                    door_open=f["door_open"],
+                    drive_names=f["drive_names"],
+                    drive_powers_w=np.asarray(f["drive_powers_w"], dtype=np.float64),
+                    machine_busy_probing=False)
                 bag.write(topics[0].name, t_ns, store.serialize_cdr(msg, T_STATE))
             if sensors:
                 row = sens_mat[k].astype(np.float64)
@@ -207,5 +165,4 @@ def csv_to_bag(csv_path: str | os.PathLike, out: str | os.PathLike, **kwargs) ->
     return recording_to_bag(read_recording_csv(csv_path), out, **kwargs)
 
 
-__all__ = ["CsvImportError", "ImportResult", "csv_to_bag", "error_component",
-           "machine_state_fields", "recording_to_bag"]
+__all__ = ["CsvImportError", "ImportResult", "csv_to_bag", "recording_to_bag", "represented_inputs"]

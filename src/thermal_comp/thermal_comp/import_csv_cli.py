@@ -21,8 +21,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="thermal-comp import-csv", description=__doc__,
         epilog="Columns (thermal_twin.recording_csv): <id>_c -> TemperatureArray sensor <id>; E_* and "
-               "<name>_um -> ThermalErrors components; spindle/axis speeds (*_rpm), coolant_on, "
-               "coolant_temp_degc, door_open, probing, *_w, pos_* -> MachineState. Example: "
+               "<name>_um -> ThermalErrors components; machine inputs -> MachineState as machine_sim "
+               "names them (<a>_speed_rpm rotary axis A, other *_rpm spindles, *_w drive powers, "
+               "coolant_on/oil_on, coolant_temp_degc/oil_temp_degc, door_open). Example: "
                "thermal-comp import-csv ../shared/data/fl_thermal/fl_thermal.csv out/fl --errors measured --every 4")
     ap.add_argument("csv", metavar="CSV", help="recording CSV file")
     ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist)")
