@@ -76,3 +76,13 @@ def test_shipped_configs_resolve_by_name_and_unknown_names_list_them():
     assert load_sensor_config(resolve_sensor_config("swiss-lathe")).sensor_ids[0] == "ambient"
     with pytest.raises(SensorConfigError, match=r"'nmv9000'.*shipped: \["):
         resolve_sensor_config("nmv9000")
+
+
+def test_time_master_instants_every_row_or_every_period(tmp_path):
+    t, _ = make_recording(tmp_path / "r.csv", n_rows=7, dt_s=10.0)          # 0 .. 60 s
+    src = ReplaySource.from_csv(tmp_path / "r.csv")
+    np.testing.assert_array_equal(src.instants(), t)
+    np.testing.assert_allclose(src.instants(15.0), [0, 15, 30, 45, 60])
+    np.testing.assert_allclose(src.instants(25.0), [0, 25, 50])
+    with pytest.raises(ValueError, match="period_s"):
+        src.instants(-1.0)

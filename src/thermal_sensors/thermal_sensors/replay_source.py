@@ -47,6 +47,15 @@ class ReplaySource:
     def end_s(self) -> float:
         return float(self.time_s[-1])
 
+    def instants(self, period_s: float = 0.0) -> np.ndarray:
+        """The instants a time master steps through: every row (0) or every ``period_s``."""
+        if period_s < 0 or not np.isfinite(period_s):
+            raise ValueError(f"period_s: {period_s!r} must be >= 0")
+        if period_s == 0:
+            return self.time_s.copy()
+        n = int(np.floor((self.end_s - self.start_s) / period_s + 1e-9)) + 1
+        return self.start_s + period_s * np.arange(n)
+
     def sample(self, t_s: float) -> RawSample:
         n = len(self.sensor_ids)
         k = int(np.searchsorted(self.time_s, t_s + 1e-9, side="right")) - 1

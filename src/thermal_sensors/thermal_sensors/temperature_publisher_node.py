@@ -171,10 +171,7 @@ class TemperaturePublisher(Node):
     # -- replay as the time master --------------------------------------------------------
     def _setup_time_master(self, real_time_factor: float) -> None:
         src: ReplaySource = self.source
-        if self.period_s > 0:
-            self.steps = np.arange(src.start_s, src.end_s + 1e-9, self.period_s)
-        else:
-            self.steps = src.time_s.copy()
+        self.steps = src.instants(self.period_s)
         self.k = 0
         self.rtf = real_time_factor
         self.acked = {n: -math.inf for n in self.participants}
