@@ -117,9 +117,11 @@ class MachineSimNode(Node):
         self._last_published = (stamp, state, temps)
 
     def _republish(self) -> None:
-        """Send the current instant again (same stamps, same readings) to late subscribers."""
+        """Send the current instant again (same stamps, same readings) to late subscribers.
+        /clock is re-sent at the current simulated time, which probing may have moved on:
+        the clock never runs backwards."""
         stamp, state, temps = self._last_published
-        self.pub_clock.publish(Clock(clock=stamp))
+        self.pub_clock.publish(Clock(clock=s_to_stamp(self.runner.t_s)))
         self.pub_state.publish(state)
         self.pub_sensors.publish(temps)
         self.last_publish_wall = time.monotonic()

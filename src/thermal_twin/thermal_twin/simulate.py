@@ -91,6 +91,8 @@ class TwinStepper:
         return self.net.boundary_temperatures(self.inputs)
 
     def sensor_readings(self) -> dict[str, float]:
+        """Readings now. Each call is one sample: it advances the sensors' lag filters and
+        draws noise, so call it once per published instant (as :func:`simulate` does)."""
         dt = 0.0 if self._last_read_t is None else self.t_s - self._last_read_t
         self._last_read_t = self.t_s
         r = self.sensors.read(self.x, self.boundary_temperatures(), dt, self.rng)
