@@ -1,11 +1,12 @@
-"""Eq. 6.3-6.5 against hand-computed cases, and the lathe's per-tool offsets."""
+"""Eq. 6.3-6.5 against hand-computed cases (as printed and the rigid-body convention), the
+rigid convention against the twin's probing geometry, and the lathe's per-tool offsets."""
 import math
 
 import numpy as np
 import pytest
 
-from cnc_bridge.error_transform import (FIVE_AXIS_COMPONENTS, LatheToolOffsets, ToolOffsetModel,
-                                        TransformInputError, fit_tool_offset_model,
+from cnc_bridge.error_transform import (FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
+                                        ToolOffsetModel, TransformInputError, fit_tool_offset_model,
                                         five_axis_offsets_um, offsets_from_errors)
 
 POS = dict(x_mm=100.0, y_mm=200.0, z_mm=300.0)   # mm; sphere radius d/2 = 160 mm
@@ -46,24 +47,68 @@ CASES = [
 
 
 @pytest.mark.parametrize("name,value,b_deg,expected", CASES)
-def test_each_error_alone(name, value, b_deg, expected):
+def test_each_error_alone_as_printed(name, value, b_deg, expected):
+    off = five_axis_offsets_um(only(name, value), b_deg=b_deg, convention="printed", **POS)
+    assert (off["X"], off["Y"], off["Z"]) == pytest.approx(expected, abs=1e-12)
+
+
+X30 = 100 * C30 - 300 * S30          # table-frame x of the point at B = 30 deg, mm
+# (table frame p_t = R_y(B)^T p: x_t = X cos B - Z sin B, z_t = X sin B + Z cos B)
+# The rigid convention differs from the printed one only where the docstring says: the
+# E_C0C sense (C' table, eq. 5.10), the E_A0C*Z sign in Y, and E_R0T/E_A0C off 0/90 deg.
+RIGID_DIFFERENT = [
+    ("E_C0C", 10.0, 0.0, (2.0, -1.0, 0.0)),           # X: +10*0.2, Y: -10*0.1
+    ("E_C0C", 10.0, 90.0, (0.0, 3.0, -2.0)),          # Y: +10*0.3, Z: -10*0.2
+    ("E_A0C", 10.0, 0.0, (0.0, -3.0, 2.0)),           # Y: -10*0.3 (rigid tilt about +X)
+    ("E_A0C", 10.0, 90.0, (2.0, -1.0, 0.0)),          # same as printed at 90 deg
+    ("E_R0T", 16.0, 30.0, (0.1 * X30 * C30, 20.0, -0.1 * X30 * S30)),
+    ("E_A0C", 10.0, 30.0, (10 * 0.2 * S30, -10 * (100 * S30 + 300 * C30) * 1e-3, 10 * 0.2 * C30)),
+]
+RIGID_SAME = [c for c in CASES if c[0] not in ("E_C0C",) and not (c[0] in ("E_A0C", "E_R0T") and c[2] == 30.0)
+              and not (c[0] == "E_A0C" and c[2] == 0.0)]
+
+
+@pytest.mark.parametrize("name,value,b_deg,expected", RIGID_DIFFERENT + RIGID_SAME)
+def test_each_error_alone_rigid(name, value, b_deg, expected):
     off = five_axis_offsets_um(only(name, value), b_deg=b_deg, **POS)
     assert (off["X"], off["Y"], off["Z"]) == pytest.approx(expected, abs=1e-12)
+
+
+@pytest.mark.parametrize("b_deg", [0.0, 90.0, 30.0, -45.0])
+@pytest.mark.parametrize("name", FIVE_AXIS_COMPONENTS)
+def test_rigid_offsets_cancel_what_the_twins_probe_sees(name, b_deg):
+    """Offsets at the sphere centre, with the origin where the errors are defined, cancel
+    the sphere's displacement in the twin's probing model at every C indexing."""
+    from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, true_sphere_centre
+    s = DEFAULT_GEOMETRY.sphere
+    geometry = HtmGeometry(origin_mm=(*s.c_axis_xy_mm, s.centre_z_mm),
+                           b_pivot_xz_mm=(s.c_axis_xy_mm[0], s.b_pivot_z_mm))
+    errors = only(name, 10.0)
+    for c_deg in (0.0, 90.0, 180.0, 270.0):
+        nominal = true_sphere_centre(c_deg, b_deg, {}, {})
+        x, y, z = nominal
+        off = offsets_from_errors(errors, {"X": x, "Y": y, "Z": z, "B": b_deg}, geometry=geometry)
+        seen = true_sphere_centre(c_deg, b_deg, errors, off)      # true minus applied
+        # cancelled to first order; what is left is second order in the errors (< 0.1 nm)
+        assert np.abs(seen - nominal).max() * 1000.0 < 1e-4, (c_deg, off)
 
 
 def test_all_errors_superpose_at_an_arbitrary_angle():
     values = dict(E_X0C=3.0, E_Y0C=-7.0, E_Z0T=12.0, E_R0T=4.0, E_A0C=-15.0, E_B0C=6.0, E_C0C=9.0)
     b = 37.5
-    total = five_axis_offsets_um(values, b_deg=b, **POS)
-    parts = [five_axis_offsets_um(only(n, v), b_deg=b, **POS) for n, v in values.items()]
-    for axis in "XYZ":
-        assert total[axis] == pytest.approx(sum(p[axis] for p in parts), abs=1e-12)
+    for convention in ("printed", "rigid"):
+        total = five_axis_offsets_um(values, b_deg=b, convention=convention, **POS)
+        parts = [five_axis_offsets_um(only(n, v), b_deg=b, convention=convention, **POS)
+                 for n, v in values.items()]
+        for axis in "XYZ":
+            assert total[axis] == pytest.approx(sum(p[axis] for p in parts), abs=1e-12)
 
 
 def test_at_the_origin_only_the_table_position_errors_remain():
     values = dict(E_X0C=3.0, E_Y0C=-7.0, E_Z0T=12.0, E_R0T=4.0, E_A0C=-15.0, E_B0C=6.0, E_C0C=9.0)
-    off = five_axis_offsets_um(values, 0.0, 0.0, 0.0, 0.0)
-    assert (off["X"], off["Y"], off["Z"]) == pytest.approx((3.0, -7.0, 12.0))
+    for convention in ("printed", "rigid"):
+        off = five_axis_offsets_um(values, 0.0, 0.0, 0.0, 0.0, convention=convention)
+        assert (off["X"], off["Y"], off["Z"]) == pytest.approx((3.0, -7.0, 12.0))
 
 
 def test_missing_or_bad_input_names_the_field():
@@ -73,6 +118,8 @@ def test_missing_or_bad_input_names_the_field():
         five_axis_offsets_um(e, 0, 0, 0, 0)
     with pytest.raises(TransformInputError, match="'E_Y0C'.*nan"):
         five_axis_offsets_um(only("E_Y0C", float("nan")), 0, 0, 0, 0)
+    with pytest.raises(TransformInputError, match="convention"):
+        five_axis_offsets_um(only("E_Y0C", 1.0), 0, 0, 0, 0, convention="thesis")
     with pytest.raises(TransformInputError, match="axis position 'Z'"):
         offsets_from_errors(only("E_Y0C", 1.0), {"X": 0.0, "Y": 0.0})
 

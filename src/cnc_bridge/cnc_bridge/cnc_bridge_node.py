@@ -34,7 +34,8 @@ from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErr
 
 from .audit_log import AuditLog
 from .cnc_backend import TwinBackend
-from .error_transform import (ANGULAR_COMPONENTS, DEFAULT_SPHERE_RADIUS_MM, LatheToolOffsets,
+from .error_transform import (ANGULAR_COMPONENTS, CONVENTION_RIGID, CONVENTIONS,
+                              DEFAULT_SPHERE_RADIUS_MM, HtmGeometry, LatheToolOffsets,
                               TransformInputError, offsets_from_errors)
 from .safety_envelope import LIMIT_WRITE_FAILED, EnvelopeConfig, SafetyEnvelope, flag_names
 
@@ -47,6 +48,11 @@ PARAMS = [
     Param("lathe_tools_file", "", "lathe: YAML {tls_component, tools: {T01_X: {intercept_um, gain}}}"),
     Param("sphere_radius_mm", DEFAULT_SPHERE_RADIUS_MM, "d/2 of eq. 6.3-6.5 (E_R0T reference radius), mm",
           lo=1.0, hi=5000.0),
+    Param("htm_convention", CONVENTION_RIGID, "eq. 6.3-6.5 as rigid-body HTM consistent with the "
+          "probe cycle (eq. 5.10 signs) or exactly as printed", choices=CONVENTIONS),
+    Param("htm_origin_mm", [0.0, 0.0, 0.0], "machine X, Y, Z at B = 0 of the point the errors are "
+          "defined at (C axis in the probing sphere's centre plane), mm"),
+    Param("b_pivot_xz_mm", [0.0, 0.0], "X, Z of the B (swivel) axis line, mm"),
     Param("enable", True, "compensation enabled (false ramps the offsets to zero)"),
     Param("abs_limit_um", 30.0, "per-axis absolute offset limit, um", lo=0.0, hi=1000.0),
     Param("max_rate_um_per_s", 0.5, "maximum offset change per second (cf. MD32760), um/s",
@@ -113,6 +119,10 @@ class CncBridgeNode(Node):
                     self.lathe = LatheToolOffsets.from_mapping(yaml.safe_load(f))
             except (OSError, yaml.YAMLError) as exc:
                 raise ValueError(f"parameter 'lathe_tools_file': {exc}") from exc
+        if len(p["htm_origin_mm"]) != 3 or len(p["b_pivot_xz_mm"]) != 2:
+            raise ValueError(f"parameters 'htm_origin_mm' (3 values) / 'b_pivot_xz_mm' (2 values): "
+                             f"got {list(p['htm_origin_mm'])} / {list(p['b_pivot_xz_mm'])}")
+        self.htm = HtmGeometry(tuple(p["htm_origin_mm"]), tuple(p["b_pivot_xz_mm"]))
         self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
         self.backend = _make_backend(self, p)
         self._positions: dict[str, float] = {}
@@ -205,7 +215,8 @@ class CncBridgeNode(Node):
         if self._errors is not None:
             try:
                 commanded = offsets_from_errors(self._errors, self._positions_now(),
-                                                self._p["sphere_radius_mm"], self.lathe)
+                                                self._p["sphere_radius_mm"], self.lathe, self.htm,
+                                                self._p["htm_convention"])
             except TransformInputError as exc:
                 self.get_logger().error(f"offsets at t={t:.3f}: {exc}; holding", throttle_duration_sec=10.0)
                 fresh = False

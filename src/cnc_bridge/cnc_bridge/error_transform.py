@@ -1,7 +1,7 @@
 """Predicted thermal errors -> axis offsets (pure core, no ROS).
 
-5-axis table machine (Blaser's TALC, thesis §6.4.1, eq. 6.3-6.5): a rigid-body
-homogeneous-transformation model maps the seven location errors of the C axis / table
+5-axis table machine (Blaser's TALC, thesis §6.4.1, eq. 6.3-6.5; two sign conventions, see
+:func:`five_axis_offsets_um`): a rigid-body homogeneous-transformation model maps the seven location errors of the C axis / table
 
     E_X0C, E_Y0C, E_Z0T, E_R0T   in micrometres (um)
     E_A0C, E_B0C, E_C0C          in micrometres per metre (um/m, i.e. urad)
@@ -56,16 +56,69 @@ def _finite(name: str, value: float) -> float:
     return v
 
 
+#: Conventions for eq. 6.3-6.5 (see :func:`five_axis_offsets_um`).
+CONVENTION_RIGID = "rigid"
+CONVENTION_PRINTED = "printed"
+CONVENTIONS = (CONVENTION_RIGID, CONVENTION_PRINTED)
+
+
+@dataclass(frozen=True)
+class HtmGeometry:
+    """Where the HTM origin is: the point the seven errors are defined at.
+
+    ``origin_mm``: machine coordinates (mm) at B = 0 of the C-axis point in the plane the
+    errors refer to (the sphere-centre plane of the probing cycle: E_X0C/E_Y0C are the C
+    line's position there, the tilts pivot about it). ``b_pivot_xz_mm``: the B axis (parallel
+    to Y) passes through X, Z = these values; B swivels the origin with the table.
+    Defaults: origin at the machine zero, B through it.
+    """
+
+    origin_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    b_pivot_xz_mm: tuple[float, float] = (0.0, 0.0)
+
+    def relative_position_mm(self, x_mm: float, y_mm: float, z_mm: float, b_deg: float) -> np.ndarray:
+        """Machine position minus the origin (swivelled by B), in machine axes, mm."""
+        b = math.radians(b_deg)
+        px, pz = self.b_pivot_xz_mm
+        ox, oy, oz = self.origin_mm
+        dx, dz = ox - px, oz - pz
+        origin = np.array([px + math.cos(b) * dx + math.sin(b) * dz, oy,
+                           pz - math.sin(b) * dx + math.cos(b) * dz])
+        return np.array([x_mm, y_mm, z_mm]) - origin
+
+
+def _rot_y(b: float) -> np.ndarray:
+    c, s = math.cos(b), math.sin(b)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
 def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, z_mm: float,
-                         b_deg: float, sphere_radius_mm: float = DEFAULT_SPHERE_RADIUS_MM
-                         ) -> dict[str, float]:
-    """Eq. 6.3-6.5: the seven errors at axis position (X, Y, Z [mm], B [deg]) -> {X, Y, Z} in um.
+                         b_deg: float, sphere_radius_mm: float = DEFAULT_SPHERE_RADIUS_MM,
+                         convention: str = CONVENTION_RIGID) -> dict[str, float]:
+    """The seven errors at position (X, Y, Z [mm] relative to the HTM origin, B [deg]) -> {X, Y, Z} um.
 
     ``errors`` maps component name -> value (um for E_X0C..E_R0T, um/m for E_A0C..E_C0C);
     a missing component is an error (a model that does not predict one must send 0).
+
+    ``convention``:
+
+    * ``"printed"``: eq. 6.3-6.5 exactly as printed in the thesis.
+    * ``"rigid"`` (default): the rigid-body homogeneous transformation with the error
+      definitions of the probing cycle (eq. 5.4-5.10, as ``thermal_twin.artefact_geometry``
+      implements them): in the table frame (position p_t = R_y(B)^T p) the error is
+      ``(E_X0C, E_Y0C, E_Z0T) + E_R0T (x_t, y_t, 0)/(d/2) + w x p_t`` with the small
+      rotation ``w = (E_A0C, E_B0C, -E_C0C) * 1e-6`` rad, then turned by R_y(B) into machine
+      axes. At B = 0 and 90 deg it equals eq. 6.3-6.5 except for two signs: E_C0C (the
+      table is C', turned by -E_C0C, as eq. 5.10 measures it; eq. 6.3/6.4 use +E_C0C, which
+      would double the error instead of cancelling it) and the E_A0C*Z term of eq. 6.4
+      (printed +, which no rigid tilt about X produces together with the printed
+      +E_A0C*Y in eq. 6.5). At other B it is exact where eq. 6.3-6.5 are not: their
+      E_R0T terms use X*cos B and Z*sin B instead of the table-frame radius.
     """
     if not sphere_radius_mm > 0.0:
         raise TransformInputError(f"'sphere_radius_mm' must be > 0, got {sphere_radius_mm!r}")
+    if convention not in CONVENTIONS:
+        raise TransformInputError(f"'convention' must be one of {CONVENTIONS}, got {convention!r}")
     e = {}
     for name in FIVE_AXIS_COMPONENTS:
         if name not in errors:
@@ -74,21 +127,29 @@ def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, 
         e[name] = _finite(name, errors[name])
     x, y, z = _finite("X", x_mm), _finite("Y", y_mm), _finite("Z", z_mm)
     b = math.radians(_finite("B", b_deg))
-    cb, sb = math.cos(b), math.sin(b)
     k = _UM_PER_M_TIMES_MM_TO_UM
     r = sphere_radius_mm
     ex, ey, ezt, ert = e["E_X0C"], e["E_Y0C"], e["E_Z0T"], e["E_R0T"]
     ea, eb, ec = e["E_A0C"], e["E_B0C"], e["E_C0C"]
-    off_x = (eb * z * k
-             + (ex + ert * x / r - ec * y * k) * cb
-             + (ezt + ea * y * k) * sb)
-    off_y = (ey + ert * y / r
-             + (ea * z * k + ec * x * k) * cb
-             - (ea * x * k + ec * z * k) * sb)
-    off_z = (-eb * x * k
-             + (ezt + ea * y * k) * cb
-             + (-ex + ert * z / r + ec * y * k) * sb)
-    return {"X": off_x, "Y": off_y, "Z": off_z}
+    if convention == CONVENTION_PRINTED:
+        cb, sb = math.cos(b), math.sin(b)
+        off_x = (eb * z * k
+                 + (ex + ert * x / r - ec * y * k) * cb
+                 + (ezt + ea * y * k) * sb)
+        off_y = (ey + ert * y / r
+                 + (ea * z * k + ec * x * k) * cb
+                 - (ea * x * k + ec * z * k) * sb)
+        off_z = (-eb * x * k
+                 + (ezt + ea * y * k) * cb
+                 + (-ex + ert * z / r + ec * y * k) * sb)
+        return {"X": off_x, "Y": off_y, "Z": off_z}
+    rot = _rot_y(b)
+    p_t = rot.T @ np.array([x, y, z])
+    w = np.array([ea, eb, -ec]) * k              # um/m * mm * 1e-3 = um per mm of lever
+    e_t = (np.array([ex, ey, ezt]) + ert * np.array([p_t[0], p_t[1], 0.0]) / r
+           + np.cross(w, p_t))
+    off = rot @ e_t
+    return {"X": float(off[0]), "Y": float(off[1]), "Z": float(off[2])}
 
 
 @dataclass(frozen=True)
@@ -172,11 +233,14 @@ class LatheToolOffsets:
 
 def offsets_from_errors(errors: Mapping[str, float], axis_positions: Mapping[str, float],
                         sphere_radius_mm: float = DEFAULT_SPHERE_RADIUS_MM,
-                        lathe: LatheToolOffsets | None = None) -> dict[str, float]:
+                        lathe: LatheToolOffsets | None = None,
+                        geometry: HtmGeometry | None = None,
+                        convention: str = CONVENTION_RIGID) -> dict[str, float]:
     """Offsets (axis -> um) for whatever machine kind the error components describe.
 
-    Components E_X0C.. -> 5-axis HTM at ``axis_positions`` (X, Y, Z in mm, B in deg; a
-    missing B means a machine without swivel, B = 0); otherwise the lathe mapping.
+    Components E_X0C.. -> 5-axis HTM at ``axis_positions`` (machine X, Y, Z in mm, made
+    relative to ``geometry``'s origin; B in deg, a missing B means a machine without
+    swivel, B = 0); otherwise the lathe mapping.
     """
     if any(name in errors for name in FIVE_AXIS_COMPONENTS):
         pos = {}
@@ -185,6 +249,9 @@ def offsets_from_errors(errors: Mapping[str, float], axis_positions: Mapping[str
                 raise TransformInputError(
                     f"axis position '{axis}' unknown (machine_state gave {sorted(axis_positions)})")
             pos[axis] = axis_positions[axis]
-        return five_axis_offsets_um(errors, pos["X"], pos["Y"], pos["Z"],
-                                    axis_positions.get("B", 0.0), sphere_radius_mm)
+        b = _finite("B", axis_positions.get("B", 0.0))
+        rel = (geometry or HtmGeometry()).relative_position_mm(
+            _finite("X", pos["X"]), _finite("Y", pos["Y"]), _finite("Z", pos["Z"]), b)
+        return five_axis_offsets_um(errors, *rel, b_deg=b, sphere_radius_mm=sphere_radius_mm,
+                                    convention=convention)
     return (lathe or LatheToolOffsets()).offsets_um(errors)
