@@ -7,7 +7,6 @@ the machine's default; names the machine does not know are an error.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
 
 import numpy as np
 

@@ -10,7 +10,6 @@ of the time line); advancing is split at their change instants, so it stays exac
 """
 from __future__ import annotations
 
-from typing import Mapping
 
 import numpy as np
 
