@@ -157,3 +157,39 @@ def test_audit_log_is_append_only_one_line_per_axis_write(tmp_path):
         ("1.500000", "X", "2.000000", "1", "rate"),
         ("1.500000", "Y", "", "0", "write_failed"),
         ("2.500000", "X", "30.000000", "1", "absolute|rate")]
+
+
+# ---------------------------------------------------------------------------------------
+# Invariants over random command sequences (hypothesis; derandomized, so deterministic).
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_step = st.tuples(st.floats(0.0, 30.0),                               # dt, s
+                  st.one_of(st.none(), st.floats(-200.0, 200.0)),     # new command (None: none)
+                  st.booleans(),                                      # enabled
+                  st.booleans())                                      # write confirmed
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(steps=st.lists(_step, min_size=1, max_size=60))
+def test_envelope_invariants_hold_for_any_sequence(steps):
+    cfg = EnvelopeConfig(abs_limit_um=25.0, max_rate_um_per_s=1.5, max_step_s=4.0,
+                         watchdog_timeout_s=20.0, watchdog_hold_s=10.0,
+                         watchdog_ramp_um_per_s=0.5, disable_ramp_um_per_s=2.0)
+    fastest = max(cfg.max_rate_um_per_s, cfg.disable_ramp_um_per_s, cfg.watchdog_ramp_um_per_s)
+    env = SafetyEnvelope(cfg)
+    env.add_axes(["X"])
+    t, prev = 0.0, 0.0
+    for dt, cmd, enabled, confirmed in steps:
+        t += dt
+        env.set_enabled(enabled)
+        (d,) = env.step(t, {"X": cmd} if cmd is not None else None, fresh=cmd is not None)
+        # never beyond the absolute limit, never faster than the fastest allowed ramp
+        assert abs(d.applied_um) <= cfg.abs_limit_um + 1e-9
+        assert abs(d.applied_um - prev) <= fastest * min(dt, cfg.max_step_s) + 1e-9
+        # disabled or watchdog: never moves away from zero
+        if d.flags & (se.LIMIT_DISABLED | se.LIMIT_WATCHDOG):
+            assert abs(d.applied_um) <= abs(prev) + 1e-9
+        if d.flags & se.LIMIT_ABSOLUTE:
+            assert abs(d.commanded_um) > cfg.abs_limit_um
+        env.confirm("X", d.applied_um if confirmed else None)
+        prev = env.applied["X"]
