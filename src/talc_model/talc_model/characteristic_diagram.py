@@ -201,7 +201,18 @@ class CharacteristicDiagram:
         bad = ~np.all(np.isfinite(u), axis=1)
         out = np.full(u.shape[0], np.nan)
         if (~bad).any():
-            out[~bad] = self.basis_matrix(u[~bad], count_out_of_range=True) @ self.coef_
+            if u.shape[1] != self.n_inputs:
+                raise CharacteristicDiagramError(f"u: {u.shape[1]} inputs, diagram has {self.n_inputs}")
+            # cell-local form (R2): 2^D vertex look-ups per sample, no sparse matrix
+            idx, tau = self._cells(u[~bad], count_out_of_range=True)
+            dim = u.shape[1]
+            strides = np.array([int(np.prod(self.shape_[d + 1:])) for d in range(dim)], dtype=int)
+            acc = np.zeros(idx.shape[0])
+            for corner in itertools.product((0, 1), repeat=dim):
+                b = np.asarray(corner)
+                w = np.prod(np.where(b == 1, tau, 1.0 - tau), axis=1)
+                acc += w * self.coef_[((idx + b) * strides).sum(axis=1)]
+            out[~bad] = acc
         return out
 
     def to_state(self) -> dict:
