@@ -103,6 +103,17 @@ class Cell:
                         timeout_s, f"offsets for t={t}")
         return next(o for o in self.offsets if abs(stamp_to_s(o.header.stamp) - t) < 1e-9)
 
+    def set_enable(self, node_path: str, value: bool):
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+        cli = self.node.create_client(SetParameters, f"{node_path}/set_parameters")
+        self.spin_until(cli.service_is_ready, 15, "the parameter service")
+        fut = cli.call_async(SetParameters.Request(parameters=[Parameter(
+            name="enable", value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value))]))
+        self.spin_until(fut.done, 15, "set_parameters")
+        assert fut.result().results[0].successful
+        self.node.destroy_client(cli)
+
     def close(self):
         self.node.destroy_node()
         self.ctx.try_shutdown()
@@ -130,19 +141,26 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
         # first instant: no time passed; then 0.5 um/s * 10 s per step, clamped at 15 um
         assert applied_z == pytest.approx([0.0, 5.0, 10.0, 15.0, 15.0])
         assert flags_z[1] == 3 and flags_z[4] == 1     # absolute|rate, then absolute only
-        cell.predict(150.0, E_Z0T=float("nan"))         # bad input: held, but still answered
+        cell.set_enable("/bridge_twin/cnc_bridge", False)  # disabled at run time: ramp to zero
+        cell.predict(150.0, E_Z0T=20.0)
         msg = cell.answer_for(150.0)
+        z = msg.axis_names.index("Z")
+        assert msg.applied_offsets_um[z] == pytest.approx(10.0) and msg.limits_hit[z] == 8
+        assert not msg.compensation_enabled
+        cell.set_enable("/bridge_twin/cnc_bridge", True)
+        cell.predict(160.0, E_Z0T=float("nan"))         # bad input: not fresh, but still answered
+        msg = cell.answer_for(160.0)
         assert msg.applied_offsets_um[msg.axis_names.index("Z")] == pytest.approx(15.0)
-        # predictions stop: machine_state instants drive the watchdog (last fresh one at 140 s,
-        # timeout 30 s, no hold): at 190 s it ramps 1 um/s over the capped 10 s step
+        # predictions stop: machine_state instants drive the watchdog (last fresh one at 150 s,
+        # timeout 30 s, no hold): at 200 s it ramps 1 um/s over the capped 10 s step
         from thermal_comp.node_runtime import stamp_to_s
-        cell.state(190.0, X=0.0, Y=0.0, Z=0.0, B=0.0, C=0.0)
-        cell.spin_until(lambda: stamp_to_s(cell.offsets[-1].header.stamp) == 190.0, 15, "watchdog")
+        cell.state(200.0, X=0.0, Y=0.0, Z=0.0, B=0.0, C=0.0)
+        cell.spin_until(lambda: stamp_to_s(cell.offsets[-1].header.stamp) == 200.0, 15, "watchdog")
         msg = cell.offsets[-1]
         z = msg.axis_names.index("Z")
         assert msg.applied_offsets_um[z] == pytest.approx(5.0) and msg.limits_hit[z] == 4
         rows = read_audit_log(audit)
-        assert len(rows) == 7 * 3 and {r["axis"] for r in rows} == {"X", "Y", "Z"}
+        assert len(rows) == 8 * 3 and {r["axis"] for r in rows} == {"X", "Y", "Z"}
     finally:
         cell.close()
         out = stop(proc)
