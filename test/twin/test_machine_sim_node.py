@@ -108,6 +108,12 @@ def test_machine_sim_lockstep_probe_and_offsets():
                                                           max_travel_mm=20.0, duration_s=95.0))
                 spin_until(fut.done, 10.0, "touch probe answer")
                 probe_result = fut.result()
+                # a malformed move is refused and costs no simulated time (the stream below
+                # still equals the reference, which has no such pause)
+                bad = probe.call_async(TouchProbe.Request(artefact=0, start_mm=start.tolist(), direction=[0.0, 0.0, -2.0],
+                                                          max_travel_mm=20.0, duration_s=95.0))
+                spin_until(bad.done, 10.0, "answer to a bad touch request")
+                bad_result = bad.result()
             sync.publish(SimSync(node_name="twin_test_participant", processed_until=s_to_stamp(t_k)))
             acked += 1
         proc.wait(timeout=20)
@@ -136,3 +142,5 @@ def test_machine_sim_lockstep_probe_and_offsets():
     np.testing.assert_allclose(probe_result.trigger_position_mm, pos, atol=1e-9)
     assert math.isclose(t_probe, expected[PROBE_AT_K][0] + 95.0)
     assert clocks == sorted(clocks)                 # /clock never runs backwards
+    assert not bad_result.triggered and "direction" in bad_result.message and "nothing moved" in bad_result.message
+    assert stamp_to_s(bad_result.stamp) == pytest.approx(t_probe)

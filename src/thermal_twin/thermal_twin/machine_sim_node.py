@@ -197,26 +197,35 @@ class MachineSimNode(Node):
     def _on_touch_probe(self, request: TouchProbe.Request, response: TouchProbe.Response):
         from thermal_twin.artefact_geometry import touch_trigger_position
         r = self.runner
+
+        def touch(rng):
+            errors = {k[:-3] if k.endswith("_um") else k: v for k, v in r.errors().items()}
+            return touch_trigger_position(
+                int(request.artefact), float(request.c_axis_deg), float(request.b_axis_deg),
+                np.asarray(request.start_mm, dtype=float), np.asarray(request.direction, dtype=float),
+                float(request.max_travel_mm), errors, dict(self.applied_offsets), rng=rng)
+
         try:
             if not (math.isfinite(request.duration_s) and request.duration_s >= 0):
                 raise ValueError(f"duration_s: {request.duration_s!r} must be a finite number >= 0")
-            r.busy_probing = True
-            r.idle(request.duration_s)
-            errors = {k[:-3] if k.endswith("_um") else k: v for k, v in r.errors().items()}
-            triggered, pos = touch_trigger_position(
-                int(request.artefact), float(request.c_axis_deg), float(request.b_axis_deg),
-                np.asarray(request.start_mm, dtype=float), np.asarray(request.direction, dtype=float),
-                float(request.max_travel_mm), errors, dict(self.applied_offsets), rng=self.probe_rng)
-            response.triggered = bool(triggered)
-            response.trigger_position_mm = [float(x) for x in pos]
-            response.message = "" if triggered else f"no trigger within {request.max_travel_mm} mm"
+            touch(None)          # a malformed move is refused before the machine moves
         except ValueError as exc:
             response.triggered = False
             response.trigger_position_mm = [math.nan] * 3
-            response.message = f"bad touch-probe request: {exc}"
+            response.message = f"bad touch-probe request (nothing moved): {exc}"
+            response.stamp = s_to_stamp(r.t_s)
+            self.get_logger().error(response.message)
+            return response
+        r.busy_probing = True
+        try:
+            r.idle(request.duration_s)
+            triggered, pos = touch(self.probe_rng)
         finally:
             r.resume()
             r.busy_probing = False
+        response.triggered = bool(triggered)
+        response.trigger_position_mm = [float(x) for x in pos]
+        response.message = "" if triggered else f"no trigger within {request.max_travel_mm} mm"
         response.stamp = s_to_stamp(r.t_s)
         self.pub_clock.publish(Clock(clock=response.stamp))
         return response
