@@ -14,7 +14,7 @@ from thermal_sensors.sensor_config import ModbusRegister, load_sensor_config, pa
 from thermal_sensors.sensor_status import SensorStatus
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
 
-from conftest import sensors_yaml
+from sensor_test_data import sensors_yaml, ports  # noqa: F401 (fixture)
 
 
 def wait_for(condition, deadline_s: float = 10.0, step_s: float = 0.02):

@@ -10,7 +10,7 @@ from thermal_sensors.sensor_status import SensorStatus
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
 from thermal_sensors.twin_source import TwinSource
 
-from conftest import make_recording
+from sensor_test_data import make_recording
 
 
 def test_replay_holds_rows_with_their_age_and_fails_past_the_end(tmp_path):

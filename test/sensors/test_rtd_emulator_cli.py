@@ -14,7 +14,7 @@ from thermal_sensors.rtd_emulator import main
 from thermal_sensors.sensor_config import load_sensor_config
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
 
-from conftest import make_recording, sensors_yaml
+from sensor_test_data import make_recording, sensors_yaml, ports  # noqa: F401 (fixture)
 
 
 def test_help(capsys):

@@ -11,7 +11,7 @@ from thermal_sensors.sensor_status import SensorStatus
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
 from thermal_sensors.twin_source import TwinSource
 
-from conftest import make_recording, sensors_yaml
+from sensor_test_data import make_recording, sensors_yaml, ports  # noqa: F401 (fixture)
 
 
 def test_twin_replay_and_modbus_streams_are_identical(tmp_path, ports):

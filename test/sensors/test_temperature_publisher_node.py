@@ -13,7 +13,7 @@ from thermal_sensors.replay_source import ReplaySource
 from thermal_sensors.sensor_config import load_sensor_config
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
 
-from conftest import make_recording, sensors_yaml
+from sensor_test_data import make_recording, sensors_yaml, ports  # noqa: F401 (fixture)
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 MODULE = "thermal_sensors.temperature_publisher_node"

@@ -1,4 +1,8 @@
-"""Helpers for the sensor tests: free loopback ports, a small test recording and configs."""
+"""Data for the sensor tests: free loopback ports, a small test recording and its sensor YAML.
+
+(No conftest.py in this folder: a second module named conftest would shadow
+test/conftest.py for tests that import it.)
+"""
 from __future__ import annotations
 
 import socket
@@ -18,7 +22,7 @@ def free_port() -> int:
 
 @pytest.fixture
 def ports():
-    """Three distinct free loopback ports."""
+    """Three distinct free loopback ports (import this fixture into a test module)."""
     got: list[int] = []
     while len(got) < 3:
         p = free_port()
