@@ -1,6 +1,8 @@
 """Presets against the theses' magnitudes and behaviour; every scenario runs."""
 from __future__ import annotations
 
+import pathlib
+
 import numpy as np
 import pytest
 
@@ -76,9 +78,9 @@ def test_lathe_test_piece_tool_positions_as_in_the_thesis():
     assert abs(peak["T221_X_um"] - peak["T223_X_um"]) < 0.15 * peak["T221_X_um"]
 
 
-def test_spindle_stand_columns_line_up_with_fl_thermal(shared_dir=None):
-    from conftest import SHARED
-    real = read_recording_csv(SHARED / "data" / "fl_thermal" / "fl_thermal.csv")
+def test_spindle_stand_columns_line_up_with_fl_thermal():
+    shared = pathlib.Path(__file__).resolve().parents[3] / "shared"      # beside the repository
+    real = read_recording_csv(shared / "data" / "fl_thermal" / "fl_thermal.csv")
     r = simulate("spindle-stand", make_timeline("spindle-stand", "fl-thermal-programme", seed=0), seed=0)
     rec = r.to_recording()
     assert len(rec) == len(real)
