@@ -36,6 +36,8 @@ setup(
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [
             "bags = thermal_comp.bench_bags:run",
+            "graph = thermal_comp.demo:bench_graph",
+            "fl-thermal = talc_model.fl_thermal_benchmark:run",
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",
