@@ -9,6 +9,9 @@ the messages in recorded order. Pacing:
   waits until every subscriber acknowledged every message (reliable QoS) and, with
   ``lockstep_participants``, until each of them reported ``SimSync.processed_until`` >= the
   instant - the lock-step handshake of machine_sim - so nothing is dropped.
+  Acknowledgement is DDS delivery into the subscriber's queue, not processing: a keep-last
+  subscriber slower than the player can still lose what overflows its queue depth; name
+  such nodes in ``lockstep_participants`` (application-level flow control).
 
 Before the first message it waits (up to ``match_timeout_s``) until every publisher has
 ``wait_for_subscribers`` matched subscriptions. A damaged bag is replayed up to the damage,

@@ -22,7 +22,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="bag seconds per wall second (default 1)")
     pace.add_argument("--as-fast-as-possible", action="store_true",
                       help="no wall-clock pacing; every instant is acknowledged by the subscribers "
-                           "(reliable QoS) and by --lockstep nodes before the next")
+                           "(reliable QoS: delivered into their queues) and processed by the "
+                           "--lockstep nodes (SimSync) before the next")
     ap.add_argument("--topics", nargs="+", default=[], metavar="TOPIC",
                     help="replay only these topics (resolved names, e.g. /temperatures)")
     ap.add_argument("--wait-for-subscribers", type=int, default=0, metavar="N",
