@@ -217,3 +217,63 @@ def test_emulator_command_line(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--security", "required"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--certificate" in bad.stderr
+
+
+def test_emulator_fed_by_the_twin_answers_probe_moves_from_ground_truth(ros_domain_id):
+    import asyncio
+
+    import numpy as np
+    from asyncua import Client, ua
+
+    from cnc_bridge.cnc_emulator import PROBE_METHOD_ID, PROBE_OBJECT_ID, position_node_id
+    from thermal_comp.node_runtime import EVENT_QOS, TOPIC_ERRORS_TRUE, s_to_stamp
+    from thermal_twin.artefact_geometry import nominal_sphere_centre, touch_trigger_position
+
+    port = free_tcp_port()
+    proc = subprocess.Popen([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--twin", "--port",
+                             str(port), "--ros-args", "-r", "__ns:=/emu_twin"],
+                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    cell = Cell("/emu_twin")
+    truth_pub = cell.node.create_publisher(cell.ThermalErrors, TOPIC_ERRORS_TRUE, EVENT_QOS)
+    url = f"opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}"
+    centre = nominal_sphere_centre(0.0)
+    start = [float(centre[0]), float(centre[1]), float(centre[2]) + 40.0]
+
+    async def read_x():
+        async with Client(url) as c:
+            return await c.get_node(position_node_id("X")).read_value()
+
+    async def probe():
+        async with Client(url) as c:
+            return await c.get_node(PROBE_OBJECT_ID).call_method(
+                ua.NodeId.from_string(PROBE_METHOD_ID), ua.Variant(0, ua.VariantType.UInt32),
+                0.0, 0.0, start, [0.0, 0.0, -1.0], 80.0)
+    try:
+        assert "listening on" in proc.stdout.readline()
+        cell.spin_until(lambda: cell.state_pub.get_subscription_count() > 0
+                        and truth_pub.get_subscription_count() > 0, 30, "the emulator's feed")
+        cell.state(5.0, X=123.5, Y=0.0, Z=0.0, B=0.0, C=0.0)
+        truth = cell.ThermalErrors(source=cell.ThermalErrors.SOURCE_GROUND_TRUTH, model_kind="twin",
+                                   component_names=["E_Z0T", "E_X0C"], values=[12.0, -3.0],
+                                   units=[0, 0], uncertainties=[0.0, 0.0])
+        truth.header.stamp = s_to_stamp(5.0)
+        truth_pub.publish(truth)
+        deadline = time.monotonic() + 15
+        while asyncio.run(read_x()) != 123.5:
+            assert time.monotonic() < deadline, "position never reached the emulator"
+            cell.ex.spin_once(timeout_sec=0.05)
+        want_trig, want_pos = touch_trigger_position(0, 0.0, 0.0, np.array(start), np.array([0.0, 0.0, -1.0]),
+                                                     80.0, {"E_Z0T": 12.0, "E_X0C": -3.0},
+                                                     {"X": 0.0, "Y": 0.0, "Z": 0.0})
+        assert want_trig
+        deadline = time.monotonic() + 15     # the truth message may land a moment after the state
+        while True:
+            triggered, pos = asyncio.run(probe())
+            if triggered and np.allclose(pos, want_pos, atol=1e-9, rtol=0):
+                break
+            assert time.monotonic() < deadline, f"probe answered {triggered}, {pos}; want {want_pos}"
+            cell.ex.spin_once(timeout_sec=0.05)
+    finally:
+        cell.close()
+        stop(proc)

@@ -370,6 +370,13 @@ class CncEmulatorThread:
     def set_position(self, axis: str, value: float) -> None:
         self._run(self.emulator.set_position(axis, value))
 
+    def set_positions(self, positions: Mapping[str, float]) -> None:
+        """Move several axes in one hop to the emulator's loop."""
+        async def move():
+            for axis, value in positions.items():
+                await self.emulator.set_position(axis, value)
+        self._run(move())
+
     def __enter__(self):
         return self
 
@@ -419,12 +426,49 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--true-errors", type=_parse_errors, default={},
                    help="true thermal errors for --probe-artefact, e.g. E_Z0T=12,E_Y0C=-4 "
                         "(um, um/m)")
+    p.add_argument("--twin", action="store_true",
+                   help="feed the emulator from the running twin over ROS: machine_state -> axis "
+                        "positions, errors/ground_truth -> ProbeMove answers (implies ProbeMove); "
+                        "ROS arguments follow --ros-args")
     p.add_argument("-v", "--verbose", action="store_true", help="log every session and write")
     return p
 
 
+def _serve_twin(cfg: EmulatorConfig, ros_args: list[str]) -> int:
+    """Serve the CNC fed by the twin until Ctrl-C / SIGTERM (an rclpy node in this process)."""
+    from thermal_comp.node_runtime import run_node
+
+    from .cnc_twin_feed_node import CncTwinFeed
+    latest: list[dict[str, float]] = [{}]     # replaced whole by the feed (atomic), read by ProbeMove
+    emu = CncEmulatorThread(cfg, probe_move=artefact_probe(lambda: latest[0]))
+    try:
+        emu.start()
+    except OSError as exc:
+        print(f"cnc-emulator: cannot listen on {cfg.endpoint}: {exc}", file=sys.stderr)
+        emu.close()
+        return 1
+    print(f"CNC emulator listening on {cfg.endpoint}", flush=True)
+
+    def feed(context):
+        return CncTwinFeed(context=context, emulator=emu,
+                           on_true_errors=lambda errors: latest.__setitem__(0, errors))
+    feed.__name__ = "cnc-emulator"
+    try:
+        return run_node(feed, ["cnc-emulator"] + ros_args)
+    finally:
+        emu.close()
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ros_args: list[str] = []
+    if "--ros-args" in argv:
+        k = argv.index("--ros-args")
+        argv, ros_args = argv[:k], argv[k:]
     args = build_parser().parse_args(argv)
+    if ros_args and not args.twin:
+        print("cnc-emulator: --ros-args only with --twin", file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
@@ -441,6 +485,8 @@ def main(argv: list[str] | None = None) -> int:
     if cfg.password is not None and not cfg.certificate:
         print("cnc-emulator: warning: a password without --certificate travels unencrypted",
               file=sys.stderr)
+    if args.twin:
+        return _serve_twin(cfg, ros_args)
     errors = dict(args.true_errors)
     probe = artefact_probe(lambda: errors) if args.probe_artefact else None
 
