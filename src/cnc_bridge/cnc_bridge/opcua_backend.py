@@ -28,7 +28,6 @@ import logging
 import math
 import pathlib
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import Mapping
 
