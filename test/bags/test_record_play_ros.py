@@ -180,3 +180,32 @@ def test_play_and_record_reject_bad_arguments(tmp_path):
         proc = spawn(args)
         out = proc.communicate(timeout=60)[0]
         assert proc.returncode == 2 and text in out and "Traceback" not in out, out
+
+
+def test_lockstep_participant_paces_the_replay_so_a_depth_one_subscriber_misses_nothing(tmp_path, ros_context):
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from thermal_comp_msgs.msg import SimSync
+    bag = tmp_path / "bag"
+    csv_to_bag(small_recording_csv(tmp_path / "rec.csv", rows=40), bag)
+    s = Spinner(ros_context, "test_participant")
+    got = []
+    sync = s.node.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
+
+    def on_temps(msg):   # a participant that acknowledges each instant once it has its data
+        got.append(rt.stamp_to_s(msg.header.stamp))
+        ack = SimSync()
+        ack.header.stamp = msg.header.stamp
+        ack.node_name = "test_participant"
+        ack.processed_until = msg.header.stamp
+        sync.publish(ack)
+
+    s.node.create_subscription(TemperatureArray, rt.TOPIC_TEMPERATURES, on_temps,
+                               QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
+    try:
+        proc = spawn(["-m", "thermal_comp.play_cli", str(bag), "--as-fast-as-possible", "--topics",
+                      "/temperatures", "--wait-for-subscribers", "1", "--lockstep", "test_participant"])
+        out = proc.communicate(timeout=60)[0]
+        assert proc.returncode == 0, out
+    finally:
+        s.close()
+    assert got == [60.0 * k for k in range(40)]
