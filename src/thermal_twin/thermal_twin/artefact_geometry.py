@@ -88,8 +88,10 @@ class SphereArtefact:
     diameter_mm: float = 25.0                  # GAP in the thesis; a common calibration sphere
     centre_height_mm: float = 100.0            # sphere centre above the table surface
     c_axis_xy_mm: tuple[float, float] = (0.0, 0.0)   # C-axis line in machine X, Y
-    table_surface_z_mm: float = 0.0            # table surface at B = 0
-    b_pivot_z_mm: float = -100.0               # B (swivel about Y) axis height; B turns the table
+    # Machine zero is the C-axis point in the sphere-centre plane, where the seven errors
+    # are defined: the HTM origin of cnc_bridge's default, so the defaults agree.
+    table_surface_z_mm: float = -100.0         # table surface at B = 0
+    b_pivot_z_mm: float = 0.0                  # B (swivel about Y) axis height, through the origin
 
     @property
     def d_m(self) -> float:
