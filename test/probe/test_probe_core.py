@@ -351,3 +351,33 @@ def test_analytic_jacobian_of_the_fit_matches_finite_differences():
              - _along_move_residuals(c - h, pts_um, dirs, r_um)) / 2e-3
             for h in np.eye(3) * 1e-3])
         assert np.allclose(jac, num, atol=1e-6)
+
+
+def test_cycle_reads_zero_when_the_bridge_compensates_with_default_settings():
+    """Offsets from cnc_bridge's default HTM (rigid convention, default origin), computed at
+    the sphere position of each touch, cancel all seven errors in the probe's reading."""
+    from cnc_bridge.error_transform import offsets_from_errors
+    true = {"E_X0C": 6.0, "E_Y0C": -14.0, "E_Z0T": 21.0, "E_R0T": 5.0, "E_A0C": 30.0,
+            "E_B0C": -25.0, "E_C0C": 40.0}
+
+    class Compensated(ProbeBackend):
+        name = "compensated"
+
+        def __init__(self):
+            self.inner = ArtefactModelBackend(errors={}, geometry=IDEAL)
+
+        def touch(self, move):
+            x, y, z = nominal_sphere_centre(move.c_axis_deg, IDEAL)
+            self.inner.offsets_um = offsets_from_errors(self.inner.errors,
+                                                        {"X": x, "Y": y, "Z": z, "B": 0.0})
+            return self.inner.touch(move)
+
+    backend = Compensated()
+    backend.inner.errors = {c: 0.0 for c in SPHERE_COMPONENTS}
+    engine = _engine()
+    _reference(engine, backend)
+    backend.inner.errors = true
+    r = engine.run(GoalSpec(), backend)
+    assert r.success, r.message
+    for c, v in r.errors.as_dict().items():
+        assert v == pytest.approx(0.0, abs=EXACT_TOL), c
