@@ -130,7 +130,7 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
         applied_z, flags_z = [], []
         for k in range(5):
             t = 100.0 + 10.0 * k
-            cell.state(t, X=0.0, Y=0.0, Z=0.0, B=0.0, C=0.0)
+            cell.state(t)            # like machine_sim: no axis positions -> evaluated at the origin
             cell.predict(t, E_Z0T=20.0)
             msg = cell.answer_for(t)
             z = msg.axis_names.index("Z")
@@ -154,7 +154,7 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
         # predictions stop: machine_state instants drive the watchdog (last fresh one at 150 s,
         # timeout 30 s, no hold): at 200 s it ramps 1 um/s over the capped 10 s step
         from thermal_comp.node_runtime import stamp_to_s
-        cell.state(200.0, X=0.0, Y=0.0, Z=0.0, B=0.0, C=0.0)
+        cell.state(200.0)
         cell.spin_until(lambda: stamp_to_s(cell.offsets[-1].header.stamp) == 200.0, 15, "watchdog")
         msg = cell.offsets[-1]
         z = msg.axis_names.index("Z")

@@ -35,7 +35,7 @@ from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErr
 from .audit_log import AuditLog
 from .cnc_backend import TwinBackend
 from .error_transform import (ANGULAR_COMPONENTS, CONVENTION_RIGID, CONVENTIONS,
-                              DEFAULT_SPHERE_RADIUS_MM, HtmGeometry, LatheToolOffsets,
+                              DEFAULT_SPHERE_RADIUS_MM, FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
                               TransformInputError, offsets_from_errors)
 from .safety_envelope import LIMIT_WRITE_FAILED, EnvelopeConfig, SafetyEnvelope, flag_names
 
@@ -53,11 +53,14 @@ PARAMS = [
     Param("htm_origin_mm", [0.0, 0.0, 0.0], "machine X, Y, Z at B = 0 of the point the errors are "
           "defined at (C axis in the probing sphere's centre plane), mm"),
     Param("b_pivot_xz_mm", [0.0, 0.0], "X, Z of the B (swivel) axis line, mm"),
+    Param("positions_required", False, "true: no offsets until X, Y, Z positions are known; false: "
+          "axes nobody reports are taken at the HTM origin (position terms vanish), logged once"),
     Param("enable", True, "compensation enabled (false ramps the offsets to zero)"),
     Param("abs_limit_um", 30.0, "per-axis absolute offset limit, um", lo=0.0, hi=1000.0),
     Param("max_rate_um_per_s", 0.5, "maximum offset change per second (cf. MD32760), um/s",
           lo=1e-6, hi=1000.0),
-    Param("max_step_s", 10.0, "longest time step one update may use for the rate limit, s",
+    Param("max_step_s", 600.0, "longest time step one update may use for the rate limit, s "
+          "(covers a lock-step simulation step; in real time the timer steps every update_period_s)",
           lo=1e-3, hi=3600.0),
     Param("watchdog_timeout_s", 900.0, "no fresh prediction for this long: hold, s", lo=1e-3, hi=1e6),
     Param("watchdog_hold_s", 300.0, "watchdog: hold this long before ramping to zero, s", lo=0.0, hi=1e6),
@@ -128,6 +131,7 @@ class CncBridgeNode(Node):
         self._positions: dict[str, float] = {}
         self._errors: dict[str, float] | None = None
         self._last_update_t: float | None = None
+        self._warned_positions = False
         self.offsets_pub = self.create_publisher(AxisOffsets, TOPIC_OFFSETS, EVENT_QOS)
         self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, EVENT_QOS)
                          if p["lockstep"] else None)
@@ -208,6 +212,19 @@ class CncBridgeNode(Node):
     def _positions_now(self) -> dict[str, float]:
         pos = dict(self.backend.axis_positions())
         pos.update(self._positions)           # machine_state wins where it reports the axis
+        if self._p["positions_required"] or self._errors is None or \
+                not any(c in self._errors for c in FIVE_AXIS_COMPONENTS):
+            return pos
+        missing = [a for a in ("X", "Y", "Z") if a not in pos]
+        if missing:
+            origin = self.htm.origin_at_mm(pos.get("B", 0.0))
+            for a in missing:
+                pos[a] = float(origin["XYZ".index(a)])
+            if not self._warned_positions:
+                self._warned_positions = True
+                self.get_logger().warning(
+                    f"no position for axis {missing} from machine_state or the CNC: offsets are "
+                    f"evaluated at the HTM origin {list(self.htm.origin_mm)} mm")
         return pos
 
     def _update(self, t: float, stamp, fresh: bool) -> None:
@@ -228,7 +245,12 @@ class CncBridgeNode(Node):
         self._last_update_t = t
         if not decisions:
             return
-        readback = self.backend.write_offsets({d.axis: d.applied_um for d in decisions})
+        try:
+            readback = self.backend.write_offsets({d.axis: d.applied_um for d in decisions})
+        except ValueError as exc:            # e.g. an axis without an offset node in the map
+            self.get_logger().error(f"offsets at t={t:.3f} not written: {exc}",
+                                    throttle_duration_sec=10.0)
+            readback = {d.axis: None for d in decisions}
         msg = AxisOffsets(header=Header(stamp=stamp), compensation_enabled=self.envelope.enabled)
         entries = []
         for d in decisions:

@@ -76,15 +76,18 @@ class HtmGeometry:
     origin_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
     b_pivot_xz_mm: tuple[float, float] = (0.0, 0.0)
 
-    def relative_position_mm(self, x_mm: float, y_mm: float, z_mm: float, b_deg: float) -> np.ndarray:
-        """Machine position minus the origin (swivelled by B), in machine axes, mm."""
+    def origin_at_mm(self, b_deg: float) -> np.ndarray:
+        """Machine coordinates of the origin with the table swivelled to B [deg], mm."""
         b = math.radians(b_deg)
         px, pz = self.b_pivot_xz_mm
         ox, oy, oz = self.origin_mm
         dx, dz = ox - px, oz - pz
-        origin = np.array([px + math.cos(b) * dx + math.sin(b) * dz, oy,
-                           pz - math.sin(b) * dx + math.cos(b) * dz])
-        return np.array([x_mm, y_mm, z_mm]) - origin
+        return np.array([px + math.cos(b) * dx + math.sin(b) * dz, oy,
+                         pz - math.sin(b) * dx + math.cos(b) * dz])
+
+    def relative_position_mm(self, x_mm: float, y_mm: float, z_mm: float, b_deg: float) -> np.ndarray:
+        """Machine position minus the origin (swivelled by B), in machine axes, mm."""
+        return np.array([x_mm, y_mm, z_mm]) - self.origin_at_mm(b_deg)
 
 
 def _rot_y(b: float) -> np.ndarray:
