@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thermal_twin.artefact_geometry import ANGULAR_COMPONENTS, SPHERE_COMPONENTS
+from thermal_twin.artefact_geometry import SPHERE_COMPONENTS
 
 #: C index of the sphere positions k = 1..4 used by eq. 5.4-5.10.
 EQUATION_C_ANGLES_DEG = (0.0, 90.0, 180.0, 270.0)
@@ -78,9 +78,5 @@ def location_errors(centres_um: np.ndarray, reference_centres_um: np.ndarray, d_
     return values, u
 
 
-def is_angular(component: str) -> bool:
-    return component in ANGULAR_COMPONENTS
-
-
 __all__ = ["EQUATION_C_ANGLES_DEG", "SPHERE_COMPONENTS", "location_error_matrix",
-           "location_errors", "is_angular"]
+           "location_errors"]
