@@ -101,8 +101,8 @@ def evaluate_sphere_cycle(plan: CyclePlan, replies: list[TouchReply], limits: Cy
     new_ref = None
     if make_reference or reference is None:
         new_ref = SphereReference(centres, covs, stamp)
-        values, u = location_errors(centres, centres, d_m, covs, None)
-        values = np.zeros(7)
+        _, u = location_errors(centres, centres, d_m, covs, None)   # own uncertainty only
+        values = np.zeros(7)                                          # zero by definition
         why = "requested" if make_reference else "no reference existed"
         msg = f"reference cycle ({why}); errors are zero by definition"
     else:
