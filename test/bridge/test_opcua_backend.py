@@ -1,6 +1,7 @@
 """The OPC UA backend against the asyncua CNC emulator: read-back, restart, credentials, security."""
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 
@@ -119,6 +120,30 @@ def test_wrong_credentials_are_rejected(port):
         emu.close()
 
 
+async def _session_over_unsecured_channel(url: str, user: str, password: str):
+    """A raw client: channel with security policy None, then a session and a write."""
+    from asyncua import Client, ua
+    c = Client(url)
+    await c.connect_socket()
+    try:
+        await c.send_hello()
+        await c.open_secure_channel()            # None policy: allowed for discovery only
+        params = ua.CreateSessionParameters(
+            ClientNonce=b"\0" * 32, EndpointUrl=url, SessionName="raw",
+            RequestedSessionTimeout=60000, MaxResponseMessageSize=0,
+            ClientDescription=ua.ApplicationDescription(ApplicationUri="urn:raw",
+                                                        ApplicationType=ua.ApplicationType.Client))
+        await c.uaclient.create_session(params)
+        token = ua.UserNameIdentityToken(PolicyId="username", UserName=user,
+                                         Password=password.encode())
+        await c.uaclient.activate_session(ua.ActivateSessionParameters(LocaleIds=[],
+                                                                       UserIdentityToken=token))
+        await c.get_node(compensation_node_id("X", "SD43900")).write_value(
+            ua.DataValue(ua.Variant(0.5, ua.VariantType.Double)))
+    finally:
+        c.disconnect_socket()
+
+
 def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
     server_cert, server_key = make_certificate(tmp_path, "cnc", "urn:thermal-comp:cnc-emulator:server",
                                                server=True)
@@ -136,6 +161,10 @@ def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
         assert offset_writes(emu, "X") == []          # nothing reached the CNC unencrypted
         with pytest.raises(OpcUaConfigError, match="refusing an insecure connection"):
             OpcUaConfig(endpoint=endpoint(port), security_required=True)
+        # the server itself refuses, even a client that ignores the endpoint list
+        with pytest.raises(Exception, match="BadUserAccessDenied"):
+            asyncio.run(_session_over_unsecured_channel(endpoint(port), "cnc", "pw"))
+        assert offset_writes(emu, "X") == []
         secure = backend(port, user="cnc", password="pw", certificate=client_cert,
                          private_key=client_key, security_required=True)
         try:
@@ -150,8 +179,6 @@ def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
 
 def test_probe_move_answers_through_opcua_with_the_applied_compensation(port):
     """The probing interface other nodes use: a real method call, answered by the twin geometry."""
-    import asyncio
-
     from asyncua import Client, ua
     from thermal_twin.artefact_geometry import nominal_sphere_centre
 

@@ -122,13 +122,25 @@ def artefact_probe(true_errors: Callable[[], Mapping[str, float]], geometry=None
     return probe
 
 
-class _PasswordUsers:
-    """asyncua user manager: one user name/password; anonymous sessions refused."""
+class _SessionGate:
+    """asyncua user manager: who may open a session.
 
-    def __init__(self, user: str, password: str):
+    With security required, a session on a channel without a client certificate (security
+    policy None) is refused here, server-side: asyncua would otherwise let a client that
+    ignores the endpoint list activate a session over an unsecured channel. With a user
+    name/password configured, only that user gets in (anonymous sessions are refused).
+    """
+
+    def __init__(self, user: str | None, password: str | None, security_required: bool):
         self._user, self._password = user, password
+        self._security_required = security_required
 
     def get_user(self, iserver, username=None, password=None, certificate=None):
+        if self._security_required and not certificate:
+            log.warning("refused a session on an unsecured channel (security required)")
+            return None
+        if self._user is None:
+            return User(role=UserRole.User)
         if username == self._user and password == self._password:
             return User(role=UserRole.User, name=username)
         log.warning("refused session for user %r", username)
@@ -197,8 +209,7 @@ class CncEmulator:
     # ---------------------------------------------------------------- address space
     async def start(self) -> None:
         cfg = self.config
-        users = _PasswordUsers(cfg.user, cfg.password) if cfg.user is not None else None
-        server = Server(user_manager=users)
+        server = Server(user_manager=_SessionGate(cfg.user, cfg.password, cfg.security == "required"))
         await server.init()
         server.set_endpoint(cfg.endpoint)
         server.set_server_name("thermal-comp CNC emulator")
@@ -211,7 +222,7 @@ class CncEmulator:
         if cfg.security == "optional":
             policies.append(ua.SecurityPolicyType.NoSecurity)
         server.set_security_policy(policies)
-        if users is not None:
+        if cfg.user is not None:
             server.set_identity_tokens([ua.UserNameIdentityToken])
         idx = await server.register_namespace(NAMESPACE_URI)
         if idx != 2:
