@@ -104,7 +104,15 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
     resid0 = {c: meas[c] - y0[i] for i, c in enumerate(channels)}
 
     # diagnose the residuals -------------------------------------------------------------
-    drivers_all = stats.derived_drivers(t, rec.inputs, rec.sensors)
+    ccf_inputs = dict(rec.inputs)
+    for name, ispec in machine.inputs.items():   # e.g. the ambient the twin takes from a sensor
+        col = f"{ispec.from_sensor}_c" if ispec.from_sensor else None
+        if name not in ccf_inputs and col in rec.columns:
+            ccf_inputs[name] = rec.columns[col]
+    unknown_sensors = {c: v for c, v in rec.sensors.items() if c not in channels}
+    drivers_all = stats.derived_drivers(t, ccf_inputs, rec.sensors)
+    drivers_all.update({c: stats._finite(v) for c, v in unknown_sensors.items()
+                        if np.isfinite(v).any()})
     max_lag = int(max_lag_s / dt)
     ccf: dict[str, list] = {}
     chan_report: dict[str, dict] = {}

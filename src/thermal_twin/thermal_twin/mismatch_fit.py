@@ -9,8 +9,9 @@ Procedure (one round; the finder repeats it greedily on the augmented twin):
    outputs is a sensitivity direction s, and the share of the training residual it can
    explain is the error-reduction ratio (s.r)^2 / (s.s |r|^2) (the ERR of NARX term
    selection). The best few candidates, and the best of every effect type, go on.
-3. **Fit.** ``scipy.optimize.least_squares`` (trf, bounded) on the training window only,
-   from the best of a few start values of the non-linear parameters.
+3. **Fit.** ``scipy.optimize.least_squares`` (trf, bounded) on the training window only
+   (every ``stride``-th sample of long recordings; the simulation itself runs at full
+   resolution), from the best of a few start values of the non-linear parameters.
 4. **Score.** The fitted twin is simulated over the whole recording; ``holdout_improvement_pct``
    is the fall of the weighted sum of squares on the held-out window (never fitted).
    The information criterion is BIC on the training window with the effective number of
@@ -73,8 +74,11 @@ class FitProblem:
     channels: list[str]
     n_train: int
     sigma: dict[str, float] = field(default_factory=dict)
+    stride: int = 0        # fit on every stride-th training sample (0: at most ~3000 samples)
 
     def __post_init__(self):
+        if self.stride <= 0:
+            self.stride = max(1, self.n_train // 3000)
         if not self.sigma:
             self.sigma = {c: channel_sigma(self.recording.columns[c]) for c in self.channels}
         meas = np.stack([np.asarray(self.recording.columns[c], dtype=float) for c in self.channels])
@@ -95,11 +99,18 @@ class FitProblem:
         self.n_evals += 1
         return np.stack([out[c] for c in self.channels])
 
-    def weighted_residual(self, y: np.ndarray, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """(measured - y) / sigma on [start, stop), NaN readings count as 0, flattened."""
+    def weighted_residual(self, y: np.ndarray, start: int = 0, stop: int | None = None,
+                          stride: int = 1) -> np.ndarray:
+        """(measured - y) / sigma on [start, stop) every ``stride`` samples, NaN readings
+        count as 0; shape (channels, samples)."""
         stop = y.shape[1] if stop is None else stop
-        r = (self._meas[:, start:stop] - y[:, start:stop]) * self._w
-        return np.where(self._valid[:, start:stop], r, 0.0)
+        sl = slice(start, stop, stride)
+        r = (self._meas[:, sl] - y[:, sl]) * self._w
+        return np.where(self._valid[:, sl], r, 0.0)
+
+    def train_residual(self, y: np.ndarray) -> np.ndarray:
+        """The weighted residual the fits minimise (training window, strided)."""
+        return self.weighted_residual(y, 0, self.n_train, self.stride)
 
     def weighted(self, dy: np.ndarray) -> np.ndarray:
         return dy * self._w
@@ -175,7 +186,7 @@ def delta_bic(r0: np.ndarray, r1: np.ndarray, k: int) -> float:
 def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
            y0_train: np.ndarray, progress: Callable[[], None] | None = None) -> list[tuple[float, Candidate]]:
     """Error-reduction ratio of every candidate at its start value, best first."""
-    r0 = problem.weighted_residual(y0_train, 0, problem.n_train)
+    r0 = problem.train_residual(y0_train)
     rr = float(np.sum(r0 ** 2)) or 1.0
     out = []
     for c in cands:
@@ -187,7 +198,7 @@ def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
         finally:
             if progress:
                 progress()
-        s = problem.weighted(y - y0_train)
+        s = problem.weighted(y - y0_train)[:, ::problem.stride]
         ss = float(np.sum(s * s))
         err = 0.0 if ss <= 0 else float(np.sum(s * r0)) ** 2 / (ss * rr)
         out.append((err, c))
@@ -224,8 +235,8 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
         try:
             y = problem.outputs(c.apply(base_spec, v), stop=nt)
         except MachineSpecError:
-            return np.full(len(problem.channels) * nt, 1e6)
-        return problem.weighted_residual(y, 0, nt).ravel()
+            return np.full(problem.train_residual(y0_full).size, 1e6)
+        return problem.train_residual(y).ravel()
 
     best = None
     for s in _starts(c):
@@ -244,15 +255,15 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
         y1 = problem.outputs(spec)
     except MachineSpecError:
         return None
-    r0t = problem.weighted_residual(y0_full, 0, nt)
-    r1t = problem.weighted_residual(y1, 0, nt)
+    r0t = problem.train_residual(y0_full)
+    r1t = problem.train_residual(y1)
     r0h = problem.weighted_residual(y0_full, nt)
     r1h = problem.weighted_residual(y1, nt)
     return Hypothesis(candidate=c, values=v, spec=spec, err_screen=err_screen,
                       sse_train_before=float(np.sum(r0t ** 2)), sse_train_after=float(np.sum(r1t ** 2)),
                       sse_holdout_before=float(np.sum(r0h ** 2)), sse_holdout_after=float(np.sum(r1h ** 2)),
                       delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v),
-                      change=problem.weighted(y1[:, :nt] - y0_full[:, :nt]).ravel())
+                      change=problem.weighted(y1[:, :nt:problem.stride] - y0_full[:, :nt:problem.stride]).ravel())
 
 
 def mark_indistinguishable(hyps: list[Hypothesis], corr_threshold: float = 0.95,

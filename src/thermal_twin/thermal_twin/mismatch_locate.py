@@ -8,7 +8,8 @@ um or um/m for error channels).
   coolant on, door open) and the time of day (day 06-22 h / night).
 - :func:`regime_effects`: mean residual inside vs. outside each regime, per channel.
 - :func:`locate_windows`: contiguous time windows where the smoothed residual stands out
-  (above three times the channel's noise and above half its peak), merged over channels,
+  (above three times the channel's noise and above half its peak), merged over channels
+  when they overlap,
   each labelled with the regime that dominates it.
 """
 from __future__ import annotations
@@ -117,15 +118,19 @@ def locate_windows(time_s: np.ndarray, residuals: dict[str, np.ndarray],
                    regimes: dict[str, np.ndarray], units: dict[str, str],
                    smooth_s: float = 3600.0, max_windows: int = 12) -> list[dict]:
     """Time windows where a channel's smoothed residual exceeds max(3 sigma_noise,
-    0.5 * its peak, a tenth of a unit's resolution); windows of several channels that
-    overlap are merged. Each window: start_s, end_s, channels, regime, and per channel
-    the peak smoothed residual (``effect``) in its unit. Sorted by start time."""
+    0.5 * its peak); windows of several channels that overlap by at least half of their
+    union are merged. At most ``max_windows`` are kept, the strongest (sum over channels
+    of the peak relative to the channel's smoothed-residual RMS). Each window: start_s,
+    end_s, channels, regime, and per channel the peak smoothed residual (``effect``) in
+    its unit. Sorted by start time."""
     t = np.asarray(time_s, dtype=float)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     w = int(max(1, round(smooth_s / dt)))
     per_ch: list[tuple[int, int, str, float]] = []
+    scale: dict[str, float] = {}
     for ch, r in residuals.items():
         s = moving_average(r, w)
+        scale[ch] = float(np.sqrt(np.mean(s ** 2))) or 1.0
         peak = float(np.max(np.abs(s)))
         thr = max(3.0 * noise_sigma(r) / math.sqrt(w), 0.5 * peak, 1e-9)
         if peak <= 3.0 * noise_sigma(r) / math.sqrt(w):
@@ -140,12 +145,17 @@ def locate_windows(time_s: np.ndarray, residuals: dict[str, np.ndarray],
     per_ch.sort()
     merged: list[dict] = []
     for a, b, ch, eff in per_ch:
-        if merged and a <= merged[-1]["_b"]:
-            m = merged[-1]
-            m["_b"] = max(m["_b"], b)
-            m["effects"][ch] = eff if abs(eff) > abs(m["effects"].get(ch, 0.0)) else m["effects"][ch]
+        for m in merged:   # same window if the overlap is at least half of the union
+            inter = min(b, m["_b"]) - max(a, m["_a"])
+            union = max(b, m["_b"]) - min(a, m["_a"])
+            if inter >= 0.5 * union:
+                m["_a"], m["_b"] = min(a, m["_a"]), max(b, m["_b"])
+                old = m["effects"].get(ch)
+                m["effects"][ch] = eff if old is None or abs(eff) > abs(old) else old
+                m["score"] += abs(eff) / scale[ch]
+                break
         else:
-            merged.append({"_a": a, "_b": b, "effects": {ch: eff}})
+            merged.append({"_a": a, "_b": b, "effects": {ch: eff}, "score": abs(eff) / scale[ch]})
     out = []
     for m in merged:
         a, b = m["_a"], m["_b"]
@@ -154,7 +164,7 @@ def locate_windows(time_s: np.ndarray, residuals: dict[str, np.ndarray],
                     "regime": _regime_label(regimes, a, b),
                     "effect": {ch: {"value": v, "unit": units.get(ch, "")}
                                for ch, v in sorted(m["effects"].items())}})
-    out.sort(key=lambda d: -max(abs(e["value"]) for e in d["effect"].values()))
-    out = out[:max_windows]
+    order = np.argsort([-m["score"] for m in merged], kind="stable")
+    out = [out[i] for i in order[:max_windows]]
     out.sort(key=lambda d: d["start_s"])
     return out

@@ -5,7 +5,8 @@ every least-squares iteration). :func:`thermal_twin.simulate.simulate` is the re
 but steps through Python dictionaries; :func:`expected_outputs` computes the same
 noise-free outputs with the twin's own parts (:class:`ThermalNetwork` step matrices,
 ``initial_temperatures``, the sensor bank's weights/lag/gain/bias and the error map),
-vectorising everything except the one matrix-vector recursion per step. The exact step
+vectorising everything: within a run of one conductance regime the state recursion
+decouples into scalar modal recursions run by ``scipy.signal.lfilter``. The exact step
 maps come from the symmetric eigen-decomposition of C^-1/2 K C^-1/2 (closed form of the
 same zero-order hold the twin computes with ``expm``), cached across calls because most
 candidate effects leave the conductances alone. It implements
@@ -21,6 +22,7 @@ from collections import OrderedDict
 from typing import Mapping
 
 import numpy as np
+from scipy.signal import lfilter
 
 from thermal_twin.machine_schema import Machine
 from thermal_twin.sensor_model import SensorBank
@@ -33,8 +35,9 @@ _STEP_CACHE: OrderedDict = OrderedDict()
 _STEP_CACHE_SIZE = 4096
 
 
-def step_maps(K: np.ndarray, capacity: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """(Phi, Psi) of x' = -C^-1 K x + f held for ``dt``: Phi = exp(A dt), Psi = int_0^dt exp(A s) ds.
+def step_maps(K: np.ndarray, capacity: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
+    """(Phi, Psi, L, R, lam) of x' = -C^-1 K x + f held for ``dt``: Phi = exp(A dt),
+    Psi = int_0^dt exp(A s) ds, and the modal form Phi = L diag(lam) R with R = L^-1.
 
     With S = C^-1/2 K C^-1/2 = Q diag(mu) Q^T: Phi = C^-1/2 Q e^(-mu dt) Q^T C^1/2 and
     Psi = C^-1/2 Q ((1 - e^(-mu dt))/mu) Q^T C^1/2 (dt where mu = 0)."""
@@ -51,7 +54,7 @@ def step_maps(K: np.ndarray, capacity: np.ndarray, dt: float) -> tuple[np.ndarra
         integ = np.where(np.abs(mu * dt) > 1e-12, -np.expm1(-mu * dt) / mu, dt)
     left = ih[:, None] * Q
     right = Q.T * np.sqrt(capacity)[None, :]
-    hit = ((left * e) @ right, (left * integ) @ right)
+    hit = ((left * e) @ right, (left * integ) @ right, left, right, e)
     _STEP_CACHE[key] = hit
     if len(_STEP_CACHE) > _STEP_CACHE_SIZE:
         _STEP_CACHE.popitem(last=False)
@@ -73,20 +76,24 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
     vary = [(i, pu, e) for l in net._varying for i, pu, e in l.varies_with]
     key_cols = [np.round(dt, 9)] + [vals[i][:-1] for i, _, _ in vary] if n_t > 1 else []
     if n_t > 1:
+        # regimes change rarely: label the runs of constant key, then map runs to ids
         keys = np.column_stack(key_cols)
-        uniq, reg = np.unique(keys, axis=0, return_inverse=True)
-        reg = reg.ravel()
+        starts = np.concatenate([[0], np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1])
+        ids: dict[tuple, int] = {}
+        run_id = np.array([ids.setdefault(tuple(keys[a]), len(ids)) for a in starts])
+        lengths = np.diff(np.concatenate([starts, [n_t - 1]]))
+        reg = np.repeat(run_id, lengths)
+        uniq = list(ids)
     else:
-        uniq, reg = np.zeros((0, 1)), np.zeros(0, dtype=int)
+        uniq, reg = [], np.zeros(0, dtype=int)
     names = list(vals)
-    phis = np.empty((len(uniq), n, n))
-    psis = np.empty((len(uniq), n, n))
+    maps = []
     kbs = np.empty((len(uniq), n, len(net.boundary_names)))
     for r in range(len(uniq)):
         k = int(np.flatnonzero(reg == r)[0])
         u = {name: float(vals[name][k]) for name in names}
         K, kbs[r] = net.matrices(u)
-        phis[r], psis[r] = step_maps(K, net.capacity, float(t[k + 1] - t[k]))
+        maps.append(step_maps(K, net.capacity, float(t[k + 1] - t[k])))
 
     # boundary temperatures and source powers, vectorised --------------------------------
     tb = np.empty((n_t, len(net.boundary_names)))
@@ -108,13 +115,25 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
                 p = p + s.periodic_amplitude * np.sin(2 * math.pi * (tm - s.periodic_phase_s)
                                                       / s.periodic_period_s)
             P[:, node_index[s.node]] += p
-        f = (np.einsum("knb,kb->kn", kbs[reg], tb[:-1]) + P) / net.capacity
-        g = np.einsum("kij,kj->ki", psis[reg], f)
-        phi_k = phis[reg]
+        g = np.empty((n_t - 1, n))
+        for r in range(len(uniq)):
+            sel = reg == r
+            f = (tb[:-1][sel] @ kbs[r].T + P[sel]) / net.capacity
+            g[sel] = f @ maps[r][1].T
+        # x_{k+1} = Phi_r x_k + g_k; over a run of one regime the modes z = R x decouple
+        # into scalar recursions z_{k+1} = lam z_k + R g_k, each run by lfilter
+        change = np.flatnonzero(np.diff(reg)) + 1
+        bounds = np.concatenate([[0], change, [n_t - 1]])
         x = x0
-        for k in range(n_t - 1):
-            x = phi_k[k] @ x + g[k]
-            X[k + 1] = x
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            _, _, L, R, lam = maps[reg[a]]
+            h = g[a:b] @ R.T
+            z = np.empty_like(h)
+            z0 = R @ x
+            for i in range(n):
+                z[:, i] = lfilter([1.0], [1.0, -lam[i]], h[:, i], zi=[lam[i] * z0[i]])[0]
+            X[a + 1:b + 1] = z @ L.T
+            x = X[b]
 
     out: dict[str, np.ndarray] = {}
     bank = SensorBank(machine, net.node_names, net.boundary_names)
@@ -124,11 +143,16 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
         lagged_cols = np.flatnonzero(bank.lag_s > 0)
         if lagged_cols.size and n_t > 1:
             a = np.exp(-dt[:, None] / bank.lag_s[lagged_cols][None, :])
-            y = true[0, lagged_cols].copy()
             tr = true[:, lagged_cols]
-            for k in range(1, n_t):
-                y = a[k - 1] * y + (1.0 - a[k - 1]) * tr[k]
-                lagged[k, lagged_cols] = y
+            if np.all(dt == dt[0]):       # constant step: one lfilter per sensor
+                for j, col in enumerate(lagged_cols):
+                    aj = a[0, j]
+                    lagged[1:, col] = lfilter([1.0 - aj], [1.0, -aj], tr[1:, j], zi=[aj * tr[0, j]])[0]
+            else:
+                y = tr[0].copy()
+                for k in range(1, n_t):
+                    y = a[k - 1] * y + (1.0 - a[k - 1]) * tr[k]
+                    lagged[k, lagged_cols] = y
         readings = bank.gain * lagged + bank.bias
         for j, sid in enumerate(bank.ids):
             out[bank.columns[j]] = readings[:, j]
