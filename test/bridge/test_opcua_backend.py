@@ -97,15 +97,14 @@ def test_wrong_credentials_are_rejected(port):
     try:
         bad = backend(port, user="cnc", password="wrong")
         try:
-            wait_for(lambda: bad.last_error, 10, "the refusal")
+            wait_for(lambda: "BadUserAccessDenied" in bad.last_error, 20, "the refusal")
             assert not bad.connected
-            assert "Denied" in bad.last_error or "Identity" in bad.last_error, bad.last_error
             assert bad.write_offsets({"X": 1.0}) == {"X": None}
         finally:
             bad.close()
         anonymous = backend(port)
         try:
-            wait_for(lambda: anonymous.last_error, 10, "the refusal")
+            wait_for(lambda: "BadIdentityTokenRejected" in anonymous.last_error, 20, "the refusal")
             assert not anonymous.connected
         finally:
             anonymous.close()
@@ -154,7 +153,8 @@ def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
     try:
         plain = backend(port, user="cnc", password="pw")
         try:
-            wait_for(lambda: plain.last_error, 10, "the refusal")
+            # the client finds no endpoint without security and gives up before a session
+            wait_for(lambda: "No matching endpoints" in plain.last_error, 20, "the refusal")
             assert not plain.connected
         finally:
             plain.close()
