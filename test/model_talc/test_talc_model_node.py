@@ -27,6 +27,7 @@ update_interval_h: 100.0
 na_max: 1
 nb_max: 1
 nb_max_final: 1
+cp_gap_fill: predict        # the fake plant jumps between samples: no interpolation of failed CP probes
 """
 
 

@@ -149,8 +149,16 @@ def solve_wls(phi: np.ndarray, target: np.ndarray, weights: np.ndarray | None = 
     sw = np.sqrt(weights[keep])
     a = phi[keep] * sw[:, None]
     b = target[keep] * sw
-    check_full_rank(a, what)
-    theta, *_ = np.linalg.lstsq(a, b, rcond=None)
+    n_params = a.shape[1]
+    if a.shape[0] < n_params:
+        raise RankDeficientError(f"{what}: {a.shape[0]} usable rows for {n_params} parameters",
+                                 rank=min(a.shape), n_params=n_params)
+    # lstsq's SVD gives the rank with matrix_rank's default tolerance (rcond=None:
+    # max(M, N) * eps * s_max), so the full-rank check costs no second decomposition
+    theta, _, rank, _ = np.linalg.lstsq(a, b, rcond=None)
+    if rank < n_params:
+        raise RankDeficientError(f"{what}: rank {rank} < {n_params} parameters (not identifiable yet)",
+                                 rank=int(rank), n_params=n_params)
     return theta
 
 

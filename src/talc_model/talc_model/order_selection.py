@@ -30,6 +30,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .arx import ArxModel, ArxOrders, RankDeficientError, fit_arx
 
@@ -79,7 +80,14 @@ def _validation_residuals(model: ArxModel, y: np.ndarray, u: np.ndarray, split: 
     return res[scored[split:]]
 
 
-def select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_range: tuple[int, int],
+def select_orders(*args, **kwargs) -> "OrderSelection":
+    """See :func:`_select_orders`; runs with single-threaded BLAS: the hundreds of small
+    least-squares problems are 10-100x slower with a multi-threaded BLAS on a busy machine."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _select_orders(*args, **kwargs)
+
+
+def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_range: tuple[int, int],
                   *, nk: int = 0, intercept: bool = False, criterion: str = "mdl",
                   train_fraction: float = 0.6, weights: np.ndarray | None = None,
                   measured: np.ndarray | None = None, exhaustive_limit: int = 4000,

@@ -29,10 +29,12 @@ Choices where the thesis leaves a gap (each is a config field):
 - intervals count from the *end* of a cycle (``interval_from_cycle_end``; spec §4.5 [D]:
   a CP period is 300 + 95 s, which reproduces the reported CP productivity of ~75 %);
 - measurements fall on the nearest grid sample; CP grid samples without a measurement
-  (a 300 + 95 s CP period on a 300 s grid leaves gaps, failed cycles too) are left out of
-  the first fit and then filled with the fitted model's predictions (``cp_gap_fill =
-  "predict"``, the thesis's "fill the output lags with model predictions"), or filled by
-  linear interpolation (``"interpolate"``); either way they are flagged "predicted";
+  (a 300 + 95 s CP period on a 300 s grid leaves every 4th to 5th sample empty, failed
+  cycles too) are filled by linear interpolation between the neighbouring measurements
+  (``cp_gap_fill = "interpolate"``, default: thermal errors are smooth over 5 min, and with
+  n_a = 5 the alternative would leave no complete regression row), or left out of the
+  first fit and then filled with the fitted model's predictions (``"predict"``, exact for
+  plants that jump between samples); either way they are flagged "predicted" (low weight);
 - inputs are deltas from each input's first finite value; an unavailable input (NaN) holds
   its last value (``input_names`` entries may be differences, ``"a - b"``, for the
   C-axis coolant inlet-outlet temperature difference);
@@ -51,6 +53,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .adaptive_model import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, PHASE_CALIBRATION,
                              PHASE_COMPENSATION, PHASE_NO_GOOD, ModelStatusData, register_model)
@@ -97,9 +100,10 @@ class TalcConfig:
     # --- weighted least squares
     predicted_weight: float = 0.05         # weight of samples that only carry a prediction
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
-    cp_gap_fill: str = "predict"           # CP grid samples without a measurement: "predict"
-    #                                        (rows with gaps left out of the first fit, then filled
-    #                                        with the fitted model's predictions) or "interpolate"
+    cp_gap_fill: str = "interpolate"       # CP grid samples without a measurement: "interpolate"
+    #                                        (linear, between the neighbouring measurements) or
+    #                                        "predict" (left out of the first fit, then filled with
+    #                                        the fitted model's predictions)
     forgetting_factor: float = 1.0         # weight multiplier per forgetting_period_h of age (1 = off)
     forgetting_period_h: float = 24.0
     history_window_h: float = math.inf     # only samples this recent are fitted
@@ -482,6 +486,10 @@ class TalcModel:
         self._after_measurement(t_s, residual)
 
     def _after_measurement(self, t_s: float, residual: Mapping[str, float]) -> None:
+        with threadpool_limits(limits=1, user_api="blas"):  # small problems: see order_selection
+            self._phase_logic(t_s, residual)
+
+    def _phase_logic(self, t_s: float, residual: Mapping[str, float]) -> None:
         c = self.config
         if self.phase == PHASE_CALIBRATION:
             if self._cp_complete(t_s):
@@ -658,7 +666,8 @@ class TalcModel:
             self.t_last_update = t_s
             return
         if t_s - self.t_last_update >= self.config.update_interval_h * 3600.0:
-            self._update(t_s, "update interval")
+            with threadpool_limits(limits=1, user_api="blas"):
+                self._update(t_s, "update interval")
 
     # ------------------------------------------------------------------ status
     def q_prod_pct(self, t_s: float) -> float:
