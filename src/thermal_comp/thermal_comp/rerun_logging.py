@@ -278,23 +278,36 @@ class RerunLogger:
         """Lock-step handshakes carry no measurement; counted, not drawn."""
 
 
-def default_blueprint(namespace: str = "") -> rrb.Blueprint:
-    """Temperatures, errors, offsets and model on the left; 3D layout and events on the right."""
+def _series(origin: str, name: str, **kw) -> rrb.TimeSeriesView:
+    """A time-series view whose x axis shows the whole recording (not only the last seconds)."""
+    whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
+    return rrb.TimeSeriesView(origin=origin, name=name, axis_x=rrb.TimeAxis(view_range=whole), **kw)
+
+
+def default_blueprint(namespace: str = "", error_components: Iterable[str] = ()) -> rrb.Blueprint:
+    """Errors (one plot per component when they are known: units differ), temperatures,
+    offsets and model on the left; 3D sensor layout, machine state and events on the right."""
     p = f"/{namespace.strip('/')}" if namespace.strip("/") else ""
+    comps = list(error_components)
+    if comps:
+        errors = rrb.Grid(*[_series(f"{p}/errors/{_part(c)}", f"{c} (true / predicted +-2u / measured)")
+                            for c in comps])
+    else:
+        errors = _series(f"{p}/errors", "Thermal errors (true / predicted +-2u / measured)")
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.TimeSeriesView(origin=f"{p}/errors", name="Thermal errors (true / predicted +-2u / measured)"),
-                rrb.TimeSeriesView(origin=f"{p}/temperatures", name="Temperatures (degC)"),
+                errors,
+                _series(f"{p}/temperatures", "Temperatures (degC)"),
                 rrb.Horizontal(
-                    rrb.TimeSeriesView(origin=f"{p}/offsets", name="CNC offsets (um)"),
-                    rrb.TimeSeriesView(origin=f"{p}/model", name="Model"),
+                    _series(f"{p}/offsets", "CNC offsets (um)"),
+                    _series(f"{p}/model", "Model"),
                 ),
+                row_shares=[3, 2, 2] if comps else [2, 2, 2],
             ),
             rrb.Vertical(
                 rrb.Spatial3DView(origin=f"{p}/machine/sensors", name="Sensor layout"),
-                rrb.TimeSeriesView(origin=f"{p}/machine", contents=["$origin/**", "- $origin/sensors/**"],
-                                   name="Machine state"),
+                _series(f"{p}/machine", "Machine state", contents=["$origin/**", "- $origin/sensors/**"]),
                 rrb.TextLogView(origin=f"{p}/events", name="Events"),
             ),
             column_shares=[3, 2],

@@ -43,12 +43,28 @@ def _wait_for_interrupt() -> None:
         pass
 
 
-def log_bag(path: str, rec: rr.RecordingStream, layout=None, progress: bool = True) -> tuple[int, str | None]:
-    """Log every message of a bag to ``rec``; (messages logged, damage report or None)."""
+def error_components(contents) -> list[str]:
+    """Component names of the first ThermalErrors message of each error topic, in order."""
     from thermal_comp import msg_definitions
-    from thermal_comp.bag_player import read_bag
+    store = msg_definitions.typestore()
+    comps: list[str] = []
+    seen: set[str] = set()
+    for m in contents.messages:
+        if m.type == "thermal_comp_msgs/msg/ThermalErrors" and m.topic not in seen:
+            seen.add(m.topic)
+            try:
+                names = store.deserialize_cdr(m.data, m.type).component_names
+            except Exception:   # undecodable: reported when logging
+                continue
+            comps += [c for c in names if c not in comps]
+    return comps
+
+
+def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = True) -> tuple[int, str | None]:
+    """Log every message of a bag (``bag_player.BagContents``) to ``rec``;
+    (messages logged, damage report or None)."""
+    from thermal_comp import msg_definitions
     from thermal_comp.rerun_logging import RerunLogger
-    contents = read_bag(path)
     store = msg_definitions.typestore()
     logger = RerunLogger(rec, layout)
     msgs = contents.messages
@@ -80,7 +96,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp view: {exc}", file=sys.stderr)
         return 2
     spawn = args.spawn or not (args.rrd or args.serve_web)
-    blueprint = default_blueprint(args.namespace)
+    contents = None
+    if args.bag:
+        from thermal_comp.bag_player import BagReadError, read_bag
+        try:
+            contents = read_bag(args.bag)
+        except BagReadError as exc:
+            print(f"thermal-comp view: {exc}", file=sys.stderr)
+            return 2
+    blueprint = default_blueprint(args.namespace, error_components(contents) if contents else ())
     rec = rr.RecordingStream(APP_ID, recording_id=None)
     sinks = []
     server = None
@@ -97,13 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     if server is not None:
         rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=server.uri)
         print(f"rerun web viewer: http://localhost:{args.web_port}/?url={server.uri}", flush=True)
-    if args.bag:
-        from thermal_comp.bag_player import BagReadError
-        try:
-            n, damage = log_bag(args.bag, rec, layout, progress=not args.no_progress)
-        except BagReadError as exc:
-            print(f"thermal-comp view: {exc}", file=sys.stderr)
-            return 2
+    if contents is not None:
+        n, damage = log_bag(contents, rec, layout, progress=not args.no_progress)
         rec.flush()
         print(f"{args.bag}: {n} messages logged" + (f" to {args.rrd}" if args.rrd else ""), flush=True)
         if damage:
