@@ -8,7 +8,7 @@ um or um/m for error channels).
   coolant on, door open) and the time of day (day 06-22 h / night).
 - :func:`regime_effects`: mean residual inside vs. outside each regime, per channel.
 - :func:`locate_windows`: contiguous time windows where the smoothed residual stands out
-  (above three times the channel's noise and above half its peak), merged over channels
+  (above four times the smoothed noise and above half its peak), merged over channels
   when they overlap,
   each labelled with the regime that dominates it.
 """
@@ -30,11 +30,15 @@ def noise_sigma(x: np.ndarray) -> float:
 
 
 def moving_average(x: np.ndarray, w: int) -> np.ndarray:
+    """Centred moving average over w samples; near the ends over the samples that exist
+    (no padding, which would weigh the first and last reading w/2 times)."""
     x = _finite(x)
     if w <= 1 or x.size <= w:
         return x.copy()
-    pad = np.pad(x, (w // 2, w - 1 - w // 2), mode="edge")
-    return np.convolve(pad, np.ones(w) / w, mode="valid")
+    k = np.ones(w)
+    num = np.convolve(x, k, mode="same")
+    den = np.convolve(np.ones_like(x), k, mode="same")
+    return num / den
 
 
 def _input_kind(name: str) -> str | None:
@@ -117,8 +121,8 @@ def _regime_label(regimes: dict[str, np.ndarray], a: int, b: int) -> str:
 def locate_windows(time_s: np.ndarray, residuals: dict[str, np.ndarray],
                    regimes: dict[str, np.ndarray], units: dict[str, str],
                    smooth_s: float = 3600.0, max_windows: int = 12) -> list[dict]:
-    """Time windows where a channel's smoothed residual exceeds max(3 sigma_noise,
-    0.5 * its peak); windows of several channels that overlap by at least half of their
+    """Time windows where a channel's smoothed residual exceeds max(4 sigma of the smoothed
+    noise, 0.5 * its peak); windows of several channels that overlap by at least half of their
     union are merged. At most ``max_windows`` are kept, the strongest (sum over channels
     of the peak relative to the channel's smoothed-residual RMS). Each window: start_s,
     end_s, channels, regime, and per channel the peak smoothed residual (``effect``) in
@@ -132,8 +136,9 @@ def locate_windows(time_s: np.ndarray, residuals: dict[str, np.ndarray],
         s = moving_average(r, w)
         scale[ch] = float(np.sqrt(np.mean(s ** 2))) or 1.0
         peak = float(np.max(np.abs(s)))
-        thr = max(3.0 * noise_sigma(r) / math.sqrt(w), 0.5 * peak, 1e-9)
-        if peak <= 3.0 * noise_sigma(r) / math.sqrt(w):
+        floor = 4.0 * noise_sigma(r) / math.sqrt(w)   # 4 sigma: many windows are looked at
+        thr = max(floor, 0.5 * peak, 1e-9)
+        if peak <= floor:
             continue
         for a, b in _segments(np.abs(s) > thr):
             if b - a < max(2, w // 4):
