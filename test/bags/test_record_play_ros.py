@@ -88,6 +88,14 @@ def test_recorder_records_everything_published_after_start(tmp_path, ros_context
     assert [round(rt.stamp_to_s(m.header.stamp), 3) for m in got] == [100.0 + 15.0 * k for k in range(25)]
     assert [m.log_time_ns for m in c.messages] == [int((100 + 15 * k) * 1e9) for k in range(25)]
     assert got[3].status[1] == 3 and got[24].temperatures_degc[0] == pytest.approx(22.4)
+    # the recorded bag is a rosbag2 bag for the ecosystem's readers too
+    from rosbags.rosbag2 import Reader
+    from thermal_comp import msg_definitions as md
+    with Reader(bag) as reader:
+        assert reader.message_count == 25
+        conn = next(c for c in reader.connections if c.topic == "/temperatures")
+        assert conn.digest == md.installed_type_hash("thermal_comp_msgs/msg/TemperatureArray")
+        assert [c.topic for c in reader.connections] == ["/temperatures", "/machine_state"]
 
 
 def test_killed_recorder_keeps_what_it_flushed(tmp_path, ros_context):

@@ -251,3 +251,43 @@ def test_served_web_viewer_shows_our_entities_in_headless_chromium(tmp_path, bag
         viewer.terminate()
         viewer.communicate(timeout=30)
         shutil.rmtree(profile, ignore_errors=True)
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_live_view_logs_published_topics_to_an_rrd(tmp_path, ros_context):
+    import rclpy
+    from thermal_comp import node_runtime as rt
+    from thermal_comp_msgs.msg import TemperatureArray, ThermalErrors
+    from bags_helpers import spawn, stop
+    out = tmp_path / "live.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "thermal_comp.view_cli", "--rrd", str(out)],
+                            env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    node = rclpy.create_node("live_source", context=ros_context)
+    try:
+        temps = node.create_publisher(TemperatureArray, rt.TOPIC_TEMPERATURES, rt.SENSOR_QOS)
+        pred = node.create_publisher(ThermalErrors, rt.TOPIC_ERRORS_PREDICTED, rt.EVENT_QOS)
+        wait_for(lambda: (temps.get_subscription_count() >= 1 and pred.get_subscription_count() >= 1)
+                 or proc.poll() is not None, 30, "the live viewer to subscribe")
+        assert proc.poll() is None, proc.communicate()[0]
+        for k in range(5):
+            t = TemperatureArray()
+            t.header.stamp = rt.s_to_stamp(60.0 * k)
+            t.sensor_ids, t.temperatures_degc, t.status = ["spindle"], [25.0 + k], [0]
+            temps.publish(t)
+            e = ThermalErrors()
+            e.header.stamp = t.header.stamp
+            e.source, e.model_kind = ThermalErrors.SOURCE_PREDICTED, "talc"
+            e.component_names, e.values, e.units, e.uncertainties = ["E_Z0T"], [1.0 * k], [0], [0.2]
+            pred.publish(e)
+        # the viewer writes as it goes: wait until the last message's entities are in the file
+        wait_for(lambda: out.exists() and "/errors/E_Z0T/predicted_upper_2sigma" in _entities(tmp_path, out),
+                 30, "the live messages in the .rrd", poll=0.5)
+        out_text = stop(proc)
+    finally:
+        node.destroy_node()
+    assert proc.returncode == 0, out_text
+    assert _rerun(tmp_path, "rrd", "verify", str(out)).returncode == 0
+    ents = _entities(tmp_path, out)
+    assert {"/temperatures/spindle", "/errors/E_Z0T/predicted", "/errors/E_Z0T/predicted_upper_2sigma",
+            "/machine/sensors"} <= ents, sorted(ents)

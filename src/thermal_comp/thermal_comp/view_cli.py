@@ -133,7 +133,10 @@ def main(argv: list[str] | None = None) -> int:
         rec.disconnect()
         return 3 if damage else 0
     from thermal_comp import rerun_view_node
-    return rerun_view_node.main(rec, layout, ["thermal-comp-view", "--ros-args", *args.ros_args])
+    code = rerun_view_node.main(rec, layout, ["thermal-comp-view", "--ros-args", *args.ros_args])
+    rec.flush()
+    rec.disconnect()
+    return code
 
 
 if __name__ == "__main__":
