@@ -45,6 +45,11 @@ def parse_topic_arg(arg: str) -> tuple[str, str, QoSProfile]:
     if not name:
         raise ValueError(f"topics: {arg!r} has no topic name")
     known = {**DEFAULT_TOPICS, **OPTIONAL_TOPICS}
+    if name.startswith("/") and name not in known:   # '/cell1/temperatures': a known topic in a namespace
+        for rel in sorted(known, key=len, reverse=True):
+            if not rel.startswith("/") and name.endswith("/" + rel):
+                known = {**known, name: known[rel]}
+                break
     if sep:
         qos = known.get(name, (None, rt.EVENT_QOS))[1]
         return name, normalize_type(type_name), qos
