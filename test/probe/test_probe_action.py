@@ -30,6 +30,7 @@ BEFORE = {"E_X0C": 2.0, "E_Y0C": 10.0, "E_Z0T": -6.0, "E_R0T": 1.0, "E_A0C": 5.0
 AFTER = {"E_X0C": -3.0, "E_Y0C": 24.0, "E_Z0T": 9.5, "E_R0T": 4.0, "E_A0C": -11.0,
          "E_B0C": 14.0, "E_C0C": -6.0, "GB_X": 7.25}
 T0, STEP = 1000.0, 1110.0     # reference sphere (95 s) + guide bush (13 s) end at 1108 s
+NS = "/probe_action_test"     # own namespace: nothing left over from another test answers
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
@@ -46,19 +47,19 @@ def graph(ros_domain_id):
                 "-p", f"errors_before:='{json.dumps(BEFORE)}'",
                 "-p", f"errors_after:='{json.dumps(AFTER)}'",
                 "-p", f"step_time_s:={STEP}", "-p", f"t0_s:={T0}",
-                "-p", "axis_resolution_um:=0.0"]),
+                "-p", "axis_resolution_um:=0.0", "-r", f"__ns:={NS}"]),
         _spawn(["-m", "probe_cycle.probe_cycle_node", "--ros-args",
                 "-p", "backend:=twin", "-p", "axis_resolution_um:=0.0",
-                "-p", "touch_timeout_s:=20.0"]),
+                "-p", "touch_timeout_s:=20.0", "-r", f"__ns:={NS}"]),
     ]
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
-    node = rclpy.create_node("probe_test_client", context=ctx)
+    node = rclpy.create_node("probe_test_client", namespace=NS, context=ctx)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     client = ActionClient(node, ProbeCycle, ACTION_PROBE_CYCLE)
     try:
-        deadline = time.monotonic() + 30.0
+        deadline = time.monotonic() + 120.0
         while not client.server_is_ready():
             for p in procs:
                 if p.poll() is not None:
@@ -82,7 +83,7 @@ def graph(ros_domain_id):
             print(p.stdout.read())      # shown by pytest when a test failed
 
 
-def _run_goal(ex, client, goal, cancel_after=None, deadline_s=60.0):
+def _run_goal(ex, client, goal, cancel_after=None, deadline_s=180.0):
     feedback = []
     fut = client.send_goal_async(goal, feedback_callback=lambda m: feedback.append(m.feedback))
     end = time.monotonic() + deadline_s
@@ -170,10 +171,11 @@ def test_bad_parameter_stops_the_server_naming_it(ros_domain_id):
 
 def test_probe_command_runs_a_cycle_and_prints_the_errors(graph, capsys):
     from probe_cycle.probe_cli import main
-    assert main(["--wait", "20"]) == 0
+    assert main(["--wait", "60", "--namespace", NS]) == 0
     out = capsys.readouterr().out
     for c in ("E_X0C", "E_C0C", "U (k=2)", "um/m"):
         assert c in out
     assert main(["--angles", "0,90,x"]) == 2
-    assert main(["--guide-bush", "--points", "2", "--angles", "0"]) == 1   # invalid goal
+    assert main(["--guide-bush", "--points", "2", "--angles", "0",
+                 "--namespace", NS]) == 1                               # invalid goal
     assert "c_angles_deg" in capsys.readouterr().out

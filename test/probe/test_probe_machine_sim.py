@@ -38,6 +38,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.ros]
 MACHINE, SCENARIO, HOURS, SEED = "nmv5000", "talc-178h-dry", 1.5, 4
 WARM_UP_STEPS, BETWEEN_STEPS = 15, 60     # 60 s instants: reference at 15 min, next 1 h later
 PARTICIPANT = "probe_test_participant"
+NS = "/probe_machine_sim_test"     # own namespace: nothing left over from another test answers
 
 
 class OfflineTwin(ProbeBackend):
@@ -78,13 +79,14 @@ def test_probe_cycles_on_machine_sim_equal_the_offline_twin(ros_domain_id):
         _spawn(["-m", "thermal_twin.machine_sim_node", "--ros-args",
                 "-p", f"machine:={MACHINE}", "-p", f"scenario:={SCENARIO}",
                 "-p", f"hours:={HOURS}", "-p", f"seed:={SEED}",
-                "-p", f"lockstep_participants:=['{PARTICIPANT}']", "-p", "probe_noise:=false"]),
+                "-p", f"lockstep_participants:=['{PARTICIPANT}']", "-p", "probe_noise:=false",
+                "-r", f"__ns:={NS}"]),
         _spawn(["-m", "probe_cycle.probe_cycle_node", "--ros-args", "-p", "backend:=twin",
-                "-p", "use_sim_time:=true"]),
+                "-p", "use_sim_time:=true", "-r", f"__ns:={NS}"]),
     ]
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
-    node = rclpy.create_node(PARTICIPANT, context=ctx)
+    node = rclpy.create_node(PARTICIPANT, namespace=NS, context=ctx)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
     seen = []                        # instants published by machine_sim, in order
@@ -108,19 +110,19 @@ def test_probe_cycles_on_machine_sim_equal_the_offline_twin(ros_domain_id):
 
     def run(goal):
         fut = client.send_goal_async(goal)
-        spin_until(fut.done, 30.0, "goal response")
+        spin_until(fut.done, 60.0, "goal response")
         res = fut.result().get_result_async()
-        spin_until(res.done, 60.0, "probe result")
+        spin_until(res.done, 180.0, "probe result")
         return res.result()
 
     def advance(steps):
         for _ in range(steps):
             n = len(seen)
             sync.publish(SimSync(node_name=PARTICIPANT, processed_until=s_to_stamp(seen[-1])))
-            spin_until(lambda: len(seen) > n, 30.0, "the next instant")
+            spin_until(lambda: len(seen) > n, 60.0, "the next instant")
 
     try:
-        spin_until(lambda: bool(seen) and client.server_is_ready(), 60.0,
+        spin_until(lambda: bool(seen) and client.server_is_ready(), 120.0,
                    "machine_sim's first instant and the action server")
         advance(WARM_UP_STEPS)
         ref = run(ProbeCycle.Goal(artefact=ProbeCycle.Goal.ARTEFACT_SPHERE, set_reference=True))
@@ -139,6 +141,7 @@ def test_probe_cycles_on_machine_sim_equal_the_offline_twin(ros_domain_id):
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait()
+            print(p.stdout.read())      # shown by pytest when the test failed
 
     assert ref.status == GoalStatus.STATUS_SUCCEEDED, ref.result.message
     assert second.status == GoalStatus.STATUS_SUCCEEDED, second.result.message
