@@ -42,3 +42,19 @@ def test_bad_type_names_are_named_in_the_error(bad):
 def test_unknown_type_names_the_type():
     with pytest.raises(md.MsgDefinitionError, match="NoSuchType"):
         md.msg_text("thermal_comp_msgs/msg/NoSuchType")
+
+
+@pytest.mark.ros
+def test_rihs01_hash_equals_the_one_the_running_typesupport_announces(ros_context):
+    """The middleware's own type hash (from the compiled typesupport) of each of our types."""
+    import rclpy
+    from thermal_comp.bag_recorder_node import message_class
+    node = rclpy.create_node("hash_probe", context=ros_context)
+    try:
+        for i, t in enumerate(md.own_message_types() + ["rosgraph_msgs/msg/Clock"]):
+            node.create_publisher(message_class(t), f"hash_probe_{i}", 1)
+            info = node.get_publishers_info_by_topic(f"/hash_probe_{i}")
+            assert len(info) == 1
+            assert str(info[0].topic_type_hash) == md.type_hash(t), t
+    finally:
+        node.destroy_node()
