@@ -291,3 +291,18 @@ def test_live_view_logs_published_topics_to_an_rrd(tmp_path, ros_context):
     ents = _entities(tmp_path, out)
     assert {"/temperatures/spindle", "/errors/E_Z0T/predicted", "/errors/E_Z0T/predicted_upper_2sigma",
             "/machine/sensors"} <= ents, sorted(ents)
+
+
+def test_view_shows_a_truncated_bag_up_to_the_damage(tmp_path):
+    bag = tmp_path / "bag"
+    csv_to_bag(small_recording_csv(tmp_path / "rec.csv", rows=100), bag, chunk_bytes=2048)
+    f = bag / "bag_0.mcap"
+    f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    out = tmp_path / "cut.rrd"
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--rrd", str(out),
+                        "--no-progress"], env=_env(tmp_path), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 3, p.stderr
+    assert "bag damaged, shown up to there" in p.stderr and "stopped at byte" in p.stderr
+    assert "Traceback" not in p.stderr
+    assert _rerun(tmp_path, "rrd", "verify", str(out)).returncode == 0
+    assert "/temperatures/ambient" in _entities(tmp_path, out)
