@@ -148,7 +148,7 @@ def bag_to_recording(contents: BagContents, spec: RegressionSpec):
     return Recording(np.array([t for t, _ in rows]), cols, source=str(contents.path))
 
 
-def replay(bag: str | os.PathLike, spec: RegressionSpec | None = None) -> dict:
+def replay(bag: str | os.PathLike, spec: RegressionSpec | None = None, progress: bool = False) -> dict:
     """Replay a regression bag through its model; the JSON-ready result (golden format)."""
     from talc_model.adaptive_model import make_model
     from talc_model.virtual_experiment import run_virtual_experiment
@@ -161,7 +161,8 @@ def replay(bag: str | os.PathLike, spec: RegressionSpec | None = None) -> dict:
     model = make_model(spec.model_kind, spec.model_config)
     res = run_virtual_experiment(rec, model, probed_components=spec.probed_components,
                                  probe_noise_um=spec.probe_noise_um,
-                                 probe_resolution_um=spec.probe_resolution_um, seed=spec.seed)
+                                 probe_resolution_um=spec.probe_resolution_um, seed=spec.seed,
+                                 progress=progress)
 
     def clean(a):   # 10 significant digits: far below the comparison tolerance
         return [None if not math.isfinite(v) else float(f"{v:.10g}") for v in np.asarray(a, dtype=float)]
@@ -248,7 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     for b in args.bags:
         try:
             read_metadata(pathlib.Path(b))
-            result = replay(b)
+            result = replay(b, progress=sys.stderr.isatty())
         except (RegressionError, ValueError) as exc:
             print(f"{b}: {exc}", file=sys.stderr)
             failed += 1
