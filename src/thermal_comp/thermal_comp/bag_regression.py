@@ -13,10 +13,11 @@ A regression bag folder holds, besides the rosbag2 files:
 machine state flattened exactly as the ``talc_model`` node flattens ``MachineState``
 (:func:`machine_state_inputs`), errors by component - and runs
 ``talc_model.virtual_experiment.run_virtual_experiment``. :func:`compare` lists the
-differences in words ("E_X0C predicted at t=3600 s: golden 1.234 um, now 1.301 um"), so a
-failing test says what changed. When a change of behaviour is intended, re-generate with::
+differences in words ("<component> predicted differs at N of M steps; first at t=T s:
+golden A, now B ..."), so a failing test says what changed. When a change of behaviour is
+intended, re-generate every golden file (or name single bags) with::
 
-    .venv/bin/python -m thermal_comp.bag_regression bags/NAME [bags/OTHER ...] --update
+    .venv/bin/python -m thermal_comp.bag_regression bags --update
 
 No rclpy here.
 """
@@ -242,13 +243,21 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m thermal_comp.bag_regression", description=
                                  "Replay regression bags through their model and compare with (or, "
                                  "with --update, re-write) golden.json beside each bag.")
-    ap.add_argument("bags", nargs="+", help="bag folders with regression.yaml")
+    ap.add_argument("bags", nargs="+", help="bag folders with regression.yaml, or folders holding such "
+                    "bags (e.g. bags)")
     ap.add_argument("--update", action="store_true", help="write golden.json from this replay")
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
     failed = 0
-    for b in args.bags:
+    targets: list[pathlib.Path] = []
+    for arg in map(pathlib.Path, args.bags):
+        found = [arg] if (arg / SPEC_FILE).is_file() else (regression_bags(arg) if arg.is_dir() else [])
+        if not found:
+            print(f"{arg}: neither a regression bag (no {SPEC_FILE}) nor a folder of them", file=sys.stderr)
+            failed += 1
+        targets += found
+    for b in targets:
         try:
-            read_metadata(pathlib.Path(b))
+            read_metadata(b)
             result = replay(b, progress=sys.stderr.isatty())
         except (RegressionError, ValueError) as exc:
             print(f"{b}: {exc}", file=sys.stderr)
