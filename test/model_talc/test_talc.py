@@ -201,3 +201,19 @@ def test_bad_measurements_raise_without_losing_history():
     with pytest.raises(ValueError, match="goes back"):
         m.update_inputs(0.0, {"a": 1.0, "b": 1.0}, {})
     assert m.grid.n == n
+
+
+def test_shipped_config_is_valid_and_complete():
+    import pathlib
+
+    import yaml
+
+    import talc_model
+    path = pathlib.Path(talc_model.__file__).parent / "config" / "talc_nmv5000.yaml"
+    data = yaml.safe_load(path.read_text())
+    cfg = TalcConfig.from_mapping(data)
+    assert cfg.na_max == 5 and cfg.nb_max == 5 and math.isinf(cfg.history_window_h)
+    # every Table 6.1 parameter is spelled out in the shipped file
+    for key in ("cp_length_h", "cp_interval_s", "post_cp_interval_h", "ng_interval_min", "acl_linear_um",
+                "acl_angular_um_per_m", "ng_measurements", "update_interval_h", "na_max", "nb_max"):
+        assert key in data
