@@ -306,3 +306,12 @@ def test_view_shows_a_truncated_bag_up_to_the_damage(tmp_path):
     assert "Traceback" not in p.stderr
     assert _rerun(tmp_path, "rrd", "verify", str(out)).returncode == 0
     assert "/temperatures/ambient" in _entities(tmp_path, out)
+
+
+def test_spawning_without_a_display_is_refused_with_a_hint(tmp_path, bag):
+    env = _env(tmp_path)
+    env.pop("DISPLAY", None)
+    env.pop("WAYLAND_DISPLAY", None)
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--spawn"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "no display" in p.stderr and "--serve-web" in p.stderr

@@ -35,7 +35,7 @@ class RerunViewNode(Node):
         return on_message
 
     def close(self) -> None:
-        self.recording.flush()
+        self.recording.flush(timeout_sec=30.0)
 
 
 def main(recording, layout=None, args=None) -> int:

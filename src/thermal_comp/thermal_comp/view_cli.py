@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+import pathlib
 import signal
 import sys
 import threading
@@ -9,6 +11,8 @@ import threading
 import rerun as rr
 
 APP_ID = "thermal_comp"
+#: never hang at exit on a viewer that went away
+FLUSH_TIMEOUT_S = 30.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,6 +100,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp view: {exc}", file=sys.stderr)
         return 2
     spawn = args.spawn or not (args.rrd or args.serve_web)
+    if spawn and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
+                                                           or os.environ.get("WAYLAND_DISPLAY")):
+        print("thermal-comp view: no display for the native viewer (DISPLAY / WAYLAND_DISPLAY unset); "
+              "use --serve-web (browser) or --rrd OUT", file=sys.stderr)
+        return 2
     contents = None
     if args.bag:
         from thermal_comp.bag_player import BagReadError, read_bag
@@ -115,7 +124,14 @@ def main(argv: list[str] | None = None) -> int:
         sinks.append(server)
     if spawn:
         port = args.grpc_port + 1 if args.serve_web else args.grpc_port
-        rr.spawn(port=port, connect=False, recording=rec)
+        viewer = pathlib.Path(sys.executable).parent / "rerun"   # the venv's viewer, PATH or not
+        try:
+            rr.spawn(port=port, connect=False, recording=rec,
+                     executable_path=str(viewer) if viewer.is_file() else None)
+        except RuntimeError as exc:
+            print(f"thermal-comp view: cannot spawn the rerun viewer: {str(exc).splitlines()[0]} "
+                  f"(use --rrd OUT or --serve-web)", file=sys.stderr)
+            return 2
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
     rec.set_sinks(*sinks, default_blueprint=blueprint)
     if server is not None:
@@ -123,18 +139,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"rerun web viewer: http://localhost:{args.web_port}/?url={server.uri}", flush=True)
     if contents is not None:
         n, damage = log_bag(contents, rec, layout, progress=not args.no_progress)
-        rec.flush()
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         print(f"{args.bag}: {n} messages logged" + (f" to {args.rrd}" if args.rrd else ""), flush=True)
         if damage:
             print(f"warning: bag damaged, shown up to there: {damage}", file=sys.stderr)
         if args.serve_web:
             _wait_for_interrupt()
-        rec.flush()
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         rec.disconnect()
         return 3 if damage else 0
     from thermal_comp import rerun_view_node
     code = rerun_view_node.main(rec, layout, ["thermal-comp-view", "--ros-args", *args.ros_args])
-    rec.flush()
+    rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
     rec.disconnect()
     return code
 
