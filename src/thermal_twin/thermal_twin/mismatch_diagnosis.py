@@ -19,7 +19,7 @@ from thermal_twin import mismatch_locate as locate
 from thermal_twin import mismatch_statistics as stats
 from thermal_twin.machine_schema import Machine, load_machine
 from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
-from thermal_twin.mismatch_fit import FitProblem, Hypothesis, noise_free, run_round
+from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, noise_free, run_round
 from thermal_twin.mismatch_report import DiagnosisSeries
 from thermal_twin.recording_csv import Recording, column_kind, error_unit
 
@@ -193,7 +193,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         "hypotheses": [h.as_dict() for h in ranked],
         "selected": [h.as_dict() for h in adopted] if adopted else "none",
         "augmented_twin": None,
-        "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": -10.0,
+        "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": BIC_THRESHOLD,
                      "max_effects": max_effects},
         "simulations": problem.n_evals,
         "notes": notes,

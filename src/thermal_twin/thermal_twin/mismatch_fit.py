@@ -21,7 +21,8 @@ Procedure (one round; the finder repeats it greedily on the augmented twin):
 5. **Plausibility.** Each effect checks its fitted values against physical ranges
    (sign, time constants, energy); implausible fits are ranked last and never adopted.
 
-A hypothesis is adopted when it is plausible, dBIC < -10 and it improves the held-out
+A hypothesis is adopted when it is plausible, dBIC < -2 (at least "positive evidence" on
+the Kass-Raftery scale, with the already conservative n_eff) and it improves the held-out
 fit by at least ``min_improvement_pct``; if nothing qualifies the answer is ``none``.
 """
 from __future__ import annotations
@@ -39,7 +40,7 @@ from thermal_twin.mismatch_effects import Candidate
 from thermal_twin.mismatch_twin_eval import expected_outputs
 from thermal_twin.recording_csv import Recording
 
-BIC_THRESHOLD = -10.0
+BIC_THRESHOLD = -2.0
 
 
 def noise_free(spec: dict) -> dict:
