@@ -315,3 +315,14 @@ def test_spawning_without_a_display_is_refused_with_a_hint(tmp_path, bag):
     p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--spawn"], env=env,
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "no display" in p.stderr and "--serve-web" in p.stderr
+
+
+def test_layout_comes_from_the_twin_preset_whose_sensors_match():
+    from thermal_comp.rerun_logging import preset_layout_for, resolve_layout
+    lay = preset_layout_for(["ambient", "ws_mwf", "c_coolant_delta", "c_motor_internal"])
+    assert lay is not None and "nmv5000" in lay.source and "not measured" in lay.source
+    assert lay.positions_m == resolve_layout("nmv5000").positions_m
+    assert all(len(p) == 3 for p in lay.positions_m.values())
+    assert preset_layout_for(["no_such_sensor"]) is None
+    with pytest.raises(LayoutError, match="neither a file nor a twin preset"):
+        resolve_layout("no-such-machine")

@@ -23,10 +23,12 @@ Time is the message stamp on the timeline ``sim_time`` (seconds since 0 in simul
 Messages are duck-typed: rclpy messages and ``rosbags`` deserialized ones have the same
 fields. No rclpy import here.
 
-Sensor layout in 3D: a YAML file with ``sensors: {<id>: {position_mm: [x, y, z]}}`` - the
-shape of the twin's machine presets, so a preset that carries positions works as is. Without
-positions the sensors are drawn on a labelled *schematic* ring (1 m radius, in id order),
-which says nothing about where they are on the machine.
+Sensor layout in 3D: a YAML file with ``sensors: {<id>: {position_mm: [x, y, z]}}`` or the
+name of a twin preset (the presets carry ``position_mm``: a schematic layout of the virtual
+machine). Without one, the first preset whose positioned sensors include every sensor id
+seen is used; failing that the sensors are drawn on a labelled *schematic* ring (1 m
+radius, in id order), which says nothing about where they are on the machine. The view
+states which layout it shows (``machine/sensors/layout_note``).
 """
 from __future__ import annotations
 
@@ -97,6 +99,39 @@ def load_layout(path: str | os.PathLike) -> SensorLayout:
     if not pos:
         raise LayoutError(f"{path}: no sensor has a 'position_mm'")
     return SensorLayout(pos, schematic=False, source=str(path))
+
+
+def resolve_layout(arg: str) -> SensorLayout:
+    """A layout file, or a twin preset name (``nmv5000``, ``swiss-lathe`` ...)."""
+    if pathlib.Path(arg).is_file():
+        return load_layout(arg)
+    from thermal_twin.presets import preset_names, preset_path
+    try:
+        layout = load_layout(preset_path(arg))
+    except Exception as exc:
+        if isinstance(exc, LayoutError):
+            raise
+        raise LayoutError(f"layout {arg!r}: neither a file nor a twin preset "
+                          f"(presets: {', '.join(preset_names())})") from None
+    layout.source = f"twin preset {arg} (schematic layout of the virtual machine, not measured positions)"
+    return layout
+
+
+def preset_layout_for(sensor_ids: Iterable[str]) -> SensorLayout | None:
+    """The first twin preset (by name) whose positioned sensors include all ``sensor_ids``."""
+    ids = set(sensor_ids)
+    try:
+        from thermal_twin.presets import preset_names
+    except ImportError:   # the twin is optional for viewing
+        return None
+    for name in preset_names():
+        try:
+            layout = resolve_layout(name)
+        except LayoutError:
+            continue
+        if ids and ids <= set(layout.positions_m):
+            return layout
+    return None
 
 
 def schematic_layout(sensor_ids: Iterable[str]) -> SensorLayout:
@@ -199,7 +234,7 @@ class RerunLogger:
 
     def _log_layout(self, p: str, ids: list[str], values: list[float]) -> None:
         if self.layout is None:
-            self.layout = schematic_layout(ids)
+            self.layout = preset_layout_for(ids) or schematic_layout(ids)
             self.rec.log(f"{p}machine/sensors/layout_note",
                          rr.TextDocument(f"Sensor layout: {self.layout.source}."), static=True)
         finite = [v for v in values if math.isfinite(v)]

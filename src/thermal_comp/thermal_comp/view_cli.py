@@ -22,7 +22,8 @@ def build_parser() -> argparse.ArgumentParser:
                "thermal-comp topic). With BAG its messages are logged on the sim_time timeline. "
                "Examples: 'thermal-comp view bags/fl_thermal_2h --rrd out/fl.rrd', "
                "'thermal-comp view --serve-web'. Sensor layout: --layout FILE with "
-               "sensors: {ID: {position_mm: [x, y, z]}}; without it a schematic ring is drawn.")
+               "sensors: {ID: {position_mm: [x, y, z]}} or a twin preset name; without it the "
+               "preset whose sensor ids match is used, else a schematic ring.")
     ap.add_argument("bag", nargs="?", metavar="BAG", help="bag folder or .mcap file (default: live topics)")
     ap.add_argument("--rrd", metavar="OUT", help="write an .rrd recording to OUT")
     ap.add_argument("--spawn", action="store_true", help="spawn the native rerun viewer (default "
@@ -31,7 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="serve rerun's web viewer on localhost (until Ctrl-C)")
     ap.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
     ap.add_argument("--grpc-port", type=int, default=9876, help="rerun gRPC port (default 9876)")
-    ap.add_argument("--layout", metavar="FILE", help="sensor layout YAML (see epilog)")
+    ap.add_argument("--layout", metavar="FILE|PRESET", help="sensor layout YAML or twin preset name "
+                    "(default: the preset whose sensors match, else a schematic ring)")
     ap.add_argument("--namespace", default="", help="cell namespace for the default blueprint")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[],
@@ -93,9 +95,9 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    from thermal_comp.rerun_logging import LayoutError, default_blueprint, load_layout
+    from thermal_comp.rerun_logging import LayoutError, default_blueprint, resolve_layout
     try:
-        layout = load_layout(args.layout) if args.layout else None
+        layout = resolve_layout(args.layout) if args.layout else None
     except LayoutError as exc:
         print(f"thermal-comp view: {exc}", file=sys.stderr)
         return 2
