@@ -176,6 +176,7 @@ class RerunLogger:
         self._t_range: list[float] = [math.inf, -math.inf]
         self._unknown: set[str] = set()
         self._calibrated: set[str] = set()
+        self._layout_noted: set[str] = set()
         self.counts: dict[str, int] = {}
 
     # ----------------------------------------------------------------------------------
@@ -235,6 +236,8 @@ class RerunLogger:
     def _log_layout(self, p: str, ids: list[str], values: list[float]) -> None:
         if self.layout is None:
             self.layout = preset_layout_for(ids) or schematic_layout(ids)
+        if p not in self._layout_noted:
+            self._layout_noted.add(p)
             self.rec.log(f"{p}machine/sensors/layout_note",
                          rr.TextDocument(f"Sensor layout: {self.layout.source}."), static=True)
         finite = [v for v in values if math.isfinite(v)]
