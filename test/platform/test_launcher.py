@@ -95,7 +95,7 @@ def test_launch_cell_topics_restart_and_sigterm_leaves_nothing(tmp_path):
         assert echo.returncode == 0, echo.stderr
         assert "sensor_ids: [ambient, spindle]" in echo.stdout
         # parameters came from the cell file
-        assert (tmp_path / "example" / "talker.params.yaml").read_text().startswith("/example/talker:")
+        assert (tmp_path / "example" / "talker.params.yaml").read_text().startswith("'/example/talker':")
 
         # kill -9 of a node: restarted by the launcher
         first = run.pids()["example/talker"]

@@ -237,6 +237,18 @@ def load_cell(path: str | pathlib.Path, resolve: bool = True) -> CellConfig:
     return parse_cell(data, source=str(path), resolve=resolve)
 
 
+class _QuotedStrings(yaml.SafeDumper):
+    """Every string quoted: rcl's YAML parser reads unquoted Y, N, on, off ... as booleans."""
+
+
+_QuotedStrings.add_representer(str, lambda d, s: d.represent_scalar("tag:yaml.org,2002:str", s, style="'"))
+
+
+def parameters_file_text(cell: CellConfig, node: NodeSpec) -> str:
+    """Text of the ROS 2 parameters file of one node (strings quoted, order kept)."""
+    return yaml.dump(node_parameters_document(cell, node), Dumper=_QuotedStrings, sort_keys=False)
+
+
 def node_parameters_document(cell: CellConfig, node: NodeSpec) -> dict:
     """The ROS 2 parameters-file document for one node of a cell."""
     params = dict(node.parameters)

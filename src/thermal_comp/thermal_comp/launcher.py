@@ -23,9 +23,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, TextIO
 
-import yaml
-
-from thermal_comp.cell_config import CellConfig, CellConfigError, NodeSpec, load_cell, node_parameters_document
+from thermal_comp.cell_config import CellConfig, CellConfigError, NodeSpec, load_cell, parameters_file_text
 
 _PR_SET_PDEATHSIG = 1
 
@@ -91,7 +89,7 @@ class Launcher:
                     node.restart = type(node.restart)(restart_override, node.restart.max_restarts,
                                                       node.restart.backoff_s)
                 params_file = cell_dir / f"{node.name}.params.yaml"
-                params_file.write_text(yaml.safe_dump(node_parameters_document(cell, node), sort_keys=False))
+                params_file.write_text(parameters_file_text(cell, node))
                 argv = [sys.executable, "-m", node.module, *node.args, "--ros-args",
                         "-r", f"__ns:={cell.namespace}", "-r", f"__node:={node.name}",
                         "--params-file", str(params_file)]

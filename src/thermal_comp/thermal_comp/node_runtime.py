@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence
 
 import rclpy
+from rclpy.exceptions import InvalidParameterValueException, ParameterException
 from rclpy.signals import SignalHandlerOptions
 from rcl_interfaces.msg import (FloatingPointRange, IntegerRange, ParameterDescriptor,
                                 SetParametersResult)
@@ -183,7 +184,8 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     try:
         try:
             node = node_factory(context=context)
-        except (ParameterError, ValueError) as exc:
+        except (ParameterError, ValueError, InvalidParameterValueException, ParameterException) as exc:
+            # one line naming the parameter; rclpy's own range check raises its exceptions
             print(f"{getattr(node_factory, '__name__', 'node')}: {exc}", file=sys.stderr, flush=True)
             return 2
         executor.add_node(node)
