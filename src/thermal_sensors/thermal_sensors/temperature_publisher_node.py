@@ -22,6 +22,7 @@ import math
 import time
 
 import numpy as np
+from rclpy.clock import Clock as RclClock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -181,7 +182,8 @@ class TemperaturePublisher(Node):
         self._wall0 = None
         tick = 0.005 if real_time_factor <= 0 else min(0.05, float(np.min(np.diff(self.steps)))
                                                          / real_time_factor if len(self.steps) > 1 else 0.05)
-        self.create_timer(max(tick, 0.001), self._advance)
+        self.create_timer(max(tick, 0.001), self._advance,
+                          clock=RclClock(clock_type=ClockType.STEADY_TIME))  # time master: wall pacing
 
     def _on_sim_sync(self, msg: SimSync) -> None:
         if msg.node_name in self.acked:

@@ -20,6 +20,7 @@ import math
 import time
 
 import numpy as np
+from rclpy.clock import Clock as RclClock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
@@ -81,12 +82,15 @@ class MachineSimNode(Node):
         self.create_subscription(SimSync, TOPIC_SIM_SYNC, self._on_sync, EVENT_QOS)
         self.create_service(TouchProbe, SERVICE_TOUCH_PROBE, self._on_touch_probe)
 
+        # the owner of simulated time paces itself on the steady clock (with use_sim_time a
+        # ROS-time timer would wait for the /clock this node has yet to publish)
+        self.wall_clock = RclClock(clock_type=ClockType.STEADY_TIME)
         if self.participants:
-            self.timer = self.create_timer(0.05, self._lockstep_tick)
+            self.timer = self.create_timer(0.05, self._lockstep_tick, clock=self.wall_clock)
         else:
             rtf = p["real_time_factor"]
             step = float(timeline.time_s[1] - timeline.time_s[0]) if len(timeline) > 1 else 1.0
-            self.timer = self.create_timer(step / rtf if rtf > 0 else 0.001, self._free_tick)
+            self.timer = self.create_timer(step / rtf if rtf > 0 else 0.001, self._free_tick, clock=self.wall_clock)
         self.get_logger().info(
             f"{self.machine.name}/{p['scenario']}: {len(timeline)} instants, "
             f"{'lock-step with ' + ', '.join(self.participants) if self.participants else 'free-running'}")
