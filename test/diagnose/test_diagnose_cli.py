@@ -58,8 +58,10 @@ def test_cli_bad_inputs_give_one_clear_line(recording_csv, tmp_path, capsys):
     assert main(["--twin", str(TWIN), "--recording", str(recording_csv), "--out", out,
                  "--effects", "heat_source,gremlins"]) == 2
     assert "'gremlins'" in capsys.readouterr().err
-    assert main(["--twin", str(TWIN), "--recording", str(tmp_path / "rec.mcap"), "--out", out]) == 2
-    assert "not a CSV" in capsys.readouterr().err
+    assert main(["--twin", str(TWIN), "--recording", str(tmp_path / "rec.txt"), "--out", out]) == 2
+    assert "neither a CSV nor a bag" in capsys.readouterr().err
+    assert main(["--twin", str(TWIN), "--recording", str(tmp_path / "missing.mcap"), "--out", out]) == 1
+    assert "missing.mcap" in capsys.readouterr().err
     bad = tmp_path / "bad.csv"
     lines = recording_csv.read_text().splitlines()
     lines[5] = lines[5].replace(",", ",abc,", 1).replace(",abc,", ",abc", 1)
@@ -72,3 +74,16 @@ def test_cli_bad_inputs_give_one_clear_line(recording_csv, tmp_path, capsys):
     assert main(["--twin", str(TWIN), "--recording", str(other), "--out", out]) == 1
     assert "no channel shared with twin 'mini_mill'" in capsys.readouterr().err
     assert not (tmp_path / "x").exists(), "nothing written on bad input"
+
+
+def test_cli_reads_a_bag_like_the_csv(recording_csv, tmp_path, capsys):
+    from thermal_comp.csv_to_bag import csv_to_bag
+    bag = tmp_path / "bag"
+    csv_to_bag(recording_csv, bag)
+    out = tmp_path / "diag"
+    assert main(["--twin", str(TWIN), "--recording", str(bag), "--out", str(out), "--quiet", "--no-rerun"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert [(s["effect"], s["target"], s["driver"]) for s in rep["selected"]] == [("door_event", "head", "door_open")]
+    assert abs(rep["selected"][0]["params"]["dG_open"]["value"] - 30.0) < 8.0
+    assert any("coolant_temperature_degc" in n for n in rep["notes"]), "an unusable bag field is reported"
+    assert not (out / "diagnosis.rrd").exists()

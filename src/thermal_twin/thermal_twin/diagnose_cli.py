@@ -1,6 +1,7 @@
 """Find what physics the twin lacks: compare it with a recording, locate, name, model, prove.
 
-``thermal-comp diagnose --twin MACHINE.yaml --recording REC.csv --out DIR`` simulates the
+``thermal-comp diagnose --twin MACHINE.yaml --recording REC --out DIR`` (REC: a recording
+CSV or a rosbag2 MCAP bag) simulates the
 twin with the recording's inputs, locates and diagnoses the residuals, fits the effect
 library on a training window, adopts what improves the held-out window, and writes
 ``DIR/report.json``, ``DIR/report.md`` (PNG plots beside it), ``DIR/diagnosis.rrd`` (rerun)
@@ -16,14 +17,20 @@ from thermal_twin.machine_schema import MachineSpecError, load_machine, save_mac
 from thermal_twin.mismatch_diagnosis import DiagnosisError, diagnose
 from thermal_twin.mismatch_effects import EFFECTS
 from thermal_twin.mismatch_report import write_report
-from thermal_twin.recording_csv import RecordingError, read_recording_csv
+from thermal_twin.recording_csv import Recording, RecordingError, read_recording_csv
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="thermal-comp diagnose", description=__doc__.split("\n\n")[0])
     p.add_argument("--twin", required=True, help="machine YAML file or preset name (e.g. spindle-stand)")
     p.add_argument("--recording", required=True,
-                   help="recording CSV in the twin's CSV format (time_s, inputs, <sensor>_c, error channels)")
+                   help="recording CSV in the twin's CSV format (time_s, inputs, <sensor>_c, error "
+                        "channels), or a rosbag2 MCAP bag (folder or .mcap file)")
+    p.add_argument("--temperatures-topic", default="temperatures",
+                   help="bag only: TemperatureArray topic of the sensor readings (default temperatures)")
+    p.add_argument("--errors-topic", default="errors/ground_truth",
+                   help="bag only: ThermalErrors topic of the error channels (default errors/ground_truth; "
+                        "errors/measured for probed errors)")
     p.add_argument("--out", required=True, help="output directory (created)")
     p.add_argument("--holdout-fraction", type=float, default=1 / 3,
                    help="last fraction of the recording kept out of every fit (default 1/3)")
@@ -40,6 +47,25 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def load_recording(path: pathlib.Path, temperatures_topic: str = "temperatures",
+                   errors_topic: str = "errors/ground_truth") -> Recording:
+    """A recording CSV, or a bag turned into the same columns (sensor readings at the
+    temperature instants, the last machine state before each, errors at the same stamp).
+    A damaged bag is read up to the damage, with a warning."""
+    if path.suffix.lower() == ".csv":
+        return read_recording_csv(path)
+    from types import SimpleNamespace
+
+    from thermal_comp.bag_player import read_bag
+    from thermal_comp.bag_regression import bag_to_recording
+    contents = read_bag(path)
+    rec = bag_to_recording(contents, SimpleNamespace(temperatures_topic=temperatures_topic,
+                                                     errors_topic=errors_topic))
+    if contents.damage:
+        rec.warnings.append(f"{path}: damaged bag, read up to the damage: {contents.damage}")
+    return rec
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
@@ -51,19 +77,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp diagnose: --max-effects: {args.max_effects} must be >= 0", file=sys.stderr)
         return 2
     rec_path = pathlib.Path(args.recording)
-    if rec_path.suffix.lower() != ".csv":
-        print(f"thermal-comp diagnose: --recording: {rec_path} is not a CSV; convert a bag first "
-              f"(the finder reads the recording CSV format of thermal_twin.recording_csv)", file=sys.stderr)
+    if not (rec_path.suffix.lower() in (".csv", ".mcap") or rec_path.is_dir()):
+        print(f"thermal-comp diagnose: --recording: {rec_path} is neither a CSV nor a bag "
+              f"(folder or .mcap)", file=sys.stderr)
         return 2
     try:
         machine = load_machine(args.twin)
-        rec = read_recording_csv(rec_path)
+        rec = load_recording(rec_path, args.temperatures_topic, args.errors_topic)
         for w in rec.warnings:
             print(f"warning: {w}", file=sys.stderr)
         d = diagnose(machine, rec, holdout_fraction=args.holdout_fraction, max_effects=args.max_effects,
                      min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
                      effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet)
-    except (MachineSpecError, RecordingError, DiagnosisError) as exc:
+    except (MachineSpecError, RecordingError, DiagnosisError, ValueError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
         return 1
     out = pathlib.Path(args.out)

@@ -45,8 +45,10 @@ def _unit(ch: str) -> str:
     return "degC" if column_kind(ch) == "sensor" else error_unit(ch)
 
 
-def _clean_inputs(rec: Recording) -> Recording:
-    """Interpolate failed readings (NaN) of input columns; the twin needs every input."""
+def _clean_inputs(rec: Recording, machine: Machine) -> Recording:
+    """Interpolate failed readings (NaN) of input columns; the twin needs every input.
+    An input column without any value is dropped (with a warning); a twin input the
+    recording cannot supply falls back to the twin's default, also with a warning."""
     cols = dict(rec.columns)
     warnings = list(rec.warnings)
     for name in rec.names("input"):
@@ -54,9 +56,15 @@ def _clean_inputs(rec: Recording) -> Recording:
         bad = ~np.isfinite(v)
         if bad.any():
             if bad.all():
-                raise DiagnosisError(f"recording column '{name}': no valid value")
+                del cols[name]
+                warnings.append(f"column '{name}': no valid value, not used")
+                continue
             cols[name] = np.interp(rec.time_s, rec.time_s[~bad], v[~bad])
             warnings.append(f"column '{name}': {int(bad.sum())} missing values interpolated")
+    for name, ispec in machine.inputs.items():
+        if name not in cols and not (ispec.from_sensor and f"{ispec.from_sensor}_c" in cols):
+            warnings.append(f"twin input '{name}' is not in the recording: its default "
+                            f"{ispec.default:g} {ispec.unit} is used")
     return Recording(rec.time_s, cols, source=rec.source, warnings=warnings)
 
 
@@ -82,7 +90,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
     if unknown:
         raise DiagnosisError(f"effects: {unknown[0]!r} is not in the vocabulary {list(EFFECTS)}")
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
-    rec = _clean_inputs(recording)
+    rec = _clean_inputs(recording, machine)
     if len(rec) < 30:
         raise DiagnosisError(f"recording {rec.source}: {len(rec)} rows, need at least 30")
     channels = shared_channels(machine, rec)

@@ -93,6 +93,7 @@ class DriverInfo:
     name: str
     max_abs: float
     kind: str            # "speed", "switch" (0/1), "power" or "other"
+    constant: bool = False   # never changes in the recording: cannot drive anything identifiable
 
 
 def classify_driver(name: str, values: np.ndarray) -> DriverInfo:
@@ -109,7 +110,7 @@ def classify_driver(name: str, values: np.ndarray) -> DriverInfo:
         kind = "power"
     else:
         kind = "other"
-    return DriverInfo(name, mx, kind)
+    return DriverInfo(name, mx, kind, bool(uniq.size <= 1))
 
 
 def _is_coolant(name: str) -> bool:
@@ -189,7 +190,7 @@ def heat_source(spec: dict, node: str, drv: DriverInfo) -> Candidate:
     with_exponent = drv.kind in ("speed", "other")
     params = [ParamSpec("P_max", "W", -MAX_SOURCE_W * 2, MAX_SOURCE_W * 2, 20.0)]
     if with_exponent:
-        params.append(ParamSpec("exponent", "1", 0.5, 3.0, 1.3))
+        params.append(ParamSpec("exponent", "-", 0.5, 3.0, 1.3))
 
     def apply(s: dict, v: np.ndarray) -> dict:
         _ensure_input(s, drv)
@@ -376,7 +377,8 @@ def candidates(spec: dict, drivers: dict[str, DriverInfo], channels: list[str],
     sensors = [s for s in spec["sensors"] if f"{s}_c" in channels]
     errors = [e for e in spec["errors"] if e in channels]
     env_inputs = {n for n, d in spec["inputs"].items() if d.get("kind") == "environment"}
-    machine_drivers = [d for d in drivers.values() if d.name not in env_inputs and d.max_abs > 0]
+    machine_drivers = [d for d in drivers.values() if d.name not in env_inputs and d.max_abs > 0
+                       and not d.constant]
     out: list[Candidate] = []
     for node in nodes:
         if "heat_source" in effects:
