@@ -328,7 +328,10 @@ def default_blueprint(namespace: str = "", error_components: Iterable[str] = ())
     p = f"/{namespace.strip('/')}" if namespace.strip("/") else ""
     comps = list(error_components)
     if comps:
-        errors = rrb.Grid(*[_series(f"{p}/errors/{_part(c)}", f"{c} (true / predicted +-2u / measured)")
+        # small tiles: no legend (it would hide the curves); colours as in COLOURS and the title
+        errors = rrb.Grid(*[_series(f"{p}/errors/{_part(c)}",
+                                    f"{c}: true magenta, predicted +-2u blue, measured orange",
+                                    plot_legend=rrb.PlotLegend(visible=False))
                             for c in comps])
     else:
         errors = _series(f"{p}/errors", "Thermal errors (true / predicted +-2u / measured)")
