@@ -105,6 +105,8 @@ MODEL_REGISTRY: dict[str, type] = {}
 PROVIDER_MODULES: dict[str, str] = {
     "talc": "talc_model.talc",
     "agp": "talc_model.agp",
+    "gp_static": "talc_model.agp",
+    "cd": "talc_model.cd_model",
 }
 
 

@@ -59,7 +59,7 @@ PHASES = {"calibration": ModelStatus.PHASE_CALIBRATION, "compensation": ModelSta
           "no_good": ModelStatus.PHASE_NO_GOOD}
 
 PARAMS = [
-    Param("model_kind", "talc", "adaptive model", choices=("talc", "agp")),
+    Param("model_kind", "talc", "adaptive model", choices=("talc", "agp", "cd")),
     Param("model_config", "", "YAML file with the model's configuration (empty = defaults)"),
     Param("state_path", "", "JSON file for the model state (resumed at start; empty = no persistence)"),
     Param("pretrained_path", "", "state of a trained model to start from when state_path has none"),
