@@ -9,7 +9,6 @@ import shutil
 import socket
 import subprocess
 import sys
-import time
 import urllib.request
 
 import numpy as np
@@ -259,7 +258,7 @@ def test_live_view_logs_published_topics_to_an_rrd(tmp_path, ros_context):
     import rclpy
     from thermal_comp import node_runtime as rt
     from thermal_comp_msgs.msg import TemperatureArray, ThermalErrors
-    from bags_helpers import spawn, stop
+    from bags_helpers import stop
     out = tmp_path / "live.rrd"
     proc = subprocess.Popen([sys.executable, "-m", "thermal_comp.view_cli", "--rrd", str(out)],
                             env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

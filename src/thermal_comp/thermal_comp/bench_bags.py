@@ -95,7 +95,6 @@ def bench_ros(stream, instants: int, folder: pathlib.Path, timeout_s: float = 30
     from rclpy.executors import MultiThreadedExecutor
     from rclpy.parameter import Parameter
     from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-    from thermal_comp import node_runtime as rt
     from thermal_comp.bag_player_node import BagPlayerNode, use_fast_heartbeat
     from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, BagRecorderNode, message_class
     use_fast_heartbeat()
