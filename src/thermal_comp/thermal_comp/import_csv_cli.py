@@ -5,8 +5,8 @@ import argparse
 import sys
 
 from thermal_comp.bag_recorder import BagWriteError
-from thermal_comp.csv_to_bag import CsvImportError, csv_to_bag
-from thermal_twin.recording_csv import RecordingError
+from thermal_comp.csv_to_bag import CsvImportError, recording_to_bag
+from thermal_twin.recording_csv import RecordingError, read_recording_csv
 
 
 def _rows(text: str) -> tuple[int, int | None]:
@@ -50,11 +50,14 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     bar = None
-    if not args.no_progress:
-        from tqdm import tqdm
-        bar = tqdm(desc="import-csv", unit="row", leave=False, file=sys.stderr)
     try:
-        res = csv_to_bag(args.csv, args.out, temperatures_topic=args.temperatures_topic,
+        rec = read_recording_csv(args.csv)
+        if not args.no_progress:
+            from tqdm import tqdm
+            lo, hi = args.rows
+            total = len(range(lo, len(rec) if hi is None else min(hi, len(rec)), max(args.every, 1)))
+            bar = tqdm(desc="import-csv", unit="row", total=total, leave=False, file=sys.stderr)
+        res = recording_to_bag(rec, args.out, temperatures_topic=args.temperatures_topic,
                          errors_as=args.errors, error_model_kind=args.error_model_kind,
                          namespace=args.namespace, start_s=args.start, every=args.every,
                          rows=args.rows, strict=args.strict,
