@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cnc_bridge.error_transform import (FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
+                                        applied_offsets_in_component_space,
                                         ToolOffsetModel, TransformInputError, fit_tool_offset_model,
                                         five_axis_offsets_um, offsets_from_errors)
 
@@ -158,3 +159,26 @@ def test_lathe_spec_from_mapping_names_bad_keys():
         LatheToolOffsets.from_mapping({"tools": {"T01_X": {"slope": 1.0}}})
     with pytest.raises(TransformInputError, match=r"tools\.T01_X\.gain"):
         LatheToolOffsets.from_mapping({"tools": {"T01_X": {"gain": "nan"}}})
+
+
+@pytest.mark.parametrize("b_deg", [0.0, 90.0, 30.0])
+def test_applied_offsets_in_component_space_is_what_the_probe_cycle_stops_seeing(b_deg):
+    """Hold constant offsets, probe the twin's sphere at the four C indexings, evaluate the
+    cycle (eq. 5.4-5.7 style averages): only E_X0C/E_Y0C/E_Z0T drop, by exactly this mapping."""
+    from thermal_twin.artefact_geometry import true_sphere_centre
+    errors = dict(E_X0C=3.0, E_Y0C=-7.0, E_Z0T=12.0, E_R0T=4.0, E_A0C=-15.0, E_B0C=6.0, E_C0C=9.0)
+    offsets = {"X": 2.0, "Y": -5.0, "Z": 8.0}
+    centres = {c: np.array(true_sphere_centre(c, b_deg, errors, offsets))
+               - np.array(true_sphere_centre(c, b_deg, errors, {})) for c in (0.0, 90.0, 180.0, 270.0)}
+    shift_um = np.mean(list(centres.values()), axis=0) * 1000.0     # the same at every indexing
+    assert all(np.allclose(v * 1000.0, shift_um, atol=1e-9) for v in centres.values())
+    comp = applied_offsets_in_component_space(offsets, b_deg)
+    b = math.radians(b_deg)
+    # table-frame translation the probe sees: R_y(B)^T (machine shift of minus the offsets)
+    t = np.array([[math.cos(b), 0, -math.sin(b)], [0, 1, 0], [math.sin(b), 0, math.cos(b)]]) @ (-shift_um)
+    assert [comp["E_X0C"], comp["E_Y0C"], comp["E_Z0T"]] == pytest.approx(list(t), abs=1e-9)
+    assert comp["E_R0T"] == comp["E_A0C"] == comp["E_B0C"] == comp["E_C0C"] == 0.0
+    # round trip with the forward transform at the origin
+    back = five_axis_offsets_um({**{c: 0.0 for c in FIVE_AXIS_COMPONENTS},
+                                 **{k: comp[k] for k in ("E_X0C", "E_Y0C", "E_Z0T")}}, 0, 0, 0, b_deg)
+    assert back == pytest.approx(offsets, abs=1e-12)

@@ -155,6 +155,25 @@ def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, 
     return {"X": float(off[0]), "Y": float(off[1]), "Z": float(off[2])}
 
 
+def applied_offsets_in_component_space(applied_offsets_um: Mapping[str, float],
+                                       b_deg: float = 0.0) -> dict[str, float]:
+    """What constant X/Y/Z offsets compensate, expressed as the seven 5-axis components.
+
+    A probing cycle that touches the artefact at several C indexings with the same X/Y/Z
+    offsets held sees them as a pure translation of the table frame: it lowers the measured
+    E_X0C, E_Y0C, E_Z0T by ``R_y(B)^T * offset`` and leaves E_R0T, E_A0C, E_B0C, E_C0C
+    untouched (they come from differences between indexings). So a model that rebuilds the
+    total error as "measured residual + applied compensation" must add back exactly this,
+    not its whole prediction (the rest was never applied where the probe looks).
+    Missing axes count as 0.
+    """
+    off = np.array([_finite(f"applied_offsets_um.{a}", applied_offsets_um.get(a, 0.0))
+                    for a in ("X", "Y", "Z")])
+    t = _rot_y(math.radians(_finite("B", b_deg))).T @ off
+    return {"E_X0C": float(t[0]), "E_Y0C": float(t[1]), "E_Z0T": float(t[2]),
+            "E_R0T": 0.0, "E_A0C": 0.0, "E_B0C": 0.0, "E_C0C": 0.0}
+
+
 @dataclass(frozen=True)
 class ToolOffsetModel:
     """delta_k = e_k - e_TLS for one tool position, linear in the TLS error.
