@@ -87,3 +87,24 @@ def test_cli_reads_a_bag_like_the_csv(recording_csv, tmp_path, capsys):
     assert abs(rep["selected"][0]["params"]["dG_open"]["value"] - 30.0) < 8.0
     assert any("coolant_temperature_degc" in n for n in rep["notes"]), "an unusable bag field is reported"
     assert not (out / "diagnosis.rrd").exists()
+
+
+def test_failed_readings_and_a_truncated_last_line_lose_nothing_else(recording_csv, tmp_path):
+    """NaN readings (a failed sensor now and then) and a recorder killed mid-line: the
+    diagnosis uses every good value and reports the truncation."""
+    lines = recording_csv.read_text().splitlines()
+    header = lines[0].split(",")
+    j = header.index("head_c")
+    rng = np.random.default_rng(0)
+    for i in rng.choice(np.arange(1, len(lines)), size=len(lines) // 10, replace=False):
+        cells = lines[i].split(",")
+        cells[j] = "nan"
+        lines[i] = ",".join(cells)
+    damaged = tmp_path / "damaged.csv"
+    damaged.write_text("\n".join(lines) + "\n" + lines[-1][:9] + "\n")
+    out = tmp_path / "diag"
+    assert main(["--twin", str(TWIN), "--recording", str(damaged), "--out", str(out), "--quiet", "--no-rerun"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert [(s["effect"], s["target"]) for s in rep["selected"]] == [("door_event", "head")]
+    assert any("truncated" in n for n in rep["notes"])
+    assert rep["channels"]["head_c"]["holdout_rmse_after"] < 0.5 * rep["channels"]["head_c"]["holdout_rmse_before"]

@@ -119,7 +119,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
             ccf_inputs[name] = rec.columns[col]
     unknown_sensors = {c: v for c, v in rec.sensors.items() if c not in channels}
     drivers_all = stats.derived_drivers(t, ccf_inputs, rec.sensors)
-    drivers_all.update({c: stats._finite(v) for c, v in unknown_sensors.items()
+    drivers_all.update({c: stats.fill_gaps(v) for c, v in unknown_sensors.items()
                         if np.isfinite(v).any()})
     max_lag = int(max_lag_s / dt)
     ccf: dict[str, list] = {}

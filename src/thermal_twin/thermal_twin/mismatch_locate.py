@@ -18,12 +18,12 @@ import math
 
 import numpy as np
 
-from .mismatch_statistics import _finite, is_speed_like
+from .mismatch_statistics import fill_gaps, is_speed_like
 
 
 def noise_sigma(x: np.ndarray) -> float:
     """Robust white-noise level of a series from its first differences (MAD)."""
-    d = np.diff(_finite(x))
+    d = np.diff(fill_gaps(x))
     if d.size == 0:
         return 0.0
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
@@ -32,7 +32,7 @@ def noise_sigma(x: np.ndarray) -> float:
 def moving_average(x: np.ndarray, w: int) -> np.ndarray:
     """Centred moving average over w samples; near the ends over the samples that exist
     (no padding, which would weigh the first and last reading w/2 times)."""
-    x = _finite(x)
+    x = fill_gaps(x)
     if w <= 1 or x.size <= w:
         return x.copy()
     k = np.ones(w)
@@ -63,7 +63,7 @@ def operating_regimes(time_s: np.ndarray, inputs: dict[str, np.ndarray],
         kind = _input_kind(name)
         if kind is None:
             continue
-        u = _finite(u)
+        u = fill_gaps(u)
         if kind == "spindle running":
             thr = 0.01 * float(np.max(np.abs(u))) if np.any(u) else 0.5
             mask = np.abs(u) > thr
@@ -86,7 +86,7 @@ def regime_effects(residuals: dict[str, np.ndarray], regimes: dict[str, np.ndarr
         if mask.all() or not mask.any():
             continue
         for ch, r in residuals.items():
-            r = _finite(r)
+            r = fill_gaps(r)
             rms = float(np.sqrt(np.mean(r ** 2))) or 1.0
             m_in, m_out = float(np.mean(r[mask])), float(np.mean(r[~mask]))
             rows.append({"regime": reg, "channel": ch, "unit": units.get(ch, ""),

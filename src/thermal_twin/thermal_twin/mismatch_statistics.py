@@ -24,7 +24,7 @@ from statsmodels.tsa.stattools import acf
 DAY_S = 86400.0
 
 
-def _finite(x: np.ndarray) -> np.ndarray:
+def fill_gaps(x: np.ndarray) -> np.ndarray:
     """x with NaNs (failed readings) replaced by linear interpolation (edges: nearest)."""
     x = np.asarray(x, dtype=float)
     ok = np.isfinite(x)
@@ -41,7 +41,7 @@ def ljung_box(residual: np.ndarray, lags: int = 20, alpha: float = 0.01) -> dict
 
     Returns ``{"q": Q, "p_value": p, "lags": lags, "white": p >= alpha}``.
     """
-    r = _finite(residual)
+    r = fill_gaps(residual)
     lags = int(max(1, min(lags, r.size // 4)))
     if np.std(r) == 0.0:
         return {"q": 0.0, "p_value": 1.0, "lags": lags, "white": True}
@@ -66,7 +66,7 @@ def temperature_rate(time_s: np.ndarray, temp: np.ndarray, smooth_s: float = 900
     """dT/dt in K/h, after a centred moving average over ``smooth_s`` (sensor noise and
     quantisation would otherwise dominate the derivative)."""
     t = np.asarray(time_s, dtype=float)
-    y = _finite(temp)
+    y = fill_gaps(temp)
     dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
     w = int(max(1, round(smooth_s / dt)))
     if w > 1 and y.size > w:
@@ -85,7 +85,7 @@ def derived_drivers(time_s: np.ndarray, inputs: dict[str, np.ndarray],
     residual correlates with the reading by construction)."""
     out: dict[str, np.ndarray] = {}
     for name, u in inputs.items():
-        u = _finite(u)
+        u = fill_gaps(u)
         out[name] = u
         if is_speed_like(name):
             scale = float(np.max(np.abs(u))) or 1.0
@@ -93,7 +93,7 @@ def derived_drivers(time_s: np.ndarray, inputs: dict[str, np.ndarray],
     for name, y in sensors.items():
         try:
             if sensor_levels:
-                out[name] = _finite(y)
+                out[name] = fill_gaps(y)
             out[f"d({name})/dt"] = temperature_rate(time_s, y)
         except ValueError:
             continue
@@ -144,8 +144,8 @@ def cross_correlation(residual: np.ndarray, driver: np.ndarray, max_lag: int,
     mis-modelled. The 95 % band uses Bartlett's variance (1/N) sum_k r_ee(k) r_uu(k) of the
     filtered series, which reduces to 1.96/sqrt(N) once the driver is white.
     """
-    e = scipy.signal.detrend(_finite(residual))
-    u = scipy.signal.detrend(_finite(driver))
+    e = scipy.signal.detrend(fill_gaps(residual))
+    u = scipy.signal.detrend(fill_gaps(driver))
     n = e.size
     max_lag = int(max(0, min(max_lag, n // 3)))
     lags = np.arange(-max_lag, max_lag + 1)
@@ -174,7 +174,7 @@ def spectral_peaks(residual: np.ndarray, dt_s: float, n_peaks: int = 3,
     """The strongest periodogram peaks (linear trend removed, Hann window) with period in
     hours and share of the residual's variance; a period within 20 % of 24 h is labelled
     ``ambient (daily)``. Periods longer than 2/3 of the record are not resolvable and skipped."""
-    e = _finite(residual)
+    e = fill_gaps(residual)
     n = e.size
     if n < 16:
         return []
@@ -201,7 +201,7 @@ def drift(time_s: np.ndarray, residual: np.ndarray, maxlags: int | None = None) 
     """Linear trend of the residual per hour with a Newey-West 95 % interval; the
     trend counts as drift when the interval excludes zero."""
     t = np.asarray(time_s, dtype=float) / 3600.0
-    e = _finite(residual)
+    e = fill_gaps(residual)
     if e.size < 8 or np.std(e) == 0:
         return {"slope_per_h": 0.0, "ci95": [0.0, 0.0], "significant": False}
     X = sm.add_constant(t - t.mean())
