@@ -254,14 +254,17 @@ def test_served_web_viewer_shows_our_entities_in_headless_chromium(tmp_path, bag
 
 @pytest.mark.slow
 @pytest.mark.ros
-def test_live_view_logs_published_topics_to_an_rrd(tmp_path, ros_context):
+@pytest.mark.parametrize("how", ["view_cli", "node"])
+def test_live_view_logs_published_topics_to_an_rrd(tmp_path, ros_context, how):
     import rclpy
     from thermal_comp import node_runtime as rt
     from thermal_comp_msgs.msg import TemperatureArray, ThermalErrors
     from bags_helpers import stop
     out = tmp_path / "live.rrd"
-    proc = subprocess.Popen([sys.executable, "-m", "thermal_comp.view_cli", "--rrd", str(out)],
-                            env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    cmd = (["-m", "thermal_comp.view_cli", "--rrd", str(out)] if how == "view_cli" else
+           ["-m", "thermal_comp.rerun_view_node", "--ros-args", "-p", "spawn:=false", "-p", f"rrd:={out}"])
+    proc = subprocess.Popen([sys.executable, *cmd], env=_env(tmp_path), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
     node = rclpy.create_node("live_source", context=ros_context)
     try:
         temps = node.create_publisher(TemperatureArray, rt.TOPIC_TEMPERATURES, rt.SENSOR_QOS)

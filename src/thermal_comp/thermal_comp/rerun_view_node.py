@@ -1,9 +1,10 @@
 """rerun_view node: logs every thermal-comp topic of the cell to rerun as it arrives.
 
 Subscribes to the default topics of the recorder (same types and QoS, so reliable
-publishers are matched and latched model status arrives at once) and hands each message to
-:class:`thermal_comp.rerun_logging.RerunLogger`, stamped with its header time. Started by
-``thermal-comp view`` without a bag (the rerun sinks are set up there).
+publishers are matched and the latched model status arrives at once) and hands each message
+to :class:`thermal_comp.rerun_logging.RerunLogger`, stamped with its header time.
+Run: ``python -m thermal_comp.rerun_view_node --ros-args -p rrd:=out/live.rrd`` (parameters
+below; default: a spawned native viewer), or ``thermal-comp view`` without a bag.
 """
 from __future__ import annotations
 
@@ -11,14 +12,36 @@ from rclpy.node import Node
 
 from thermal_comp import node_runtime as rt
 from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, message_class
-from thermal_comp.rerun_logging import RerunLogger
+from thermal_comp.rerun_logging import RerunLogger, default_blueprint, resolve_layout
+from thermal_comp.rerun_sinks import RerunOutput, open_output
 
 
 class RerunViewNode(Node):
-    def __init__(self, recording, layout=None, context=None, **kwargs):
+    """``output``: an already opened rerun output (from ``thermal-comp view``); else the
+    node's parameters choose the sinks."""
+
+    def __init__(self, context=None, output: RerunOutput | None = None, layout=None, **kwargs):
         super().__init__("rerun_view", context=context, **kwargs)
-        self.logger_ = RerunLogger(recording, layout)
-        self.recording = recording
+        p = rt.declare_parameters(self, [
+            rt.Param("spawn", True, "spawn the native rerun viewer (needs a display)"),
+            rt.Param("rrd", "", "write an .rrd file here (empty: none)"),
+            rt.Param("serve_web", False, "serve rerun's web viewer on localhost"),
+            rt.Param("web_port", 9090, "web viewer port", lo=1, hi=65535),
+            rt.Param("grpc_port", 9876, "rerun gRPC port", lo=1, hi=65535),
+            rt.Param("layout", "", "sensor layout YAML or twin preset (empty: the preset whose "
+                     "sensors match, else a schematic ring)"),
+        ])
+        if layout is None and p["layout"]:
+            layout = resolve_layout(p["layout"])
+        if output is None:
+            ns = self.get_namespace()
+            output = open_output(rrd=p["rrd"] or None, spawn=p["spawn"], serve_web=p["serve_web"],
+                                 web_port=p["web_port"], grpc_port=p["grpc_port"],
+                                 blueprint=default_blueprint(ns if ns != "/" else ""))
+            if output.web_url:
+                self.get_logger().info(f"rerun web viewer: {output.web_url}")
+        self.output = output
+        self.logger_ = RerunLogger(output.recording, layout)
         for name, (type_name, qos) in DEFAULT_TOPICS.items():
             topic = self.resolve_topic_name(name)
             self.create_subscription(message_class(type_name), name,
@@ -35,11 +58,20 @@ class RerunViewNode(Node):
         return on_message
 
     def close(self) -> None:
-        self.recording.flush(timeout_sec=30.0)
+        self.output.close()
 
 
-def main(recording, layout=None, args=None) -> int:
+def run(output: RerunOutput, layout=None, args=None) -> int:
+    """Run the node on an output opened by the caller (``thermal-comp view``)."""
     def factory(context):
-        return RerunViewNode(recording, layout, context=context)
+        return RerunViewNode(context=context, output=output, layout=layout)
     factory.__name__ = "rerun_view"
     return rt.run_node(factory, args)
+
+
+def main(args=None) -> int:
+    return rt.run_node(RerunViewNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -2,17 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import os
-import pathlib
 import signal
 import sys
 import threading
 
 import rerun as rr
 
-APP_ID = "thermal_comp"
-#: never hang at exit on a viewer that went away
-FLUSH_TIMEOUT_S = 30.0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -96,17 +91,13 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     from thermal_comp.rerun_logging import LayoutError, default_blueprint, resolve_layout
+    from thermal_comp.rerun_sinks import FLUSH_TIMEOUT_S, SinkError, open_output
     try:
         layout = resolve_layout(args.layout) if args.layout else None
     except LayoutError as exc:
         print(f"thermal-comp view: {exc}", file=sys.stderr)
         return 2
     spawn = args.spawn or not (args.rrd or args.serve_web)
-    if spawn and sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
-                                                           or os.environ.get("WAYLAND_DISPLAY")):
-        print("thermal-comp view: no display for the native viewer (DISPLAY / WAYLAND_DISPLAY unset); "
-              "use --serve-web (browser) or --rrd OUT", file=sys.stderr)
-        return 2
     contents = None
     if args.bag:
         from thermal_comp.bag_player import BagReadError, read_bag
@@ -116,29 +107,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"thermal-comp view: {exc}", file=sys.stderr)
             return 2
     blueprint = default_blueprint(args.namespace, error_components(contents) if contents else ())
-    rec = rr.RecordingStream(APP_ID, recording_id=None)
-    sinks = []
-    server = None
-    if args.rrd:
-        sinks.append(rr.FileSink(args.rrd))
-    if args.serve_web:
-        server = rr.GrpcServerSink(bind_ip="127.0.0.1", port=args.grpc_port)
-        sinks.append(server)
-    if spawn:
-        port = args.grpc_port + 1 if args.serve_web else args.grpc_port
-        viewer = pathlib.Path(sys.executable).parent / "rerun"   # the venv's viewer, PATH or not
-        try:
-            rr.spawn(port=port, connect=False, recording=rec,
-                     executable_path=str(viewer) if viewer.is_file() else None)
-        except RuntimeError as exc:
-            print(f"thermal-comp view: cannot spawn the rerun viewer: {str(exc).splitlines()[0]} "
-                  f"(use --rrd OUT or --serve-web)", file=sys.stderr)
-            return 2
-        sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{port}/proxy"))
-    rec.set_sinks(*sinks, default_blueprint=blueprint)
-    if server is not None:
-        rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=server.uri)
-        print(f"rerun web viewer: http://localhost:{args.web_port}/?url={server.uri}", flush=True)
+    try:
+        output = open_output(rrd=args.rrd, spawn=spawn, serve_web=args.serve_web, web_port=args.web_port,
+                             grpc_port=args.grpc_port, blueprint=blueprint)
+    except SinkError as exc:
+        print(f"thermal-comp view: {exc}", file=sys.stderr)
+        return 2
+    rec = output.recording
+    if output.web_url:
+        print(f"rerun web viewer: {output.web_url}", flush=True)
     if contents is not None:
         n, damage = log_bag(contents, rec, layout, progress=not args.no_progress)
         rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
@@ -147,14 +124,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"warning: bag damaged, shown up to there: {damage}", file=sys.stderr)
         if args.serve_web:
             _wait_for_interrupt()
-        rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-        rec.disconnect()
+        output.close()
         return 3 if damage else 0
     from thermal_comp import rerun_view_node
-    code = rerun_view_node.main(rec, layout, ["thermal-comp-view", "--ros-args", *args.ros_args])
-    rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
-    rec.disconnect()
-    return code
+    return rerun_view_node.run(output, layout, ["thermal-comp-view", "--ros-args", *args.ros_args])
 
 
 if __name__ == "__main__":
