@@ -17,6 +17,8 @@ Everything runs on the twin's scenarios (``thermal_twin.scenarios``), simulated 
   trained on load-case-A (inputs: temperatures and their gradients, chosen by the forward
   heuristic), then the load-case update fitted on the first half of the case and judged on the
   unseen second half; ``cd.load_case_update_s`` the time of one full update (7 components).
+* ``cd_model.<case>.*``: the adaptive CD model (kind "cd") replayed on load-case-A..D, P99_lin
+  and Q_prod (comparable with the TALC figures).
 * ``cd.selection.*``: how often each stability-index variant finds the true input pair.
 
 The prior expected maximum error of the lathe is 40 um ("several tens of micrometres", thesis
@@ -211,6 +213,28 @@ def cd_load_cases(quick: bool, progress) -> dict[str, Any]:
     return out
 
 
+def cd_model_cases(quick: bool, progress) -> dict[str, Any]:
+    """The adaptive CD model (kind "cd", default configuration) replayed on load-case-A..D:
+    P99_lin (um) and Q_prod as the TALC figures are reported (virtual experiment)."""
+    from talc_model.cd_model import CharacteristicDiagramModel
+    from talc_model.metrics import p99, p99_group
+    from talc_model.virtual_experiment import run_virtual_experiment
+    out: dict[str, Any] = {}
+    for case in (CD_TRAIN_CASE,) + CD_CASES:
+        rec = _recording("nmv5000", case, hours=48.0 if quick else None)
+        model = CharacteristicDiagramModel({})
+        t0 = time.perf_counter()
+        res = run_virtual_experiment(rec, model, probe_noise_um=0.0)
+        per = {c: p99(res.true[c], np.where(np.isfinite(res.predicted[c]), res.predicted[c], 0.0))
+               for c in res.components}
+        linear = [c for c in res.components if c not in ("E_A0C", "E_B0C", "E_C0C")]
+        out[f"cd_model.{case}.p99_lin_um"] = _round(p99_group(per, linear))
+        out[f"cd_model.{case}.q_prod_pct"] = _round(res.final_status["q_prod_pct"], 2)
+        out[f"cd_model.{case}.replay_s"] = _round(time.perf_counter() - t0, 2)
+        progress()
+    return out
+
+
 def stability_variants(quick: bool, progress) -> dict[str, Any]:
     """Hit rate of the true pair (v0, v1) among all pairs of 8 candidates, y = sin(3 v0) + v1^2
     + noise, K = 100 (the digest's check, measured here)."""
@@ -236,7 +260,7 @@ def figures(args) -> dict[str, Any]:
     out_dir = pathlib.Path(out_dir) if out_dir else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    total = 2 * len(AGP_CASES) + 1 + 2 + 1 + len(CD_CASES) + 1
+    total = 2 * len(AGP_CASES) + 1 + 2 + 1 + len(CD_CASES) + 1 + 1 + len(CD_CASES)
     bar = tqdm(total=total, desc="bench agp/cd", unit="part")
     step = lambda: bar.update(1)
     out: dict[str, Any] = {}
@@ -245,6 +269,7 @@ def figures(args) -> dict[str, Any]:
         out.update(agp_multi_tcp(quick, step))
         out.update(gp_refit_speed(quick, step))
         out.update(cd_load_cases(quick, step))
+        out.update(cd_model_cases(quick, step))
         out.update(stability_variants(quick, step))
     finally:
         bar.close()
