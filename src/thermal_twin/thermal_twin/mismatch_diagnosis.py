@@ -185,7 +185,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
                            "train_rmse_before", "train_rmse_after", "noise_sigma", "ljung_box", "drift",
                            "spectral_peaks", "cross_correlation")}
 
-    notes = []
+    notes = [f"Day/night regimes assume time_s = 0 at {start_hour:g} h clock time (--start-hour)."]
     if any(h.indistinguishable_from for h in all_hyps if h.plausible):
         notes.append(CORRELATED_NOTE)
     notes += rec.warnings

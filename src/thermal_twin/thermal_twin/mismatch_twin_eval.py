@@ -73,7 +73,7 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
 
     # conductance regimes and step lengths -------------------------------------------
     dt = np.diff(t)
-    vary = [(i, pu, e) for l in net._varying for i, pu, e in l.varies_with]
+    vary = [(i, pu, e) for l in machine.links.values() for i, pu, e in l.varies_with]
     key_cols = [np.round(dt, 9)] + [vals[i][:-1] for i, _, _ in vary] if n_t > 1 else []
     if n_t > 1:
         # regimes change rarely: label the runs of constant key, then map runs to ids
