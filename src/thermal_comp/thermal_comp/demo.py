@@ -72,6 +72,8 @@ class DemoConfig:
     cnc: str = "opcua"                 # opcua | twin
     progress: bool = True
     wall_timeout_s: float = 3600.0
+    #: restart policy of every node (cell-file ``restart`` mapping); None = no restarts
+    restart: dict[str, Any] | None = None
 
 
 @dataclass
@@ -143,7 +145,10 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
     ]
     if live_view:
         nodes.append({"name": "viewer", "module": "thermal_comp.rerun_view_node", "parameters": {}})
-    return {"cell": "demo", "domain_id": domain_id, "use_sim_time": True, "nodes": nodes}
+    cell = {"cell": "demo", "domain_id": domain_id, "use_sim_time": True, "nodes": nodes}
+    if cfg.restart is not None:
+        cell["restart"] = dict(cfg.restart)
+    return cell
 
 
 class _Monitor:
@@ -211,8 +216,11 @@ def _rss_tree_mb(pid: int) -> float:
         return 0.0
 
 
-def run_graph(cfg: DemoConfig) -> RunRecord:
-    """Run the demo graph until the twin's scenario ends; return what was observed."""
+def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
+    """Run the demo graph until the twin's scenario ends; return what was observed.
+
+    ``on_poll(launcher, sim_s)``, if given, is called on every supervision poll (about 4 Hz)
+    with the launcher and the simulated time seen so far (fault injection uses it)."""
     from thermal_comp.cell_config import parse_cell
     from thermal_comp.domain_ids import claim_domain_id
     from thermal_comp.launcher import Launcher
@@ -266,6 +274,8 @@ def run_graph(cfg: DemoConfig) -> RunRecord:
                 if mp.pid:
                     record.peak_rss_mb[mp.node.name] = max(record.peak_rss_mb.get(mp.node.name, 0.0),
                                                            _rss_tree_mb(mp.pid))
+            if on_poll is not None:
+                on_poll(launcher, monitor.sim_s)
             if bar is not None:
                 bar.n = round(min(monitor.sim_s / 3600.0, total_h), 2)
                 bar.refresh()
@@ -397,13 +407,25 @@ def compensation_in_effect(series: DemoSeries) -> dict[str, np.ndarray]:
     return out
 
 
+def evaluation_start_s(series: DemoSeries) -> float:
+    """Start of the compensation period: the first instant the model left its calibration
+    phase (the thesis evaluates compensation after the calibration phase; during it nothing
+    is compensated). The whole run if the model never left calibration."""
+    for t, phase in series.phases:
+        if phase != 0:
+            return t
+    return float(series.t_true[0])
+
+
 def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> dict[str, Any]:
     from talc_model import metrics
     comp = compensation_in_effect(series)
+    t_eval = evaluation_start_s(series)
+    window = series.t_true >= t_eval
     errors = {}
     for c in series.components:
         e = series.true[c]
-        ok = np.isfinite(e)
+        ok = np.isfinite(e) & window
         if not ok.any():
             continue
         unc = metrics.p99(e[ok], np.zeros(ok.sum()))
@@ -413,6 +435,7 @@ def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> 
     hours = float(series.t_true[-1] - series.t_true[0]) / 3600.0
     summary = {
         "machine": cfg.machine, "scenario": cfg.scenario, "seed": cfg.seed, "simulated_hours": round(hours, 2),
+        "evaluation_window_h": [round(t_eval / 3600.0, 2), round(float(series.t_true[-1]) / 3600.0, 2)],
         "model_kind": series.status.get("model_kind", MACHINES[cfg.machine]["model_kind"]),
         "errors": errors,
         "probing_cycles": series.status.get("probing_cycles", len(series.probe_times_s)),
@@ -434,8 +457,10 @@ def print_table(summary: dict[str, Any]) -> None:
     from rich.console import Console
     from rich.table import Table
     thesis = summary.get("thesis", {})
-    t = Table(title=f"{summary['machine']} / {summary['scenario']}: P99 of the thermal errors "
-                    f"({summary['simulated_hours']} h simulated, {summary['model_kind'].upper()})")
+    w0, w1 = summary["evaluation_window_h"]
+    t = Table(title=f"{summary['machine']} / {summary['scenario']}: P99 of the thermal errors, "
+                    f"{summary['model_kind'].upper()}, {summary['simulated_hours']} h simulated "
+                    f"(evaluated {w0:g}-{w1:g} h, after the calibration phase)")
     t.add_column("error")
     t.add_column("unit")
     t.add_column("uncompensated", justify="right")
