@@ -112,7 +112,8 @@ def _plot_ccf(series: DiagnosisSeries, path: pathlib.Path, per_channel: int = 3)
         ax.set_ylabel(ch, fontsize=8)
         ax.legend(fontsize=6, loc="upper right")
         ax.tick_params(labelsize=7)
-    axes[0, 0].set_title("cross-correlation of residual (before) with drivers; dashed: 95 % band",
+    axes[0, 0].set_title("prewhitened cross-correlation of residual (before) with drivers; "
+                         "dashed: pointwise 95 % band",
                          fontsize=9)
     axes[-1, 0].set_xlabel("lag [h] (positive: residual follows the driver)")
     fig.tight_layout()

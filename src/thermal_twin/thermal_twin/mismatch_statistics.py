@@ -6,8 +6,9 @@ Pure numpy/scipy/statsmodels; every function takes plain arrays.
 - :func:`derived_drivers`: candidate drivers from a recording's inputs and sensors: each
   input, speed and speed^2 of speed-like inputs, recorded power, temperature rates dT/dt.
 - :func:`cross_correlation`: residual vs. driver over lags after prewhitening the driver
-  (Box-Jenkins), with a 95 % band from Bartlett's formula (without prewhitening, slow
-  thermal signals correlate with everything and the textbook band would flag every driver).
+  (Box-Jenkins), with a pointwise 95 % band from Bartlett's formula (without prewhitening,
+  slow thermal signals correlate with everything) and a simultaneous band over all lags
+  (Sidak) that decides significance.
 - :func:`spectral_peaks`: periodogram peaks of a residual; a period near 24 h points to ambient.
 - :func:`drift`: linear trend with Newey-West (HAC) standard errors.
 """
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.signal
+import scipy.stats
 import statsmodels.api as sm
 from statsmodels.tsa.stattools import acf
 
@@ -113,17 +115,26 @@ class CrossCorrelation:
     driver: str
     lags: np.ndarray          # in samples; positive lag k: residual follows the driver by k
     ccf: np.ndarray           # correlation of residual(t) with driver(t - k)
-    band: float               # half-width of the 95 % band (Bartlett)
+    band: float               # half-width of the pointwise 95 % band (Bartlett)
     peak_lag: int
     peak_value: float
 
     @property
+    def simultaneous_band(self) -> float:
+        """The band for the largest of all lags (Sidak: 5 % over the 2L+1 lags looked at);
+        the pointwise band would be crossed by chance somewhere among many lags."""
+        m = max(1, self.lags.size)
+        z = float(scipy.stats.norm.ppf(1.0 - (1.0 - 0.95 ** (1.0 / m)) / 2.0))
+        return self.band * z / 1.959963984540054
+
+    @property
     def significant(self) -> bool:
-        return abs(self.peak_value) > self.band
+        return abs(self.peak_value) > self.simultaneous_band
 
     def as_dict(self, dt_s: float) -> dict:
         return {"driver": self.driver, "peak_lag_s": float(self.peak_lag * dt_s),
                 "peak_ccf": float(self.peak_value), "band_95": float(self.band),
+                "band_95_all_lags": float(self.simultaneous_band),
                 "significant": bool(self.significant)}
 
 
