@@ -98,6 +98,8 @@ class TemperaturePublisher(Node):
         self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, SIM_SYNC_QOS)
                          if self.lockstep_participant else None)
         self.published = 0
+        self.republished = 0
+        self._last_msg: TemperatureArray | None = None
 
         if self.source_kind == "twin":
             self._next_due = -math.inf
@@ -122,6 +124,7 @@ class TemperaturePublisher(Node):
                                temperatures_degc=[float(v) for v in frame.temperatures_degc],
                                status=[int(s) for s in frame.status])
         self.pub.publish(msg)
+        self._last_msg = msg
         self.published += 1
         self._log_status_changes(frame)
         return frame
@@ -148,8 +151,13 @@ class TemperaturePublisher(Node):
     def _on_twin(self, msg: TemperatureArray) -> None:
         t = stamp_to_s(msg.header.stamp)
         if t <= self._last_twin_t:
-            # machine_sim re-sent an instant (an acknowledgement was lost): acknowledge again,
-            # never publish the same instant twice
+            # machine_sim re-sent an instant because an acknowledgement is missing: a consumer
+            # may have restarted and missed it (the model after a crash), so the last frame
+            # goes out again unchanged (same stamp, same values) when it is this instant; an
+            # older instant is only acknowledged. Consumers treat a repeated stamp idempotently.
+            if t == self._last_twin_t and self._last_msg is not None:
+                self.pub.publish(self._last_msg)
+                self.republished += 1
             self._ack(t)
             return
         self._last_twin_t = t
