@@ -134,7 +134,8 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
         {"name": "machine_sim", "module": "thermal_twin.machine_sim_node",
          "parameters": {"machine": cfg.machine, "scenario": cfg.scenario, "seed": cfg.seed,
                         "hours": float(cfg.hours or 0.0), "step_s": float(step),
-                        "lockstep_participants": participants, "shutdown_when_done": True}},
+                        "lockstep_participants": participants, "shutdown_when_done": True,
+                        "state_path": str(out / "twin_state.pkl")}},
         {"name": "sensors", "module": "thermal_sensors.temperature_publisher_node",
          "parameters": {"source": "twin", "sensor_config": m["sensor_config"], "lockstep_participant": True}},
         {"name": "probe_cycle", "module": "probe_cycle.probe_cycle_node", "parameters": {"backend": "twin"}},
@@ -228,7 +229,7 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
     out = cfg.out_dir.resolve()
     if (out / "bag").exists():
         shutil.rmtree(out / "bag")
-    for stale in ("model_state.json", "cnc_audit.log"):
+    for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl"):
         (out / stale).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     total_h = scenario_hours(cfg.machine, cfg.scenario, cfg.hours)
@@ -279,6 +280,8 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
             if bar is not None:
                 bar.n = round(min(monitor.sim_s / 3600.0, total_h), 2)
                 bar.refresh()
+            if sim_proc.popen.poll() is not None:
+                launcher.poll()    # handle the exit first: a crash may be due for a restart
             if sim_proc.popen.poll() is not None and sim_proc.next_start is None:
                 if sim_proc.popen.returncode != 0:
                     raise DemoError(f"machine_sim exited with code {sim_proc.popen.returncode}; "

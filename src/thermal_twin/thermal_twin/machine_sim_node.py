@@ -51,6 +51,9 @@ PARAMS = [
           "all acknowledgements", 0.1, 600.0),
     Param("probe_noise", True, "touch probe repeatability scatter (False: ideal probe, readout still quantised)"),
     Param("shutdown_when_done", False, "stop the node when the scenario has ended"),
+    Param("state_path", "", "checkpoint file: written atomically before every published instant and "
+          "after every touch probe; an existing one is resumed at start (a restart after a crash "
+          "goes on where the twin was, simulated time never runs backwards); empty = none"),
 ]
 
 
@@ -62,6 +65,10 @@ class MachineSimNode(Node):
         timeline = make_timeline(self.machine.name, p["scenario"], hours=p["hours"] or None,
                                  seed=p["seed"], step_s=p["step_s"] or None)
         self.runner = ScenarioRunner(self.machine, timeline, seed=p["seed"])
+        self.checkpoint = (TwinCheckpoint(p["state_path"], key={
+            k: p[k] for k in ("machine", "scenario", "seed", "hours", "step_s", "probe_noise")})
+            if p["state_path"] else None)
+        resumed = self.checkpoint.load() if self.checkpoint is not None else None
         self.participants = [n for n in (p["lockstep_participants"] or []) if n]
         self.publish_truth = p["publish_ground_truth"]
         self.resend_after_s = p["resend_after_s"]
@@ -69,6 +76,8 @@ class MachineSimNode(Node):
         self.probe_rng = np.random.default_rng([p["seed"], 7]) if p["probe_noise"] else None
         self.units = {e: s.unit for e, s in self.machine.errors.items()}
         self.applied_offsets: dict[str, float] = {}
+        if resumed is not None:
+            self.runner, self.probe_rng, self.applied_offsets = resumed
         self.acks: dict[str, float] = {}
         self.started = False
         self.last_publish_wall = 0.0
@@ -91,13 +100,21 @@ class MachineSimNode(Node):
             rtf = p["real_time_factor"]
             step = float(timeline.time_s[1] - timeline.time_s[0]) if len(timeline) > 1 else 1.0
             self.timer = self.create_timer(step / rtf if rtf > 0 else 0.001, self._free_tick, clock=self.wall_clock)
+        if resumed is not None:
+            self.get_logger().warning(f"resumed from {p['state_path']} at t = {self.runner.t_s:.0f} s "
+                                      f"(instant {self.runner.k} of {len(timeline)})")
         self.get_logger().info(
             f"{self.machine.name}/{p['scenario']}: {len(timeline)} instants, "
             f"{'lock-step with ' + ', '.join(self.participants) if self.participants else 'free-running'}")
 
     # ------------------------------------------------------------------ publishing
+    def _save_checkpoint(self) -> None:
+        if self.checkpoint is not None:
+            self.checkpoint.save(self.runner, self.probe_rng, self.applied_offsets)
+
     def _publish_instant(self) -> None:
         r = self.runner
+        self._save_checkpoint()   # before publishing: a restart never skips back past t_k
         stamp = s_to_stamp(r.t_s)
         self.pub_clock.publish(Clock(clock=stamp))
         fields = machine_state_fields(r.inputs())
@@ -227,12 +244,63 @@ class MachineSimNode(Node):
         finally:
             r.resume()
             r.busy_probing = False
+        self._save_checkpoint()   # probing moved simulated time on
         response.triggered = bool(triggered)
         response.trigger_position_mm = [float(x) for x in pos]
         response.message = "" if triggered else f"no trigger within {request.max_travel_mm} mm"
         response.stamp = s_to_stamp(r.t_s)
         self.pub_clock.publish(Clock(clock=response.stamp))
         return response
+
+
+class TwinCheckpoint:
+    """The twin's complete state in one file, replaced atomically (write, fsync, rename).
+
+    A private pickle of the running :class:`ScenarioRunner`, the probe's random generator and
+    the applied offsets, tagged with the node's parameters: a file written by another
+    configuration is refused with a message naming the differing parameter. Only ever load
+    a checkpoint this node wrote (pickle executes code from the file).
+    """
+
+    VERSION = 1
+
+    def __init__(self, path: str, key: dict):
+        import pathlib
+        self.path = pathlib.Path(path)
+        self.key = dict(key)
+
+    def save(self, runner, probe_rng, applied_offsets: dict) -> None:
+        import os
+        import pickle
+        tmp = self.path.with_name(self.path.name + ".tmp")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            pickle.dump({"version": self.VERSION, "key": self.key, "runner": runner,
+                         "probe_rng": probe_rng, "applied_offsets": dict(applied_offsets)}, f,
+                        protocol=pickle.HIGHEST_PROTOCOL)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.path)
+
+    def load(self):
+        """(runner, probe_rng, applied_offsets) from the file, or None if there is none."""
+        import pickle
+        if not self.path.is_file():
+            return None
+        try:
+            with open(self.path, "rb") as f:
+                data = pickle.load(f)
+        except Exception as exc:  # a damaged checkpoint must not be half-used
+            raise ValueError(f"parameter 'state_path': {str(self.path)!r} is not a readable twin "
+                             f"checkpoint ({type(exc).__name__}: {exc})") from None
+        if not isinstance(data, dict) or data.get("version") != self.VERSION:
+            raise ValueError(f"parameter 'state_path': {str(self.path)!r} is not a version-"
+                             f"{self.VERSION} twin checkpoint")
+        for k, v in self.key.items():
+            if data["key"].get(k) != v:
+                raise ValueError(f"parameter 'state_path': {str(self.path)!r} was written with "
+                                 f"{k}={data['key'].get(k)!r}, this node has {k}={v!r}")
+        return data["runner"], data["probe_rng"], data["applied_offsets"]
 
 
 def main(args=None) -> int:
