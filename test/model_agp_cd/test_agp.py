@@ -210,3 +210,15 @@ def test_multi_tcp_offset_model_extends_the_tls_prediction():
     assert model.train_y.keys() == {"GB_X"}
     with pytest.raises(AgpConfigError, match="base"):
         make_model("agp", {"components": ["GB_X"], "offset_models": [{**om.to_state(), "base": "XX"}]})
+
+
+def test_training_history_is_thinned_evenly_past_the_cap():
+    model = AdaptiveGaussianProcess({"components": ["GB_X"], "max_training_points": 10})
+    model.train_x = [[float(i)] for i in range(7)]
+    assert model.training_rows().tolist() == list(range(7))
+    model.train_x = [[float(i)] for i in range(95)]
+    rows = model.training_rows()
+    assert len(rows) == 10 and rows[0] == 0 and rows[-1] == 94
+    assert np.all(np.diff(rows) >= 10) and np.all(np.diff(rows) <= 11)
+    with pytest.raises(AgpConfigError, match="max_training_points"):
+        AdaptiveGaussianProcess({"max_training_points": 3})

@@ -359,6 +359,7 @@ class AgpConfig:
     n_restarts: int = 0
     min_input_scale: float = 0.05
     min_signal_std_ratio: float = 0.25       # prior std floor = ratio x max expected error (0 = off)
+    max_training_points: int = 2000           # refits past this use an even thinning of the history
     max_history_rows: int = 20000             # input history kept for the k-means grouping
     seed: int = 0
     offset_models: list[dict] = field(default_factory=list)   # OffsetModel.to_state() dicts
@@ -391,6 +392,8 @@ class AgpConfig:
             raise AgpConfigError(f"agp config: 'sigma_max_um' must be positive, got {self.sigma_max_um!r}")
         if not 0 < self.tls_ewma_alpha <= 1:
             raise AgpConfigError(f"agp config: 'tls_ewma_alpha' must be in (0, 1], got {self.tls_ewma_alpha!r}")
+        if int(self.max_training_points) < 10:
+            raise AgpConfigError(f"agp config: 'max_training_points' must be >= 10, got {self.max_training_points!r}")
         if int(self.points_per_group) < 1 or int(self.max_groups) < 1:
             raise AgpConfigError(f"agp config: 'points_per_group' and 'max_groups' must be >= 1, got "
                                  f"{self.points_per_group!r}, {self.max_groups!r}")
@@ -612,10 +615,22 @@ class AdaptiveGaussianProcess:
                 self.message = f"control measurement at t={t_s:.0f} s within {cfg.control_tolerance_um} um"
         self._cache = None
 
+    def training_rows(self) -> np.ndarray:
+        """Indices of the history a refit uses: all of it (the thesis never forgets), or, past
+        ``max_training_points``, an even thinning over the whole history that always keeps the
+        newest point - the exact GP costs O(N^3) per refit (thesis §2.5 proposes Nystrom /
+        GPyTorch for machine-life histories; not done here)."""
+        n = len(self.train_x)
+        cap = int(self.config.max_training_points)
+        if n <= cap:
+            return np.arange(n)
+        return np.unique(np.linspace(0, n - 1, cap).round().astype(int))
+
     def _refit(self, optimize: bool) -> None:
-        x = np.asarray(self.train_x, dtype=float)
+        rows = self.training_rows()
+        x = np.asarray(self.train_x, dtype=float)[rows]
         for c in self.config.components:
-            self.gps[c].fit(x, np.asarray(self.train_y[c]), warm_start=True, optimize=optimize)
+            self.gps[c].fit(x, np.asarray(self.train_y[c])[rows], warm_start=True, optimize=optimize)
         if optimize:
             self.parameter_updates += 1
 
