@@ -688,7 +688,7 @@ class AdaptiveGaussianProcess:
                 "probing_cycles": self.probing_cycles, "failed_probing_cycles": self.failed_probing_cycles,
                 "parameter_updates": self.parameter_updates, "recalibration_times": self.recalibration_times,
                 "control_measurements": self.control_measurements, "n_min": self.n_min,
-                "n_groups": self.n_groups, "message": self.message,
+                "n_groups": self.n_groups, "message": self.message, "pending_reason": self.pending_reason,
                 "gps": {c: gp.to_state() for c, gp in self.gps.items()}}
 
     @classmethod
@@ -700,7 +700,7 @@ class AdaptiveGaussianProcess:
             for key in ("phase", "input_names", "held", "excluded", "current_temperatures", "history",
                         "train_x", "train_y", "last_total", "t_start", "t_last_probe", "probing_cycles",
                         "failed_probing_cycles", "parameter_updates", "recalibration_times",
-                        "control_measurements", "n_min", "n_groups", "message"):
+                        "control_measurements", "n_min", "n_groups", "message", "pending_reason"):
                 setattr(model, key, state[key])
             model.current_x = None if state["current_x"] is None else np.asarray(state["current_x"], dtype=float)
             model.gps = {c: ArdGaussianProcess.from_state(s) for c, s in state["gps"].items()}
