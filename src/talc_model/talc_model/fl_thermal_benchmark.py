@@ -32,8 +32,6 @@ channel on the test and validation rows.
 from __future__ import annotations
 
 import argparse
-import math
-import os
 import pathlib
 import time
 from dataclasses import dataclass
@@ -43,12 +41,8 @@ import numpy as np
 
 from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA_GRID, LaggedTemperatureModel,
                                                  default_tau_grid, walk_forward_select)
-
-CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
-SENSORS = tuple(f"t{i}" for i in range(1, 17))
-SPINDLE_COLUMN = "spindle_rpm"
-TRAIN_FRACTION = 0.6
-TEST_FRACTION = 0.2
+from talc_model.fl_thermal_adaptive import adaptive_configs, run_adaptive, select_talc_inputs
+from talc_model.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, load_fl_thermal, mae
 
 #: MAE (um) on the test rows, from the authors' README (shared/data/fl_thermal/README.md).
 PUBLISHED_MAE_UM: dict[str, dict[str, float]] = {
@@ -62,96 +56,6 @@ BEST_PUBLISHED = "S2S2"
 #: Spindle-speed low-pass time constants of the spindle variant (s): the same physical range
 #: as the temperature lags (bearings ... structure); fixed, not tuned.
 SPINDLE_TAUS_S = CANDIDATE_TAUS_S
-#: One probing every 2 h after calibration (issue 10); 95 s per probing for Q_prod.
-PROBE_INTERVAL_S = 7200.0
-PROBE_DURATION_S = 95.0
-
-
-class FlThermalError(ValueError):
-    """Bad benchmark input; the message names the file, column or option and its value."""
-
-
-def default_csv_path() -> pathlib.Path:
-    """``$THERMAL_COMP_SHARED/data/fl_thermal/fl_thermal.csv``, else ``shared/`` beside the repository."""
-    env = os.environ.get("THERMAL_COMP_SHARED")
-    shared = pathlib.Path(env) if env else pathlib.Path(__file__).resolve().parents[3].parent / "shared"
-    return shared / "data" / "fl_thermal" / "fl_thermal.csv"
-
-
-@dataclass
-class FlThermalData:
-    """The recording as the benchmark uses it (displacements relative to the first row)."""
-
-    recording: Any                      # thermal_twin.recording_csv.Recording (for the replay)
-    time_s: np.ndarray
-    temperatures: np.ndarray            # N x 16, degC, columns SENSORS
-    spindle_rpm: np.ndarray
-    displacement_um: dict[str, np.ndarray]
-
-    def __len__(self) -> int:
-        return int(self.time_s.size)
-
-
-def load_fl_thermal(path: str | pathlib.Path | None = None, rows: int | None = None,
-                    every: int = 1) -> FlThermalData:
-    """Read the FL_THERMAL CSV; optionally its first ``rows`` rows, every ``every``-th row."""
-    from thermal_twin.recording_csv import read_recording_csv
-    path = pathlib.Path(path) if path is not None else default_csv_path()
-    if not isinstance(every, int) or every < 1:
-        raise FlThermalError(f"every: {every!r} must be an integer >= 1")
-    if rows is not None and (not isinstance(rows, int) or rows < 50):
-        raise FlThermalError(f"rows: {rows!r} must be an integer >= 50")
-    rec = read_recording_csv(path)
-    needed = [SPINDLE_COLUMN] + [f"{c}_um" for c in CHANNELS] + [f"{s}_c" for s in SENSORS]
-    missing = [c for c in needed if c not in rec.columns]
-    if missing:
-        raise FlThermalError(f"{path}: column(s) {missing} missing (have {sorted(rec.columns)})")
-    for c in needed:
-        bad = np.flatnonzero(~np.isfinite(rec.columns[c]))
-        if bad.size:
-            raise FlThermalError(f"{path}: column '{c}': row {int(bad[0])} is {rec.columns[c][bad[0]]!r} "
-                                 f"({bad.size} non-finite values); the benchmark needs complete rows")
-    stop = len(rec) if rows is None else min(rows, len(rec))
-    idx = np.arange(0, stop, every)
-    sub = type(rec)(rec.time_s[idx].copy(), {k: v[idx].copy() for k, v in rec.columns.items() if k in needed},
-                    source=rec.source, warnings=list(rec.warnings))
-    if len(sub) < 50:
-        raise FlThermalError(f"rows/every: only {len(sub)} rows left, need >= 50")
-    disp = {c: sub.columns[f"{c}_um"] - sub.columns[f"{c}_um"][0] for c in CHANNELS}
-    temps = np.column_stack([sub.columns[f"{s}_c"] for s in SENSORS])
-    return FlThermalData(sub, sub.time_s, temps, sub.columns[SPINDLE_COLUMN].copy(), disp)
-
-
-@dataclass(frozen=True)
-class Splits:
-    """Chronological row ranges: train [0, n_train), test [n_train, test_end), validation [test_end, n)."""
-
-    n_train: int
-    test_end: int
-    n: int
-
-    @classmethod
-    def authors(cls, n: int) -> "Splits":
-        """60 / 20 / 20 % as the authors cut it (11115 rows: 6669 / 8892)."""
-        n_train = int(TRAIN_FRACTION * n)
-        test_end = int((TRAIN_FRACTION + TEST_FRACTION) * n)
-        if not 0 < n_train < test_end < n:
-            raise FlThermalError(f"rows: {n} rows cannot be split 60/20/20")
-        return cls(n_train, test_end, n)
-
-    @property
-    def test(self) -> slice:
-        return slice(self.n_train, self.test_end)
-
-    @property
-    def validation(self) -> slice:
-        return slice(self.test_end, self.n)
-
-
-def mae(true: np.ndarray, pred: np.ndarray) -> float:
-    """Mean absolute error over samples where both are finite."""
-    ok = np.isfinite(true) & np.isfinite(pred)
-    return float(np.mean(np.abs(true[ok] - pred[ok]))) if ok.any() else math.nan
 
 
 # ----------------------------------------------------------------------------- open loop
@@ -212,62 +116,6 @@ def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_g
     return figures, predictions
 
 
-# ----------------------------------------------------------------------------- adaptive
-
-def adaptive_configs(data: FlThermalData, splits: Splits) -> dict[str, tuple[str, dict]]:
-    """name -> (kind, config) of the adaptive models, fixed before any replay.
-
-    The AGP's expected maximum error (it sets sigma_max = 10 % of it) is the largest |displacement|
-    of the training rows, rounded up to 10 um - the only figure taken from the data.
-    """
-    max_err = max(float(np.max(np.abs(data.displacement_um[c][:splits.n_train]))) for c in CHANNELS)
-    max_err = 10.0 * math.ceil(max_err / 10.0)
-    talc = {"component_names": list(CHANNELS), "angular_components": [], "input_names": list(SENSORS),
-            "post_cp_interval_h": PROBE_INTERVAL_S / 3600.0, "probe_duration_s": PROBE_DURATION_S}
-    agp = {"components": list(CHANNELS), "sensors": list(SENSORS), "control_interval_s": PROBE_INTERVAL_S,
-           "probe_duration_s": PROBE_DURATION_S, "max_expected_error_um": max_err}
-    return {"talc": ("talc", talc), "agp": ("agp", agp)}
-
-
-def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tuple[str, dict]] | None = None,
-                 show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
-    """Replay the recording through each adaptive model; MAE of the residual per split."""
-    from talc_model.adaptive_model import make_model
-    from talc_model.virtual_experiment import ReplayColumns, run_virtual_experiment
-    configs = configs or adaptive_configs(data, splits)
-    columns = ReplayColumns(sensors={s: f"{s}_c" for s in SENSORS}, inputs={SPINDLE_COLUMN: SPINDLE_COLUMN},
-                            errors={c: f"{c}_um" for c in CHANNELS})
-    figures: dict[str, Any] = {}
-    predictions: dict[str, dict[str, np.ndarray]] = {}
-    for name, (kind, cfg) in configs.items():
-        model = make_model(kind, cfg)
-        t0 = time.perf_counter()
-        res = run_virtual_experiment(data.recording, model, columns=columns, probed_components=list(CHANNELS),
-                                     progress=show_progress, compute_metrics=False)
-        wall = time.perf_counter() - t0
-        fig: dict[str, Any] = {}
-        predictions[name] = {}
-        for ch in CHANNELS:
-            comp = np.where(np.isfinite(res.predicted[ch]), res.predicted[ch], 0.0)
-            predictions[name][ch] = comp
-            true = data.displacement_um[ch]
-            fig[ch] = {"mae_um": round(mae(true[splits.test], comp[splits.test]), 3),
-                       "mae_validation_um": round(mae(true[splits.validation], comp[splits.validation]), 3)}
-        probes = np.asarray(res.probe_times_s)
-        fig["q_prod_pct"] = round(float(res.final_status["q_prod_pct"]), 2)
-        fig["probing_cycles"] = int(probes.size)
-        fig["probing_cycles_test_rows"] = int(np.sum((probes >= data.time_s[splits.n_train]) &
-                                                    (probes < data.time_s[splits.test_end])))
-        phases = np.asarray(res.phase)
-        after_cal = np.flatnonzero(phases != "calibration")
-        fig["calibration_end_h"] = round(float(data.time_s[after_cal[0]] / 3600.0), 2) if after_cal.size else None
-        fig["no_good_phases"] = int(res.final_status.get("no_good_phases", 0))
-        fig["parameter_updates"] = int(res.final_status.get("parameter_updates", 0))
-        fig["replay_s"] = round(wall, 1)
-        figures[name] = fig
-    return figures, predictions
-
-
 # ----------------------------------------------------------------------------- report
 
 def print_table(figures: Mapping[str, Any]) -> None:
@@ -321,6 +169,7 @@ def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[s
 
 def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = None, adaptive: bool = True,
                   tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID, adaptive_overrides: Mapping[str, dict] | None = None,
+                  talc_groups: Sequence[int] | None = None,
                   show_progress: bool = True) -> dict[str, Any]:
     """The whole protocol on ``data``; returns the figures (and writes the PNG into ``out_dir``)."""
     from threadpoolctl import threadpool_limits
@@ -336,12 +185,21 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
                                                           show_progress=show_progress)
     figures["open_loop_s"] = round(time.perf_counter() - t0, 1)
     if adaptive:
-        configs = adaptive_configs(data, splits)
-        for name, extra in (adaptive_overrides or {}).items():
-            if name not in configs:
-                raise FlThermalError(f"adaptive_overrides: {name!r} is not one of {sorted(configs)}")
+        overrides = dict(adaptive_overrides or {})
+        unknown = sorted(set(overrides) - {"talc", "agp"})
+        if unknown:
+            raise FlThermalError(f"adaptive_overrides: {unknown} are not adaptive models (talc, agp)")
+        t1 = time.perf_counter()
+        talc_inputs, talc_scores = select_talc_inputs(data, splits, overrides=overrides.get("talc"),
+                                                      show_progress=show_progress, **({} if talc_groups is None
+                                                                                       else {"candidates": talc_groups}))
+        configs = adaptive_configs(data, splits, talc_inputs)
+        for name, extra in overrides.items():
             configs[name][1].update(extra)
         figures["adaptive"], adaptive_pred = run_adaptive(data, splits, configs, show_progress=show_progress)
+        figures["adaptive"]["talc"]["inputs"] = list(talc_inputs)
+        figures["adaptive"]["talc"]["input_selection_training_mae_um"] = talc_scores
+        figures["adaptive_s"] = round(time.perf_counter() - t1, 1)
         predictions.update({f"adaptive {k}": v for k, v in adaptive_pred.items()})
     best = PUBLISHED_MAE_UM[BEST_PUBLISHED]
     figures["open_loop_beats_s2s2"] = {name: {ch: bool(per[ch]["mae_um"] < best[ch]) for ch in CHANNELS}

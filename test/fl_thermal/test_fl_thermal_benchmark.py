@@ -1,0 +1,65 @@
+"""FL_THERMAL benchmark pipeline: the authors' split, input checks, every JSON key on a shortened real slice."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from talc_model.fl_thermal_adaptive import sensor_medoids
+from talc_model.fl_thermal_benchmark import PUBLISHED_MAE_UM, run_benchmark
+from talc_model.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
+
+
+def test_authors_split_of_the_full_recording():
+    s = Splits.authors(11115)
+    assert (s.n_train, s.test_end, s.n) == (6669, 8892, 11115)      # rows 0-6668 / 6669-8891 / 8892-11114
+    assert (s.test.start, s.test.stop, s.validation.start) == (6669, 8892, 8892)
+    with pytest.raises(FlThermalError, match="rows"):
+        Splits.authors(2)
+
+
+def test_a_missing_column_is_named(tmp_path, shared_dir):
+    src = (shared_dir / "data" / "fl_thermal" / "fl_thermal.csv").read_text().splitlines()[:200]
+    header = src[0].split(",")
+    drop = header.index("t7_c")
+    lines = [",".join(c for j, c in enumerate(line.split(",")) if j != drop) for line in src]
+    bad = tmp_path / "no_t7.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(FlThermalError, match=r"t7_c"):
+        load_fl_thermal(bad)
+    with pytest.raises(FlThermalError, match="every"):
+        load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", every=0)
+
+
+def test_sensor_medoids_pick_one_sensor_per_group():
+    rng = np.random.default_rng(0)
+    t = np.linspace(0, 10, 500)
+    a, b = np.sin(t), np.cos(3 * t)
+    T = np.column_stack([a + rng.normal(0, 0.05, t.size) for _ in range(3)] +
+                        [b + rng.normal(0, 0.05, t.size) for _ in range(2)])
+    picks = sensor_medoids(T, 2, names=["a1", "a2", "a3", "b1", "b2"])
+    assert len(picks) == 2 and sum(p.startswith("a") for p in picks) == 1
+
+
+def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shared_dir):
+    data = load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
+    assert len(data) == 600 and np.all(np.diff(data.time_s) == 60.0)
+    figures = run_benchmark(data, out_dir=tmp_path, tau_grid=[(), (600.0,), (1800.0, 7200.0)],
+                            alpha_grid=[1.0, 100.0], talc_groups=(2, 3), show_progress=False)
+    figures = json.loads(json.dumps(figures, default=float))       # what the bench command saves
+    assert figures["rows"] == {"train": [0, 359], "test": [360, 479], "validation": [480, 599]}
+    for model in ("lagged_ridge", "lagged_ridge_spindle"):
+        for ch in CHANNELS:
+            f = figures["open_loop"][model][ch]
+            assert math.isfinite(f["mae_um"]) and f["mae_um"] >= 0
+            assert math.isfinite(f["mae_validation_um"]) and math.isfinite(f["walk_forward_mae_um"])
+            assert tuple(f["taus_s"]) in {(), (600.0,), (1800.0, 7200.0)} and f["alpha"] in (1.0, 100.0)
+    for model in ("talc", "agp"):
+        f = figures["adaptive"][model]
+        for ch in CHANNELS:
+            assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["mae_validation_um"])
+        assert 0.0 < f["q_prod_pct"] < 100.0 and f["probing_cycles"] > 0
+    assert set(figures["adaptive"]["talc"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
+    assert figures["published"]["S2S2"] == PUBLISHED_MAE_UM["S2S2"]
+    png = tmp_path / "fl_thermal_predictions.png"
+    assert png.is_file() and png.stat().st_size > 10_000
