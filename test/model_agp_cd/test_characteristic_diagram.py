@@ -147,3 +147,32 @@ def test_stability_index_picks_the_truly_relevant_inputs(seed):
     assert si.index((2, 5)) < si.index((0, 1))
     with pytest.raises(CharacteristicDiagramError, match="variant"):
         StabilityIndex(m, y, variant="other")
+
+
+def test_measurement_update_moves_support_points_towards_the_measured_field():
+    from talc_model.characteristic_diagram import measurement_update
+    rng = np.random.default_rng(5)
+    grid = np.array([[x, y, z] for x in (0.0, 400.0, 800.0) for y in (0.0, 325.0, 650.0)
+                     for z in (0.0, 275.0, 550.0)])                      # 27 support points
+    meas_xyz = np.array([[x, y, 50.0] for x in (100.0, 300.0, 500.0, 700.0) for y in (100.0, 300.0, 500.0)])
+    k = 40
+    temps = rng.uniform(20.0, 30.0, (k, 3))
+    dt = temps - 20.0
+    field = lambda xyz, d: (0.8 * d[:, [0]] + 0.002 * d[:, [1]] * xyz[None, :, 0]
+                            + 0.3 * d[:, [2]] * (xyz[None, :, 2] / 550.0))
+    true_support = field(grid, dt)
+    base_support = 0.8 * dt[:, [0]] * np.ones((1, 27))     # the base model misses two terms
+    measured = field(meas_xyz, dt) + rng.normal(0, 0.05, (k, 12))
+    upd = measurement_update(temps, base_support, grid, meas_xyz, measured,
+                             make_cd=lambda: CharacteristicDiagram(n_intervals=2, smoothing=1e-4))
+    assert upd.rmse_after < 0.3 * upd.rmse_before
+    # unseen temperatures: the updated support points near the measured plane approach the truth
+    t_new = rng.uniform(21.0, 29.0, (10, 3))
+    d_new = t_new - 20.0
+    low = grid[:, 2] == 0.0
+    base_new = 0.8 * d_new[:, [0]] * np.ones((1, 27))
+    err_before = rmse(base_new[:, low], field(grid, d_new)[:, low])
+    err_after = rmse((base_new + upd.predict(t_new))[:, low], field(grid, d_new)[:, low])
+    assert err_after < 0.5 * err_before
+    with pytest.raises(CharacteristicDiagramError, match="measured: shape"):
+        measurement_update(temps, base_support, grid, meas_xyz, measured[:, :5])
