@@ -63,3 +63,19 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
     assert figures["published"]["S2S2"] == PUBLISHED_MAE_UM["S2S2"]
     png = tmp_path / "fl_thermal_predictions.png"
     assert png.is_file() and png.stat().st_size > 10_000
+
+
+def test_bench_entry_point_passes_suite_options(tmp_path, shared_dir, capsys):
+    import argparse
+    from talc_model.fl_thermal_benchmark import run
+    csv = shared_dir / "data" / "fl_thermal" / "fl_thermal.csv"
+    args = argparse.Namespace(quick=True, out_dir=str(tmp_path), json=None,
+                              extra=[f"--csv={csv}", "--rows=1200", "--no-adaptive"])
+    figures = run(args)
+    assert figures["every_nth_row"] == 4                       # --quick: every 4th row
+    assert figures["rows"]["test"] == [180, 239]
+    assert "adaptive" not in figures
+    assert all(math.isfinite(figures["open_loop"]["lagged_ridge"][ch]["mae_um"]) for ch in CHANNELS)
+    assert "S2S2" in capsys.readouterr().out                   # the table beside the published numbers
+    with pytest.raises(SystemExit):
+        run(argparse.Namespace(quick=False, out_dir=None, json=None, extra=["--rows=many"]))
