@@ -161,3 +161,19 @@ def test_no_hidden_effect_answers_none(hidden, seed, confusion_outcomes):
     # every hypothesis was still fitted and scored, and none is convincing on held-out data
     assert rep["hypotheses"] and all(h["holdout_improvement_pct"] < 5.0 or h["delta_bic"] >= BIC_THRESHOLD
                                      or not h["plausible"] for h in rep["hypotheses"])
+
+
+def test_quantised_motor_sensors_are_not_mistaken_for_a_bias():
+    """The swiss-lathe preset reads its motor temperatures in 1 degC steps without noise:
+    the rounding error is a slowly varying offset. Without a concealed effect the finder
+    must still answer none, and a fitted 'bias' within half a step is implausible."""
+    from thermal_twin.mismatch_effects import sensor_bias
+    from thermal_twin.scenarios import make_timeline
+    from thermal_twin.simulate import simulate
+    spec = load_machine("swiss-lathe").to_dict()
+    assert spec["sensors"]["s1_motor"]["resolution"] == 1.0
+    rec = simulate(spec, make_timeline("swiss-lathe", "lathe-door-openings", hours=24, seed=1), seed=1).to_recording()
+    d = diagnose(spec, rec)
+    assert d.report["selected"] == "none", d.report["selected"]
+    assert "quantisation" in sensor_bias(spec, "s1_motor").implausible([0.3])
+    assert sensor_bias(spec, "s1_motor").implausible([1.2]) is None

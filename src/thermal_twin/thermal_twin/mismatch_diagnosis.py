@@ -19,7 +19,7 @@ from thermal_twin import mismatch_locate as locate
 from thermal_twin import mismatch_statistics as stats
 from thermal_twin.machine_schema import Machine, load_machine
 from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
-from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, noise_free, run_round
+from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, run_round
 from thermal_twin.mismatch_report import DiagnosisSeries
 from thermal_twin.recording_csv import Recording, column_kind, error_unit
 
@@ -99,13 +99,15 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
             f"recording {rec.source}: no channel shared with twin '{machine.name}' (twin sensors "
             f"{[machine.sensors[s].column for s in machine.sensors]}, errors {list(machine.errors)}; "
             f"recording columns {list(rec.columns)})")
-    spec_noisy = machine.to_dict()
-    spec0 = noise_free(spec_noisy)
+    # the description keeps its sensor model (noise, resolution): the evaluation is
+    # noise-free by construction, and the plausibility checks need the resolution
+    spec0 = machine.to_dict()
     n = len(rec)
     n_train = int(round(n * (1.0 - holdout_fraction)))
     t = rec.time_s
     dt = float(np.median(np.diff(t)))
-    problem = FitProblem(rec, channels, n_train)
+    resolution = {machine.sensors[sid].column: machine.sensors[sid].resolution for sid in machine.sensors}
+    problem = FitProblem(rec, channels, n_train, resolution=resolution)
     y0 = problem.outputs(spec0)
     meas = {c: np.asarray(rec.columns[c], dtype=float) for c in channels}
     units = {c: _unit(c) for c in channels}
@@ -145,7 +147,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
 
     # hypothesise and model -----------------------------------------------------------------
     drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
-    base, base_noisy, y_base = spec0, spec_noisy, y0
+    base, y_base = spec0, y0
     adopted: list[Hypothesis] = []
     all_hyps: list[Hypothesis] = []
     bar = None
@@ -162,8 +164,6 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         if best is None or not best.supported(min_improvement_pct):
             break
         adopted.append(best)
-        # the same edit on the description that keeps the sensor noise settings
-        base_noisy = best.candidate.apply(base_noisy, best.values)
         base = best.spec
         y_base = problem.outputs(base)
     if bar is not None:
@@ -210,4 +210,4 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         time_s=t, measured=meas, before={c: y0[i] for i, c in enumerate(channels)},
         after={c: y1[i] for i, c in enumerate(channels)}, holdout_start_s=float(t[n_train]),
         ccf=ccf, dt_s=dt)
-    return Diagnosis(report, copy.deepcopy(base_noisy) if adopted else None, series, all_hyps)
+    return Diagnosis(report, copy.deepcopy(base) if adopted else None, series, all_hyps)

@@ -17,7 +17,7 @@ speed_dependent_convection  ``varies_with`` on the node's ambient link,         
 coolant                     link node <-> coolant boundary switched by the coolant      G_on [W/K], T_coolant [degC]
                             input (new boundary at a fitted temperature if none)        (only if a new boundary)
 door_event                  ``varies_with`` door input on the node's ambient link        dG_open [W/K]
-sensor_bias                 ``sensors.<id>.bias``                                       bias [K]
+sensor_bias                 ``sensors.<id>.bias`` (more than half the resolution)       bias [K]
 elastic_gain                change of ``errors.<ch>.terms.<node>``                      d_gain [um/K]
 periodic_load               new source with a 24 h sinusoid (sun, hall heating)         amplitude [W], phase [s]
 none                        no edit                                                     -
@@ -317,13 +317,21 @@ def door_event(spec: dict, node: str, drv: DriverInfo) -> Candidate:
 
 def sensor_bias(spec: dict, sensor: str) -> Candidate:
     b0 = float(spec["sensors"][sensor].get("bias", 0.0))
+    res = float(spec["sensors"][sensor].get("resolution", 0.0))
     params = [ParamSpec("bias", "K", -4 * MAX_BIAS_K, 4 * MAX_BIAS_K, 0.5)]
 
     def apply(s: dict, v: np.ndarray) -> dict:
         s["sensors"][sensor]["bias"] = b0 + float(v[0])
         return s
+
+    def within_quantisation(v: np.ndarray) -> str | None:
+        if res > 0 and abs(v[0]) <= 0.5 * res:
+            return (f"bias = {v[0]:.3g} K within half the sensor's {res:g} K resolution: "
+                    "indistinguishable from quantisation")
+        return None
     return Candidate("sensor_bias", sensor, None, params, apply,
-                     _range_check("bias", 0, -MAX_BIAS_K, MAX_BIAS_K, "K"), affects=[f"{sensor}_c"])
+                     _all(_range_check("bias", 0, -MAX_BIAS_K, MAX_BIAS_K, "K"), within_quantisation),
+                     affects=[f"{sensor}_c"])
 
 
 def elastic_gain(spec: dict, channel: str, node: str) -> Candidate:

@@ -44,7 +44,8 @@ BIC_THRESHOLD = -2.0
 
 
 def noise_free(spec: dict) -> dict:
-    """A copy of a machine description with sensor noise and quantisation removed."""
+    """A copy of a machine description with sensor noise and quantisation removed (for
+    the twin's own ``simulate``; :meth:`FitProblem.outputs` is noise-free anyway)."""
     import copy
     s = copy.deepcopy(spec)
     for d in s.get("sensors", {}).values():
@@ -76,12 +77,17 @@ class FitProblem:
     n_train: int
     sigma: dict[str, float] = field(default_factory=dict)
     stride: int = 0        # fit on every stride-th training sample (0: at most ~3000 samples)
+    resolution: dict[str, float] = field(default_factory=dict)   # quantisation step per channel
 
     def __post_init__(self):
         if self.stride <= 0:
             self.stride = max(1, self.n_train // 3000)
         if not self.sigma:
-            self.sigma = {c: channel_sigma(self.recording.columns[c]) for c in self.channels}
+            # a quantised reading errs by up to half a step: at least the uniform
+            # quantisation noise res/sqrt(12), whatever the differences suggest
+            self.sigma = {c: max(channel_sigma(self.recording.columns[c]),
+                                 self.resolution.get(c, 0.0) / math.sqrt(12.0))
+                          for c in self.channels}
         meas = np.stack([np.asarray(self.recording.columns[c], dtype=float) for c in self.channels])
         self._valid = np.isfinite(meas)
         self._meas = np.where(self._valid, meas, 0.0)
