@@ -186,3 +186,282 @@ class KillPlan:
     @property
     def all_done(self) -> bool:
         return all(k.done_wall is not None for k in self.kills)
+
+
+# --------------------------------------------------------------------------------------
+@dataclass
+class LoopResult:
+    """What one closed loop of the pure cores produced (one row per instant)."""
+
+    t_s: np.ndarray
+    components: list[str]
+    true: dict[str, np.ndarray]
+    predicted: dict[str, np.ndarray]
+    status: dict[str, np.ndarray]           # sensor id -> TemperatureArray.STATUS_* per instant
+    excluded: list[list[str]]               # ModelStatus.excluded_sensor_ids per instant
+    axes: list[str]
+    applied_um: dict[str, np.ndarray]       # envelope output per axis
+    flags: dict[str, np.ndarray]            # LIMIT_* flags per axis
+    probing_cycles: int
+    failed_probing_cycles: int
+    no_good_phases: int
+    injected: int
+
+    def p99_compensated(self) -> dict[str, float]:
+        """P99 of |true - prediction in effect| (the prediction of the previous instant)."""
+        out = {}
+        for c in self.components:
+            e = self.true[c][1:]
+            p = np.nan_to_num(self.predicted[c][:-1], nan=0.0)
+            out[c] = float(np.percentile(np.abs(e - p), 99))
+        return out
+
+
+def run_core_loop(faults: Iterable[SensorFault] = (), hours: float = 48.0, seed: int = 0,
+                  step_s: float = 300.0, max_rate_um_per_s: float = 0.5, abs_limit_um: float = 30.0,
+                  probe_failures: Iterable[float] = (), probe_outliers: Mapping[float, float] | None = None,
+                  progress: bool = False) -> LoopResult:
+    """The 5-axis cell's pure cores in a loop, without ROS: twin (nmv5000, talc-178h-dry)
+    -> sensor faults -> TwinSource + TemperatureFrameBuilder (status) -> TALC (non-OK sensors
+    as NaN, as the talc_model node does) -> offsets_from_errors -> SafetyEnvelope.
+
+    Probing: when the model says so, the true errors minus the applied compensation are
+    measured; a probing instant at or after a time in ``probe_failures`` fails instead (once
+    per listed time, counted, not learned from); ``probe_outliers`` {time: um} adds that
+    much to every linear component of the first measurement at or after the time (a bad fit
+    that passed the cycle's own checks).
+    """
+    from cnc_bridge.error_transform import offsets_from_errors
+    from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
+    from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
+    from thermal_sensors.sensor_config import load_sensor_config, resolve_sensor_config
+    from thermal_sensors.temperature_frame import TemperatureFrameBuilder
+    from thermal_sensors.twin_source import TwinSource
+    from thermal_twin.machine_schema import load_machine
+    from thermal_twin.scenario_runner import ScenarioRunner
+    from thermal_twin.scenarios import make_timeline
+    import importlib.resources
+    import yaml
+
+    machine = load_machine("nmv5000")
+    runner = ScenarioRunner(machine, make_timeline(machine.name, "talc-178h-dry", hours=hours, seed=seed,
+                                                   step_s=step_s), seed=seed)
+    config = load_sensor_config(resolve_sensor_config("nmv5000"))
+    source, builder = TwinSource(config), TemperatureFrameBuilder(config)
+    talc_yaml = importlib.resources.files("talc_model") / "config" / "talc_nmv5000.yaml"
+    model = make_model("talc", yaml.safe_load(talc_yaml.read_text()))
+    envelope = SafetyEnvelope(EnvelopeConfig(abs_limit_um=abs_limit_um, max_rate_um_per_s=max_rate_um_per_s,
+                                             max_step_s=600.0))
+    inj = FaultInjector(faults)
+    fail_at = sorted(float(x) for x in probe_failures)
+    outliers = dict(sorted((float(k), float(v)) for k, v in (probe_outliers or {}).items()))
+    comps = list(model.component_names)
+    rows_t, excluded_rows = [], []
+    true = {c: [] for c in comps}
+    pred = {c: [] for c in comps}
+    status = {s: [] for s in config.sensor_ids}
+    applied: dict[str, list[float]] = {}
+    flags: dict[str, list[int]] = {}
+    last_pred = {c: 0.0 for c in comps}
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(runner.timeline), unit="step", desc="core loop", leave=False)
+    while True:
+        t = runner.t_s
+        raw = inj.apply(t, runner.sensor_readings())
+        source.accept(t, list(raw), list(raw.values()))
+        frame = builder.build(source.sample(t))
+        temps, excl = {}, []
+        for sid, v, st in zip(frame.sensor_ids, frame.temperatures_degc, frame.status):
+            status[sid].append(int(st))
+            ok = int(st) == 0 and math.isfinite(v)
+            temps[sid] = float(v) if ok else math.nan
+            if not ok:
+                excl.append(sid)
+        model.update_inputs(t, temps, {})
+        values, _ = model.predict(t)
+        errors_now = {k[:-3] if k.endswith("_um") else k: v for k, v in runner.errors().items()}
+        if model.probe_due(t):
+            if fail_at and t >= fail_at[0]:
+                fail_at.pop(0)
+                model.add_failed_measurement(t, "injected: cycle failed")
+            else:
+                measured = {c: errors_now[c] - last_pred.get(c, 0.0) for c in comps}
+                if outliers and t >= next(iter(outliers)):
+                    bad = outliers.pop(next(iter(outliers)))
+                    measured = {c: v + (0.0 if c in ANGULAR_COMPONENTS else bad) for c, v in measured.items()}
+                model.add_measurement(t, measured, dict(last_pred))
+            values, _ = model.predict(t)
+        excluded_rows.append(sorted(set(model.status(t).excluded_sensor_ids) | set(excl)))
+        rows_t.append(t)
+        for c in comps:
+            true[c].append(errors_now[c])
+            pred[c].append(values.get(c, math.nan))
+        finite = {c: v for c, v in values.items() if math.isfinite(v)}
+        last_pred = {c: finite.get(c, 0.0) for c in comps}
+        commanded = offsets_from_errors(finite, {"X": 0.0, "Y": 0.0, "Z": 0.0, "B": 0.0}) if finite else None
+        for d in envelope.step(t, commanded, fresh=commanded is not None):
+            envelope.confirm(d.axis, d.applied_um)
+            applied.setdefault(d.axis, [math.nan] * (len(rows_t) - 1)).append(d.applied_um)
+            flags.setdefault(d.axis, [0] * (len(rows_t) - 1)).append(d.flags)
+        if bar is not None:
+            bar.update(1)
+        if runner.done:
+            break
+        runner.step()
+    if bar is not None:
+        bar.close()
+    st = model.status(rows_t[-1])
+    return LoopResult(np.asarray(rows_t), comps, {c: np.asarray(v) for c, v in true.items()},
+                      {c: np.asarray(v) for c, v in pred.items()}, {s: np.asarray(v) for s, v in status.items()},
+                      excluded_rows, sorted(applied), {a: np.asarray(v) for a, v in applied.items()},
+                      {a: np.asarray(v) for a, v in flags.items()}, st.probing_cycles,
+                      st.failed_probing_cycles, st.no_good_phases, inj.injected)
+
+
+# --------------------------------------------------------------------------------------
+@dataclass
+class LinkFaultResult:
+    """One CNC-link fault: what the envelope and the CNC did around it."""
+
+    fault: str
+    survived: bool                 # writes confirmed again after the fault, offsets where commanded
+    writes_failed: int             # writes flagged LIMIT_WRITE_FAILED during the fault
+    violations: list[OffsetViolation]
+    detail: str = ""
+
+
+def written_offsets_um(write_log: Sequence[tuple[str, float]], axis: str, scale_um_per_unit: float = 1000.0
+                       ) -> list[float]:
+    """The offsets (um) written to ``axis``'s SD43900 node, in order, from an emulator write log."""
+    suffix = f"TempComp.{axis}.SD43900"
+    return [float(v) * scale_um_per_unit for nid, v in write_log if nid.endswith(suffix)]
+
+
+def step_violations(values_um: Sequence[float], max_step_um: float, abs_limit_um: float, axis: str,
+                    start_um: float = 0.0, tolerance_um: float = 1e-6) -> list[OffsetViolation]:
+    """Consecutive values written to a CNC that differ by more than ``max_step_um`` (one
+    envelope step's allowance) or exceed ``abs_limit_um``; index = write number."""
+    out, prev = [], float(start_um)
+    for i, v in enumerate(values_um):
+        if abs(v) > abs_limit_um + tolerance_um:
+            out.append(OffsetViolation(axis, float(i), prev, float(v), abs_limit_um, "absolute limit"))
+        if abs(v - prev) > max_step_um + tolerance_um:
+            out.append(OffsetViolation(axis, float(i), prev, float(v), max_step_um, "rate limit"))
+        prev = float(v)
+    return out
+
+
+def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: int = 4,
+                   steps_after: int = 12, target_um: float = 8.0, max_rate_um_per_s: float = 0.1,
+                   dt_s: float = 10.0) -> LinkFaultResult:
+    """Drive SafetyEnvelope + OpcUaBackend against the CNC emulator (own thread) and inject
+    ``fault`` between ``steps_before`` and ``steps_before + steps_during`` envelope steps:
+
+    - ``server_restart``: the OPC UA server stops and starts again with its state;
+    - ``server_reset``: the server restarts with its compensation reset to zero (a CNC reboot);
+    - ``stalled``: the server is gone for the whole fault window (connection stalls), then back;
+    - ``wrong_credentials``: the server requires a user the bridge does not log in as;
+    - ``rejected_write``: the CNC refuses writes of X's offset node (made read-only on the
+      server: BadNotWritable) for the fault window;
+    - ``bridge_restart``: a new backend and envelope (a restarted bridge process) take over
+      while the CNC holds an offset.
+
+    The envelope's command ramps to ``target_um`` on axis X (and Y). Unsafe = any value
+    written to the CNC that moves by more than ``max_rate * dt`` from the previous write.
+    """
+    import time
+    from cnc_bridge.cnc_emulator import CncEmulatorThread, EmulatorConfig
+    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map
+    from cnc_bridge.safety_envelope import LIMIT_WRITE_FAILED, EnvelopeConfig, SafetyEnvelope
+
+    endpoint = f"opc.tcp://127.0.0.1:{port}/thermal-comp/cnc"
+    emu_cfg = EmulatorConfig(port=port, compensation_axes=("X", "Y"),
+                             **({"user": "cnc", "password": "s3cret"} if fault == "wrong_credentials" else {}))
+    axes = ("X", "Y")
+    node_map = dict(default_node_map(axes))
+    env_cfg = EnvelopeConfig(abs_limit_um=30.0, max_rate_um_per_s=max_rate_um_per_s, max_step_s=dt_s,
+                             watchdog_timeout_s=1e6)
+
+    def make_backend(**kw):
+        return OpcUaBackend(OpcUaConfig(endpoint=endpoint, node_map=node_map, timeout_s=1.0,
+                                        check_period_s=0.2, reconnect_min_s=0.1, reconnect_max_s=0.5, **kw))
+
+    emu = CncEmulatorThread(emu_cfg).start()
+    backend = None
+    failed = 0
+    try:
+        creds = {"user": "cnc", "password": "wrong"} if fault == "wrong_credentials" else {}
+        backend = make_backend(**creds)
+        backend.wait_connected(10.0)
+        env = SafetyEnvelope(env_cfg)
+        t = 0.0
+
+        def step(during: bool) -> None:
+            nonlocal t, failed
+            t += dt_s
+            decisions = env.step(t, {a: target_um for a in axes}, fresh=True)
+            back = backend.write_offsets({d.axis: d.applied_um for d in decisions})
+            for d in decisions:
+                env.confirm(d.axis, back.get(d.axis))
+                if back.get(d.axis) is None and during:
+                    failed += 1
+
+        for _ in range(steps_before):
+            step(False)
+        if fault in ("server_restart", "server_reset"):
+            emu.restart(keep_state=fault == "server_restart")
+        elif fault == "stalled":
+            emu.stop()
+        elif fault == "rejected_write":
+            _set_writable(emu, node_map["X"].offset, False)
+        elif fault == "bridge_restart":
+            backend.close()
+            backend = make_backend()
+            backend.wait_connected(10.0)
+            env = SafetyEnvelope(env_cfg)
+        for _ in range(steps_during):
+            step(True)
+        if fault == "stalled":
+            emu.start(emu.emulator.state)
+        elif fault == "rejected_write":
+            _set_writable(emu, node_map["X"].offset, True)
+        if fault in ("server_restart", "server_reset", "stalled", "rejected_write"):
+            backend.wait_connected(10.0)
+        for _ in range(steps_after):
+            step(False)
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline and fault != "wrong_credentials":
+            if backend.connected:
+                break
+            time.sleep(0.05)
+        applied = emu.applied_um()
+        violations = []
+        for a in axes:
+            violations += step_violations(written_offsets_um(emu.write_log, a), max_rate_um_per_s * dt_s,
+                                          env_cfg.abs_limit_um, a)
+        if fault == "wrong_credentials":
+            survived = not backend.connected and all(abs(v) < 1e-9 for v in applied.values())
+            detail = f"refused: {backend.last_error}"
+        else:
+            survived = backend.connected and all(abs(applied[a] - env.applied[a]) < 1e-6 for a in axes)
+            detail = f"CNC holds {', '.join(f'{a}={applied[a]:.3f}' for a in axes)} um"
+        if fault != "wrong_credentials" and failed == 0 and fault != "bridge_restart":
+            survived = False
+            detail += "; the fault was not seen (no write failed during it)"
+        return LinkFaultResult(fault, bool(survived), failed, violations, detail)
+    finally:
+        if backend is not None:
+            backend.close()
+        emu.close()
+
+
+def _set_writable(emu, node_id: str, writable: bool) -> None:
+    """Fault injection on the emulator's own server: make ``node_id`` (not) writable."""
+    from asyncua import ua
+
+    async def change():
+        node = emu.emulator._server.get_node(ua.NodeId.from_string(node_id))
+        await node.set_writable(writable)
+    emu._run(change())
