@@ -35,7 +35,7 @@ from talc_model.fl_thermal_data import CHANNELS, SENSORS, SPINDLE_COLUMN, FlTher
 PROBE_INTERVAL_S = 7200.0
 PROBE_DURATION_S = 95.0
 #: Numbers of sensor groups tried for TALC's inputs (one medoid sensor per group).
-TALC_GROUP_CANDIDATES = (2, 3, 4, 6, 8)
+TALC_GROUP_CANDIDATES = (2, 3, 4, 6, 8, 10, 12)
 
 
 def sensor_medoids(temperatures: np.ndarray, n_groups: int, names: Sequence[str] = SENSORS,

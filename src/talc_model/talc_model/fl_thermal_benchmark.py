@@ -15,12 +15,13 @@ validation (last 20 %, rows 8892-11114). Displacements are taken relative to the
   displacement after training). ``lagged_ridge`` uses the 16 temperatures only,
   ``lagged_ridge_spindle`` adds the spindle speed and its low-pass copies (reported
   separately, as the issue asks).
-- **Adaptive** (:func:`talc_model.virtual_experiment.run_virtual_experiment`): TALC and AGP
-  replay the whole recording from row 0 and see only what their own probing schedule asks
-  for: one simulated probing of the five channels every 2 h after their calibration phase
-  (TALC ``post_cp_interval_h = 2``; AGP ``control_interval_s = 7200``), plus the extra
-  probes of TALC's no-good phases and of AGP's recalibrations. Q_prod counts 95 s per probing.
-  MAE is the mean |true - compensation| on the test rows (and on the validation rows).
+- **Adaptive** (:mod:`talc_model.fl_thermal_adaptive`): TALC and AGP replay the whole
+  recording from row 0 and see only what their own probing schedule asks for: one simulated
+  probing of the five channels every 2 h after their calibration phase (TALC
+  ``post_cp_interval_h = 2``; AGP ``control_interval_s = 7200``), plus the extra probes of
+  TALC's no-good phases and of AGP's recalibrations. Q_prod counts 95 s per probing. TALC's
+  inputs are chosen on the training rows only. MAE is the mean |true - compensation| on the
+  test rows (and on the validation rows).
 
 Figures: ``open_loop.<model>.<ch>.mae_um`` (test rows), ``...mae_validation_um``,
 ``...walk_forward_mae_um`` (the selection score) and the chosen hyper-parameters;
