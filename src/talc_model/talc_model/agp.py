@@ -83,16 +83,23 @@ class ArdGaussianProcess:
     states may carry an error of that size; without it a calibration that saw little error
     variation yields a prior std below sigma_max, and an unseen state could never trigger a
     recalibration (observed on the twin's lathe-random-speed, whose first hours are calm).
+
+    ``max_optimize_points`` (0 = off): above this many points the hyperparameters are optimised
+    on an even thinning of the data and the posterior is then computed on all of it - the
+    gradient of scikit-learn's likelihood costs O(N^2 x hyperparameters) memory and O(N^3) time
+    per evaluation, and the optimum hardly moves with N.
     """
 
     def __init__(self, *, length_scale_bounds: tuple[float, float] = (1e-2, 1e2),
                  noise_bounds: tuple[float, float] = (1e-6, 1.0), n_restarts: int = 0,
-                 min_input_scale: float = 0.05, min_signal_std: float = 0.0, seed: int = 0):
+                 min_input_scale: float = 0.05, min_signal_std: float = 0.0,
+                 max_optimize_points: int = 0, seed: int = 0):
         self.length_scale_bounds = tuple(float(v) for v in length_scale_bounds)
         self.noise_bounds = tuple(float(v) for v in noise_bounds)
         self.n_restarts = int(n_restarts)
         self.min_input_scale = float(min_input_scale)
         self.min_signal_std = float(min_signal_std)
+        self.max_optimize_points = int(max_optimize_points)
         self.seed = int(seed)
         self.gpr: GaussianProcessRegressor | None = None
         self.x_mean: np.ndarray | None = None
@@ -132,13 +139,22 @@ class ArdGaussianProcess:
             theta = previous.theta.copy()
             b = kernel.bounds
             kernel.theta = np.clip(theta, b[:, 0], b[:, 1])
-        gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=False,
-                                       optimizer="fmin_l_bfgs_b" if optimize else None,
-                                       n_restarts_optimizer=self.n_restarts if optimize else 0,
-                                       random_state=self.seed)
+        xs, ys = self._scale(x), (y - self.y_mean) / self.y_scale
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", ConvergenceWarning)
-            gpr.fit(self._scale(x), (y - self.y_mean) / self.y_scale)
+            if optimize and self.max_optimize_points and x.shape[0] > self.max_optimize_points:
+                # hyperparameters from an even thinning of the history (the likelihood surface
+                # is flat in N: its optimum moves little), then the exact posterior on all points
+                sub = np.unique(np.linspace(0, x.shape[0] - 1, self.max_optimize_points).round().astype(int))
+                opt = GaussianProcessRegressor(kernel=kernel, normalize_y=False, optimizer="fmin_l_bfgs_b",
+                                               n_restarts_optimizer=self.n_restarts, random_state=self.seed)
+                opt.fit(xs[sub], ys[sub])
+                kernel, optimize = opt.kernel_, False
+            gpr = GaussianProcessRegressor(kernel=kernel, normalize_y=False,
+                                           optimizer="fmin_l_bfgs_b" if optimize else None,
+                                           n_restarts_optimizer=self.n_restarts if optimize else 0,
+                                           random_state=self.seed)
+            gpr.fit(xs, ys)
         self.optimizer_warnings += sum(issubclass(w.category, ConvergenceWarning) for w in caught)
         self.gpr = gpr
         return self
@@ -181,7 +197,8 @@ class ArdGaussianProcess:
     def to_state(self) -> dict:
         base = {"length_scale_bounds": list(self.length_scale_bounds), "noise_bounds": list(self.noise_bounds),
                 "n_restarts": self.n_restarts, "min_input_scale": self.min_input_scale,
-                "min_signal_std": self.min_signal_std, "seed": self.seed}
+                "min_signal_std": self.min_signal_std, "max_optimize_points": self.max_optimize_points,
+                "seed": self.seed}
         if self.gpr is None:
             return {"fitted": False, **base}
         x_train = self.gpr.X_train_ * self.x_scale + self.x_mean
@@ -197,7 +214,8 @@ class ArdGaussianProcess:
             gp = cls(length_scale_bounds=tuple(state["length_scale_bounds"]),
                      noise_bounds=tuple(state["noise_bounds"]), n_restarts=int(state["n_restarts"]),
                      min_input_scale=float(state["min_input_scale"]),
-                     min_signal_std=float(state["min_signal_std"]), seed=int(state["seed"]))
+                     min_signal_std=float(state["min_signal_std"]),
+                     max_optimize_points=int(state.get("max_optimize_points", 0)), seed=int(state["seed"]))
             if not state.get("fitted", False):
                 return gp
             x = np.asarray(state["x_train"], dtype=float)
@@ -360,6 +378,7 @@ class AgpConfig:
     min_input_scale: float = 0.05
     min_signal_std_ratio: float = 0.25       # prior std floor = ratio x max expected error (0 = off)
     max_training_points: int = 2000           # refits past this use an even thinning of the history
+    max_optimize_points: int = 600            # hyperparameters from at most this many points (0 = all)
     max_history_rows: int = 20000             # input history kept for the k-means grouping
     seed: int = 0
     offset_models: list[dict] = field(default_factory=list)   # OffsetModel.to_state() dicts
@@ -392,6 +411,8 @@ class AgpConfig:
             raise AgpConfigError(f"agp config: 'sigma_max_um' must be positive, got {self.sigma_max_um!r}")
         if not 0 < self.tls_ewma_alpha <= 1:
             raise AgpConfigError(f"agp config: 'tls_ewma_alpha' must be in (0, 1], got {self.tls_ewma_alpha!r}")
+        if int(self.max_optimize_points) < 0:
+            raise AgpConfigError(f"agp config: 'max_optimize_points' must be >= 0, got {self.max_optimize_points!r}")
         if int(self.max_training_points) < 10:
             raise AgpConfigError(f"agp config: 'max_training_points' must be >= 10, got {self.max_training_points!r}")
         if int(self.points_per_group) < 1 or int(self.max_groups) < 1:
@@ -453,7 +474,8 @@ class AdaptiveGaussianProcess:
         return ArdGaussianProcess(length_scale_bounds=tuple(c.length_scale_bounds),
                                   noise_bounds=tuple(c.noise_bounds), n_restarts=c.n_restarts,
                                   min_input_scale=c.min_input_scale,
-                                  min_signal_std=c.min_signal_std_ratio * c.max_expected_error_um, seed=c.seed)
+                                  min_signal_std=c.min_signal_std_ratio * c.max_expected_error_um,
+                                  max_optimize_points=c.max_optimize_points, seed=c.seed)
 
     # ------------------------------------------------------------------ inputs
     def update_inputs(self, t_s: float, temperatures: Mapping[str, float],
