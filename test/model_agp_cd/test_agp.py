@@ -222,3 +222,17 @@ def test_training_history_is_thinned_evenly_past_the_cap():
     assert np.all(np.diff(rows) >= 10) and np.all(np.diff(rows) <= 11)
     with pytest.raises(AgpConfigError, match="max_training_points"):
         AdaptiveGaussianProcess({"max_training_points": 3})
+
+
+def test_hyperparameters_from_a_thinned_subset_keep_the_posterior_on_all_points():
+    rng = np.random.default_rng(9)
+    x = rng.uniform(0.0, 5.0, (240, 2))
+    y = 3.0 * np.sin(x[:, 0]) + 0.5 * x[:, 1] + rng.normal(0, 0.05, 240)
+    full = ArdGaussianProcess().fit(x, y)
+    thin = ArdGaussianProcess(max_optimize_points=80).fit(x, y)
+    assert thin.gpr.X_train_.shape[0] == 240                  # the posterior uses every point
+    xt = rng.uniform(0.5, 4.5, (50, 2))
+    truth = 3.0 * np.sin(xt[:, 0]) + 0.5 * xt[:, 1]
+    assert np.max(np.abs(thin.predict(xt)[0] - truth)) < 0.2
+    assert np.max(np.abs(thin.predict(xt)[0] - full.predict(xt)[0])) < 0.1
+    assert thin.log_marginal_likelihood <= full.log_marginal_likelihood + 1e-6
