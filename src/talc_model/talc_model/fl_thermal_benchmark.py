@@ -42,7 +42,9 @@ import numpy as np
 
 from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA_GRID, LaggedTemperatureModel,
                                                  default_tau_grid, walk_forward_select)
-from talc_model.fl_thermal_adaptive import adaptive_configs, run_adaptive, select_talc_inputs
+from talc_model.fl_thermal_adaptive import adaptive_configs, run_adaptive, select_talc_inputs, sensor_medoids
+from talc_model.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
+from talc_model.fl_thermal_arx import arx_open_loop_channel
 from talc_model.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, load_fl_thermal, mae
 
 #: MAE (um) on the test rows, from the authors' README (shared/data/fl_thermal/README.md).
@@ -91,7 +93,7 @@ OPEN_LOOP_MODELS = {"lagged_ridge": False, "lagged_ridge_spindle": True}   # nam
 
 
 def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID,
-                  n_folds: int = 4, show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
+                  n_folds: int = 4, arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES, show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
     """Figures and predictions of every open-loop model."""
     from tqdm import tqdm
     grid = list(tau_grid or default_tau_grid())
@@ -114,6 +116,17 @@ def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_g
                     "walk_forward_mae_um": round(r.walk_forward_mae_um, 3),
                     "walk_forward_fold_mae_um": [round(v, 3) for v in r.fold_mae_um],
                     "taus_s": list(r.taus_s), "alpha": r.alpha}
+    figures["arx_simulation"], predictions["arx_simulation"] = {}, {}
+    input_sets = {k: sensor_medoids(data.temperatures[:splits.n_train], int(k)) for k in arx_groups}
+    for ch in tqdm(CHANNELS, desc="open loop: ARX", disable=not show_progress, leave=False):
+        r = arx_open_loop_channel(data, splits, ch, input_sets=input_sets)
+        y = data.displacement_um[ch]
+        predictions["arx_simulation"][ch] = r.prediction
+        figures["arx_simulation"][ch] = {
+            "mae_um": round(mae(y[splits.test], r.prediction[splits.test]), 3),
+            "mae_validation_um": round(mae(y[splits.validation], r.prediction[splits.validation]), 3),
+            "training_validation_rms_um": r.validation_rms_um, "inputs": r.inputs, "na": r.na, "nb": r.nb,
+            "input_set_training_validation_rms_um": r.candidates}
     return figures, predictions
 
 
@@ -170,7 +183,7 @@ def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[s
 
 def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = None, adaptive: bool = True,
                   tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID, adaptive_overrides: Mapping[str, dict] | None = None,
-                  talc_groups: Sequence[int] | None = None,
+                  talc_groups: Sequence[int] | None = None, arx_groups: Sequence[int] | None = None,
                   show_progress: bool = True) -> dict[str, Any]:
     """The whole protocol on ``data``; returns the figures (and writes the PNG into ``out_dir``)."""
     from threadpoolctl import threadpool_limits
@@ -183,6 +196,7 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
     }
     with threadpool_limits(1):   # small dense problems: BLAS threads only contend on a shared machine
         figures["open_loop"], predictions = run_open_loop(data, splits, tau_grid=tau_grid, alpha_grid=alpha_grid,
+                                                          arx_groups=arx_groups or ARX_GROUP_CANDIDATES,
                                                           show_progress=show_progress)
     figures["open_loop_s"] = round(time.perf_counter() - t0, 1)
     if adaptive:
