@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import sys
 import tempfile
 import threading
 import time
@@ -84,6 +85,7 @@ class BagPlayerNode(Node):
             rt.Param("ack_timeout_s", 30.0, "wall seconds to wait for acknowledgements of one instant",
                      lo=0.01, hi=3600.0),
             rt.Param("shutdown_when_done", True, "stop the node after the last message"),
+            rt.Param("progress", False, "show a progress bar in bag time on stderr"),
         ])
         if not p["bag"]:
             raise ValueError("parameter 'bag': a bag path is required")
@@ -174,6 +176,11 @@ class BagPlayerNode(Node):
             wall0 = time.monotonic()
             fast = self.p["as_fast_as_possible"]
             rate = self.p["rate"]
+            bar = None
+            if self.p["progress"] and msgs:
+                from tqdm import tqdm
+                bar = tqdm(total=round((msgs[-1].log_time_ns - start) / 3.6e12, 3), unit="sim h",
+                           desc="play", leave=False, file=sys.stderr)
             for t_ns, group in instants(msgs):
                 if self._stop.is_set():
                     break
@@ -196,8 +203,13 @@ class BagPlayerNode(Node):
                     r.published += 1
                 r.instants += 1
                 r.last_time_ns = t_ns
+                if bar is not None:
+                    bar.n = round((t_ns - start) / 3.6e12, 3)
+                    bar.refresh()
                 if fast:
                     self._wait_acked(t_ns, dict.fromkeys(used))
+            if bar is not None:
+                bar.close()
         except Exception as exc:  # report, never crash the process
             r.error = f"{exc.__class__.__name__}: {exc}"
             self.get_logger().error(f"playback stopped: {r.error}")

@@ -50,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
            "-p", f"clock_hz:={float(args.clock_hz)}", "-p", f"topics:={_list(args.topics)}",
            "-p", f"wait_for_subscribers:={int(args.wait_for_subscribers)}",
            "-p", f"match_timeout_s:={float(args.match_timeout)}",
-           "-p", f"lockstep_participants:={_list(args.lockstep)}"] + list(args.ros_args)
+           "-p", f"lockstep_participants:={_list(args.lockstep)}",
+           "-p", f"progress:={'true' if sys.stderr.isatty() else 'false'}"] + list(args.ros_args)
     return bag_player_node.main(ros)
 
 
