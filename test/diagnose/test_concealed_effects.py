@@ -177,3 +177,25 @@ def test_quantised_motor_sensors_are_not_mistaken_for_a_bias():
     assert d.report["selected"] == "none", d.report["selected"]
     assert "quantisation" in sensor_bias(spec, "s1_motor").implausible([0.3])
     assert sensor_bias(spec, "s1_motor").implausible([1.2]) is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("preset,scenario,hidden", [
+    ("swiss-lathe", "lathe-door-openings", H("door_event", "holder_plate", "door_open", (15.0,))),
+    ("swiss-lathe", "lathe-random-speed", H("heat_source", "guide_bush", "s1_rpm", (30.0, 1.2))),
+    ("nmv5000", "talc-144h-mwf", H("elastic_gain", "E_Y0C/table", None, (2.0,))),
+], ids=lambda v: v.key if isinstance(v, HiddenEffect) else str(v))
+def test_concealed_effect_in_the_presets(preset, scenario, hidden, confusion_outcomes):
+    """The same proof on the shipped presets and their own scenarios (36 h, seed 3)."""
+    from thermal_twin.mismatch_concealed import find_candidate
+    from thermal_twin.scenarios import make_timeline
+    from thermal_twin.simulate import simulate
+    spec = load_machine(preset).to_dict()
+    tl = make_timeline(preset, scenario, hours=36, seed=3)
+    true = find_candidate(spec, tl, hidden.key).apply(spec, hidden.values)
+    rec = simulate(true, tl, seed=3).to_recording()
+    rep = diagnose(spec, rec).report
+    sel = rep["selected"]
+    confusion_outcomes.append((hidden.effect, "none" if sel == "none" else sel[0]["effect"]))
+    assert sel != "none" and _target_key(sel[0]) == _target_key(hidden), sel
+    _check_params(sel[0], hidden)
