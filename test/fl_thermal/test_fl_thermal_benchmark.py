@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from talc_model.fl_thermal_adaptive import sensor_medoids
+from talc_model.fl_thermal_arx import arx_open_loop_channel
+from talc_model.fl_thermal_benchmark import open_loop_channel
 from talc_model.fl_thermal_benchmark import PUBLISHED_MAE_UM, run_benchmark
 from talc_model.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
 
@@ -45,7 +47,7 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
     data = load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
     assert len(data) == 600 and np.all(np.diff(data.time_s) == 60.0)
     figures = run_benchmark(data, out_dir=tmp_path, tau_grid=[(), (600.0,), (1800.0, 7200.0)],
-                            alpha_grid=[1.0, 100.0], talc_groups=(2, 3), show_progress=False)
+                            alpha_grid=[1.0, 100.0], talc_groups=(2, 3), arx_groups=(2, 3), show_progress=False)
     figures = json.loads(json.dumps(figures, default=float))       # what the bench command saves
     assert figures["rows"] == {"train": [0, 359], "test": [360, 479], "validation": [480, 599]}
     for model in ("lagged_ridge", "lagged_ridge_spindle"):
@@ -54,6 +56,10 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f["mae_um"]) and f["mae_um"] >= 0
             assert math.isfinite(f["mae_validation_um"]) and math.isfinite(f["walk_forward_mae_um"])
             assert tuple(f["taus_s"]) in {(), (600.0,), (1800.0, 7200.0)} and f["alpha"] in (1.0, 100.0)
+    for ch in CHANNELS:
+        f = figures["open_loop"]["arx_simulation"][ch]
+        assert math.isfinite(f["mae_um"]) and math.isfinite(f["mae_validation_um"])
+        assert 1 <= f["na"] <= 2 and len(f["nb"]) == len(f["inputs"]) in (2, 3)
     for model in ("talc", "agp"):
         f = figures["adaptive"][model]
         for ch in CHANNELS:
@@ -79,3 +85,20 @@ def test_bench_entry_point_passes_suite_options(tmp_path, shared_dir, capsys):
     assert "S2S2" in capsys.readouterr().out                   # the table beside the published numbers
     with pytest.raises(SystemExit):
         run(argparse.Namespace(quick=False, out_dir=None, json=None, extra=["--rows=many"]))
+
+
+def test_open_loop_models_never_use_a_displacement_after_the_training_rows(shared_dir):
+    data = load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
+    splits = Splits.authors(len(data))
+    poisoned = load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
+    for ch in CHANNELS:
+        poisoned.displacement_um[ch][splits.n_train:] = 1e6
+    for ch in ("ch1", "ch3"):
+        a = arx_open_loop_channel(data, splits, ch, group_candidates=(2, 3))
+        b = arx_open_loop_channel(poisoned, splits, ch, group_candidates=(2, 3))
+        np.testing.assert_array_equal(a.prediction, b.prediction)
+        assert np.all(np.isnan(a.prediction[:splits.n_train])) and np.all(np.isfinite(a.prediction[splits.n_train:]))
+        for spindle in (False, True):
+            kw = dict(with_spindle=spindle, tau_grid=[(), (1800.0,)], alpha_grid=[1.0, 100.0])
+            np.testing.assert_array_equal(open_loop_channel(data, splits, ch, **kw).prediction,
+                                          open_loop_channel(poisoned, splits, ch, **kw).prediction)
