@@ -38,6 +38,7 @@ setup(
             "bags = thermal_comp.bench_bags:run",
             "graph = thermal_comp.demo:bench_graph",
             "fl-thermal = talc_model.fl_thermal_benchmark:run",
+            "faults = thermal_comp.bench_faults:run",
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",

@@ -61,6 +61,7 @@ class FaultInjector:
         self.faults = list(faults)
         self._stuck: dict[int, float] = {}
         self.injected = 0          # readings altered or removed
+        self.counts = [0] * len(self.faults)   # per fault
 
     def apply(self, t_s: float, readings: Mapping[str, float]) -> dict[str, float]:
         out = dict(readings)
@@ -68,6 +69,7 @@ class FaultInjector:
             if not f.active(t_s) or f.sensor_id not in out:
                 continue
             self.injected += 1
+            self.counts[i] += 1
             if f.kind == "nan":
                 out[f.sensor_id] = math.nan
             elif f.kind == "out_of_range":
@@ -206,6 +208,7 @@ class LoopResult:
     failed_probing_cycles: int
     no_good_phases: int
     injected: int
+    injected_per_fault: list[int] = field(default_factory=list)
 
     def p99_compensated(self) -> dict[str, float]:
         """P99 of |true - prediction in effect| (the prediction of the previous instant)."""
@@ -317,7 +320,7 @@ def run_core_loop(faults: Iterable[SensorFault] = (), hours: float = 48.0, seed:
                       {c: np.asarray(v) for c, v in pred.items()}, {s: np.asarray(v) for s, v in status.items()},
                       excluded_rows, sorted(applied), {a: np.asarray(v) for a, v in applied.items()},
                       {a: np.asarray(v) for a, v in flags.items()}, st.probing_cycles,
-                      st.failed_probing_cycles, st.no_good_phases, inj.injected)
+                      st.failed_probing_cycles, st.no_good_phases, inj.injected, list(inj.counts))
 
 
 # --------------------------------------------------------------------------------------
@@ -465,3 +468,182 @@ def _set_writable(emu, node_id: str, writable: bool) -> None:
         node = emu.emulator._server.get_node(ua.NodeId.from_string(node_id))
         await node.set_writable(writable)
     emu._run(change())
+
+
+# --------------------------------------------------------------------------------------
+#: The bridge's envelope in the demo cell (cnc_bridge_node defaults) for the audit-log check.
+DEMO_ENVELOPE = {"max_rate_um_per_s": 0.5, "abs_limit_um": 30.0, "max_step_s": 600.0}
+
+
+def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: int = 0,
+                     wall_timeout_s: float = 600.0, progress: bool = False) -> dict:
+    """The demo graph (nmv5000, talc-178h-dry shortened to ``hours``, OPC UA to the CNC
+    emulator) under the launcher with restarts enabled, ``kills`` performed mid-run.
+
+    Returns the demo summary plus what the faults did: restarts per node, whether the model
+    resumed from its saved state (and never went back to calibration), instants that lack
+    temperatures / predictions / offsets in the bag (data lost), bag damage, and audit-log
+    writes that broke the bridge's envelope (unsafe writes).
+    """
+    import pathlib
+
+    from cnc_bridge.audit_log import read_audit_log
+    from rclpy.serialization import deserialize_message
+
+    from thermal_comp.bag_player import read_bag
+    from thermal_comp.demo import DemoConfig, read_series, run_graph, summarise
+    from thermal_comp_msgs.msg import ModelStatus
+
+    out = pathlib.Path(out_dir)
+    cfg = DemoConfig(out_dir=out, hours=hours, seed=seed, view="none", progress=progress, cnc="opcua",
+                     wall_timeout_s=wall_timeout_s,
+                     restart={"enabled": True, "max_restarts": 3, "backoff_s": 0.5})
+    cfg.scenario = "talc-178h-dry"
+    plan = KillPlan([Kill(k.node, k.at_sim_s) for k in kills])
+    record = run_graph(cfg, on_poll=plan.poll)
+    contents = read_bag(out / "bag")
+    stamps: dict[str, set[int]] = {}
+    probing, phases = [], []
+    for m in contents.messages:
+        name = m.topic.split("/", 2)[-1]
+        stamps.setdefault(name, set()).add(m.log_time_ns)
+        if name == "model_status":
+            st = deserialize_message(m.data, ModelStatus)
+            probing.append(int(st.probing_cycles))
+            phases.append(int(st.phase))
+    truth = stamps.get("errors/ground_truth", set())
+    first_pred = min(stamps.get("errors/predicted", {0}))
+    lost = {topic: len({t for t in truth if t >= first_pred} - stamps.get(topic, set()))
+            for topic in ("temperatures", "errors/predicted", "offsets")}
+    left_calibration = next((i for i, p in enumerate(phases) if p != ModelStatus.PHASE_CALIBRATION), None)
+    status_times = [m.log_time_ns for m in contents.messages if m.topic.endswith("model_status")]
+    back_to_calibration = left_calibration is not None and any(
+        p == ModelStatus.PHASE_CALIBRATION for p in phases[left_calibration:])
+    counter_regressions = sum(1 for a, b in zip(probing, probing[1:]) if b < a)
+    log_text = (out / "logs" / "nodes.log").read_text(errors="replace")
+    rows = read_audit_log(out / "cnc_audit.log")
+    times = sorted({float(r["time_s"]) for r in rows})
+    index = {t: i for i, t in enumerate(times)}
+    applied: dict[str, np.ndarray] = {}
+    for r in rows:
+        a = applied.setdefault(r["axis"], np.full(len(times), np.nan))
+        a[index[float(r["time_s"])]] = float(r["applied_um"]) if r["applied_um"] else np.nan
+    violations = offset_violations(times, applied, **DEMO_ENVELOPE)
+    series = read_series(out / "bag")
+    summary = summarise(series, cfg, record)
+    return {
+        "summary": summary,
+        "kills": [{"node": k.node, "at_sim_h": round(k.at_sim_s / 3600.0, 2), "killed": k.done_wall is not None,
+                   "restarted": k.restarted_pid is not None} for k in plan.kills],
+        "restarts": dict(record.restarts),
+        "model_resumed": log_text.count("model: resumed from"),
+        "twin_resumed": log_text.count("resumed from") - log_text.count("model: resumed from"),
+        "calibration_ended_h": (round(status_times[left_calibration] / 3.6e12, 2)
+                                if left_calibration is not None else None),
+        "back_to_calibration": back_to_calibration,
+        "probing_counter_regressions": counter_regressions,
+        "instants": len(truth),
+        "lost": lost,
+        "bag_damage": contents.damage,
+        "audit_writes": len(rows),
+        "unsafe_writes": [str(v) for v in violations],
+        "wall_s": round(record.wall_s, 1),
+    }
+
+
+def compare_p99(undisturbed: Mapping, disturbed: Mapping) -> dict[str, float]:
+    """Per component: compensated P99 of the disturbed run minus the undisturbed one."""
+    a, b = undisturbed["errors"], disturbed["errors"]
+    return {c: round(b[c]["p99_compensated"] - a[c]["p99_compensated"], 3) for c in a if c in b}
+
+
+def run_recorder_kill(out_dir, domain_id: int, min_bytes: int = 20000, wall_timeout_s: float = 60.0) -> dict:
+    """``kill -9`` of the bag recorder while a free-running twin publishes, then read the bag.
+
+    The recorder closes a chunk every 0.2 s (wall); once its MCAP file holds ``min_bytes``
+    it is killed. Returns the messages readable, the damage :func:`read_bag` reports, and
+    what a restart of the recorder onto the same output does (exit code, first error line).
+    """
+    import pathlib
+    import subprocess
+    import sys
+    import time
+
+    from thermal_comp.bag_player import read_bag
+
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / "bag"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), PYTHONUNBUFFERED="1")
+    ns = ["--ros-args", "-r", "__ns:=/rec_kill"]
+    sim = subprocess.Popen([sys.executable, "-m", "thermal_twin.machine_sim_node", *ns, "-p", "hours:=200.0",
+                            "-p", "real_time_factor:=6000.0", "-p", "step_s:=300.0"],
+                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    rec_argv = [sys.executable, "-m", "thermal_comp.bag_recorder_node", *ns, "-p", f"output:={bag}",
+                "-p", "flush_period_s:=0.2"]
+    rec = subprocess.Popen(rec_argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           start_new_session=True)
+    try:
+        deadline = time.monotonic() + wall_timeout_s
+        mcap = None
+        while time.monotonic() < deadline:
+            files = list(bag.glob("*.mcap")) if bag.is_dir() else []
+            if files and files[0].stat().st_size >= min_bytes:
+                mcap = files[0]
+                break
+            if rec.poll() is not None:
+                raise RuntimeError(f"recorder exited with {rec.returncode}: {rec.stdout.read()}")
+            time.sleep(0.05)
+        if mcap is None:
+            raise RuntimeError(f"recorder wrote fewer than {min_bytes} bytes in {wall_timeout_s:.0f} s")
+        os.killpg(rec.pid, signal.SIGKILL)
+        rec.wait()
+        size_at_kill = mcap.stat().st_size
+        contents = read_bag(bag)
+        restart = subprocess.run(rec_argv, env=env, capture_output=True, text=True, timeout=wall_timeout_s)
+        err = [ln for ln in (restart.stdout + restart.stderr).splitlines() if ln.strip()]
+        return {"bytes_at_kill": size_at_kill, "messages_readable": len(contents.messages),
+                "topics": sorted({m.topic for m in contents.messages}), "damage": contents.damage,
+                "restart_exit_code": restart.returncode, "restart_message": err[-1] if err else ""}
+    finally:
+        for p in (sim, rec):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+# --------------------------------------------------------------------------------------
+class FaultyProbeBackend:
+    """A probe backend that breaks one touch of a cycle: ``outlier`` (the skip position
+    moved by ``value_um`` along the move), ``missing_trigger``, ``error`` (the backend
+    raises), ``slow`` (the machine clock jumps by ``value_um`` seconds: a stalled cycle that
+    runs into its timeout). Every other touch goes to ``inner``."""
+
+    def __init__(self, inner, fault: str, at_touch: int = 3, value_um: float = 25.0):
+        if fault not in ("outlier", "missing_trigger", "error", "slow"):
+            raise ValueError(f"FaultyProbeBackend.fault: {fault!r} is not outlier, missing_trigger, error or slow")
+        self.inner, self.fault, self.at_touch, self.value = inner, fault, int(at_touch), float(value_um)
+        self.touches = 0
+        self.name = f"faulty({getattr(inner, 'name', 'backend')})"
+        self._clock_jump = 0.0
+
+    def touch(self, move):
+        from probe_cycle.probe_backend import ProbeBackendError, TouchReply
+        i = self.touches
+        self.touches += 1
+        reply = self.inner.touch(move)
+        if i != self.at_touch:
+            return TouchReply(reply.triggered, reply.position_mm, reply.stamp_s + self._clock_jump, reply.message)
+        if self.fault == "error":
+            raise ProbeBackendError("injected: probe signal lost")
+        if self.fault == "missing_trigger":
+            return TouchReply(False, reply.position_mm, reply.stamp_s + self._clock_jump, "injected: no trigger")
+        if self.fault == "slow":
+            self._clock_jump += self.value
+            return TouchReply(reply.triggered, reply.position_mm, reply.stamp_s + self._clock_jump, reply.message)
+        d = np.asarray(move.direction, dtype=float)
+        pos = np.asarray(reply.position_mm, dtype=float) + d / np.linalg.norm(d) * self.value * 1e-3
+        return TouchReply(reply.triggered, pos, reply.stamp_s, reply.message)
+
+    def close(self) -> None:
+        self.inner.close()
