@@ -14,7 +14,9 @@ validation (last 20 %, rows 8892-11114). Displacements are taken relative to the
   training rows and run open loop over the whole recording (temperatures only; no
   displacement after training). ``lagged_ridge`` uses the 16 temperatures only,
   ``lagged_ridge_spindle`` adds the spindle speed and its low-pass copies (reported
-  separately, as the issue asks).
+  separately, as the issue asks). ``arx_simulation`` (:mod:`talc_model.fl_thermal_arx`):
+  TALC's ARX model class on the 5-min grid, inputs and orders chosen on the training rows,
+  simulated from the end of the training rows on temperatures only.
 - **Adaptive** (:mod:`talc_model.fl_thermal_adaptive`): TALC and AGP replay the whole
   recording from row 0 and see only what their own probing schedule asks for: one simulated
   probing of the five channels every 2 h after their calibration phase (TALC
@@ -93,8 +95,10 @@ OPEN_LOOP_MODELS = {"lagged_ridge": False, "lagged_ridge_spindle": True}   # nam
 
 
 def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID,
-                  n_folds: int = 4, arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES, show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
-    """Figures and predictions of every open-loop model."""
+                  n_folds: int = 4, arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES,
+                  show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
+    """Figures and predictions of every open-loop model (lagged ridge with and without the
+    spindle speed, ARX in simulation mode)."""
     from tqdm import tqdm
     grid = list(tau_grid or default_tau_grid())
     figures: dict[str, Any] = {}
@@ -205,9 +209,9 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         if unknown:
             raise FlThermalError(f"adaptive_overrides: {unknown} are not adaptive models (talc, agp)")
         t1 = time.perf_counter()
+        groups = {} if talc_groups is None else {"candidates": talc_groups}
         talc_inputs, talc_scores = select_talc_inputs(data, splits, overrides=overrides.get("talc"),
-                                                      show_progress=show_progress, **({} if talc_groups is None
-                                                                                       else {"candidates": talc_groups}))
+                                                      show_progress=show_progress, **groups)
         configs = adaptive_configs(data, splits, talc_inputs)
         for name, extra in overrides.items():
             configs[name][1].update(extra)
