@@ -217,3 +217,24 @@ def test_shipped_config_is_valid_and_complete():
     for key in ("cp_length_h", "cp_interval_s", "post_cp_interval_h", "ng_interval_min", "acl_linear_um",
                 "acl_angular_um_per_m", "ng_measurements", "update_interval_h", "na_max", "nb_max"):
         assert key in data
+
+
+def test_periodic_update_is_gated_but_no_good_update_is_not(monkeypatch):
+    """A periodic update that would predict the measured history worse is refused."""
+    import talc_model.talc as talc_mod
+    from talc_model.order_selection import OrderSelection
+    u, errors = plant(200)
+    m = run(TalcModel(config(update_interval_h=2.0)), u, errors, 0, 60)
+    good = {n: mm.theta.copy() for n, mm in m.models.items()}
+    bad = ArxModel(ORDERS, np.array([-0.5, 0.1, 0.1, 0.1, 0.1]))
+
+    def wrong_selection(*args, **kwargs):
+        return OrderSelection(ArxModel(bad.orders, bad.theta.copy()), bad.orders, 0.0, 0.0, 1, 0)
+    monkeypatch.setattr(talc_mod, "select_orders", wrong_selection)
+    m._update(60 * STEP, "update interval")
+    for n in COMPONENTS:
+        np.testing.assert_array_equal(m.models[n].theta, good[n])
+    assert "predict the measured history worse" in m.message
+    m._update(60 * STEP, "end of no-good phase")
+    for n in COMPONENTS:
+        np.testing.assert_array_equal(m.models[n].theta, bad.theta)

@@ -258,13 +258,25 @@ class ArxModel:
             zi = signal.lfiltic([1.0], den, y[start - o.na:start][::-1])
             pred[start:], _ = signal.lfilter([1.0], den, bu[start:], zi=zi)
             return pred
-        a = self.a
-        for k in range(start, n):
-            v = bu[k]
-            for i in range(o.na):
-                v -= a[i] * y[k - 1 - i]
-            pred[k] = v
-            y[k] = y_measured[k] if measured[k] else v
+        if o.na == 0:
+            pred[start:] = bu[start:]
+            return pred
+        # between measurements the recursion is an IIR filter: run it segment by segment,
+        # each segment starting from the history (measured values replacing predictions)
+        den = np.concatenate(([1.0], self.a))
+        meas_idx = np.flatnonzero(np.asarray(measured[start:], bool)) + start
+        seg_starts = [start] + [int(m) + 1 for m in meas_idx if m + 1 < n]
+        seg_ends = [int(m) + 1 for m in meas_idx] + [n]
+        for s0, s1 in zip(seg_starts, seg_ends):
+            if s1 <= s0:
+                continue
+            zi = signal.lfiltic([1.0], den, y[s0 - o.na:s0][::-1])
+            out, _ = signal.lfilter([1.0], den, bu[s0:s1], zi=zi)
+            pred[s0:s1] = out
+            y[s0:s1] = out
+            last = s1 - 1
+            if measured[last]:
+                y[last] = y_measured[last]
         return pred
 
     def as_dict(self) -> dict:

@@ -74,8 +74,11 @@ class OrderSelection:
 
 
 def _validation_residuals(model: ArxModel, y: np.ndarray, u: np.ndarray, split: int,
-                          scored: np.ndarray) -> np.ndarray:
-    pred = model.simulate(u, y, split)
+                          scored: np.ndarray, state_updates: bool = False) -> np.ndarray:
+    if state_updates:   # the TALC predictor: measured outputs replace predictions
+        pred = model.simulate(u, y, split, measured=scored, y_measured=y)
+    else:               # pure simulation mode from the end of the training part
+        pred = model.simulate(u, y, split)
     res = y[split:] - pred[split:]
     return res[scored[split:]]
 
@@ -91,7 +94,8 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
                   *, nk: int = 0, intercept: bool = False, criterion: str = "mdl",
                   train_fraction: float = 0.6, weights: np.ndarray | None = None,
                   measured: np.ndarray | None = None, exhaustive_limit: int = 4000,
-                  refit_on_all: bool = True, require_stable: bool = True) -> OrderSelection:
+                  refit_on_all: bool = True, require_stable: bool = True,
+                  state_updates: bool = False) -> OrderSelection:
     """Choose ARX orders for output ``y`` and inputs ``u`` (N x r) by ``criterion``.
 
     ``na_range``/``nb_range`` are inclusive (min, max); the same n_b range applies to every
@@ -101,6 +105,9 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     before it is returned. With ``require_stable`` candidates whose A(q) has a pole on or
     outside the unit circle are skipped: a thermal system is stable, and an unstable
     recursion fed back in simulation mode diverges between measurements.
+    ``state_updates``: validate with the TALC predictor (measured outputs replace the
+    predictions, scored at the next measured samples) instead of pure simulation; this is
+    how the model is used between sparse measurements after the calibration phase.
     Raises :class:`RankDeficientError` if no candidate is identifiable.
     """
     if criterion not in CRITERIA:
@@ -150,7 +157,7 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
         if require_stable and not m.is_stable():
             cache[key] = (math.inf, None, math.nan)
             return math.inf
-        res = _validation_residuals(m, y, u, split, scored)
+        res = _validation_residuals(m, y, u, split, scored, state_updates)
         s = criterion_value(criterion, res, orders)
         if not math.isfinite(s):
             s = math.inf

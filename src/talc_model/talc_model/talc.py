@@ -97,6 +97,14 @@ class TalcConfig:
     train_fraction: float = 0.6
     reselect_orders_on_update: bool = True  # spec §4.5 suggestion; False = refit with fixed orders
     order_search_exhaustive_limit: int = 4000  # above: coordinate search (order_selection)
+    #: accept a *periodic* update only if the new parameters predict the measured history
+    #: (TALC predictor: measurements replace predictions, weighted like the fit) no worse than
+    #: the old ones. Updates after a no-good phase are always taken: the old parameters are
+    #: known to miss the recent measurements, and gating them slows re-learning after a change.
+    update_acceptance: bool = True
+    #: at updates, score order candidates with the TALC predictor (state updates at the
+    #: measurements) instead of pure simulation over the validation part
+    select_with_state_updates: bool = False
     # --- weighted least squares
     predicted_weight: float = 0.05         # weight of samples that only carry a prediction
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
@@ -587,7 +595,8 @@ class TalcModel:
             sel = select_orders(y[first:], g.u[first: g.n], (c.na_min, c.na_max), (c.nb_min, nb_max),
                                 nk=c.nk, intercept=c.intercept, criterion=c.criterion,
                                 train_fraction=c.train_fraction, weights=w[first:],
-                                measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit)
+                                measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
+                                state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates)
             models[name] = sel.model
         self.nb_max_selected = nb_max
         return models
@@ -651,6 +660,14 @@ class TalcModel:
                 except RankDeficientError as exc:
                     failures.append(str(exc))
                     new_models[name] = old
+        if c.update_acceptance and why == "update interval":
+            for j, name in enumerate(self.component_names):
+                old, new = self.models.get(name), new_models.get(name)
+                if old is None or new is None or new is old:
+                    continue
+                if self._predictor_error(new, j, t_s) > self._predictor_error(old, j, t_s):
+                    failures.append(f"{name}: the new parameters predict the measured history worse")
+                    new_models[name] = old
         self.models.update(new_models)
         self.t_last_update = t_s
         self.parameter_updates += 1
@@ -658,6 +675,26 @@ class TalcModel:
         self.message = f"parameter update {self.parameter_updates} ({why})" + \
             (f"; kept old parameters where: {'; '.join(failures)}" if failures else "")
         self.events.append({"t_s": t_s, "event": "update", "why": why})
+
+    def _predictor_error(self, model: ArxModel, j: int, t_s: float) -> float:
+        """Weighted RMS of the TALC predictor's residuals at the measured samples of the
+        history (between measurements the model runs on its own predictions)."""
+        g = self.grid
+        y, m = self._training_outputs(j)
+        finite = np.flatnonzero(np.isfinite(y))
+        if finite.size == 0:
+            return math.inf
+        start = max(int(finite[0]) + model.orders.max_lag, model.orders.max_lag, 1)
+        if start >= g.n:
+            return math.inf
+        pred = model.simulate(g.u[: g.n], y, start, measured=m, y_measured=y)
+        w = self._weights(t_s, m)
+        sel = m.copy()
+        sel[:start] = False
+        sel &= np.isfinite(pred) & (w > 0)
+        if not np.any(sel):
+            return math.inf
+        return float(np.sqrt(np.sum(w[sel] * (y[sel] - pred[sel]) ** 2) / np.sum(w[sel])))
 
     def _maybe_periodic_update(self, t_s: float) -> None:
         if self.phase != PHASE_COMPENSATION:
