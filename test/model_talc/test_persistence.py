@@ -2,7 +2,6 @@
 import json
 import os
 
-import numpy as np
 import pytest
 
 from talc_model.model_persistence import ModelStateError, load_model, load_pretrained, read_state, save_model

@@ -798,6 +798,5 @@ class TalcModel:
         model.phase = PHASE_COMPENSATION
         model.nb_max_selected = trained.nb_max_selected
         model.message = "started from a pre-trained model (no calibration phase)"
-        model._pretrained = True
         return model
 
