@@ -178,6 +178,7 @@ def talc_replay(scenario: str, config: dict, hours: float | None, out_dir: pathl
              "Reduction %".ljust(20) + "".join(f"{100 * (1 - p99c[c] / p99u[c]):9.1f}" if p99u[c] > 0 else
                                                  "      n/a" for c in p99c)]
     if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
         plot_virtual_experiment(res, out_dir / f"talc_{scenario}.png", title=scenario)
     return out, "\n".join(lines)
 
