@@ -96,7 +96,11 @@ def probing_rows(hours: float) -> tuple[list[dict], dict]:
 
 
 def link_rows() -> list[dict]:
+    import logging
+
     from cnc_bridge.cnc_emulator import free_tcp_port
+    for name in ("asyncua", "cnc_bridge", "cnc_emulator"):   # the faults are meant: keep the table readable
+        logging.getLogger(name).setLevel(logging.CRITICAL)
     rows = []
     for fault in ("server_restart", "server_reset", "stalled", "wrong_credentials", "rejected_write",
                   "bridge_restart"):
