@@ -56,10 +56,12 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f["mae_um"]) and f["mae_um"] >= 0
             assert math.isfinite(f["mae_validation_um"]) and math.isfinite(f["walk_forward_mae_um"])
             assert tuple(f["taus_s"]) in {(), (600.0,), (1800.0, 7200.0)} and f["alpha"] in (1.0, 100.0)
-    for ch in CHANNELS:
-        f = figures["open_loop"]["arx_simulation"][ch]
-        assert math.isfinite(f["mae_um"]) and math.isfinite(f["mae_validation_um"])
-        assert 1 <= f["na"] <= 2 and len(f["nb"]) == len(f["inputs"]) in (2, 3)
+    for model, extra in (("arx_simulation", 0), ("arx_simulation_spindle", 1)):
+        for ch in CHANNELS:
+            f = figures["open_loop"][model][ch]
+            assert math.isfinite(f["mae_um"]) and math.isfinite(f["mae_validation_um"])
+            assert 1 <= f["na"] <= 2 and len(f["nb"]) == len(f["inputs"]) in (2 + extra, 3 + extra)
+            assert ("spindle_krpm" in f["inputs"]) == bool(extra)
     for model in ("talc", "agp"):
         f = figures["adaptive"][model]
         for ch in CHANNELS:
@@ -94,10 +96,12 @@ def test_open_loop_models_never_use_a_displacement_after_the_training_rows(share
     for ch in CHANNELS:
         poisoned.displacement_um[ch][splits.n_train:] = 1e6
     for ch in ("ch1", "ch3"):
-        a = arx_open_loop_channel(data, splits, ch, group_candidates=(2, 3))
-        b = arx_open_loop_channel(poisoned, splits, ch, group_candidates=(2, 3))
-        np.testing.assert_array_equal(a.prediction, b.prediction)
-        assert np.all(np.isnan(a.prediction[:splits.n_train])) and np.all(np.isfinite(a.prediction[splits.n_train:]))
+        for spindle in (False, True):
+            a = arx_open_loop_channel(data, splits, ch, group_candidates=(2, 3), with_spindle=spindle)
+            b = arx_open_loop_channel(poisoned, splits, ch, group_candidates=(2, 3), with_spindle=spindle)
+            np.testing.assert_array_equal(a.prediction, b.prediction)
+            assert np.all(np.isnan(a.prediction[:splits.n_train]))
+            assert np.all(np.isfinite(a.prediction[splits.n_train:]))
         for spindle in (False, True):
             kw = dict(with_spindle=spindle, tau_grid=[(), (1800.0,)], alpha_grid=[1.0, 100.0])
             np.testing.assert_array_equal(open_loop_channel(data, splits, ch, **kw).prediction,

@@ -15,6 +15,7 @@ training rows on, its own predictions are fed back as the autoregressive outputs
 state is the last n_a training displacements), driven by the temperatures only; no
 displacement after row n_train - 1 is used. A 15-s row gets the value of the grid sample at or
 before it (causal hold; the first < 20 test rows therefore hold the last training grid value).
+``arx_simulation_spindle`` adds the spindle speed as one more input (reported separately).
 No rclpy here.
 """
 from __future__ import annotations
@@ -45,8 +46,11 @@ class ArxChannel:
 
 def arx_open_loop_channel(data: FlThermalData, splits: Splits, channel: str,
                           group_candidates: Sequence[int] = GROUP_CANDIDATES,
-                          input_sets: dict[int, list[str]] | None = None) -> ArxChannel:
-    """Choose inputs and orders on the training rows, then simulate over the test and validation rows."""
+                          input_sets: dict[int, list[str]] | None = None, with_spindle: bool = False) -> ArxChannel:
+    """Choose inputs and orders on the training rows, then simulate over the test and validation rows.
+
+    ``with_spindle``: the spindle speed (krpm) is one more input of every candidate set.
+    """
     from talc_model.arx import RankDeficientError
     from talc_model.order_selection import select_orders
     n = len(data)
@@ -62,6 +66,8 @@ def arx_open_loop_channel(data: FlThermalData, splits: Splits, channel: str,
     for k, names in sets.items():
         cols = [SENSORS.index(s) for s in names]
         u = (data.temperatures[:, cols] - data.temperatures[0, cols])[grid]
+        if with_spindle:
+            u = np.column_stack([u, (data.spindle_rpm / 1000.0)[grid]])
         try:
             sel = select_orders(y[:n_train_grid], u[:n_train_grid], NA_RANGE, NB_RANGE, criterion="mdl",
                                 train_fraction=0.6)
@@ -78,4 +84,4 @@ def arx_open_loop_channel(data: FlThermalData, splits: Splits, channel: str,
     pred_grid[:n_train_grid] = y[:n_train_grid]   # the state the simulation starts from (training data)
     pred = pred_grid[np.arange(n) // step]
     pred[:splits.n_train] = np.nan                  # no prediction is claimed on the training rows
-    return ArxChannel(pred, list(names), int(sel.orders.na), [int(b) for b in sel.orders.nb], rms, scores)
+    return ArxChannel(pred, list(names) + (["spindle_krpm"] if with_spindle else []), int(sel.orders.na), [int(b) for b in sel.orders.nb], rms, scores)

@@ -16,7 +16,8 @@ validation (last 20 %, rows 8892-11114). Displacements are taken relative to the
   ``lagged_ridge_spindle`` adds the spindle speed and its low-pass copies (reported
   separately, as the issue asks). ``arx_simulation`` (:mod:`talc_model.fl_thermal_arx`):
   TALC's ARX model class on the 5-min grid, inputs and orders chosen on the training rows,
-  simulated from the end of the training rows on temperatures only.
+  simulated from the end of the training rows on temperatures only (``arx_simulation_spindle``:
+  plus the spindle speed, reported separately).
 - **Adaptive** (:mod:`talc_model.fl_thermal_adaptive`): TALC and AGP replay the whole
   recording from row 0 and see only what their own probing schedule asks for: one simulated
   probing of the five channels every 2 h after their calibration phase (TALC
@@ -92,6 +93,7 @@ def open_loop_channel(data: FlThermalData, splits: Splits, channel: str, *, with
 
 
 OPEN_LOOP_MODELS = {"lagged_ridge": False, "lagged_ridge_spindle": True}   # name -> uses the spindle speed
+ARX_MODELS = {"arx_simulation": False, "arx_simulation_spindle": True}
 
 
 def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID,
@@ -120,17 +122,18 @@ def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_g
                     "walk_forward_mae_um": round(r.walk_forward_mae_um, 3),
                     "walk_forward_fold_mae_um": [round(v, 3) for v in r.fold_mae_um],
                     "taus_s": list(r.taus_s), "alpha": r.alpha}
-    figures["arx_simulation"], predictions["arx_simulation"] = {}, {}
     input_sets = {k: sensor_medoids(data.temperatures[:splits.n_train], int(k)) for k in arx_groups}
-    for ch in tqdm(CHANNELS, desc="open loop: ARX", disable=not show_progress, leave=False):
-        r = arx_open_loop_channel(data, splits, ch, input_sets=input_sets)
-        y = data.displacement_um[ch]
-        predictions["arx_simulation"][ch] = r.prediction
-        figures["arx_simulation"][ch] = {
-            "mae_um": round(mae(y[splits.test], r.prediction[splits.test]), 3),
-            "mae_validation_um": round(mae(y[splits.validation], r.prediction[splits.validation]), 3),
-            "training_validation_rms_um": r.validation_rms_um, "inputs": r.inputs, "na": r.na, "nb": r.nb,
-            "input_set_training_validation_rms_um": r.candidates}
+    for name, with_spindle in ARX_MODELS.items():
+        figures[name], predictions[name] = {}, {}
+        for ch in tqdm(CHANNELS, desc=f"open loop: {name}", disable=not show_progress, leave=False):
+            r = arx_open_loop_channel(data, splits, ch, input_sets=input_sets, with_spindle=with_spindle)
+            y = data.displacement_um[ch]
+            predictions[name][ch] = r.prediction
+            figures[name][ch] = {
+                "mae_um": round(mae(y[splits.test], r.prediction[splits.test]), 3),
+                "mae_validation_um": round(mae(y[splits.validation], r.prediction[splits.validation]), 3),
+                "training_validation_rms_um": round(r.validation_rms_um, 3), "inputs": r.inputs, "na": r.na,
+                "nb": r.nb, "input_set_training_validation_rms_um": r.candidates}
     return figures, predictions
 
 
