@@ -397,7 +397,7 @@ def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: 
     try:
         creds = {"user": "cnc", "password": "wrong"} if fault == "wrong_credentials" else {}
         backend = make_backend(**creds)
-        backend.wait_connected(10.0)
+        backend.wait_connected(1.0 if fault == "wrong_credentials" else 10.0)
         env = SafetyEnvelope(env_cfg)
         t = 0.0
 
