@@ -86,7 +86,7 @@ def test_probe_scheduling_in_lockstep_with_failures(tmp_path, ros_context):
     test_node.create_subscription(TemperatureArray, TOPIC_TEMPERATURES, temps_seen.append, SENSOR_QOS)
     node, f2 = spawn([sys.executable, "-m", "talc_model.talc_model_node", "--ros-args",
                       "-p", f"model_config:={cfg}", "-p", f"state_path:={state}",
-                      "-p", "lockstep_participant:=true", "-p", "probe_result_wait_s:=1.5",
+                      "-p", "lockstep_participant:=true", "-p", "probe_result_wait_s:=6.0",
                       "-p", "action_server_wait_s:=20.0"], tmp_path / "node.log")
     # the observer sees the node's outputs before the machine starts the clock
     topics = (TOPIC_MODEL_STATUS, TOPIC_ERRORS_PREDICTED, TOPIC_ERRORS_MEASURED)
