@@ -15,9 +15,9 @@ Procedure (one round; the finder repeats it greedily on the augmented twin):
 4. **Score.** The fitted twin is simulated over the whole recording; ``holdout_improvement_pct``
    is the fall of the weighted sum of squares on the held-out window (never fitted).
    The information criterion is BIC on the training window with the effective number of
-   samples n_eff = n (1 - rho)/(1 + rho) (rho: lag-1 autocorrelation of the residual),
-   because thermal residuals are strongly autocorrelated and the raw n would let any
-   term look significant.
+   samples n_eff = n / tau (tau: integrated autocorrelation time of the residual, see
+   :func:`effective_samples`), because thermal residuals are strongly autocorrelated and
+   the raw n would let any term look significant.
 5. **Plausibility.** Each effect checks its fitted values against physical ranges
    (sign, time constants, energy); implausible fits are ranked last and never adopted.
 
@@ -172,18 +172,29 @@ class Hypothesis:
                 "indistinguishable_from": list(self.indistinguishable_from), "round": self.round}
 
 
-def _lag1(r: np.ndarray) -> float:
-    """Pooled lag-1 autocorrelation of the rows of r."""
-    num = float(np.sum(r[:, 1:] * r[:, :-1]))
-    den = float(np.sum(r * r))
-    return 0.0 if den <= 0 else max(0.0, min(0.999, num / den))
+def effective_samples(r: np.ndarray) -> float:
+    """Effective number of independent samples of the residual rows r (channels x time):
+    n / tau with the integrated autocorrelation time tau = 1 + 2 sum_k rho(k) of the pooled
+    autocorrelation, summed up to its first negative value. Unlike the AR(1) formula it
+    does not change when the residual is sampled more or less densely."""
+    r = np.atleast_2d(r)
+    n_t = r.shape[1]
+    if n_t < 4:
+        return float(max(1, r.size))
+    x = r - r.mean(axis=1, keepdims=True)
+    f = np.fft.rfft(x, 2 * n_t, axis=1)
+    c = np.fft.irfft(f * np.conj(f), axis=1)[:, :n_t].sum(axis=0)
+    if c[0] <= 0:
+        return float(r.size)
+    rho = c[1:n_t // 2] / c[0]
+    neg = np.flatnonzero(rho < 0)
+    tau = 1.0 + 2.0 * float(np.sum(rho[:neg[0]] if neg.size else rho))
+    return max(10.0, r.size / max(tau, 1.0))
 
 
 def delta_bic(r0: np.ndarray, r1: np.ndarray, k: int) -> float:
     """BIC(after) - BIC(before) with the effective sample size of the residual before."""
-    n = r0.size
-    rho = _lag1(r0)
-    n_eff = max(10.0, n * (1 - rho) / (1 + rho))
+    n_eff = effective_samples(r0)
     s0, s1 = float(np.sum(r0 ** 2)), float(np.sum(r1 ** 2))
     if s0 <= 0:
         return 0.0
