@@ -119,14 +119,19 @@ def process_rows(out: pathlib.Path, hours: float) -> tuple[list[dict], dict]:
     hit = fi.run_graph_faults(out / "killed", hours, kills, progress=True)
     diff = fi.compare_p99(base["summary"], hit["summary"])
     rows = []
-    for k in hit["kills"]:
-        lost = hit["lost"]["temperatures"] + hit["lost"]["errors/predicted"] + hit["lost"]["offsets"]
+    starts = [k["at_sim_h"] for k in hit["kills"]] + [math.inf]
+    for i, k in enumerate(hit["kills"]):
+        # an instant missing from the bag is charged to the latest kill before it
+        mine = {topic: [t for t in ts if starts[i] <= t < starts[i + 1]]
+                for topic, ts in hit.get("missing_at_h", {}).items()}
+        lost = sum(len(v) for v in mine.values())
         rows.append({"area": "process", "fault": f"kill -9 {k['node']} at {k['at_sim_h']} h",
                      "injected": int(k["killed"]),
                      "survived": k["restarted"] and not hit["back_to_calibration"]
                      and hit["probing_counter_regressions"] == 0,
-                     "data_lost": lost, "unsafe_writes": len(hit["unsafe_writes"]),
-                     "detail": f"run: {hit['lost']} instants missing; max |dP99| "
+                     "data_lost": lost, "unsafe_writes": len(hit["unsafe_writes"]) if i == 0 else 0,
+                     "detail": (f"missing {', '.join(f'{tp} at {v} h' for tp, v in mine.items() if v)}; "
+                                if lost else "") + f"run max |dP99| vs undisturbed "
                                f"{max(abs(v) for v in diff.values()):.3f}"})
     rec = fi.run_recorder_kill(out / "recorder", claim_domain_id())
     rows.append({"area": "process", "fault": "kill -9 recorder", "injected": 1,

@@ -513,8 +513,9 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
             phases.append(int(st.phase))
     truth = stamps.get("errors/ground_truth", set())
     first_pred = min(stamps.get("errors/predicted", {0}))
-    lost = {topic: len({t for t in truth if t >= first_pred} - stamps.get(topic, set()))
-            for topic in ("temperatures", "errors/predicted", "offsets")}
+    missing = {topic: sorted({t for t in truth if t >= first_pred} - stamps.get(topic, set()))
+               for topic in ("temperatures", "errors/predicted", "offsets")}
+    lost = {topic: len(v) for topic, v in missing.items()}
     left_calibration = next((i for i, p in enumerate(phases) if p != ModelStatus.PHASE_CALIBRATION), None)
     status_times = [m.log_time_ns for m in contents.messages if m.topic.endswith("model_status")]
     back_to_calibration = left_calibration is not None and any(
@@ -544,6 +545,7 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
         "probing_counter_regressions": counter_regressions,
         "instants": len(truth),
         "lost": lost,
+        "missing_at_h": {k: [round(t / 3.6e12, 3) for t in v] for k, v in missing.items() if v},
         "bag_damage": contents.damage,
         "audit_writes": len(rows),
         "unsafe_writes": [str(v) for v in violations],
