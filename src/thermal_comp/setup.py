@@ -42,6 +42,9 @@ setup(
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",
+            "bag_recorder = thermal_comp.bag_recorder_node:main",
+            "bag_player = thermal_comp.bag_player_node:main",
+            "rerun_view = thermal_comp.rerun_view_node:main",
         ],
     },
 )

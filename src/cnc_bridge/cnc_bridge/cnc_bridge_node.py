@@ -57,6 +57,14 @@ PARAMS = [
           "axes nobody reports are taken at the HTM origin (position terms vanish), logged once"),
     Param("enable", True, "compensation enabled (false ramps the offsets to zero)"),
     Param("abs_limit_um", 30.0, "per-axis absolute offset limit, um", lo=0.0, hi=1000.0),
+    Param("compensation_mode", "axis_offsets",
+          "axis_offsets: X/Y/Z offsets at the current axis positions (eq. 6.3-6.5, SINUMERIK "
+          "SD43900-like); kinematic: the seven location errors are written as parameters of the "
+          "CNC's kinematic model, which applies them at every position (angular errors included); "
+          "the 'axes' of AxisOffsets are then the component names, in um or um/m",
+          choices=("axis_offsets", "kinematic")),
+    Param("abs_limit_um_per_m", 50.0, "kinematic mode: absolute limit of the angular parameters "
+          "E_A0C E_B0C E_C0C, um/m (the linear ones use abs_limit_um)", lo=0.0, hi=10000.0),
     Param("max_rate_um_per_s", 0.5, "maximum offset change per second (cf. MD32760), um/s",
           lo=1e-6, hi=1000.0),
     Param("max_step_s", 600.0, "longest time step one update may use for the rate limit, s "
@@ -90,7 +98,10 @@ def _make_backend(node: Node, p: dict):
     if p["node_map_file"]:
         node_map, scale = load_node_map(p["node_map_file"])
     else:
-        node_map, scale = default_node_map(tuple(a for a in p["offset_axes"] if a)), 0.001
+        axes = tuple(a for a in p["offset_axes"] if a)
+        if p["compensation_mode"] == "kinematic" and axes == ("X", "Y", "Z"):
+            axes = FIVE_AXIS_COMPONENTS   # one CNC parameter per location error
+        node_map, scale = default_node_map(axes), 0.001
     backend = OpcUaBackend(OpcUaConfig(
         endpoint=p["endpoint"], node_map=node_map, offset_units_per_um=scale,
         user=p["user"] or None, password=p["password"] if p["user"] else None,
@@ -109,8 +120,11 @@ class CncBridgeNode(Node):
         super().__init__("cnc_bridge", context=context)
         p = declare_parameters(self, PARAMS)
         self._p = p
+        self.kinematic = p["compensation_mode"] == "kinematic"
+        angular_limits = {c: p["abs_limit_um_per_m"] for c in ANGULAR_COMPONENTS} if self.kinematic else {}
         self.envelope = SafetyEnvelope(EnvelopeConfig(
-            abs_limit_um=p["abs_limit_um"], max_rate_um_per_s=p["max_rate_um_per_s"],
+            abs_limit_um=p["abs_limit_um"], axis_abs_limits_um=angular_limits,
+            max_rate_um_per_s=p["max_rate_um_per_s"],
             max_step_s=p["max_step_s"], watchdog_timeout_s=p["watchdog_timeout_s"],
             watchdog_hold_s=p["watchdog_hold_s"], watchdog_ramp_um_per_s=p["watchdog_ramp_um_per_s"],
             disable_ramp_um_per_s=p["disable_ramp_um_per_s"]), enabled=p["enable"])
@@ -229,7 +243,10 @@ class CncBridgeNode(Node):
 
     def _update(self, t: float, stamp, fresh: bool) -> None:
         commanded = None
-        if self._errors is not None:
+        if self._errors is not None and self.kinematic:
+            # the CNC's kinematic model takes the location errors themselves
+            commanded = dict(self._errors)
+        elif self._errors is not None:
             try:
                 commanded = offsets_from_errors(self._errors, self._positions_now(),
                                                 self._p["sphere_radius_mm"], self.lathe, self.htm,

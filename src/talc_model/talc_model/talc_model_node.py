@@ -148,6 +148,7 @@ class TalcModelNode(Node):
         self.excluded: list[str] = []
         self.last_predicted: dict[str, float] = {}
         self.offsets_seen = False
+        self.applied_offsets: dict[str, float] = {}
         self.offsets_stamp_s = -math.inf
         self.compensation_enabled = False
         self.t_last = -math.inf
@@ -171,6 +172,9 @@ class TalcModelNode(Node):
         self.offsets_seen = True
         self.offsets_stamp_s = max(self.offsets_stamp_s, stamp_to_s(msg.header.stamp))
         self.compensation_enabled = bool(msg.compensation_enabled)
+        if len(msg.axis_names) == len(msg.applied_offsets_um):
+            self.applied_offsets = {a: float(v) for a, v in zip(msg.axis_names, msg.applied_offsets_um)
+                                    if math.isfinite(v)}
         limited = [a for a, f in zip(msg.axis_names, msg.limits_hit)
                    if f & (AxisOffsets.LIMIT_ABSOLUTE | AxisOffsets.LIMIT_RATE)]
         if limited:
@@ -252,9 +256,26 @@ class TalcModelNode(Node):
 
     # ------------------------------------------------------------------ probing
     def _applied_compensation(self) -> dict[str, float]:
+        """The compensation the probe will see as applied, per model component.
+
+        ``offsets`` mode uses what the CNC really holds (read back by the bridge): with the
+        bridge in kinematic mode the offsets are the components themselves; with X/Y/Z axis
+        offsets, a probing cycle sees them as a translation of the table frame only
+        (``cnc_bridge.error_transform.applied_offsets_in_component_space``): adding back the
+        whole prediction would count never-applied angular compensation as learned error.
+        ``predicted`` assumes the last prediction was applied in full."""
         mode = self.p["applied_compensation"]
+        names = self.model.component_names
         if mode == "none" or (mode == "offsets" and not (self.offsets_seen and self.compensation_enabled)):
-            return {c: 0.0 for c in self.model.component_names}
+            return {c: 0.0 for c in names}
+        if mode == "offsets" and self.applied_offsets:
+            if any(c in self.applied_offsets for c in names):
+                return {c: self.applied_offsets.get(c, 0.0) for c in names}
+            if any(a in self.applied_offsets for a in ("X", "Y", "Z")):
+                from cnc_bridge.error_transform import applied_offsets_in_component_space
+                comp = applied_offsets_in_component_space(self.applied_offsets,
+                                                          self.machine_state.get("B_pos", 0.0))
+                return {c: comp.get(c, 0.0) for c in names}
         return {c: (v if math.isfinite(v) else 0.0) for c, v in self.last_predicted.items()}
 
     def _start_probe(self, t: float) -> None:

@@ -50,7 +50,8 @@ THESIS_TABLES = {
 #: What each built-in machine runs.
 MACHINES: dict[str, dict[str, Any]] = {
     "nmv5000": {"scenario": "talc-178h-dry", "model_kind": "talc", "artefact": "sphere",
-                "sensor_config": "nmv5000", "step_s": 300.0, "offset_axes": ["X", "Y", "Z"]},
+                "sensor_config": "nmv5000", "step_s": 300.0, "compensation_mode": "kinematic",
+                "offset_axes": ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]},
     "swiss-lathe": {"scenario": "lathe-random-speed", "model_kind": "agp", "artefact": "guide_bush",
                     "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB"},
 }
@@ -128,6 +129,8 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
                               "backend": cfg.cnc}
     if m.get("offset_axes"):
         bridge["offset_axes"] = m["offset_axes"]
+    if m.get("compensation_mode"):
+        bridge["compensation_mode"] = m["compensation_mode"]
     if endpoint:
         bridge["endpoint"] = endpoint
     nodes = [
@@ -247,7 +250,9 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
         port = _free_port()
         endpoint = f"opc.tcp://127.0.0.1:{port}/thermal-comp/cnc"
         emu_log = open(log_dir / "cnc_emulator.log", "w")
-        emulator = subprocess.Popen([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--port", str(port)],
+        axes = MACHINES[cfg.machine].get("offset_axes")
+        emulator = subprocess.Popen([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--port", str(port)]
+                                    + (["--compensation-axes", ",".join(axes)] if axes else []),
                                     stdout=emu_log, stderr=subprocess.STDOUT, start_new_session=True)
         _wait_port(port, emulator, 60.0)
 
@@ -330,6 +335,8 @@ class DemoSeries:
     predicted: dict[str, np.ndarray]
     std: dict[str, np.ndarray]
     probe_times_s: list[float]
+    t_applied: np.ndarray                 # stamps of the offsets messages
+    applied: dict[str, np.ndarray]        # compensation the CNC held, per component (kinematic mode)
     status: dict[str, Any]
     phases: list[tuple[float, int]]
     limit_hits: int
@@ -354,6 +361,7 @@ def read_series(bag_path: pathlib.Path) -> DemoSeries:
     components: list[str] = []
     limit_hits = 0
     n_offsets = 0
+    applied_rows: dict[float, dict[str, float]] = {}
     for m in contents.messages:
         topic = m.topic.rsplit("/", 2)
         name = "/".join(topic[-2:]) if m.topic.endswith(("errors/ground_truth", "errors/predicted",
@@ -380,6 +388,9 @@ def read_series(bag_path: pathlib.Path) -> DemoSeries:
         elif name == "offsets":
             msg = deserialize_message(m.data, AxisOffsets)
             n_offsets += 1
+            t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            applied_rows[t] = {a: (v if msg.compensation_enabled else 0.0)
+                               for a, v in zip(msg.axis_names, msg.applied_offsets_um)}
             limit_hits += int(any(msg.limits_hit))
     if not true_rows:
         raise DemoError(f"{bag_path}: no ground-truth errors recorded")
@@ -394,17 +405,26 @@ def read_series(bag_path: pathlib.Path) -> DemoSeries:
               "failed_probing_cycles": int(status.failed_probing_cycles),
               "no_good_phases": int(status.no_good_phases), "parameter_updates": int(status.parameter_updates),
               "q_prod_pct": float(status.q_prod_pct), "model_kind": status.model_kind}
-    return DemoSeries(components, units, tt, true, tp, pred, std, sorted(set(probes)), st, phases,
-                      limit_hits, n_offsets)
+    ta = np.array(sorted(applied_rows))
+    applied = {c: np.array([applied_rows[t].get(c, math.nan) for t in ta]) for c in components}
+    if not any(np.isfinite(v).any() for v in applied.values()):
+        applied = {}   # axis-offset mode: no per-component record of what the CNC held
+    return DemoSeries(components, units, tt, true, tp, pred, std, sorted(set(probes)), ta, applied, st,
+                      phases, limit_hits, n_offsets)
 
 
 def compensation_in_effect(series: DemoSeries) -> dict[str, np.ndarray]:
-    """Per ground-truth instant, the prediction whose offsets the CNC held (the latest one
-    stamped strictly before that instant; zero before the first)."""
-    idx = np.searchsorted(series.t_pred, series.t_true, side="left") - 1
+    """Per ground-truth instant, the compensation the CNC held: the applied (read-back)
+    values of the latest offsets stamped strictly before that instant when the CNC holds
+    components (kinematic mode), else the latest prediction; zero before the first."""
+    if series.applied:
+        stamps, source = series.t_applied, series.applied
+    else:
+        stamps, source = series.t_pred, series.predicted
+    idx = np.searchsorted(stamps, series.t_true, side="left") - 1
     out = {}
     for c in series.components:
-        p = series.predicted[c]
+        p = source[c]
         vals = np.where(idx >= 0, p[np.clip(idx, 0, None)] if p.size else 0.0, 0.0)
         out[c] = np.where(np.isfinite(vals), vals, 0.0)
     return out

@@ -295,6 +295,23 @@ def _guide_bush_touch(start, direction, max_travel, errors, offsets, g, rng):
     return True, _quantise(start + t_skip * direction, gb.level_spacing_um)
 
 
+def split_compensation(errors: Mapping[str, float], applied: Mapping[str, float]
+                       ) -> tuple[dict[str, float], dict[str, float]]:
+    """Separate kinematic-model compensation (keys ``E_*``) from axis offsets.
+
+    Returns (errors the machine still has where the probe touches, axis offsets). A CNC that
+    holds the location errors in its kinematic model compensates them at every position, so
+    they are subtracted from the true errors component by component.
+    """
+    kinematic = {k: v for k, v in applied.items() if k.startswith("E_")}
+    if not kinematic:
+        return dict(errors), dict(applied)
+    residual = dict(errors)
+    for k, v in kinematic.items():
+        residual[k] = _get(residual, k, "errors") - _finite_scalar(f"applied_offsets_um['{k}']", v)
+    return residual, {k: v for k, v in applied.items() if not k.startswith("E_")}
+
+
 def touch_trigger_position(artefact: int, c_axis_deg: float, b_axis_deg: float,
                            start_mm: np.ndarray, direction: np.ndarray, max_travel_mm: float,
                            errors: Mapping[str, float], applied_offsets_um: Mapping[str, float],
@@ -311,8 +328,12 @@ def touch_trigger_position(artefact: int, c_axis_deg: float, b_axis_deg: float,
     errors: true, uncompensated thermal errors: ``E_X0C E_Y0C E_Z0T E_R0T`` in um and
         ``E_A0C E_B0C E_C0C`` in um/m for the sphere; ``GB_X`` (um) for the guide bush.
         Missing keys count as 0. Other keys (further lathe tool positions) are ignored.
-    applied_offsets_um: compensation offsets the CNC holds, axis name -> um: ``X Y Z``
-        for the sphere; ``GB_X`` (else ``X``) for the guide bush.
+    applied_offsets_um: compensation the CNC holds. Axis offsets, axis name -> um: ``X Y Z``
+        for the sphere; ``GB_X`` (else ``X``) for the guide bush. Or, when the CNC compensates
+        in its kinematic model (the bridge's ``compensation_mode: kinematic``), location-error
+        parameters by component name (``E_X0C`` .. ``E_C0C``, um or um/m): the CNC's 5-axis
+        transformation then applies them at every position, so the probe sees
+        ``errors[c] - applied[c]`` for each of them (:func:`split_compensation`).
     geometry: artefact geometry, default :data:`DEFAULT_GEOMETRY`.
     rng: source of the probe's repeatability scatter. ``None`` means no scatter; the
         readout quantisation (axis resolution, discrete skip levels) still applies.
@@ -323,6 +344,7 @@ def touch_trigger_position(artefact: int, c_axis_deg: float, b_axis_deg: float,
     (tip centre for the sphere), or, like a G31 that never skips, the end of the move.
     """
     g = DEFAULT_GEOMETRY if geometry is None else geometry
+    errors, applied_offsets_um = split_compensation(errors, applied_offsets_um)
     start = _finite_vector("start_mm", start_mm)
     d = _finite_vector("direction", direction)
     n = float(np.linalg.norm(d))
