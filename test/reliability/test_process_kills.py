@@ -1,8 +1,10 @@
 """kill -9 of the model, the bridge and the twin in the middle of a lock-step run under the
 launcher (restart enabled), compared with an undisturbed run; kill -9 of the recorder.
 
-Stated tolerance (docs/reliability.md): every component's compensated P99 within 0.25 um
-(um/m) of the undisturbed run, the calibration phase ending within 0.25 h of it, no instant
+Stated tolerance (docs/reliability.md): every component's compensated P99 within 1 um
+(um/m) of the undisturbed run -- the probe's repeatability (1 um, 2 sigma) and the CNC's
+1 um resolution: a kill shifts which probe-noise draw lands on which cycle --, the
+calibration phase ending within 0.25 h of it, no instant
 without temperatures or a prediction, no audit-logged write outside the envelope.
 """
 from __future__ import annotations
@@ -13,7 +15,7 @@ from thermal_comp import fault_injection as fi
 
 H = 3600.0
 HOURS = 6.0            # programme hours; probing pauses stretch it to ~7.5 simulated hours
-P99_TOLERANCE = 0.25
+P99_TOLERANCE = 1.0    # um or um/m: OMP60 repeatability (2 sigma) = axis resolution
 
 
 @pytest.fixture(scope="module")
