@@ -51,6 +51,7 @@ THESIS_TABLES = {
 MACHINES: dict[str, dict[str, Any]] = {
     "nmv5000": {"scenario": "talc-178h-dry", "model_kind": "talc", "artefact": "sphere",
                 "sensor_config": "nmv5000", "step_s": 300.0, "compensation_mode": "kinematic",
+                "model_config": "talc_nmv5000.yaml",
                 "offset_axes": ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]},
     "swiss-lathe": {"scenario": "lathe-random-speed", "model_kind": "agp", "artefact": "guide_bush",
                     "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB"},
@@ -125,6 +126,9 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
                                     "lockstep_participant": True, "artefact": m["artefact"]}
     if m.get("tool_position"):
         model_params["tool_position"] = m["tool_position"]
+    if m.get("model_config"):   # shipped with talc_model: the thesis's parameter set for this machine
+        import talc_model
+        model_params["model_config"] = str(pathlib.Path(talc_model.__file__).with_name("config") / m["model_config"])
     bridge: dict[str, Any] = {"lockstep": True, "audit_log_path": str(out / "cnc_audit.log"),
                               "backend": cfg.cnc}
     if m.get("offset_axes"):
