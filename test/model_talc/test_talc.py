@@ -60,7 +60,9 @@ def test_protocol_and_registry():
 def test_phases_calibration_compensation_no_good_update():
     n, change = 500, 250
     u, errors = plant(n, change_at=change)
-    m = TalcModel(config(forgetting_factor=0.05, forgetting_period_h=1.0))
+    # re-learning an abrupt change needs recent measurements to dominate: forgetting, and a low
+    # weight on samples that only carry the old model's predictions
+    m = TalcModel(config(forgetting_factor=0.05, forgetting_period_h=1.0, predicted_weight=0.05))
     log = []
     # calibration: no compensation, a probe every grid step
     run(m, u, errors, 0, 3, log=log)

@@ -109,7 +109,10 @@ def test_probe_scheduling_in_lockstep_with_failures(tmp_path, ros_context):
     node_log = (tmp_path / "node.log").read_text()
     goals = [json.loads(line) for line in log.read_text().splitlines() if '"goal"' in line]
     # the clock stood still while a cycle ran: the ack for t_k was withheld until its result
-    assert all(g["t_end"] == g["t_start"] and g["prediction_for_t"] for g in goals), goals
+    # (a timed-out cycle is given up: the node cancels it and acks, so the machine may move on
+    # before the cancel request reaches the server)
+    assert all(g["prediction_for_t"] for g in goals), goals
+    assert all(g["t_end"] == g["t_start"] for g in goals if g["outcome"] != "cancelled"), goals
     starts = [g["t_start"] for g in goals]
     assert starts[0] == 0.0 and goals[0]["set_reference"]
     assert not any(g["set_reference"] for g in goals[1:])

@@ -106,7 +106,7 @@ class TalcConfig:
     #: measurements) instead of pure simulation over the validation part
     select_with_state_updates: bool = False
     # --- weighted least squares
-    predicted_weight: float = 0.05         # weight of samples that only carry a prediction
+    predicted_weight: float = 0.3          # weight of samples that only carry a prediction (see docs)
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
     cp_gap_fill: str = "interpolate"       # CP grid samples without a measurement: "interpolate"
     #                                        (linear, between the neighbouring measurements) or
