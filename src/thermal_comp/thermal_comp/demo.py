@@ -54,7 +54,8 @@ MACHINES: dict[str, dict[str, Any]] = {
                 "model_config": "talc_nmv5000.yaml",
                 "offset_axes": ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]},
     "swiss-lathe": {"scenario": "lathe-random-speed", "model_kind": "agp", "artefact": "guide_bush",
-                    "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB"},
+                    "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB",
+                    "offset_axes": ["GB_X"]},
 }
 
 
