@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -90,9 +90,36 @@ def component_metrics(true: np.ndarray, compensation: np.ndarray) -> dict[str, f
             "p99_compensated_um": metrics.p99(e, e_hat)}
 
 
+def probe_noise_by_component(components: Sequence[str], linear_um: float, angular_um_per_m: float,
+                             angular_components: Sequence[str]) -> dict[str, float]:
+    """Probe noise std per component: ``angular_um_per_m`` for the angular ones, else ``linear_um``."""
+    ang = set(angular_components)
+    return {c: float(angular_um_per_m if c in ang else linear_um) for c in components}
+
+
+def _noise_per_component(probe_noise_um, probed: Sequence[str]) -> dict[str, float]:
+    if isinstance(probe_noise_um, Mapping):
+        missing = [c for c in probed if c not in probe_noise_um]
+        if missing:
+            raise VirtualExperimentError(f"probe_noise_um: no value for probed component(s) {missing} "
+                                         f"(given: {sorted(probe_noise_um)})")
+        noise = {c: probe_noise_um[c] for c in probed}
+    else:
+        noise = {c: probe_noise_um for c in probed}
+    for c, v in noise.items():
+        try:
+            ok = math.isfinite(float(v)) and float(v) >= 0
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise VirtualExperimentError(f"probe_noise_um[{c!r}]: {v!r} must be a finite number >= 0")
+    return {c: float(v) for c, v in noise.items()}
+
+
 def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayColumns | None = None,
                            probed_components: Sequence[str] | None = None,
-                           probe_noise_um: float = 0.0, probe_resolution_um: float = 0.0,
+                           probe_noise_um: float | Mapping[str, float] = 0.0,
+                           probe_resolution_um: float = 0.0,
                            relative_errors: bool = True, start: int = 0, stop: int | None = None,
                            seed: int = 0, progress: bool = False,
                            compute_metrics: bool = True) -> VirtualExperimentResult:
@@ -101,6 +128,10 @@ def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayCo
     ``probed_components``: what the probe measures (default every model component with an error
     column; e.g. only the guide-bush TLS component on the lathe). Probe noise is Gaussian with
     std ``probe_noise_um`` (fixed ``seed``), then quantised to ``probe_resolution_um``.
+    ``probe_noise_um`` is one value for every component or a mapping component -> std (the
+    sphere cycle measures linear errors in um and angular ones in um/m with different
+    uncertainties, thesis Table 5.4: see :func:`probe_noise_by_component`); a mapping must
+    name every probed component.
     """
     columns = columns or ReplayColumns.from_recording(recording)
     names = list(model.component_names)
@@ -116,6 +147,7 @@ def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayCo
     for c in probed:
         if c not in columns.errors:
             raise VirtualExperimentError(f"probed component {c!r} has no error column in the recording")
+    noise = _noise_per_component(probe_noise_um, probed)
     stop = len(recording) if stop is None else min(stop, len(recording))
     if not 0 <= start < stop:
         raise VirtualExperimentError(f"start/stop: empty range {start}..{stop} of {len(recording)} rows")
@@ -155,8 +187,8 @@ def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayCo
             measured = {}
             for c in probed:
                 m = true[c][k] - applied.get(c, 0.0)
-                if probe_noise_um > 0:
-                    m += rng.normal(0.0, probe_noise_um)
+                if noise[c] > 0:
+                    m += rng.normal(0.0, noise[c])
                 if probe_resolution_um > 0:
                     m = round(m / probe_resolution_um) * probe_resolution_um
                 measured[c] = m
