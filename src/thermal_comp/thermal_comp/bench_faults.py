@@ -113,26 +113,36 @@ def link_rows() -> list[dict]:
 
 def process_rows(out: pathlib.Path, hours: float) -> tuple[list[dict], dict]:
     from thermal_comp.domain_ids import claim_domain_id
-    kills = [fi.Kill("model", 0.45 * hours * H), fi.Kill("bridge", 0.6 * hours * H),
-             fi.Kill("machine_sim", 0.8 * hours * H)]
-    base = fi.run_graph_faults(out / "undisturbed", hours, progress=True)
-    hit = fi.run_graph_faults(out / "killed", hours, kills, progress=True)
-    diff = fi.compare_p99(base["summary"], hit["summary"])
+    # after the calibration phase (3.4 h with the shipped TALC configuration): see docs/reliability.md
+    # the bridge last: its restart's known effect (docs, defect 1) would blur the comparison
+    cut_h = 0.87 * hours
+    kills = [fi.Kill("model", 0.67 * hours * H), fi.Kill("machine_sim", 0.77 * hours * H),
+             fi.Kill("bridge", cut_h * H)]
+    base = fi.run_graph_faults(out / "undisturbed", hours, progress=True, p99_until_h=cut_h)
+    hit = fi.run_graph_faults(out / "killed", hours, kills, progress=True, p99_until_h=cut_h)
+    diff_all = fi.compare_p99(base["summary"], hit["summary"])
+    diff = {c: round(hit["p99_compensated_until"][c] - base["p99_compensated_until"][c], 3)
+            for c in base["p99_compensated_until"]}
     rows = []
     starts = [k["at_sim_h"] for k in hit["kills"]] + [math.inf]
     for i, k in enumerate(hit["kills"]):
         # an instant missing from the bag is charged to the latest kill before it
         mine = {topic: [t for t in ts if starts[i] <= t < starts[i + 1]]
                 for topic, ts in hit.get("missing_at_h", {}).items()}
-        lost = sum(len(v) for v in mine.values())
+        # data lost: an instant without temperatures or prediction in the bag, or without a
+        # write in the bridge's audit log; offsets absent from the bag but audited are a gap
+        # in the recording (shown in the detail), not lost data
+        lost = (len(mine.get("temperatures", [])) + len(mine.get("errors/predicted", []))
+                + sum(1 for t in hit["audit_missing_at_h"] if starts[i] <= t < starts[i + 1]))
         rows.append({"area": "process", "fault": f"kill -9 {k['node']} at {k['at_sim_h']} h",
                      "injected": int(k["killed"]),
                      "survived": k["restarted"] and not hit["back_to_calibration"]
                      and hit["probing_counter_regressions"] == 0,
                      "data_lost": lost, "unsafe_writes": len(hit["unsafe_writes"]) if i == 0 else 0,
-                     "detail": (f"missing {', '.join(f'{tp} at {v} h' for tp, v in mine.items() if v)}; "
-                                if lost else "") + f"run max |dP99| vs undisturbed "
-                               f"{max(abs(v) for v in diff.values()):.3f}"})
+                     "detail": (f"not in the bag: {', '.join(f'{len(v)} {tp}' for tp, v in mine.items() if v)}; "
+                                if any(mine.values()) else "") + f"max |dP99| vs undisturbed: "
+                               f"{max(abs(v) for v in diff.values()):.2f} before {cut_h:.1f} h, "
+                               f"{max(abs(v) for v in diff_all.values()):.2f} whole run"})
     rec = fi.run_recorder_kill(out / "recorder", claim_domain_id())
     rows.append({"area": "process", "fault": "kill -9 recorder", "injected": 1,
                  "survived": rec["messages_readable"] > 0 and rec["damage"] is not None,
@@ -143,7 +153,8 @@ def process_rows(out: pathlib.Path, hours: float) -> tuple[list[dict], dict]:
                "killed": {k: v for k, v in hit.items() if k != "summary"},
                "p99_compensated_undisturbed": {c: e["p99_compensated"] for c, e in base["summary"]["errors"].items()},
                "p99_compensated_killed": {c: e["p99_compensated"] for c, e in hit["summary"]["errors"].items()},
-               "p99_difference": diff, "recorder_kill": rec}
+               "p99_difference_before_bridge_kill": diff, "p99_difference_whole_run": diff_all,
+               "recorder_kill": rec}
     return rows, figures
 
 

@@ -474,7 +474,8 @@ DEMO_ENVELOPE = {"max_rate_um_per_s": 0.5, "abs_limit_um": 30.0, "max_step_s": 6
 
 
 def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: int = 0,
-                     wall_timeout_s: float = 600.0, progress: bool = False) -> dict:
+                     wall_timeout_s: float = 600.0, progress: bool = False,
+                     p99_until_h: float | None = None) -> dict:
     """The demo graph (nmv5000, talc-178h-dry shortened to ``hours``, OPC UA to the CNC
     emulator) under the launcher with restarts enabled, ``kills`` performed mid-run.
 
@@ -528,8 +529,18 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
         a = applied.setdefault(r["axis"], np.full(len(times), np.nan))
         a[index[float(r["time_s"])]] = float(r["applied_um"]) if r["applied_um"] else np.nan
     violations = offset_violations(times, applied, **DEMO_ENVELOPE)
+    audited = {round(t, 3) for t in times}
+    audit_missing = sorted(t / 1e9 for t in truth if t >= first_pred and round(t / 1e9, 3) not in audited)
     series = read_series(out / "bag")
     summary = summarise(series, cfg, record)
+    p99_until = None
+    if p99_until_h is not None:   # compensated P99 over the instants before p99_until_h only
+        from talc_model import metrics
+
+        from thermal_comp.demo import compensation_in_effect
+        comp = compensation_in_effect(series)
+        keep = series.t_true < p99_until_h * 3600.0
+        p99_until = {c: round(metrics.p99(series.true[c][keep], comp[c][keep]), 3) for c in series.components}
     return {
         "summary": summary,
         "kills": [{"node": k.node, "at_sim_h": round(k.at_sim_s / 3600.0, 2), "killed": k.done_wall is not None,
@@ -546,8 +557,10 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
         "missing_at_h": {k: [round(t / 3.6e12, 3) for t in v] for k, v in missing.items() if v},
         "bag_damage": contents.damage,
         "audit_writes": len(rows),
+        "audit_missing_at_h": [round(t / 3600.0, 3) for t in audit_missing],
         "unsafe_writes": [str(v) for v in violations],
         "wall_s": round(record.wall_s, 1),
+        "p99_compensated_until": p99_until,
     }
 
 
