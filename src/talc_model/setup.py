@@ -22,10 +22,12 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-
+            "replay = talc_model.replay_cli:main",
+            "sweep = talc_model.sweep_cli:main",
         ],
         "thermal_comp.bench": [
             "model = talc_model.bench_model:run",
+            "models = talc_model.bench_sweep:run",
         ],
         "console_scripts": [
             "talc_model = talc_model.talc_model_node:main",
