@@ -189,12 +189,28 @@ class ArxModel:
     def c(self) -> float:
         return float(self.theta[-1]) if self.orders.intercept else 0.0
 
-    def is_stable(self, margin: float = 0.0) -> bool:
-        """True if every pole of 1/A(q) lies inside the unit circle (radius 1 - margin)."""
+    def poles(self) -> np.ndarray:
+        """Poles of 1/A(q) (empty for n_a = 0)."""
         if self.orders.na == 0:
+            return np.zeros(0, dtype=complex)
+        return np.roots(np.concatenate(([1.0], self.a))).astype(complex)
+
+    def is_stable(self, margin: float = 0.0, real_positive: bool = False) -> bool:
+        """True if every pole of 1/A(q) lies inside the unit circle (radius 1 - margin).
+
+        ``real_positive`` also requires every pole to be real and > 0, as for heat conduction:
+        a linear thermal network has a symmetric negative-definite system matrix, so its
+        continuous-time eigenvalues are real and negative and its sampled poles exp(lambda T)
+        lie in (0, 1). Complex or negative poles make the simulation oscillate (with a period
+        of a few samples for negative ones), which a thermal error never does.
+        """
+        p = self.poles()
+        if p.size == 0:
             return True
-        poles = np.roots(np.concatenate(([1.0], self.a)))
-        return bool(np.all(np.abs(poles) < 1.0 - margin))
+        ok = np.abs(p) < 1.0 - margin
+        if real_positive:
+            ok &= (np.abs(p.imag) <= 1e-6) & (p.real > 0)
+        return bool(np.all(ok))
 
     def input_part(self, u: np.ndarray) -> np.ndarray:
         """B(q) u[k] (+ c) for every k >= the largest input lag (NaN before)."""

@@ -95,7 +95,8 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
                   train_fraction: float = 0.6, weights: np.ndarray | None = None,
                   measured: np.ndarray | None = None, exhaustive_limit: int = 4000,
                   refit_on_all: bool = True, require_stable: bool = True,
-                  state_updates: bool = False) -> OrderSelection:
+                  state_updates: bool = False, max_pole_radius: float = 1.0,
+                  real_positive_poles: bool = False) -> OrderSelection:
     """Choose ARX orders for output ``y`` and inputs ``u`` (N x r) by ``criterion``.
 
     ``na_range``/``nb_range`` are inclusive (min, max); the same n_b range applies to every
@@ -105,6 +106,10 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     before it is returned. With ``require_stable`` candidates whose A(q) has a pole on or
     outside the unit circle are skipped: a thermal system is stable, and an unstable
     recursion fed back in simulation mode diverges between measurements.
+    ``max_pole_radius`` (< 1) tightens this to |pole| < max_pole_radius, i.e. no time
+    constant longer than -step / ln(max_pole_radius): a near-unit pole fitted to noise makes
+    the simulation drift like an integrator between measurements. ``real_positive_poles``
+    also skips candidates with complex or negative poles (see :meth:`ArxModel.is_stable`).
     ``state_updates``: validate with the TALC predictor (measured outputs replace the
     predictions, scored at the next measured samples) instead of pure simulation; this is
     how the model is used between sparse measurements after the calibration phase.
@@ -112,6 +117,9 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     """
     if criterion not in CRITERIA:
         raise ValueError(f"criterion: {criterion!r} is not one of {list(CRITERIA)}")
+    if not 0 < max_pole_radius <= 1:
+        raise ValueError(f"max_pole_radius: {max_pole_radius} must be in (0, 1]")
+    margin = 1.0 - max_pole_radius
     if not 0.1 <= train_fraction <= 0.95:
         raise ValueError(f"train_fraction: {train_fraction} must be within [0.1, 0.95]")
     y = np.asarray(y, dtype=float)
@@ -154,7 +162,7 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
             deficient += 1
             cache[key] = (math.inf, None, math.nan)
             return math.inf
-        if require_stable and not m.is_stable():
+        if require_stable and not m.is_stable(margin, real_positive_poles):
             cache[key] = (math.inf, None, math.nan)
             return math.inf
         res = _validation_residuals(m, y, u, split, scored, state_updates)
@@ -205,7 +213,7 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     if refit_on_all:
         try:
             full = fit_arx(y, u, orders, weights, start=start)
-            if full.is_stable() or not require_stable:
+            if full.is_stable(margin, real_positive_poles) or not require_stable:
                 model = full
         except RankDeficientError:
             pass

@@ -105,6 +105,15 @@ class TalcConfig:
     #: at updates, score order candidates with the TALC predictor (state updates at the
     #: measurements) instead of pure simulation over the validation part
     select_with_state_updates: bool = False
+    # --- robustness to probe noise (gaps of the thesis; see docs/talc.md "Probe noise")
+    #: the CP ends no earlier than this many measured samples per parameter of the largest
+    #: candidate model (1 ~ the thesis's "sum of the maximum orders"; 2.5 ends the CP of the
+    #: 178 h run after 5.7 h, the thesis reports ~6 h)
+    cp_min_samples_per_parameter: float = 2.5
+    #: longest time constant a fitted model may have: poles beyond exp(-step / tau) are rejected
+    max_time_constant_h: float = math.inf
+    #: reject models with complex or negative poles (heat conduction has real poles in (0, 1))
+    real_positive_poles: bool = False
     # --- weighted least squares
     predicted_weight: float = 0.3          # weight of samples that only carry a prediction (see docs)
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
@@ -125,11 +134,12 @@ class TalcConfig:
         self.input_names = [str(c) for c in self.input_names]
         self.angular_components = [str(c) for c in self.angular_components]
         for name in ("model_step_s", "cp_interval_s", "ng_interval_min", "probe_duration_s",
-                     "forgetting_period_h"):
+                     "forgetting_period_h", "cp_min_samples_per_parameter"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"TALC config '{name}': {v!r} must be a finite number > 0")
         for name in ("cp_length_h", "post_cp_interval_h", "update_interval_h", "history_window_h",
+                     "max_time_constant_h",
                      "acl_linear_um", "acl_angular_um_per_m", "ng_measurements"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or math.isnan(v) or v < 0:
@@ -566,7 +576,10 @@ class TalcModel:
         if c.cp_length_h > 0 and t_s - self.t0 < c.cp_length_h * 3600.0:
             return False
         orders = self._max_orders()
-        if self._n_measured() < orders.order_sum:
+        need = max(orders.order_sum, math.ceil(c.cp_min_samples_per_parameter * orders.n_params))
+        if self._n_measured() < need:
+            self.message = (f"calibration phase continues: {self._n_measured()} of {need} measured samples "
+                            f"({c.cp_min_samples_per_parameter:g} per parameter of the largest model)")
             return False
         g = self.grid
         for j, name in enumerate(self.component_names):
@@ -583,7 +596,11 @@ class TalcModel:
                 return False
         return True
 
-    def _select(self, t_s: float, only_when_possible: bool = False) -> dict[str, ArxModel]:
+    def _select(self, t_s: float, failures: list[str] | None = None) -> dict[str, ArxModel]:
+        """Order selection for every component. With ``failures`` (an update), a component
+        without an identifiable, admissible candidate is left out (the caller refits its
+        current orders) and the reason is appended; without it (the first fit) it raises
+        :class:`RankDeficientError`."""
         c = self.config
         g = self.grid
         nb_max = self._nb_max_now()
@@ -592,14 +609,37 @@ class TalcModel:
             y, m = self._training_outputs(j)
             first = int(np.flatnonzero(np.isfinite(y))[0]) if np.any(np.isfinite(y)) else 0
             w = self._weights(t_s, m)
-            sel = select_orders(y[first:], g.u[first: g.n], (c.na_min, c.na_max), (c.nb_min, nb_max),
-                                nk=c.nk, intercept=c.intercept, criterion=c.criterion,
-                                train_fraction=c.train_fraction, weights=w[first:],
-                                measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
-                                state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates)
+            try:
+                sel = self._select_one(y, m, w, first, nb_max)
+            except RankDeficientError as exc:
+                if failures is None or name not in self.models:
+                    raise
+                failures.append(f"{name}: {exc}")
+                continue
             models[name] = sel.model
         self.nb_max_selected = nb_max
         return models
+
+    def _select_one(self, y: np.ndarray, m: np.ndarray, w: np.ndarray, first: int, nb_max: int):
+        c = self.config
+        g = self.grid
+        return select_orders(y[first:], g.u[first: g.n], (c.na_min, c.na_max), (c.nb_min, nb_max),
+                             nk=c.nk, intercept=c.intercept, criterion=c.criterion,
+                             train_fraction=c.train_fraction, weights=w[first:],
+                             measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
+                             state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates,
+                             max_pole_radius=self._max_pole_radius(),
+                             real_positive_poles=c.real_positive_poles)
+
+    def _max_pole_radius(self) -> float:
+        """Largest admissible pole magnitude: exp(-step / max_time_constant) (1 without a bound)."""
+        tau_h = self.config.max_time_constant_h
+        if not math.isfinite(tau_h) or tau_h <= 0:
+            return 1.0
+        return math.exp(-self.step / (tau_h * 3600.0))
+
+    def _admissible(self, m: ArxModel) -> bool:
+        return m.is_stable(1.0 - self._max_pole_radius(), self.config.real_positive_poles)
 
     def _first_fit(self, t_s: float) -> None:
         try:
@@ -638,28 +678,30 @@ class TalcModel:
         failures = []
         if regrow or c.reselect_orders_on_update:
             try:
-                new_models = self._select(t_s)
+                new_models = self._select(t_s, failures)
             except RankDeficientError as exc:
                 failures.append(str(exc))
-        if not new_models:
-            for j, name in enumerate(self.component_names):
-                old = self.models.get(name)
-                if old is None:
-                    continue
-                y, m = self._training_outputs(j)
-                w = self._weights(t_s, m)
-                w = np.where(np.isfinite(y), w, 0.0)
-                try:
-                    fit = fit_arx(y, g.u[: g.n], old.orders, w, what=f"{name} update")
-                    fit.extra["validation_rms"] = old.extra.get("validation_rms", math.nan)
-                    if fit.is_stable():
-                        new_models[name] = fit
-                    else:
-                        failures.append(f"{name}: the refit is unstable")
-                        new_models[name] = old
-                except RankDeficientError as exc:
-                    failures.append(str(exc))
+        # components without a (admissible) new selection: refit their current orders
+        for j, name in enumerate(self.component_names):
+            if name in new_models:
+                continue
+            old = self.models.get(name)
+            if old is None:
+                continue
+            y, m = self._training_outputs(j)
+            w = self._weights(t_s, m)
+            w = np.where(np.isfinite(y), w, 0.0)
+            try:
+                fit = fit_arx(y, g.u[: g.n], old.orders, w, what=f"{name} update")
+                fit.extra["validation_rms"] = old.extra.get("validation_rms", math.nan)
+                if self._admissible(fit):
+                    new_models[name] = fit
+                else:
+                    failures.append(f"{name}: the refit is unstable or has non-thermal poles")
                     new_models[name] = old
+            except RankDeficientError as exc:
+                failures.append(str(exc))
+                new_models[name] = old
         if c.update_acceptance and why == "update interval":
             for j, name in enumerate(self.component_names):
                 old, new = self.models.get(name), new_models.get(name)
