@@ -177,4 +177,6 @@ def format_table(summary: Mapping[str, Any], title: str = "") -> str:
     lines.append("Reduction %".ljust(20) + "".join(cell(r) for r in red))
     lines.append("RMS compensated".ljust(20) + "".join(cell(per[c]["rms"]) for c in comps))
     lines.append(f"P99_lin {summary['p99_lin_um']:.2f} um, P99_ang {summary['p99_ang_um_per_m']:.2f} um/m")
+    if summary["compensation_steps"] == 0:
+        lines.append("the model never left its calibration phase: nothing compensated to score (n/a)")
     return "\n".join(lines)
