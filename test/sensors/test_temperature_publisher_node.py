@@ -239,9 +239,17 @@ def test_with_the_real_machine_sim_in_lockstep(ros_context):
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
     twin, temps = {}, {}
-    node.create_subscription(TemperatureArray, "twin/sensor_readings",
-                             lambda m: twin.setdefault((m.header.stamp.sec, m.header.stamp.nanosec), m),
-                             SENSOR_QOS)
+    # the observer takes part in the lock-step too, so machine_sim cannot run ahead of its
+    # discovery on a loaded machine (it re-sends an instant until every participant acked it)
+    from thermal_comp.node_runtime import EVENT_QOS
+    from thermal_comp_msgs.msg import SimSync
+    sync = node.create_publisher(SimSync, "sim_sync", EVENT_QOS)
+
+    def on_twin(m):
+        twin.setdefault((m.header.stamp.sec, m.header.stamp.nanosec), m)
+        sync.publish(SimSync(header=m.header, node_name="observer", processed_until=m.header.stamp))
+
+    node.create_subscription(TemperatureArray, "twin/sensor_readings", on_twin, SENSOR_QOS)
     node.create_subscription(TemperatureArray, "temperatures",
                              lambda m: temps.setdefault((m.header.stamp.sec, m.header.stamp.nanosec), []).append(m),
                              SENSOR_QOS)
@@ -251,7 +259,7 @@ def test_with_the_real_machine_sim_in_lockstep(ros_context):
     spin_until(ex, lambda: node.count_publishers("temperatures") >= 1, 30.0, pub)
     sim = subprocess.Popen([sys.executable, "-m", "thermal_twin.machine_sim_node", "--ros-args",
                             "-p", "machine:=nmv5000", "-p", "scenario:=talc-178h-dry", "-p", "hours:=0.5",
-                            "-p", "lockstep_participants:=['sensors']", "-p", "shutdown_when_done:=true"],
+                            "-p", "lockstep_participants:=['sensors','observer']", "-p", "shutdown_when_done:=true"],
                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         spin_until(ex, lambda: sim.poll() is not None, 90.0)
