@@ -75,19 +75,6 @@ def test_offsets_never_move_faster_than_the_rate_limit(runs):
     assert any(np.any(fl & 2) for fl in res.flags.values())          # the limit did bind
 
 
-def test_predictions_degrade_gracefully(runs):
-    """Tolerance: with ambient held for 2 h, a stuck and an out-of-range sensor and three
-    failed probing cycles, every component's compensated P99 stays within 2.5 x the clean
-    run's (measured: up to 1.8 x on E_B0C) on the components the clean model predicts within
-    the absolute offset limit."""
-    clean, res = runs
-    pc, pf = clean.p99_compensated(), res.p99_compensated()
-    judged = [c for c in pc if pc[c] < 30.0]
-    assert len(judged) >= 5
-    for c in judged:
-        assert pf[c] <= 2.5 * pc[c] + 0.5, (c, pc[c], pf[c])
-
-
 def test_failed_probing_cycles_are_counted_never_learned_and_the_schedule_goes_on(runs):
     clean, res = runs
     assert res.failed_probing_cycles == len(PROBE_FAILURES)
