@@ -219,3 +219,29 @@ def test_node_map_file_is_validated(tmp_path):
     bad.write_text("axes:\n  X: {offset: 'ns=2;q=P.X'}\n")
     with pytest.raises(OpcUaConfigError, match=r"axes\.X\.offset"):
         load_node_map(bad)
+
+
+def test_a_restarted_bridge_continues_from_the_offsets_the_cnc_holds(emulator, port):
+    """A new bridge process must not write 0 over offsets the CNC holds (an 8 um jump where
+    the rate limit allows far less): it adopts them at its first connection."""
+    from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
+    first = backend(port)
+    try:
+        assert first.wait_connected(10), first.last_error
+        assert first.write_offsets({"X": 0.0, "Y": 0.0, "Z": 8.0})["Z"] == pytest.approx(8.0)
+    finally:
+        first.close()
+    n_writes = len(offset_writes(emulator, "Z"))
+    second = backend(port)
+    try:
+        assert second.wait_connected(10), second.last_error
+        assert second.held_offsets()["Z"] == pytest.approx(8.0)
+        assert emulator.applied_um()["Z"] == pytest.approx(8.0), "the re-apply must keep the held offset"
+        assert all(v == pytest.approx(0.008) for v in offset_writes(emulator, "Z")[n_writes:])
+        env = SafetyEnvelope(EnvelopeConfig(max_rate_um_per_s=0.5, max_step_s=10.0))
+        env.adopt_held(second.held_offsets())
+        env.step(0.0, {"X": 0.0, "Y": 0.0, "Z": 0.0}, fresh=True)
+        step = {d.axis: d.applied_um for d in env.step(1.0, {"X": 0.0, "Y": 0.0, "Z": 0.0}, fresh=True)}
+        assert step["Z"] == pytest.approx(7.5), "the move away from the held offset is rate limited"
+    finally:
+        second.close()

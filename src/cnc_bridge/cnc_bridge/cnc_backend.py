@@ -26,6 +26,9 @@ class CncBackend(Protocol):
     def axis_positions(self) -> dict[str, float]:
         """Axis positions the machine itself reports (mm / deg); empty if it reports none."""
 
+    def held_offsets(self) -> dict[str, float]:
+        """Offsets [um] the machine holds now (a restarted bridge continues from them)."""
+
     def close(self) -> None:
         """Release the connection."""
 
@@ -39,6 +42,9 @@ class TwinBackend:
         return {axis: float(v) for axis, v in offsets_um.items()}
 
     def axis_positions(self) -> dict[str, float]:
+        return {}
+
+    def held_offsets(self) -> dict[str, float]:
         return {}
 
     def close(self) -> None:

@@ -142,6 +142,11 @@ class CncBridgeNode(Node):
         self.htm = HtmGeometry(tuple(p["htm_origin_mm"]), tuple(p["b_pivot_xz_mm"]))
         self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
         self.backend = _make_backend(self, p)
+        held = self.backend.held_offsets() if hasattr(self.backend, "held_offsets") else {}
+        if any(abs(v) > 0 for v in held.values()):
+            self.envelope.adopt_held(held)
+            self.get_logger().info("continuing from the offsets the CNC holds: " +
+                                   ", ".join(f"{a}={v:.3f}" for a, v in sorted(held.items())))
         self._positions: dict[str, float] = {}
         self._errors: dict[str, float] | None = None
         self._last_update_t: float | None = None

@@ -235,6 +235,8 @@ class OpcUaBackend:
                     ua.MessageSecurityMode.SignAndEncrypt:
                 raise OpcUaConfigError("security_required but the channel is not Sign&Encrypt")
             await self._subscribe_positions(client)
+            if not self._confirmed_um:
+                await self._adopt_held_offsets(client)
             await self._reapply(client)
         except BaseException:
             await client.disconnect()
@@ -247,6 +249,27 @@ class OpcUaBackend:
             return
         sub = await client.create_subscription(100, _PositionHandler(self, by_node))
         await sub.subscribe_data_change([client.get_node(n) for n in by_node])
+
+    async def _adopt_held_offsets(self, client: Client) -> None:
+        """First connection of this bridge process: take the offsets the CNC holds now as
+        confirmed, so that a restarted bridge starts its envelope (rate limit) from them
+        instead of writing 0 over them in one jump."""
+        scale = self.config.offset_units_per_um
+        axes = [a for a in self._offset_axes if self.config.node_map[a].offset]
+        if not axes:
+            return
+        got = await client.read_values([client.get_node(self.config.node_map[a].offset) for a in axes])
+        for a, v in zip(axes, got):
+            try:
+                um = float(v) / scale
+            except (TypeError, ValueError):
+                continue
+            if math.isfinite(um):
+                self._confirmed_um[a] = um
+
+    def held_offsets(self) -> dict[str, float]:
+        """Offsets the CNC confirmed holding (um), including those found at the first connection."""
+        return dict(self._confirmed_um)
 
     async def _reapply(self, client: Client) -> None:
         """After a (re)connection: slope 0, reference 0, enable 1, last confirmed offsets."""

@@ -115,6 +115,15 @@ class SafetyEnvelope:
     def set_enabled(self, enabled: bool) -> None:
         self.enabled = bool(enabled)
 
+    def adopt_held(self, held_um: Mapping[str, float]) -> None:
+        """Start from offsets the CNC already holds (a restarted bridge): they count as
+        applied and commanded, so the rate limit applies to every move away from them."""
+        for a, v in held_um.items():
+            v = float(v)
+            if math.isfinite(v):
+                self._applied[a] = v
+                self._commanded.setdefault(a, v)
+
     def add_axes(self, axes) -> None:
         for a in axes:
             self._applied.setdefault(a, 0.0)
