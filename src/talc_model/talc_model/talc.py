@@ -111,7 +111,9 @@ class TalcConfig:
     #: 178 h run after 5.7 h, the thesis reports ~6 h)
     cp_min_samples_per_parameter: float = 2.5
     #: longest time constant a fitted model may have: poles beyond exp(-step / tau) are rejected
-    max_time_constant_h: float = math.inf
+    #: (a machine tool's thermal time constants are hours; a pole fitted to noise near 1 makes
+    #: the simulation drift like an integrator between the sparse probes); inf = off
+    max_time_constant_h: float = 24.0
     #: reject models with complex or negative poles (heat conduction has real poles in (0, 1))
     real_positive_poles: bool = False
     # --- weighted least squares
