@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import pathlib
 
 from talc_model.replay_cli import main as replay_main
 
@@ -47,3 +48,17 @@ def test_replay_names_a_bad_key_and_writes_nothing(short_csv, tmp_path, capsys):
     assert replay_main([str(tmp_path / "missing.csv"), "--model", "talc", "--json", str(out)]) == 2
     assert "missing.csv" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_replay_reads_a_bag(tmp_path):
+    """The recorded regression bag of the twin's load case A (ground-truth errors on their topic)."""
+    bag = pathlib.Path(__file__).resolve().parents[2] / "bags" / "nmv5000_load_case_A_24h"
+    out = tmp_path / "bag.json"
+    assert replay_main([str(bag), "--model", "talc", "--set", "cp_length_h=4", "--hours", "14",
+                        "--set", "input_names=[ambient, ws_mwf, c_coolant_delta]",
+                        "--json", str(out), "--no-progress"]) == 0
+    data = json.loads(out.read_text())
+    assert abs(data["duration_h"] - 14.0) < 0.05
+    assert list(data["components"]) == COMPONENTS
+    assert data["compensation_steps"] > 0 and data["probing_cycles"] > 0
+    assert data["p99_lin_um"] is not None and data["p99_lin_um"] > 0
