@@ -16,6 +16,8 @@ Figures per load case ``<case>`` = ``load-case-A`` .. ``load-case-D``:
 - ``talc.<case>.p99_lin_um`` / ``talc.<case>.q_prod_pct``: the lowest P99_lin with
   Q_prod >= 95 % *within the subset* (NaN if none reaches 95 %), ``talc.<case>.best_params``;
 - ``talc.<case>.subset_combinations``: how many combinations that best was chosen from;
+- ``sweep.<case>.replayed_h``: hours of the load case replayed per combination (the full-grid
+  times below are for that length: with ``--quick`` they are for the 24 h excerpt only);
 - ``sweep.<case>.seconds_per_combination``: median replay time of one combination (one core);
 - ``sweep.<case>.full_grid_s_one_core``: 2,191 x that;
 - ``sweep.<case>.full_grid_s_parallel``: 2,191 x (subset wall time / subset size) with the
@@ -80,6 +82,7 @@ def sweep_case(scenario: str, quick: bool, jobs: int, out_dir: pathlib.Path | No
         f"{key}.best_params": (", ".join(f"{k}={v:g}" for k, v in best["params"].items()) if best
                                else "none with Q_prod >= 95 %"),
         f"{key}.subset_combinations": len(rows),
+        f"sweep.{scenario}.replayed_h": _r(float(rec.time_s[-1] - rec.time_s[0]) / 3600.0, 1),
         f"sweep.{scenario}.seconds_per_combination": _r(spc),
         f"sweep.{scenario}.full_grid_s_one_core": _r(THESIS_COMBINATIONS_PER_LOAD_CASE * spc, 0),
         f"sweep.{scenario}.full_grid_s_parallel": _r(THESIS_COMBINATIONS_PER_LOAD_CASE * wall / len(rows), 0),
