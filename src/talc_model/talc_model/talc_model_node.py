@@ -147,6 +147,7 @@ class TalcModelNode(Node):
         self.machine_state: dict[str, float] = {}
         self.excluded: list[str] = []
         self.last_predicted: dict[str, float] = {}
+        self.last_pred_msg: ThermalErrors | None = None
         self.offsets_seen = False
         self.applied_offsets: dict[str, float] = {}
         self.offsets_stamp_s = -math.inf
@@ -189,6 +190,13 @@ class TalcModelNode(Node):
             self.get_logger().warning(f"temperatures stamped {t:.3f} s before the last ({self.t_last:.3f} s): "
                                       f"ignored", throttle_duration_sec=10.0)
             return
+        if t == self.t_last and self.last_pred_msg is not None:
+            # machine_sim re-sent this instant (an acknowledgement was missing, e.g. a node
+            # restarted): the model has learned from it already, so the same prediction goes
+            # out again unchanged and the instant is acknowledged again; never a second update
+            self.pred_pub.publish(self.last_pred_msg)
+            self._ack(t)
+            return
         n = len(msg.sensor_ids)
         if len(msg.temperatures_degc) != n or len(msg.status) != n:
             self.get_logger().error(f"temperatures at {t:.3f} s: {n} sensor_ids, {len(msg.temperatures_degc)} "
@@ -228,7 +236,8 @@ class TalcModelNode(Node):
             uncertainties=[float(stds.get(c, math.nan)) for c in names])
 
     def _publish_prediction(self, t: float, values: dict, stds: dict) -> None:
-        self.pred_pub.publish(self._errors_msg(t, ThermalErrors.SOURCE_PREDICTED, values, stds))
+        self.last_pred_msg = self._errors_msg(t, ThermalErrors.SOURCE_PREDICTED, values, stds)
+        self.pred_pub.publish(self.last_pred_msg)
         self.last_predicted = dict(values)
 
     def _publish_status(self, t: float) -> None:
