@@ -9,6 +9,7 @@ crash loses at most that chunk. Run: ``python -m thermal_comp.bag_recorder_node 
 from __future__ import annotations
 
 import importlib
+import pathlib
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -100,9 +101,21 @@ class BagRecorderNode(Node):
                      "header stamp, or the receive time on the node's clock",
                      choices=("header", "receive")),
             rt.Param("compression", "zstd", "chunk compression", choices=("zstd", "lz4", "none")),
+            rt.Param("on_existing", "continue", "when 'output' exists (a restart after a crash): "
+                     "continue in a new bag 'output.2', 'output.3', ... and leave the old one as it "
+                     "is, or fail", choices=("continue", "fail")),
         ])
         if not p["output"]:
             raise ValueError("parameter 'output': a bag folder path is required")
+        output = p["output"]
+        if p["on_existing"] == "continue" and pathlib.Path(output).exists():
+            k = 2
+            while pathlib.Path(f"{output}.{k}").exists():
+                k += 1
+            self.get_logger().warning(f"{output} exists (an earlier run, or this recorder was restarted "
+                                      f"after a crash): it is kept as it is; recording continues in {output}.{k}")
+            output = f"{output}.{k}"
+        p["output"] = output
         args = [t for t in p["topics"] if t.strip()]
         specs = ([parse_topic_arg(a) for a in args] if args
                  else [(n, t, q) for n, (t, q) in DEFAULT_TOPICS.items()])
