@@ -88,5 +88,7 @@ def test_a_killed_recorder_leaves_a_readable_bag_up_to_the_crash(tmp_path, ros_d
     assert rec["messages_readable"] > 10
     assert rec["damage"] is not None and "without MCAP footer" in rec["damage"]
     assert any(t.endswith("errors/ground_truth") for t in rec["topics"])
-    # restarting onto the same folder is refused in one line naming it (nothing overwritten)
-    assert rec["restart_exit_code"] == 2 and "exists already" in rec["restart_message"]
+    # the restarted recorder keeps the crashed bag untouched and records on in bag.2
+    assert rec["crashed_bag_unchanged"]
+    assert "recording continues in" in rec["restart_output"], rec["restart_output"]
+    assert rec["restart_exit_code"] == 0 and rec["restart_messages"] > 0

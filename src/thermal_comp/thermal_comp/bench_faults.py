@@ -145,10 +145,11 @@ def process_rows(out: pathlib.Path, hours: float) -> tuple[list[dict], dict]:
                                f"{max(abs(v) for v in diff_all.values()):.2f} whole run"})
     rec = fi.run_recorder_kill(out / "recorder", claim_domain_id())
     rows.append({"area": "process", "fault": "kill -9 recorder", "injected": 1,
-                 "survived": rec["messages_readable"] > 0 and rec["damage"] is not None,
+                 "survived": rec["messages_readable"] > 0 and rec["damage"] is not None
+                 and rec["restart_messages"] > 0 and rec["crashed_bag_unchanged"],
                  "data_lost": 0, "unsafe_writes": 0,
-                 "detail": f"{rec['messages_readable']} msgs readable, damage reported; restart: "
-                           f"exit {rec['restart_exit_code']}"})
+                 "detail": f"{rec['messages_readable']} msgs readable, damage reported; restarted recorder "
+                           f"continued in bag.2 ({rec['restart_messages']} msgs)"})
     figures = {"undisturbed": {k: v for k, v in base.items() if k != "summary"},
                "killed": {k: v for k, v in hit.items() if k != "summary"},
                "p99_compensated_undisturbed": {c: e["p99_compensated"] for c, e in base["summary"]["errors"].items()},

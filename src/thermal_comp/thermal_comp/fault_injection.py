@@ -613,11 +613,28 @@ def run_recorder_kill(out_dir, domain_id: int, min_bytes: int = 20000, wall_time
         rec.wait()
         size_at_kill = mcap.stat().st_size
         contents = read_bag(bag)
-        restart = subprocess.run(rec_argv, env=env, capture_output=True, text=True, timeout=wall_timeout_s)
-        err = [ln for ln in (restart.stdout + restart.stderr).splitlines() if ln.strip()]
+        # the launcher's restart: the recorder keeps the crashed bag and continues in bag.2
+        rec = subprocess.Popen(rec_argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               start_new_session=True)
+        cont = out / "bag.2"
+        deadline = time.monotonic() + wall_timeout_s
+        while time.monotonic() < deadline:
+            files = list(cont.glob("*.mcap")) if cont.is_dir() else []
+            if files and files[0].stat().st_size >= min_bytes // 4:
+                break
+            if rec.poll() is not None:
+                break
+            time.sleep(0.05)
+        if rec.poll() is None:
+            os.killpg(rec.pid, signal.SIGINT)
+            rec.wait(timeout=wall_timeout_s)
+        restart_out = rec.stdout.read() if rec.stdout else ""
+        continued = read_bag(cont) if (cont / "metadata.yaml").is_file() else None
         return {"bytes_at_kill": size_at_kill, "messages_readable": len(contents.messages),
                 "topics": sorted({m.topic for m in contents.messages}), "damage": contents.damage,
-                "restart_exit_code": restart.returncode, "restart_message": err[-1] if err else ""}
+                "restart_exit_code": rec.returncode, "restart_output": restart_out,
+                "restart_messages": len(continued.messages) if continued else 0,
+                "crashed_bag_unchanged": mcap.stat().st_size == size_at_kill}
     finally:
         for p in (sim, rec):
             if p.poll() is None:
