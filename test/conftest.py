@@ -6,7 +6,6 @@ concurrent test runs on one machine never see each other's nodes.
 """
 from __future__ import annotations
 
-import fcntl
 import os
 import pathlib
 import sys
@@ -18,30 +17,10 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
 VENV_BIN = pathlib.Path(sys.executable).parent
 
-_LOCK_DIR = pathlib.Path(tempfile.gettempdir()) / "thermal_comp_domain_locks"
-_held_lock = None
-
-
-def _claim_domain_id() -> int:
-    """Claim a free ROS_DOMAIN_ID in 1..200 for this process (released at exit)."""
-    global _held_lock
-    _LOCK_DIR.mkdir(exist_ok=True)
-    start = (os.getpid() % 200) + 1
-    for k in range(200):
-        did = (start + k - 1) % 200 + 1
-        f = open(_LOCK_DIR / f"{did}.lock", "w")
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            f.close()
-            continue
-        _held_lock = f
-        return did
-    raise RuntimeError("no free ROS_DOMAIN_ID in 1..200")
-
 
 def pytest_configure(config):
-    did = _claim_domain_id()
+    from thermal_comp.domain_ids import claim_domain_id
+    did = claim_domain_id()
     os.environ["ROS_DOMAIN_ID"] = str(did)
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     log_dir = pathlib.Path(tempfile.mkdtemp(prefix="thermal_comp_roslog_"))

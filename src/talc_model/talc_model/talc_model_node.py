@@ -31,6 +31,8 @@ Wiring (the model itself is the pure core behind :class:`adaptive_model.Adaptive
 """
 from __future__ import annotations
 
+from talc_model.machine_inputs import machine_state_inputs
+
 import math
 import pathlib
 import time
@@ -78,24 +80,6 @@ PARAMS = [
           choices=("offsets", "predicted", "none")),
     Param("lockstep_participant", False, "publish SimSync for t_k after the prediction for t_k"),
 ]
-
-
-def machine_state_inputs(msg: MachineState) -> dict[str, float]:
-    """MachineState -> flat numeric inputs (names documented in the module docstring)."""
-    out: dict[str, float] = {}
-    for n, v in zip(msg.spindle_names, msg.spindle_speeds_rpm):
-        out[f"{n}_rpm"] = float(v)
-    for n, v in zip(msg.rotary_axis_names, msg.rotary_axis_speeds_rpm):
-        out[f"{n}_axis_rpm"] = float(v)
-    for n, v in zip(msg.axis_names, msg.axis_positions):
-        out[f"{n}_pos"] = float(v)
-    for n, v in zip(msg.drive_names, msg.drive_powers_w):
-        out[f"{n}_power_w"] = float(v)
-    out["coolant_on"] = 1.0 if msg.coolant_on else 0.0
-    out["coolant_temperature_degc"] = float(msg.coolant_temperature_degc)
-    out["door_open"] = 1.0 if msg.door_open else 0.0
-    out["machine_busy_probing"] = 1.0 if msg.machine_busy_probing else 0.0
-    return out
 
 
 def _load_yaml(path: str) -> dict:

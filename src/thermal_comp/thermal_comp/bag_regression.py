@@ -23,6 +23,8 @@ No rclpy here.
 """
 from __future__ import annotations
 
+from talc_model.machine_inputs import machine_state_inputs
+
 import argparse
 import json
 import math
@@ -80,24 +82,6 @@ class RegressionSpec:
         if unknown:
             raise RegressionError(f"{path}: unknown key(s) {unknown}")
         return cls(**{k: v for k, v in data.items() if k in known})
-
-
-def machine_state_inputs(msg: Any) -> dict[str, float]:
-    """MachineState -> flat numeric inputs, the names the talc_model node gives them."""
-    out: dict[str, float] = {}
-    for n, v in zip(msg.spindle_names, msg.spindle_speeds_rpm):
-        out[f"{n}_rpm"] = float(v)
-    for n, v in zip(msg.rotary_axis_names, msg.rotary_axis_speeds_rpm):
-        out[f"{n}_axis_rpm"] = float(v)
-    for n, v in zip(msg.axis_names, msg.axis_positions):
-        out[f"{n}_pos"] = float(v)
-    for n, v in zip(msg.drive_names, msg.drive_powers_w):
-        out[f"{n}_power_w"] = float(v)
-    out["coolant_on"] = 1.0 if msg.coolant_on else 0.0
-    out["coolant_temperature_degc"] = float(msg.coolant_temperature_degc)
-    out["door_open"] = 1.0 if msg.door_open else 0.0
-    out["machine_busy_probing"] = 1.0 if msg.machine_busy_probing else 0.0
-    return out
 
 
 def _topic(contents: BagContents, rel: str) -> str:
