@@ -509,7 +509,7 @@ def print_table(summary: dict[str, Any]) -> None:
     c.print(f"probing cycles {summary['probing_cycles']} (failed {summary['failed_probing_cycles']}), "
             f"no-good phases {summary['no_good_phases']}, parameter updates {summary['parameter_updates']}, "
             f"Q_prod {summary['q_prod_pct']} %"
-            + (f"; thesis Table 6.5: 4 NG phases per dominant error, Q_prod 98.4 %"
+            + (f"; thesis (§6.4.2): 4 no-good events from E_Y0C, 4 from E_Z0T, Q_prod about 97 % at the end"
                if summary["scenario"] == "talc-178h-dry" else ""))
     if "wall_time_s" in summary:
         c.print(f"wall time {summary['wall_time_s']} s ({summary['times_real_time']} x real time)")
