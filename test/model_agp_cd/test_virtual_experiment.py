@@ -53,7 +53,7 @@ class EveryNthStepModel:
 
     @classmethod
     def from_state(cls, state):
-        raise NotImplementedError
+        raise AssertionError("the replay never restores a model from its state")
 
 
 def test_probe_sees_the_residual_and_the_model_sees_every_input():
