@@ -23,6 +23,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from thermal_comp.node_runtime import ACTION_PROBE_CYCLE, stamp_to_s  # noqa: E402
 from thermal_comp_msgs.action import ProbeCycle  # noqa: E402
 from thermal_comp_msgs.msg import ThermalErrors  # noqa: E402
+from touch_probe_provider import stop_processes
 
 HERE = pathlib.Path(__file__).resolve().parent
 BEFORE = {"E_X0C": 2.0, "E_Y0C": 10.0, "E_Z0T": -6.0, "E_R0T": 1.0, "E_A0C": 5.0,
@@ -72,15 +73,7 @@ def graph(ros_domain_id):
         node.destroy_node()
         ex.shutdown()
         rclpy.shutdown(context=ctx)
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-            print(p.stdout.read())      # shown by pytest when a test failed
+        stop_processes(procs)
 
 
 def _run_goal(ex, client, goal, cancel_after=None, deadline_s=180.0):

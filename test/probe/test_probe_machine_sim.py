@@ -32,6 +32,7 @@ from thermal_twin.artefact_geometry import (DEFAULT_GEOMETRY, SPHERE_COMPONENTS,
                                             touch_trigger_position)
 from probe_cycle.probe_backend import ProbeBackend, TouchReply  # noqa: E402
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine  # noqa: E402
+from touch_probe_provider import stop_processes
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
@@ -133,15 +134,7 @@ def test_probe_cycles_on_machine_sim_equal_the_offline_twin(ros_domain_id):
         node.destroy_node()
         ex.shutdown()
         rclpy.shutdown(context=ctx)
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
-            print(p.stdout.read())      # shown by pytest when the test failed
+        stop_processes(procs)
 
     assert ref.status == GoalStatus.STATUS_SUCCEEDED, ref.result.message
     assert second.status == GoalStatus.STATUS_SUCCEEDED, second.result.message

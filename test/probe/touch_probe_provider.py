@@ -64,3 +64,18 @@ class TouchProbeProvider(Node):
 
 if __name__ == "__main__":
     sys.exit(run_node(TouchProbeProvider))
+
+
+def stop_processes(procs) -> None:
+    """Terminate test processes (kill after 10 s) and print their output (pytest shows it
+    when a test failed)."""
+    import subprocess
+    for p in procs:
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+        print(p.stdout.read())

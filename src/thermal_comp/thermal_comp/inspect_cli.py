@@ -88,6 +88,16 @@ def _watch_names(get, expect: Iterable[str], wait_s: float, w: _GraphWatcher) ->
     return found, missing
 
 
+def _report(command: str, lines: list[str], missing: set, wait_s: float) -> int:
+    """Print what was found; name what was expected but not seen (exit 1)."""
+    for line in lines:
+        print(line)
+    if missing:
+        print(f"thermal-comp {command}: not seen within {wait_s:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def topics_main(argv: list[str] | None = None) -> int:
     """List the topics of the graph with their types."""
     ap = argparse.ArgumentParser(prog="thermal-comp topics", description=topics_main.__doc__)
@@ -101,12 +111,8 @@ def topics_main(argv: list[str] | None = None) -> int:
         found, missing = _watch_names(w.topics, args.expect, args.wait, w)
     finally:
         w.close()
-    for name, types in sorted(found):
-        print(f"{name} [{', '.join(types)}]" if args.show_types else name)
-    if missing:
-        print(f"thermal-comp topics: not seen within {args.wait:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
-        return 1
-    return 0
+    return _report("topics", [f"{n} [{', '.join(ts)}]" if args.show_types else n for n, ts in sorted(found)],
+                   missing, args.wait)
 
 
 def nodes_main(argv: list[str] | None = None) -> int:
@@ -121,12 +127,7 @@ def nodes_main(argv: list[str] | None = None) -> int:
         found, missing = _watch_names(w.nodes, args.expect, args.wait, w)
     finally:
         w.close()
-    for name in found:
-        print(name)
-    if missing:
-        print(f"thermal-comp nodes: not seen within {args.wait:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
-        return 1
-    return 0
+    return _report("nodes", found, missing, args.wait)
 
 
 def echo_main(argv: list[str] | None = None) -> int:
