@@ -33,6 +33,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .arx import ArxModel, ArxOrders, RankDeficientError, fit_arx
+from .arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
 
 CRITERIA = ("mdl", "mdl_as_printed", "aic", "bic")
 
@@ -44,7 +45,11 @@ def criterion_value(criterion: str, residuals: np.ndarray, orders: ArxOrders) ->
     n = r.size
     if n == 0:
         return math.inf
-    v = float(np.mean(r ** 2))
+    return _criterion_from_mse(criterion, float(np.mean(r ** 2)), n, orders)
+
+
+def _criterion_from_mse(criterion: str, v: float, n: int, orders: ArxOrders) -> float:
+    """The criterion from V (mean squared finite residual) and N (their number, > 0)."""
     d = orders.n_params
     if criterion == "mdl":
         return v * (1.0 + d * math.log(n) / n)
@@ -90,13 +95,126 @@ def select_orders(*args, **kwargs) -> "OrderSelection":
         return _select_orders(*args, **kwargs)
 
 
+def _select_orders_reference(*args, **kwargs) -> "OrderSelection":
+    """:func:`select_orders` with one :func:`fit_arx` and one :meth:`ArxModel.simulate` per
+    candidate (the implementation before the batched one). Kept as the reference the
+    batched evaluation is tested against; not for production use (~100x slower)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _select_orders(*args, _batched=False, **kwargs)
+
+
+class _PerCandidateScorer:
+    """Scores candidates one by one: fit_arx, is_stable, ArxModel.simulate, criterion_value."""
+
+    def __init__(self, y, u, nk, intercept, weights, start, split, scored, state_updates,
+                 criterion, margin, real_positive_poles, require_stable):
+        self.y, self.u, self.nk, self.intercept = y, u, nk, intercept
+        self.weights, self.start, self.split, self.scored = weights, start, split, scored
+        self.state_updates, self.criterion = state_updates, criterion
+        self.margin, self.real_positive_poles = margin, real_positive_poles
+        self.require_stable = require_stable
+        self.deficient = 0
+
+    def evaluate(self, key: tuple) -> tuple[float, ArxModel | None, float]:
+        """(score, model fitted on the training part, validation RMS) of candidate ``key``."""
+        na, nb = key
+        orders = ArxOrders(na, nb, self.nk, self.intercept)
+        if orders.n_params == 0:
+            return math.inf, None, math.nan
+        try:
+            m = fit_arx(self.y, self.u, orders, self.weights, start=self.start, stop=self.split)
+        except RankDeficientError:
+            self.deficient += 1
+            return math.inf, None, math.nan
+        if self.require_stable and not m.is_stable(self.margin, self.real_positive_poles):
+            return math.inf, None, math.nan
+        res = _validation_residuals(m, self.y, self.u, self.split, self.scored, self.state_updates)
+        s = criterion_value(self.criterion, res, orders)
+        if not math.isfinite(s):
+            s = math.inf
+        rms = float(np.sqrt(np.mean(res ** 2))) if res.size else math.nan
+        return s, m, rms
+
+    def scores(self, keys: list[tuple]) -> list[float]:
+        return [self.evaluate(k)[0] for k in keys]
+
+
+class _BatchedScorer:
+    """Scores many candidates at once with :mod:`talc_model.arx_batch`; same verdicts and
+    (to rounding) the same scores as :class:`_PerCandidateScorer`."""
+
+    #: bytes of the (validation steps x candidates) arrays of one simulated chunk
+    CHUNK_BYTES = 32 * 2 ** 20
+
+    def __init__(self, y, u, nb_max, nk, intercept, weights, start, split, scored, state_updates,
+                 criterion, margin, real_positive_poles, require_stable):
+        self.y, self.u, self.nb_max, self.nk, self.intercept = y, u, nb_max, nk, intercept
+        self.weights, self.start, self.split = weights, start, split
+        self.criterion, self.margin = criterion, margin
+        self.real_positive_poles, self.require_stable = real_positive_poles, require_stable
+        self.deficient = 0
+        self._groups: dict[int, SharedRegression] = {}
+        self._u_val = input_lag_matrix(u, nb_max, nk, intercept, split)   # (T, P_u)
+        self._y_val = y[split:]
+        self._scored_val = scored[split:]
+        # the state update replaces predictions at measured samples (if there are any)
+        self._replace = self._scored_val if state_updates and np.any(self._scored_val) else None
+
+    def _group(self, na: int) -> SharedRegression:
+        if na not in self._groups:
+            self._groups[na] = SharedRegression(self.y, self.u, na, self.nb_max, self.nk, self.intercept,
+                                                self.weights, self.start, self.split)
+        return self._groups[na]
+
+    def scores(self, keys: list[tuple]) -> list[float]:
+        out = [math.inf] * len(keys)
+        by_na: dict[int, list[int]] = {}
+        for i, (na, _) in enumerate(keys):
+            by_na.setdefault(na, []).append(i)
+        for na, members in by_na.items():
+            nbs = np.array([keys[i][1] for i in members], dtype=int).reshape(len(members), -1)
+            n_params = na + nbs.sum(axis=1) + int(self.intercept)
+            g = self._group(na)
+            theta, full_rank = g.fit(nbs)
+            self.deficient += int(np.sum(~full_rank & (n_params > 0)))
+            keep = full_rank.copy()
+            if self.require_stable:
+                keep &= poles_inside(theta[:, :na], self.margin, self.real_positive_poles)
+            idx = np.flatnonzero(keep)
+            chunk = max(1, self.CHUNK_BYTES // (8 * max(1, self._y_val.size)))
+            for c0 in range(0, idx.size, chunk):
+                sel = idx[c0:c0 + chunk]
+                v, n = self._validation_mse(na, theta[sel])
+                for i, vi, ni in zip(sel, v, n):
+                    key = keys[members[i]]
+                    if ni == 0:
+                        continue
+                    s = _criterion_from_mse(self.criterion, float(vi), int(ni),
+                                            ArxOrders(na, key[1], self.nk, self.intercept))
+                    out[members[i]] = s if math.isfinite(s) else math.inf
+        return out
+
+    def _validation_mse(self, na: int, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean squared finite validation residual and their number, per candidate."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            bu = self._u_val @ theta[:, na:].T                               # (T, M)
+            pred = simulate_batch(theta[:, :na], bu, self.y[self.split - na:self.split],
+                                  self._replace, self._y_val)
+            res = self._y_val[self._scored_val, None] - pred[self._scored_val]
+            finite = np.isfinite(res)
+            n = finite.sum(axis=0)
+            sq = np.where(finite, res, 0.0) ** 2
+            v = sq.sum(axis=0) / np.maximum(n, 1)
+        return v, n
+
+
 def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_range: tuple[int, int],
                   *, nk: int = 0, intercept: bool = False, criterion: str = "mdl",
                   train_fraction: float = 0.6, weights: np.ndarray | None = None,
                   measured: np.ndarray | None = None, exhaustive_limit: int = 4000,
                   refit_on_all: bool = True, require_stable: bool = True,
                   state_updates: bool = False, max_pole_radius: float = 1.0,
-                  real_positive_poles: bool = False) -> OrderSelection:
+                  real_positive_poles: bool = False, _batched: bool = True) -> OrderSelection:
     """Choose ARX orders for output ``y`` and inputs ``u`` (N x r) by ``criterion``.
 
     ``na_range``/``nb_range`` are inclusive (min, max); the same n_b range applies to every
@@ -114,6 +232,11 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     predictions, scored at the next measured samples) instead of pure simulation; this is
     how the model is used between sparse measurements after the calibration phase.
     Raises :class:`RankDeficientError` if no candidate is identifiable.
+
+    Candidates are scored in batches (:mod:`talc_model.arx_batch`, ``_batched``); the
+    winner is then fitted and scored once more per candidate (:func:`fit_arx`,
+    :meth:`ArxModel.simulate`), so the returned model, score and RMS are those of the
+    per-candidate evaluation (:func:`_select_orders_reference`).
     """
     if criterion not in CRITERIA:
         raise ValueError(f"criterion: {criterion!r} is not one of {list(CRITERIA)}")
@@ -144,71 +267,24 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     if split <= start:
         raise RankDeficientError(f"order selection: {n} samples leave no training rows after the "
                                  f"largest lag {start}", rank=0, n_params=max_orders.n_params)
-    cache: dict[tuple, tuple[float, ArxModel | None, float]] = {}
-    deficient = 0
+    args = (y, u, nk, intercept, weights, start, split, scored, state_updates, criterion, margin,
+            real_positive_poles, require_stable)
+    reference = _PerCandidateScorer(*args)
+    scorer = _BatchedScorer(y, u, nb_hi, *args[2:]) if _batched else reference
+    cache: dict[tuple, float] = {}
 
-    def evaluate(na: int, nb: tuple[int, ...]) -> float:
-        nonlocal deficient
-        key = (na, nb)
-        if key in cache:
-            return cache[key][0]
-        orders = ArxOrders(na, nb, nk, intercept)
-        if orders.n_params == 0:
-            cache[key] = (math.inf, None, math.nan)
-            return math.inf
-        try:
-            m = fit_arx(y, u, orders, weights, start=start, stop=split)
-        except RankDeficientError:
-            deficient += 1
-            cache[key] = (math.inf, None, math.nan)
-            return math.inf
-        if require_stable and not m.is_stable(margin, real_positive_poles):
-            cache[key] = (math.inf, None, math.nan)
-            return math.inf
-        res = _validation_residuals(m, y, u, split, scored, state_updates)
-        s = criterion_value(criterion, res, orders)
-        if not math.isfinite(s):
-            s = math.inf
-        rms = float(np.sqrt(np.mean(res ** 2))) if res.size else math.nan
-        cache[key] = (s, m, rms)
-        return s
+    def scores(keys: list[tuple]) -> list[float]:
+        new = [k for k in dict.fromkeys(keys) if k not in cache]
+        cache.update(zip(new, scorer.scores(new)))
+        return [cache[k] for k in keys]
 
-    na_values = range(na_lo, na_hi + 1)
-    nb_values = range(nb_lo, nb_hi + 1)
-    n_candidates = len(na_values) * len(nb_values) ** r
-    if n_candidates <= exhaustive_limit:
-        for na in na_values:
-            for nb in itertools.product(nb_values, repeat=r):
-                evaluate(na, tuple(nb))
-    else:
-        # coordinate search from the smallest orders
-        cur_na, cur_nb = na_lo, [nb_lo] * r
-        best = evaluate(cur_na, tuple(cur_nb))
-        improved = True
-        while improved:
-            improved = False
-            for na in na_values:
-                s = evaluate(na, tuple(cur_nb))
-                if s < best:
-                    best, cur_na, improved = s, na, True
-            for j in range(r):
-                for nb in nb_values:
-                    trial = list(cur_nb)
-                    trial[j] = nb
-                    s = evaluate(cur_na, tuple(trial))
-                    if s < best:
-                        best, cur_nb, improved = s, trial, True
+    _search(scores, range(na_lo, na_hi + 1), range(nb_lo, nb_hi + 1), r, exhaustive_limit)
 
-    finite = [(v[0], ArxOrders(k[0], k[1], nk, intercept).n_params, k) for k, v in cache.items()
-              if math.isfinite(v[0])]
-    if not finite:
+    # ties (within 1e-9 relative) go to the smallest model, then to the smallest score
+    best_key, score, model, rms = _winner(cache, nk, intercept, reference, _batched)
+    if best_key is None:
         raise RankDeficientError(f"order selection: none of {len(cache)} candidates is identifiable "
                                  f"on {split - start} training rows", rank=0, n_params=max_orders.n_params)
-    best_score = min(f[0] for f in finite)
-    # ties (within 1e-9 relative) go to the smallest model
-    tol = 1e-9 * max(1.0, abs(best_score))
-    _, _, best_key = min((f for f in finite if f[0] <= best_score + tol), key=lambda f: (f[1], f[0]))
-    score, model, rms = cache[best_key]
     orders = model.orders
     if refit_on_all:
         try:
@@ -218,4 +294,67 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
         except RankDeficientError:
             pass
     model.extra["validation_rms"] = rms
-    return OrderSelection(model, orders, score, rms, len(cache), deficient)
+    return OrderSelection(model, orders, score, rms, len(cache), scorer.deficient)
+
+
+def _winner(cache: dict[tuple, float], nk: int, intercept: bool, reference: _PerCandidateScorer,
+            batched: bool) -> tuple:
+    """(key, score, model, rms) of the best candidate in ``cache`` ((None, ..) if none).
+
+    Ties within 1e-9 relative of the best score go to the fewest parameters, then to the
+    smallest score. With batched scores, the candidates this last step could pick (fewest
+    parameters, score within rounding of the smallest; several only when distinct orders give
+    the same model, e.g. collinear inputs) are scored again per candidate and the choice is
+    made on those scores, as the per-candidate selection makes it; a candidate the
+    per-candidate fit rejects (rank or stability verdict flipped by rounding at its boundary)
+    is dropped and the choice repeated.
+    """
+    while True:
+        finite = [(s, ArxOrders(k[0], k[1], nk, intercept).n_params, k) for k, s in cache.items()
+                  if math.isfinite(s)]
+        if not finite:
+            return None, math.inf, None, math.nan
+        best_score = min(f[0] for f in finite)
+        tol = 1e-9 * max(1.0, abs(best_score))
+        ties = [f for f in finite if f[0] <= best_score + tol]
+        d_min = min(f[1] for f in ties)
+        if not batched:
+            _, _, key = min(ties, key=lambda f: (f[1], f[0]))
+            return (key, *reference.evaluate(key))
+        s_min = min(f[0] for f in ties if f[1] == d_min)
+        contenders = [f[2] for f in ties if f[1] == d_min and f[0] <= s_min + tol]
+        confirmed = []
+        for key in contenders:
+            score, model, rms = reference.evaluate(key)
+            if model is None or not math.isfinite(score):
+                cache[key] = math.inf
+            else:
+                confirmed.append((score, key, model, rms))
+        if len(confirmed) == len(contenders):   # else: choose again without the rejected ones
+            score, key, model, rms = min(confirmed, key=lambda c: c[0])   # first of equal ones
+            return key, score, model, rms
+
+
+def _search(scores, na_values: range, nb_values: range, r: int, exhaustive_limit: int) -> None:
+    """Exhaustive search while the grid has at most ``exhaustive_limit`` candidates, else a
+    coordinate search from the smallest orders (one order at a time, repeated until no
+    improvement). ``scores(keys)`` scores a list of (na, nb) at once; the candidates of one
+    coordinate sweep do not depend on each other's scores, so each sweep is one batch."""
+    n_candidates = len(na_values) * len(nb_values) ** r
+    if n_candidates <= exhaustive_limit:
+        scores([(na, tuple(nb)) for na in na_values for nb in itertools.product(nb_values, repeat=r)])
+        return
+    cur_na, cur_nb = na_values[0], (nb_values[0],) * r
+    best = scores([(cur_na, cur_nb)])[0]
+    improved = True
+    while improved:
+        improved = False
+        trials = [(na, cur_nb) for na in na_values]
+        for (na, _), s in zip(trials, scores(trials)):
+            if s < best:
+                best, cur_na, improved = s, na, True
+        for j in range(r):
+            trials = [(cur_na, cur_nb[:j] + (nb,) + cur_nb[j + 1:]) for nb in nb_values]
+            for (_, nb), s in zip(trials, scores(trials)):
+                if s < best:
+                    best, cur_nb, improved = s, nb, True

@@ -1,0 +1,190 @@
+"""Many ARX candidates at once: one regression matrix, batched WLS, stability and simulation.
+
+Order selection (:mod:`talc_model.order_selection`) fits and simulates every order combination
+(n_a, n_b,1 .. n_b,r). Done one candidate at a time that is a regression matrix, an SVD, a
+polynomial root finder and a filter per candidate, ~0.5 ms each of mostly Python overhead.
+Here the work is shared:
+
+- For a fixed n_a, every candidate's regression matrix is a column subset of the matrix of the
+  largest orders (n_a, n_b,max, .. n_b,max), and its rows are the same (a row is dropped for a
+  missing output, lagged outputs depend on n_a only, the inputs are complete). One QR
+  decomposition A = Q R of the sqrt(W)-weighted largest matrix gives every candidate's
+  problem min |A_S theta - b| as the small problem min |R_S theta - Q^T b| (A_S = Q R_S with
+  orthonormal Q: same minimiser and the same singular values, hence the same rank).
+- The small problems are solved by a stacked SVD over all candidates with the same number of
+  parameters, with the rank tolerance of ``numpy.linalg.lstsq`` / ``matrix_rank``
+  (eps * max(rows, parameters) * largest singular value), so the full-rank verdict is the one
+  :func:`talc_model.arx.solve_wls` gives.
+- Stability: the pole of n_a = 1 is -a1 (exact); for n_a >= 2 the companion matrices are
+  stacked and their eigenvalues taken at once (what ``numpy.roots`` does for one polynomial).
+- Simulation mode: the input part B(q) u (+ c) of all candidates is one matrix product of the
+  input-lag matrix with the stacked B coefficients; the autoregressive recursion then runs once
+  over time with all candidates as a vector (summed in the order of ``scipy.signal.lfilter``'s
+  transposed direct form), measured outputs replacing predictions where asked (state update).
+
+Nothing here imports rclpy; :mod:`talc_model.order_selection` is the user.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .arx import ArxOrders, regression_matrix
+
+
+class SharedRegression:
+    """The weighted regression of the largest orders for one n_a, factorised once.
+
+    Rows k in [``start``, ``stop``) with a finite output, finite lagged outputs and a weight
+    > 0 enter (as in :func:`talc_model.arx.fit_arx`). Columns: -y[k-1] .. -y[k-na], then for
+    each input j the lags nk .. nk + nb_max - 1, then the intercept.
+    """
+
+    def __init__(self, y: np.ndarray, u: np.ndarray, na: int, nb_max: int, nk: int, intercept: bool,
+                 weights: np.ndarray | None, start: int, stop: int):
+        y = np.asarray(y, dtype=float)
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 1:
+            u = u[:, None]
+        if not np.all(np.isfinite(u)):
+            raise ValueError("inputs u: non-finite values (hold or drop unavailable inputs first)")
+        self.na = int(na)
+        self.nb_max = int(nb_max)
+        self.n_inputs = u.shape[1]
+        self.intercept = bool(intercept)
+        largest = ArxOrders(self.na, (self.nb_max,) * self.n_inputs, nk, intercept)
+        phi, target, rows = regression_matrix(y, u, largest, start)
+        w = np.ones(y.shape[0]) if weights is None else np.asarray(weights, dtype=float)
+        if w.shape != y.shape:
+            raise ValueError(f"weights: shape {w.shape}, expected {y.shape}")
+        w = np.where(rows < stop, w[rows], 0.0)
+        ok = np.isfinite(target) & np.all(np.isfinite(phi), axis=1) & (w > 0)
+        sw = np.sqrt(w[ok])
+        a = phi[ok] * sw[:, None]
+        b = target[ok] * sw
+        self.n_rows = a.shape[0]
+        self.n_columns = a.shape[1]
+        if self.n_rows and self.n_columns:
+            q, self.r = np.linalg.qr(a)              # reduced: r is min(rows, cols) x cols
+            self.qtb = q.T @ b
+        else:
+            self.r = np.zeros((0, self.n_columns))
+            self.qtb = np.zeros(0)
+
+    def columns(self, nb: tuple[int, ...]) -> list[int]:
+        """Column indices (in theta order) of the candidate (self.na, nb)."""
+        cols = list(range(self.na))
+        for j, n in enumerate(nb):
+            base = self.na + j * self.nb_max
+            cols.extend(range(base, base + n))
+        if self.intercept:
+            cols.append(self.n_columns - 1)
+        return cols
+
+    def fit(self, nbs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Fit the candidates ``nbs`` (M x n_inputs); return (theta, full_rank).
+
+        ``theta`` is M x n_columns with the candidate's coefficients in its own columns and
+        zeros elsewhere (undefined for rank-deficient candidates), ``full_rank`` is the verdict
+        of :func:`talc_model.arx.solve_wls` (enough rows and rank = parameters).
+        """
+        nbs = np.asarray(nbs, dtype=int).reshape(-1, self.n_inputs)
+        m = nbs.shape[0]
+        theta = np.zeros((m, self.n_columns))
+        full_rank = np.zeros(m, dtype=bool)
+        n_params = self.na + nbs.sum(axis=1) + int(self.intercept)
+        for p in np.unique(n_params):
+            sel = np.flatnonzero(n_params == p)
+            if p == 0 or self.n_rows < p:
+                continue                              # nothing to fit / too few rows
+            idx = np.array([self.columns(tuple(nbs[i])) for i in sel])      # (M_p, p)
+            sub = np.moveaxis(self.r[:, idx], 1, 0)                          # (M_p, K, p)
+            uu, s, vt = np.linalg.svd(sub, full_matrices=False)
+            tol = np.finfo(float).eps * max(self.n_rows, int(p)) * s[:, :1]
+            ok = np.all(s > tol, axis=1)
+            s_safe = np.where(s > 0, s, 1.0)
+            coef = np.einsum("mkp,k->mp", uu, self.qtb) / s_safe
+            th = np.einsum("mpq,mp->mq", vt, coef)
+            rows_sel = np.repeat(sel, p)
+            theta[rows_sel, idx.ravel()] = th.ravel()
+            full_rank[sel] = ok
+        return theta, full_rank
+
+
+def input_lag_matrix(u: np.ndarray, nb_max: int, nk: int, intercept: bool, first: int) -> np.ndarray:
+    """Rows k = first .. N-1 of [u_1[k-nk] .. u_1[k-nk-nb_max+1], u_2[..] .., 1]: the input
+    columns of :class:`SharedRegression` (``first`` must be >= nk + nb_max - 1)."""
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1:
+        u = u[:, None]
+    orders = ArxOrders(0, (nb_max,) * u.shape[1], nk, intercept)
+    if first < orders.max_lag:
+        raise ValueError(f"input_lag_matrix: first row {first} is before the largest input lag {orders.max_lag}")
+    phi, _, _ = regression_matrix(np.zeros(u.shape[0]), u, orders, first)
+    return phi
+
+
+def poles_inside(a: np.ndarray, margin: float = 0.0, real_positive: bool = False) -> np.ndarray:
+    """Per row of ``a`` (M x n_a: a1 .. a_na): are all poles of 1/A(q) inside radius 1 - margin
+    (and real and > 0 with ``real_positive``)? Same test as :meth:`ArxModel.is_stable`."""
+    a = np.asarray(a, dtype=float)
+    m, na = a.shape
+    if na == 0:
+        return np.ones(m, dtype=bool)
+    if na == 1:
+        p = -a[:, 0]
+        ok = np.abs(p) < 1.0 - margin
+        if real_positive:
+            ok &= p > 0
+        return ok
+    comp = np.zeros((m, na, na))
+    comp[:, 0, :] = -a
+    comp[:, np.arange(1, na), np.arange(na - 1)] = 1.0
+    p = np.linalg.eigvals(comp).astype(complex)
+    ok = np.all(np.abs(p) < 1.0 - margin, axis=1)
+    if real_positive:
+        ok &= np.all((np.abs(p.imag) <= 1e-6) & (p.real > 0), axis=1)
+    return ok
+
+
+def simulate_batch(a: np.ndarray, bu: np.ndarray, y_before: np.ndarray,
+                   replace: np.ndarray | None = None, y_replace: np.ndarray | None = None) -> np.ndarray:
+    """Simulation-mode predictions of M candidates over T steps.
+
+    ``a`` (M x n_a), ``bu`` (T x M) the input parts B(q) u (+ c) at the T steps, ``y_before``
+    the n_a outputs before the first step (oldest first). Predictions are fed back; where
+    ``replace[t]`` is true, ``y_replace[t]`` replaces the prediction in the fed-back history
+    after it has been recorded (the TALC state update, as in :meth:`ArxModel.simulate`).
+    Returns T x M predictions.
+    """
+    a = np.asarray(a, dtype=float)
+    bu = np.asarray(bu, dtype=float)
+    m, na = a.shape
+    t_len = bu.shape[0]
+    if na == 0:
+        return bu.copy()
+    y_before = np.asarray(y_before, dtype=float)
+    if y_before.shape != (na,):
+        raise ValueError(f"simulate_batch: y_before has shape {y_before.shape}, expected ({na},)")
+    pred = np.empty((t_len, m))
+    hist = np.empty((na + t_len, m))        # hist[na + t] = fed-back output of step t
+    hist[:na] = y_before[:, None]
+    at = np.ascontiguousarray(a.T)          # at[i] = a_{i+1} of every candidate
+    rep = np.zeros(t_len, dtype=bool) if replace is None else np.asarray(replace, dtype=bool)
+    with np.errstate(over="ignore", invalid="ignore"):   # unstable candidates may overflow
+        if na == 1:
+            a1 = at[0]
+            h = hist[0].copy()
+            for t in range(t_len):
+                h = bu[t] - a1 * h
+                pred[t] = h
+                if rep[t]:
+                    h = np.full(m, y_replace[t])
+            return pred
+        for t in range(t_len):
+            # lfilter's order: x + (-a1 y[t-1] + (-a2 y[t-2] + ... ))
+            acc = at[na - 1] * hist[t]
+            for i in range(na - 1, 0, -1):
+                acc = at[i - 1] * hist[na + t - i] + acc
+            pred[t] = bu[t] - acc
+            hist[na + t] = y_replace[t] if rep[t] else pred[t]
+    return pred
