@@ -80,6 +80,15 @@ class SharedRegression:
             cols.append(self.n_columns - 1)
         return cols
 
+    def _column_mask(self, nbs: np.ndarray) -> np.ndarray:
+        """M x n_columns: which columns each candidate (row of ``nbs``) uses (as :meth:`columns`)."""
+        mask = np.ones((nbs.shape[0], self.n_columns), dtype=bool)
+        lags = np.arange(self.nb_max)
+        for j in range(self.n_inputs):
+            base = self.na + j * self.nb_max
+            mask[:, base:base + self.nb_max] = lags[None, :] < nbs[:, j:j + 1]
+        return mask
+
     def fit(self, nbs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Fit the candidates ``nbs`` (M x n_inputs); return (theta, full_rank).
 
@@ -96,18 +105,59 @@ class SharedRegression:
             sel = np.flatnonzero(n_params == p)
             if p == 0 or self.n_rows < p:
                 continue                              # nothing to fit / too few rows
-            idx = np.array([self.columns(tuple(nbs[i])) for i in sel])      # (M_p, p)
-            sub = np.moveaxis(self.r[:, idx], 1, 0)                          # (M_p, K, p)
-            uu, s, vt = np.linalg.svd(sub, full_matrices=False)
-            tol = np.finfo(float).eps * max(self.n_rows, int(p)) * s[:, :1]
-            ok = np.all(s > tol, axis=1)
-            s_safe = np.where(s > 0, s, 1.0)
-            coef = np.einsum("mkp,k->mp", uu, self.qtb) / s_safe
-            th = np.einsum("mpq,mp->mq", vt, coef)
+            idx = np.nonzero(self._column_mask(nbs[sel]))[1].reshape(sel.size, p)   # (M_p, p)
+            sub = np.moveaxis(self.r[: idx.max() + 1, idx], 1, 0)           # (M_p, K, p), rows below are 0
+            th, ok = _solve_small(sub, self.qtb[: idx.max() + 1], self.n_rows)
             rows_sel = np.repeat(sel, p)
             theta[rows_sel, idx.ravel()] = th.ravel()
             full_rank[sel] = ok
         return theta, full_rank
+
+
+#: how far (factor) the condition-number bounds of :func:`_solve_small` must clear lstsq's
+#: rank tolerance to decide without an SVD
+RANK_DECISION_MARGIN = 100.0
+
+
+def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Least squares min |sub[m] theta - qtb| for a stack of K x p matrices; (theta, full rank).
+
+    Full rank means what ``numpy.linalg.lstsq`` (and ``matrix_rank``) on the n_rows x p
+    matrix decides: smallest singular value > eps * max(n_rows, p) * largest. A stacked QR
+    gives sub = Q T (T p x p upper triangular, the same singular values); the condition
+    number lies in [max|T_ii| / min|T_ii|, |T|_F |T^-1|_F] and in [|T|_F |T^-1|_F / p, ..];
+    candidates whose bounds clear the tolerance by :data:`RANK_DECISION_MARGIN` are decided
+    from them (theta = T^-1 Q^T qtb), the others by an SVD as lstsq does it.
+    """
+    m, _, p = sub.shape
+    limit = 1.0 / (np.finfo(float).eps * max(n_rows, p))      # largest admissible condition
+    theta = np.zeros((m, p))
+    full = np.zeros(m, dtype=bool)
+    q, t = np.linalg.qr(sub)
+    diag = np.abs(np.diagonal(t, axis1=1, axis2=2))
+    dmin, dmax = diag.min(axis=1), diag.max(axis=1)
+    undecided = ~(dmin * limit <= dmax * RANK_DECISION_MARGIN)    # else surely deficient
+    inv_idx = np.flatnonzero(undecided)
+    if inv_idx.size:
+        with np.errstate(over="ignore", invalid="ignore"):
+            t_inv = np.linalg.inv(t[inv_idx])
+            bound = np.linalg.norm(t[inv_idx], axis=(1, 2)) * np.linalg.norm(t_inv, axis=(1, 2))
+        sure_full = bound * RANK_DECISION_MARGIN < limit
+        sure_deficient = bound > limit * RANK_DECISION_MARGIN * p
+        good = inv_idx[sure_full]
+        qtb_t = np.einsum("mkp,k->mp", q[good], qtb)
+        theta[good] = np.einsum("mpq,mq->mp", t_inv[sure_full], qtb_t)
+        full[good] = True
+        undecided[inv_idx[sure_full | sure_deficient]] = False
+    svd_idx = np.flatnonzero(undecided)
+    if svd_idx.size:
+        uu, s, vt = np.linalg.svd(sub[svd_idx], full_matrices=False)
+        ok = np.all(s > np.finfo(float).eps * max(n_rows, p) * s[:, :1], axis=1)
+        s_safe = np.where(s > 0, s, 1.0)
+        coef = np.einsum("mkp,k->mp", uu, qtb) / s_safe
+        theta[svd_idx] = np.einsum("mpq,mp->mq", vt, coef)
+        full[svd_idx] = ok
+    return theta, full
 
 
 def input_lag_matrix(u: np.ndarray, nb_max: int, nk: int, intercept: bool, first: int) -> np.ndarray:

@@ -45,16 +45,15 @@ def criterion_value(criterion: str, residuals: np.ndarray, orders: ArxOrders) ->
     n = r.size
     if n == 0:
         return math.inf
-    return _criterion_from_mse(criterion, float(np.mean(r ** 2)), n, orders)
+    return _criterion_from_mse(criterion, float(np.mean(r ** 2)), n, orders.n_params, orders.order_sum)
 
 
-def _criterion_from_mse(criterion: str, v: float, n: int, orders: ArxOrders) -> float:
-    """The criterion from V (mean squared finite residual) and N (their number, > 0)."""
-    d = orders.n_params
+def _criterion_from_mse(criterion: str, v: float, n: int, d: int, n_ord: int) -> float:
+    """The criterion from V (mean squared finite residual), N (their number, > 0), the number
+    of parameters d and the order sum n_ord = n_a + sum n_b,i."""
     if criterion == "mdl":
         return v * (1.0 + d * math.log(n) / n)
     if criterion == "mdl_as_printed":
-        n_ord = orders.order_sum
         if n_ord <= 0:
             return math.sqrt(v)
         return math.sqrt(v) * (1.0 + math.log(n_ord) / n_ord)
@@ -189,8 +188,9 @@ class _BatchedScorer:
                     key = keys[members[i]]
                     if ni == 0:
                         continue
+                    n_ord = na + sum(key[1])
                     s = _criterion_from_mse(self.criterion, float(vi), int(ni),
-                                            ArxOrders(na, key[1], self.nk, self.intercept))
+                                            n_ord + int(self.intercept), n_ord)
                     out[members[i]] = s if math.isfinite(s) else math.inf
         return out
 
@@ -310,7 +310,7 @@ def _winner(cache: dict[tuple, float], nk: int, intercept: bool, reference: _Per
     is dropped and the choice repeated.
     """
     while True:
-        finite = [(s, ArxOrders(k[0], k[1], nk, intercept).n_params, k) for k, s in cache.items()
+        finite = [(s, k[0] + sum(k[1]) + int(intercept), k) for k, s in cache.items()
                   if math.isfinite(s)]
         if not finite:
             return None, math.inf, None, math.nan
