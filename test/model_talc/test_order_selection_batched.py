@@ -269,9 +269,10 @@ def test_pole_check_is_arx_model_is_stable(na):
         assert got.any() and not got.all()
 
 
+@pytest.mark.parametrize("n_cands", [5, 100])       # per-candidate lfilter / vectorised time loop
 @pytest.mark.parametrize("na", [0, 1, 2, 3])
 @pytest.mark.parametrize("state_updates", [False, True])
-def test_batched_simulation_is_arx_model_simulate(na, state_updates):
+def test_batched_simulation_is_arx_model_simulate(na, state_updates, n_cands):
     rng = np.random.default_rng(40 + na)
     n, split, nb_max = 200, 120, 3
     u = rng.normal(size=(n, 2))
@@ -279,7 +280,7 @@ def test_batched_simulation_is_arx_model_simulate(na, state_updates):
     measured = np.zeros(n, bool)
     measured[split + 5::17] = True
     cands = []
-    for _ in range(12):
+    for _ in range(n_cands):
         nb = tuple(int(v) for v in rng.integers(0, nb_max + 1, size=2))
         orders = ArxOrders(na, nb, 0, True)
         a = np.poly(rng.uniform(0.1, 0.9, size=na))[1:] if na else np.zeros(0)

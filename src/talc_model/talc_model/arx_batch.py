@@ -21,12 +21,15 @@ Here the work is shared:
   input-lag matrix with the stacked B coefficients; the autoregressive recursion then runs once
   over time with all candidates as a vector (summed in the order of ``scipy.signal.lfilter``'s
   transposed direct form), measured outputs replacing predictions where asked (state update).
+  A handful of candidates in pure simulation (a coordinate-search sweep) is filtered one by
+  one with ``scipy.signal.lfilter`` instead, which is faster there.
 
 Nothing here imports rclpy; :mod:`talc_model.order_selection` is the user.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy import signal
 
 from .arx import ArxOrders, regression_matrix
 
@@ -196,6 +199,12 @@ def poles_inside(a: np.ndarray, margin: float = 0.0, real_positive: bool = False
     return ok
 
 
+#: pure simulations of fewer than this many candidates per unit of n_a run one
+#: ``scipy.signal.lfilter`` each (~40 us) instead of the vectorised time loop (~2.5 ms per n_a
+#: for 1,000 steps, measured on the 2-core development machine)
+LFILTER_BELOW = 32
+
+
 def simulate_batch(a: np.ndarray, bu: np.ndarray, y_before: np.ndarray,
                    replace: np.ndarray | None = None, y_replace: np.ndarray | None = None) -> np.ndarray:
     """Simulation-mode predictions of M candidates over T steps.
@@ -220,6 +229,13 @@ def simulate_batch(a: np.ndarray, bu: np.ndarray, y_before: np.ndarray,
     hist[:na] = y_before[:, None]
     at = np.ascontiguousarray(a.T)          # at[i] = a_{i+1} of every candidate
     rep = np.zeros(t_len, dtype=bool) if replace is None else np.asarray(replace, dtype=bool)
+    if not np.any(rep) and m < LFILTER_BELOW * na:
+        # few candidates (a coordinate-search sweep): a C filter each beats a Python time loop
+        for i in range(m):
+            den = np.concatenate(([1.0], a[i]))
+            zi = signal.lfiltic([1.0], den, y_before[::-1])
+            pred[:, i], _ = signal.lfilter([1.0], den, bu[:, i], zi=zi)
+        return pred
     with np.errstate(over="ignore", invalid="ignore"):   # unstable candidates may overflow
         if na == 1:
             a1 = at[0]
