@@ -62,15 +62,25 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f["mae_um"]) and math.isfinite(f["mae_validation_um"])
             assert 1 <= f["na"] <= 2 and len(f["nb"]) == len(f["inputs"]) in (2 + extra, 3 + extra)
             assert ("spindle_krpm" in f["inputs"]) == bool(extra)
-    for model in ("talc", "agp"):
+    for model in ("talc", "talc_acl5", "talc_spindle", "talc_spindle_acl5", "talc_own_cp", "agp"):
         f = figures["adaptive"][model]
         for ch in CHANNELS:
             assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["mae_validation_um"])
         assert 0.0 < f["q_prod_pct"] < 100.0 and f["probing_cycles"] > 0
-    assert set(figures["adaptive"]["talc"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
+    assert set(figures["adaptive"]["talc_own_cp"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
+    for model, spindle in (("talc", False), ("talc_spindle", True)):
+        f = figures["adaptive"][model]
+        assert f["acl_um"] == 1.0 and figures["adaptive"][model + "_acl5"]["acl_um"] == 5.0
+        assert f["calibration_probings"] == 72                    # 360 training rows of 60 s, 5-min grid
+        assert f["probing_cycles"] == 72 + f["probing_cycles_after_calibration"]
+        assert f["q_prod_pct"] < f["q_prod_after_calibration_pct"] < 100.0
+        for ch in CHANNELS:
+            assert ("spindle_krpm" in f[ch]["inputs"]) == spindle
+            assert f[ch]["evaluation"] in ("grid_hold", "subgrid") and f[ch]["bias_time_constant_h"] > 0
     assert figures["published"]["S2S2"] == PUBLISHED_MAE_UM["S2S2"]
-    png = tmp_path / "fl_thermal_predictions.png"
-    assert png.is_file() and png.stat().st_size > 10_000
+    for name in ("fl_thermal_predictions.png", "fl_thermal_adaptive.png"):
+        png = tmp_path / name
+        assert png.is_file() and png.stat().st_size > 10_000
 
 
 def test_bench_entry_point_passes_suite_options(tmp_path, shared_dir, capsys):
