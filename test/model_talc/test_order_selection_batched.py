@@ -302,6 +302,24 @@ def test_batched_simulation_is_arx_model_simulate(na, state_updates, n_cands):
         np.testing.assert_allclose(pred[:, i], ref[split:], rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.parametrize("r", [0, 1])
+@pytest.mark.parametrize("intercept", [False, True])
+def test_no_or_one_input(r, intercept):
+    """TALC may drop every input (all sensors excluded): an autoregressive / intercept-only search."""
+    y, u, _ = _random_system(60, r=1)
+    u = u[:, :r]
+    for na_range in [(0, 2), (1, 2)]:
+        try:
+            old = _select_orders_reference(y, u, na_range, (1, 3), intercept=intercept)
+        except RankDeficientError:
+            with pytest.raises(RankDeficientError):
+                select_orders(y, u, na_range, (1, 3), intercept=intercept)
+            continue
+        new = select_orders(y, u, na_range, (1, 3), intercept=intercept)
+        assert new.orders == old.orders and new.candidates_tried == old.candidates_tried
+        assert new.score == pytest.approx(old.score, rel=REL)
+
+
 def test_bad_input_is_named():
     y, u, _ = _random_system(50, n=100)
     with pytest.raises(ValueError, match="weights: shape"):
@@ -312,4 +330,6 @@ def test_bad_input_is_named():
         SharedRegression(y, u2, 1, 2, 0, False, None, 2, 60)
     with pytest.raises(ValueError, match="first row"):
         input_lag_matrix(u, 4, 1, False, 2)
+    with pytest.raises(ValueError, match="nbs: shape"):
+        SharedRegression(y, u, 1, 2, 0, False, None, 2, 60).fit(np.array([1, 2, 1]))
     assert math.isfinite(select_orders(y, u, (1, 1), (1, 2)).score)

@@ -99,7 +99,9 @@ class SharedRegression:
         zeros elsewhere (undefined for rank-deficient candidates), ``full_rank`` is the verdict
         of :func:`talc_model.arx.solve_wls` (enough rows and rank = parameters).
         """
-        nbs = np.asarray(nbs, dtype=int).reshape(-1, self.n_inputs)
+        nbs = np.asarray(nbs, dtype=int)
+        if nbs.ndim != 2 or nbs.shape[1] != self.n_inputs:
+            raise ValueError(f"nbs: shape {nbs.shape}, expected (candidates, {self.n_inputs})")
         m = nbs.shape[0]
         theta = np.zeros((m, self.n_columns))
         full_rank = np.zeros(m, dtype=bool)

@@ -180,7 +180,7 @@ class _BatchedScorer:
         for i, (na, _) in enumerate(keys):
             by_na.setdefault(na, []).append(i)
         for na, members in by_na.items():
-            nbs = np.array([keys[i][1] for i in members], dtype=int).reshape(len(members), -1)
+            nbs = np.array([keys[i][1] for i in members], dtype=int).reshape(len(members), self.u.shape[1])
             n_params = na + nbs.sum(axis=1) + int(self.intercept)
             g = self._group(na)
             theta, full_rank = g.fit(nbs)
