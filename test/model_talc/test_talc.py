@@ -245,3 +245,49 @@ def test_periodic_update_is_gated_but_no_good_update_is_not(monkeypatch):
     m._update(60 * STEP, "end of no-good phase")
     for n in COMPONENTS:
         np.testing.assert_array_equal(m.models[n].theta, bad.theta)
+
+
+def _run_with_flag(model, u, errors, flag):
+    preds = []
+    for k in range(u.shape[0]):
+        t = k * STEP
+        model.update_inputs(t, {"a": u[k, 0] + 20.0, "b": u[k, 1] + 20.0}, {"coolant_on": float(flag[k])})
+        pred, _ = model.predict(t)
+        preds.append(pred["E_X0C"])
+        if model.probe_due(t):
+            model.add_measurement(t, {c: errors[c][k] - pred[c] for c in COMPONENTS}, pred)
+    return np.array(preds)
+
+
+def test_input_that_never_varied_is_left_out_until_it_varies():
+    """An on/off input that stays off (a dry cell's MWF flag) must not stall the CP (rank) nor
+    change the answer; once it switches and acts on the error, an update identifies it."""
+    u, errors = plant(240)
+    off = np.zeros(240)
+    plain = TalcModel(config())
+    with_flag = TalcModel(config(input_names=["a", "b", "coolant_on"]))
+    p_plain = _run_with_flag(plain, u, errors, off)
+    p_flag = _run_with_flag(with_flag, u, errors, off)
+    assert with_flag.phase != "calibration"
+    np.testing.assert_array_equal(p_flag, p_plain)
+    assert all(m.orders.nb[2] == 0 for m in with_flag.models.values())
+    # the flag switches on at k = 120 and adds a first-order response of 8 um to E_X0C (beyond the 5 um ACL)
+    flag = (np.arange(240) >= 120).astype(float)
+    u3 = np.column_stack([u, flag])
+    orders3 = ArxOrders(1, (2, 2, 1))
+    theta3 = np.concatenate([THETA_1, [0.8]])      # steady state 0.8 / (1 - 0.9) = 8 um
+    e = np.zeros(240)
+    for k in range(1, 240):
+        e[k] = ArxModel(orders3, theta3).predict_one(e, u3, k)
+    errs = {"E_X0C": e, "E_A0C": 3.0 * errors["E_X0C"]}
+    m = TalcModel(config(input_names=["a", "b", "coolant_on"], ng_measurements=12))
+    pred = _run_with_flag(m, u, errs, flag)
+    assert m.no_good_phases >= 1 and m.models["E_X0C"].orders.nb[2] >= 1
+    fitted = m.models["E_X0C"]
+    gain = float(np.sum(fitted.b[2]) / (1.0 + np.sum(fitted.a)))
+    without = _run_with_flag(TalcModel(config(ng_measurements=12)), u, errs, flag)
+    rms = lambda p: float(np.sqrt(np.mean((e[130:] - p[130:]) ** 2)))  # noqa: E731
+    print(f"flag gain {gain:.2f} um (true 8); RMS after the switch: with the flag {rms(pred):.2f} um, "
+          f"without {rms(without):.2f} um")
+    assert 5.0 < gain < 11.0
+    assert rms(pred) < rms(without)

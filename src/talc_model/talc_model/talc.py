@@ -53,10 +53,10 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from .adaptive_model import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, PHASE_CALIBRATION,
                              PHASE_COMPENSATION, PHASE_NO_GOOD, ModelStatusData, register_model)
+from .blas_threads import single_thread_blas
 from .arx import ArxModel, ArxOrders, RankDeficientError, check_full_rank, fit_arx, regression_matrix
 from .metrics import q_prod
 from .order_selection import CRITERIA, select_orders
@@ -97,6 +97,12 @@ class TalcConfig:
     train_fraction: float = 0.6
     reselect_orders_on_update: bool = True  # spec §4.5 suggestion; False = refit with fixed orders
     order_search_exhaustive_limit: int = 4000  # above: coordinate search (order_selection)
+    #: an input whose range over the training part of the data is at most this (in its own
+    #: unit: K, or 1 for an on/off state) has not varied and cannot be identified: it is left
+    #: out of the order search (n_b = 0) and of the calibration phase's rank check until it
+    #: has varied. This lets one input list serve every cell: e.g. the MWF state flag of a
+    #: cell that has not switched MWF on yet (or never does) costs nothing.
+    min_input_range: float = 1e-6
     #: accept a *periodic* update only if the new parameters predict the measured history
     #: (TALC predictor: measurements replace predictions, weighted like the fit) no worse than
     #: the old ones. Updates after a no-good phase are always taken: the old parameters are
@@ -141,7 +147,7 @@ class TalcConfig:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"TALC config '{name}': {v!r} must be a finite number > 0")
         for name in ("cp_length_h", "post_cp_interval_h", "update_interval_h", "history_window_h",
-                     "max_time_constant_h",
+                     "max_time_constant_h", "min_input_range",
                      "acl_linear_um", "acl_angular_um_per_m", "ng_measurements"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or math.isnan(v) or v < 0:
@@ -506,7 +512,7 @@ class TalcModel:
         self._after_measurement(t_s, residual)
 
     def _after_measurement(self, t_s: float, residual: Mapping[str, float]) -> None:
-        with threadpool_limits(limits=1, user_api="blas"):  # small problems: see order_selection
+        with single_thread_blas():  # small problems: see blas_threads
             self._phase_logic(t_s, residual)
 
     def _phase_logic(self, t_s: float, residual: Mapping[str, float]) -> None:
@@ -533,9 +539,20 @@ class TalcModel:
             self.phase = PHASE_COMPENSATION
 
     # ------------------------------------------------------------------ identification
-    def _max_orders(self) -> ArxOrders:
+    def _max_orders(self, active: np.ndarray | None = None) -> ArxOrders:
+        """Largest candidate orders; inputs not ``active`` (see :meth:`_active_inputs`) get n_b = 0."""
         c = self.config
-        return ArxOrders(c.na_max, (self._nb_max_now(),) * len(self.input_names), c.nk, c.intercept)
+        nb = self._nb_max_now()
+        if active is None:
+            active = np.ones(len(self.input_names), bool)
+        return ArxOrders(c.na_max, tuple(nb if a else 0 for a in active), c.nk, c.intercept)
+
+    def _active_inputs(self, first: int, stop: int) -> np.ndarray:
+        """Inputs that varied by more than ``min_input_range`` on grid rows [first, stop)."""
+        u = self.grid.u[first:stop]
+        if u.shape[0] == 0:
+            return np.zeros(len(self.input_names), bool)
+        return (np.max(u, axis=0) - np.min(u, axis=0)) > self.config.min_input_range
 
     def _n_measured(self) -> int:
         g = self.grid
@@ -577,7 +594,12 @@ class TalcModel:
         c = self.config
         if c.cp_length_h > 0 and t_s - self.t0 < c.cp_length_h * 3600.0:
             return False
-        orders = self._max_orders()
+        g = self.grid
+        first_any = [int(np.flatnonzero(np.isfinite(g.y[: g.n, j]))[0]) for j in range(len(self.component_names))
+                     if np.any(np.isfinite(g.y[: g.n, j]))]
+        first0 = min(first_any) if first_any else 0
+        active = self._active_inputs(first0, first0 + int(round(c.train_fraction * (g.n - first0))))
+        orders = self._max_orders(active)
         need = max(orders.order_sum, math.ceil(c.cp_min_samples_per_parameter * orders.n_params))
         if self._n_measured() < need:
             self.message = (f"calibration phase continues: {self._n_measured()} of {need} measured samples "
@@ -623,15 +645,41 @@ class TalcModel:
         return models
 
     def _select_one(self, y: np.ndarray, m: np.ndarray, w: np.ndarray, first: int, nb_max: int):
+        """Order selection on the inputs that have varied on the training part of the split;
+        the others get n_b = 0 in the returned model (see ``min_input_range``)."""
         c = self.config
         g = self.grid
-        return select_orders(y[first:], g.u[first: g.n], (c.na_min, c.na_max), (c.nb_min, nb_max),
-                             nk=c.nk, intercept=c.intercept, criterion=c.criterion,
-                             train_fraction=c.train_fraction, weights=w[first:],
-                             measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
-                             state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates,
-                             max_pole_radius=self._max_pole_radius(),
-                             real_positive_poles=c.real_positive_poles)
+        active = self._active_inputs(first, first + int(round(c.train_fraction * (g.n - first))))
+        sel = select_orders(y[first:], g.u[first: g.n][:, active], (c.na_min, c.na_max), (c.nb_min, nb_max),
+                            nk=c.nk, intercept=c.intercept, criterion=c.criterion,
+                            train_fraction=c.train_fraction, weights=w[first:],
+                            measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
+                            state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates,
+                            max_pole_radius=self._max_pole_radius(),
+                            real_positive_poles=c.real_positive_poles)
+        if np.all(active):
+            return sel
+        nb_iter = iter(sel.model.orders.nb)
+        full = ArxOrders(sel.model.orders.na, tuple(next(nb_iter) if a else 0 for a in active), c.nk, c.intercept)
+        # the parameter vector is (a, b of each input in order, c): inputs with n_b = 0 add nothing
+        sel.model = ArxModel(full, sel.model.theta, sel.model.residual_std, sel.model.n_fit_samples,
+                             sel.model.extra)
+        sel.orders = full
+        # an input that began to vary only after the training part (e.g. MWF switched on for the
+        # first time a few hours ago) cannot be scored by the split; it enters with the smallest
+        # order, n_b = 1, in the refit on all data if that fit is identifiable and admissible
+        late = ~active & self._active_inputs(first, g.n)
+        if np.any(late):
+            ext = ArxOrders(full.na, tuple(1 if lt else nb for lt, nb in zip(late, full.nb)), c.nk, c.intercept)
+            try:
+                fit = fit_arx(y[first:], g.u[first: g.n], ext, np.where(np.isfinite(y[first:]), w[first:], 0.0),
+                              what="ARX refit with the inputs that began to vary")
+            except RankDeficientError:
+                return sel
+            if self._admissible(fit):
+                fit.extra.update(sel.model.extra)
+                sel.model, sel.orders = fit, ext
+        return sel
 
     def _max_pole_radius(self) -> float:
         """Largest admissible pole magnitude: exp(-step / max_time_constant) (1 without a bound)."""
@@ -747,7 +795,7 @@ class TalcModel:
             self.t_last_update = t_s
             return
         if t_s - self.t_last_update >= self.config.update_interval_h * 3600.0:
-            with threadpool_limits(limits=1, user_api="blas"):
+            with single_thread_blas():
                 self._update(t_s, "update interval")
 
     # ------------------------------------------------------------------ status
