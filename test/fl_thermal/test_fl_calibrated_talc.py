@@ -1,5 +1,6 @@
 """Calibrated TALC on FL_THERMAL: sub-grid evaluation of the ARX, no look at rows it must not see."""
 import copy
+import math
 
 import numpy as np
 import pytest
@@ -70,21 +71,24 @@ def slice_data(shared_dir):
 SMALL = dict(group_candidates=(2, 3), tau_grid=(3600.0, 14400.0), ratio_grid=(0.0, 1.0))
 
 
-def test_calibrated_talc_sees_only_the_training_rows_and_its_own_probes(slice_data):
+@pytest.mark.parametrize("load_probing", [False, True])
+def test_calibrated_talc_sees_only_the_training_rows_and_its_own_probes(slice_data, load_probing):
     data = slice_data
     splits = Splits.authors(len(data))
-    schedule = ProbeSchedule(acl_um=1.0)
-    a = run_calibrated_talc(data, splits, schedule, **SMALL)
+    # no ACL phases with load probing, so that the spindle step at 8.1 h must start one itself
+    schedule = ProbeSchedule(acl_um=math.inf if load_probing else 1.0)
+    a = run_calibrated_talc(data, splits, schedule, load_probing=load_probing, **SMALL)
     poisoned = copy.deepcopy(data)
     seen = set(a.probe_rows)
     hidden = np.array([r for r in range(splits.n_train, splits.n) if r not in seen])
     for ch in CHANNELS:
         poisoned.displacement_um[ch][hidden] = 1e6
-    b = run_calibrated_talc(poisoned, splits, schedule, **SMALL)
+    b = run_calibrated_talc(poisoned, splits, schedule, load_probing=load_probing, **SMALL)
     assert a.probe_rows == b.probe_rows and a.filters == b.filters and a.evaluation == b.evaluation
     for ch in CHANNELS:
         np.testing.assert_array_equal(a.compensation[ch], b.compensation[ch])
         assert np.all(np.isfinite(a.compensation[ch][splits.n_train:]))
+    assert (a.load_change_phases > 0) == load_probing
     figs = calibrated_talc_figures(data, splits, a)
     assert figs["calibration_probings"] == 72 and figs["probing_cycles_after_calibration"] == len(a.probe_rows) > 0
     assert figs["probing_cycles_test_rows"] + figs["probing_cycles_validation_rows"] == len(a.probe_rows)

@@ -110,3 +110,18 @@ def test_q_prod_charges_each_probing():
     assert q_prod_pct(10, 10 * 7200.0, 95.0) == pytest.approx(100.0 * (1 - 95.0 / 7200.0))
     with pytest.raises(ProbeUpdateError, match="duration_s"):
         q_prod_pct(1, 0.0, 95.0)
+
+
+def test_a_load_change_starts_a_dense_probing_phase_and_one_inside_it_is_ignored():
+    t = _rows(10)
+    y = np.zeros(t.size)
+    change = int(3 * 3600.0 / DT)
+    r = run_probe_updates(t, y, y, 1, ProbeSchedule(acl_um=math.inf), [SlowErrorFilter()],
+                          load_change_rows=[change, change + 40])
+    assert r.load_change_phases == 1 and r.no_good_phases == 0
+    after = [k for k in r.probe_rows if k > change]
+    assert t[after[0]] - t[change] == pytest.approx(600.0, abs=DT)   # first probe 10 min after the change
+    assert np.all(np.diff(t[after[:12]]) < 695.0 + DT)                # 12 dense probings
+    assert t[after[12]] - t[after[11]] >= 7295.0                      # then the plain schedule again
+    plain = run_probe_updates(t, y, y, 1, ProbeSchedule(acl_um=math.inf), [SlowErrorFilter()])
+    assert len(plain.probe_rows) < len(r.probe_rows)

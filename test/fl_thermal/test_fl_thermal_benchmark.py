@@ -62,12 +62,15 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f["mae_um"]) and math.isfinite(f["mae_validation_um"])
             assert 1 <= f["na"] <= 2 and len(f["nb"]) == len(f["inputs"]) in (2 + extra, 3 + extra)
             assert ("spindle_krpm" in f["inputs"]) == bool(extra)
-    for model in ("talc", "talc_acl5", "talc_spindle", "talc_spindle_acl5", "talc_own_cp", "agp"):
+    for model in ("talc", "talc_acl5", "talc_spindle", "talc_spindle_acl5", "talc_load_probing",
+                  "talc_spindle_load_probing", "talc_own_cp", "agp"):
         f = figures["adaptive"][model]
         for ch in CHANNELS:
             assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["mae_validation_um"])
         assert 0.0 < f["q_prod_pct"] < 100.0 and f["probing_cycles"] > 0
     assert set(figures["adaptive"]["talc_own_cp"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
+    assert figures["adaptive"]["talc"]["load_change_phases"] == 0
+    assert figures["adaptive"]["talc_load_probing"]["probing_after_load_changes"] is True
     for model, spindle in (("talc", False), ("talc_spindle", True)):
         f = figures["adaptive"][model]
         assert f["acl_um"] == 1.0 and figures["adaptive"][model + "_acl5"]["acl_um"] == 5.0

@@ -7,8 +7,9 @@ no-good phases, each probing updating the model's state
 (:mod:`talc_model.fl_thermal_calibrated_talc`, :mod:`talc_model.fl_thermal_probe_update`; the
 rule that picks every hyper-parameter on the training rows is stated there). The action-control
 limit is the user's tolerance: ``talc`` uses 1 um (the issue's target), ``talc_acl5`` the
-thesis's 5 um; ``*_spindle`` add the spindle speed (known to the CNC) as an ARX input and are
-reported separately.
+thesis's 5 um; ``*_spindle*`` add the spindle speed (known to the CNC) as an ARX input and
+``*_load_probing`` also probe densely after every spindle-speed change (12 x 10 min, like a
+no-good phase); both are reported separately.
 
 ``talc_own_cp`` and ``agp`` replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
 and see a displacement only when their own schedule probes: TALC in its calibration phase
@@ -111,10 +112,12 @@ def select_talc_inputs(data: FlThermalData, splits: Splits, candidates: Sequence
     return best[1], scores
 
 
-#: name -> (action-control limit in um, spindle speed as an input) of the calibrated TALC variants.
-CALIBRATED_TALC_VARIANTS: dict[str, tuple[float, bool]] = {
-    "talc": (1.0, False), "talc_acl5": (5.0, False),
-    "talc_spindle": (1.0, True), "talc_spindle_acl5": (5.0, True),
+#: name -> (action-control limit in um, spindle speed as an ARX input, dense probing after every
+#: spindle-speed change) of the calibrated TALC variants.
+CALIBRATED_TALC_VARIANTS: dict[str, tuple[float, bool, bool]] = {
+    "talc": (1.0, False, False), "talc_acl5": (5.0, False, False),
+    "talc_spindle": (1.0, True, False), "talc_spindle_acl5": (5.0, True, False),
+    "talc_load_probing": (1.0, False, True), "talc_spindle_load_probing": (1.0, True, True),
 }
 
 
@@ -138,14 +141,15 @@ def run_calibrated_talc_variants(data: FlThermalData, splits: Splits, *, variant
     with tqdm(total=len(names) * len(CHANNELS), desc="adaptive TALC (calibrated on the training rows)",
               unit="channel", disable=not show_progress, leave=False) as bar:
         for name in names:
-            acl, spindle = CALIBRATED_TALC_VARIANTS[name]
+            acl, spindle, load_probing = CALIBRATED_TALC_VARIANTS[name]
             t0 = time.perf_counter()
             schedule = ProbeSchedule(probe_interval_s=PROBE_INTERVAL_S, probe_duration_s=PROBE_DURATION_S,
                                      acl_um=acl)
             res = run_calibrated_talc(data, splits, schedule, with_spindle=spindle, group_candidates=groups,
-                                      arx_cache=cache, progress=bar.update, **selection)
+                                      load_probing=load_probing, arx_cache=cache, progress=bar.update, **selection)
             figures[name] = calibrated_talc_figures(data, splits, res)
             figures[name]["spindle_input"] = spindle
+            figures[name]["probing_after_load_changes"] = load_probing
             figures[name]["run_s"] = round(time.perf_counter() - t0, 1)
             comp[name] = res.compensation
             probes[name] = list(res.probe_rows)

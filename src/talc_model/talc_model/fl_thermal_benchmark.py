@@ -26,7 +26,9 @@ validation (last 20 %, rows 8892-11114). Displacements are taken relative to the
   grid sample of them), state-updated at every probing by a slow-error Kalman filter, every
   hyper-parameter chosen by a walk-forward replay inside the training rows
   (:mod:`talc_model.fl_thermal_calibrated_talc`). ``talc_own_cp`` and ``agp``: TALC and the AGP
-  replaying the whole recording from row 0 with their own calibration phase. MAE is the mean
+  replaying the whole recording from row 0 with their own calibration phase.
+  ``talc_load_probing`` (and ``talc_spindle_load_probing``) also probe densely after every
+  spindle-speed change, reported separately with their own Q_prod. MAE is the mean
   |true - compensation| on the test rows (and on the validation rows).
 
 Figures: ``open_loop.<model>.<ch>.mae_um`` (test rows), ``...mae_validation_um``,
@@ -200,7 +202,7 @@ def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[s
 
 #: adaptive models drawn in the prediction plot / in the adaptive plot (with their probe instants)
 ADAPTIVE_IN_PREDICTION_PLOT = ("talc", "agp")
-ADAPTIVE_PLOT = ("talc", "talc_acl5", "agp")
+ADAPTIVE_PLOT = ("talc", "talc_load_probing", "agp")
 
 
 def plot_adaptive(data: FlThermalData, splits: Splits, compensation: Mapping[str, Mapping[str, np.ndarray]],

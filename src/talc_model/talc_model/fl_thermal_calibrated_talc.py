@@ -18,7 +18,9 @@ repeated with rows 0..k-1 as calibration (input sets, orders, ARX fit) and rows 
 replayed with 2-h probes and the ACL; per channel the (bias time constant, noise ratio) pair
 with the lowest mean MAE over the folds is taken. The ACL is a user setting, not tuned:
 ``acl_um = 5`` is the thesis's value for a 5-axis machine, 1 um the setting a 1-um target asks
-for; each ACL is reported with its own Q_prod.
+for; each ACL is reported with its own Q_prod. The load-driven variant (``load_probing``) also
+starts a dense-probing phase at every spindle-speed change (known to the CNC): the model is
+least sure right after a load change; reported separately, with its own Q_prod.
 
 No rclpy here.
 """
@@ -60,6 +62,13 @@ class CalibratedTalc:
     walk_forward_mae_um: dict[str, float]
     walk_forward_scores: dict[str, dict[str, float]]
     inputs: dict[str, list[str]]
+    load_change_phases: int = 0           # dense-probing phases started by a spindle-speed change
+
+
+def load_change_rows(data: FlThermalData) -> list[int]:
+    """Rows where the commanded spindle speed differs from the row before (known to the CNC)."""
+    rpm = data.spindle_rpm
+    return [int(r) for r in np.flatnonzero(np.diff(rpm) != 0) + 1]
 
 
 def grid_step_rows(data: FlThermalData) -> int:
@@ -97,7 +106,8 @@ def walk_forward_filter(data: FlThermalData, splits: Splits, channel: str, sched
                         group_candidates: Sequence[int] = GROUP_CANDIDATES, with_spindle: bool = False,
                         fold_starts: Sequence[float] = FOLD_STARTS, tau_grid: Sequence[float] = BIAS_TAU_GRID_S,
                         ratio_grid: Sequence[float] = NOISE_RATIO_GRID, evaluations: Sequence[str] = EVALUATIONS,
-                        arx_cache: dict | None = None) -> tuple[str, SlowErrorFilter, float, dict[str, float]]:
+                        load_probing: bool = False, arx_cache: dict | None = None
+                        ) -> tuple[str, SlowErrorFilter, float, dict[str, float]]:
     """The channel's (evaluation mode, slow-error filter) chosen by the walk-forward replay inside
     rows < n_train (the channel replayed alone, its own residual deciding the no-good phases)."""
     unknown = sorted(set(evaluations) - set(EVALUATIONS))
@@ -112,6 +122,7 @@ def walk_forward_filter(data: FlThermalData, splits: Splits, channel: str, sched
             raise FlThermalError(f"fold_starts: {f!r} of {n} training rows leaves calibration {k} / replay "
                                  f"{n - k} rows (need >= 40 / 20)")
         folds.append((k, calibrated_arx(data, k, channel, group_candidates, with_spindle, arx_cache)[0]))
+    changes = load_change_rows(data) if load_probing else []
     scores: dict[str, float] = {}
     best: tuple[float, str, SlowErrorFilter | None] = (math.inf, "", None)
     for mode, tau, ratio in itertools.product(evaluations, tau_grid, ratio_grid):
@@ -119,7 +130,8 @@ def walk_forward_filter(data: FlThermalData, splits: Splits, channel: str, sched
         errs = []
         for k, preds in folds:
             r = run_probe_updates(data.time_s, y, preds[mode], k, schedule, [flt], stop=n,
-                                  last_calibration_probe_s=last_calibration_probe_s(data, k))
+                                  last_calibration_probe_s=last_calibration_probe_s(data, k),
+                                  load_change_rows=changes)
             errs.append(mae(y[k:n], r.compensation[k:n, 0]))
         score = float(np.mean(errs))
         scores[f"{mode},tau={tau / 3600.0:g}h,ratio={ratio:g}"] = round(score, 3)
@@ -134,7 +146,7 @@ def run_calibrated_talc(data: FlThermalData, splits: Splits, schedule: ProbeSche
                         with_spindle: bool = False, group_candidates: Sequence[int] = GROUP_CANDIDATES,
                         fold_starts: Sequence[float] = FOLD_STARTS, tau_grid: Sequence[float] = BIAS_TAU_GRID_S,
                         ratio_grid: Sequence[float] = NOISE_RATIO_GRID, evaluations: Sequence[str] = EVALUATIONS,
-                        arx_cache: dict | None = None, progress=None) -> CalibratedTalc:
+                        load_probing: bool = False, arx_cache: dict | None = None, progress=None) -> CalibratedTalc:
     """Choose each channel's filter on the training rows, calibrate on all of them, then replay
     the rows after with one probing of all five channels every 2 h (and no-good phases)."""
     modes, filters, wf, scores, preds, inputs = {}, {}, {}, {}, {}, {}
@@ -142,7 +154,7 @@ def run_calibrated_talc(data: FlThermalData, splits: Splits, schedule: ProbeSche
         modes[ch], filters[ch], wf[ch], scores[ch] = walk_forward_filter(
             data, splits, ch, schedule, group_candidates=group_candidates, with_spindle=with_spindle,
             fold_starts=fold_starts, tau_grid=tau_grid, ratio_grid=ratio_grid, evaluations=evaluations,
-            arx_cache=arx_cache)
+            load_probing=load_probing, arx_cache=arx_cache)
         by_mode, inputs[ch] = calibrated_arx(data, splits.n_train, ch, group_candidates, with_spindle, arx_cache)
         preds[ch] = by_mode[modes[ch]]
         if progress is not None:
@@ -150,11 +162,12 @@ def run_calibrated_talc(data: FlThermalData, splits: Splits, schedule: ProbeSche
     Y = np.column_stack([data.displacement_um[ch] for ch in CHANNELS])
     P = np.column_stack([preds[ch] for ch in CHANNELS])
     r = run_probe_updates(data.time_s, Y, P, splits.n_train, schedule, [filters[ch] for ch in CHANNELS],
-                          last_calibration_probe_s=last_calibration_probe_s(data, splits.n_train))
+                          last_calibration_probe_s=last_calibration_probe_s(data, splits.n_train),
+                          load_change_rows=load_change_rows(data) if load_probing else ())
     n_cal = int(math.ceil(splits.n_train / grid_step_rows(data)))
     comp = {ch: r.compensation[:, i] for i, ch in enumerate(CHANNELS)}
     return CalibratedTalc(preds, comp, r.probe_rows, r.no_good_phases, n_cal, schedule, filters, modes, wf, scores,
-                          inputs)
+                          inputs, r.load_change_phases)
 
 
 def calibrated_talc_figures(data: FlThermalData, splits: Splits, result: CalibratedTalc) -> dict[str, Any]:
@@ -184,6 +197,7 @@ def calibrated_talc_figures(data: FlThermalData, splits: Splits, result: Calibra
     figures["probing_cycles_test_rows"] = int(sum(splits.n_train <= r < splits.test_end for r in rows))
     figures["probing_cycles_validation_rows"] = int(sum(splits.test_end <= r < splits.n for r in rows))
     figures["no_good_phases"] = result.no_good_phases
+    figures["load_change_phases"] = result.load_change_phases
     figures["q_prod_pct"] = round(q_prod_pct(result.calibration_probings + len(rows), total_s, dur), 2)
     figures["q_prod_after_calibration_pct"] = round(q_prod_pct(len(rows), after_s, dur), 2)
     figures["calibration_end_h"] = round(float(data.time_s[splits.n_train - 1] / 3600.0), 2)

@@ -88,6 +88,7 @@ class ProbeUpdateResult:
     bias: np.ndarray                      # N x m: the estimated slow error
     probe_rows: list[int] = field(default_factory=list)
     no_good_phases: int = 0
+    load_change_phases: int = 0
 
     def probes_in(self, lo: int, hi: int) -> int:
         return int(sum(lo <= r < hi for r in self.probe_rows))
@@ -95,7 +96,8 @@ class ProbeUpdateResult:
 
 def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np.ndarray, start: int,
                       schedule: ProbeSchedule, filters: Sequence[SlowErrorFilter], stop: int | None = None,
-                      last_calibration_probe_s: float | None = None) -> ProbeUpdateResult:
+                      last_calibration_probe_s: float | None = None,
+                      load_change_rows: Sequence[int] = ()) -> ProbeUpdateResult:
     """Replay rows [start, stop): compensate with ``prediction + b``, probe on the schedule.
 
     ``true_um`` and ``prediction_um`` are N x m (m channels, one filter each; 1-D = one channel).
@@ -105,6 +107,12 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
     The first probing is due one interval after ``last_calibration_probe_s`` (default: the row
     before ``start``), when the model's state was last set from a measurement, so b starts at 0
     with variance 0.
+
+    ``load_change_rows`` (the load-driven variant; empty = the plain schedule): rows where the
+    machine's load changes (spindle-speed steps, known to the CNC). A load change is when the
+    model is least sure, so it starts a no-good phase as an ACL exceedance would (unless one is
+    running): ``ng_measurements`` probings every ``ng_interval_s``, the first one interval after
+    the change. Counted in ``load_change_phases``.
     """
     t = np.asarray(time_s, dtype=float)
     y = np.asarray(true_um, dtype=float)
@@ -135,6 +143,7 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
     extra = schedule.probe_duration_s if schedule.interval_from_cycle_end else 0.0
     due = t_last + schedule.probe_interval_s + extra
     ng_left = 0
+    changes = {int(r) for r in load_change_rows}
     result = ProbeUpdateResult(comp, bias)
     dt = np.diff(t[start - 1:stop])
     decay = np.exp(-dt[:, None] / tau[None, :])
@@ -144,6 +153,10 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
         var = var * a * a + (1.0 - a * a)
         comp[k] = p[k] + b
         bias[k] = b
+        if k in changes and ng_left == 0:
+            ng_left = schedule.ng_measurements
+            result.load_change_phases += 1
+            due = min(due, t[k] + schedule.ng_interval_s)
         if t[k] + 1e-9 < due:
             continue
         if not np.all(np.isfinite(y[k])):
