@@ -62,7 +62,14 @@ TABLE_6_1 = {"cp_length_h": CP_LENGTH_H, "post_cp_interval_h": POST_CP_INTERVAL_
 THESIS_COMBINATIONS_PER_LOAD_CASE = 2191
 #: The thesis's three inputs for load cases A-C (D: WS replaced by the MWF sensor, which the
 #: twin records in the same ``ws_mwf`` column).
-TALC_INPUTS = ("ambient", "ws_mwf", "c_coolant_delta")
+THESIS_TALC_INPUTS = ("ambient", "ws_mwf", "c_coolant_delta")
+#: The sweep's default inputs: the thesis's three plus the MWF state the CNC knows (M08/M09,
+#: MachineState ``coolant_on``). The thesis names NC signals such as the MWF state as possible
+#: inputs that its experiments did not use (spec §3); switching MWF switches a convective heat
+#: flow (jets on the table and the B body) that one temperature at a tube outlet shows only
+#: as a lagged, partial echo. A dry cell's flag never varies and TALC leaves it out
+#: (``TalcConfig.min_input_range``), so load cases A-C are unchanged by it.
+TALC_INPUTS = THESIS_TALC_INPUTS + ("coolant_on",)
 Q_PROD_MIN_PCT = 95.0
 
 

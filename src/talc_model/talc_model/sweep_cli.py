@@ -14,6 +14,7 @@ import math
 import os
 import pathlib
 import sys
+import time
 
 from .replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
                              ReplayInputError, build_model, load_config_file, load_recording, parse_overrides)
@@ -63,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         rec = load_recording(args.recording)
         run = SweepRun("talc", base, args.probe_noise_um, args.probe_noise_um_per_m, args.probe_resolution_um,
                        args.seed, str(pathlib.Path(args.recording).resolve()))
+        t0 = time.perf_counter()
         res = run_sweep(rec, run, points, out / "results.jsonl", jobs=args.jobs, progress=not args.no_progress)
+        wall = time.perf_counter() - t0
     except (ReplayInputError, ValueError) as exc:
         print(f"thermal-comp sweep: {exc}", file=sys.stderr)
         return 2
@@ -75,11 +78,12 @@ def main(argv: list[str] | None = None) -> int:
     best = best_under_constraint(rows, args.q_prod_min)
     spc = seconds_per_combination(rows)
     summary = {"recording": args.recording, "combinations": len(rows), "computed": res["computed"],
-               "resumed": res["skipped"], "seconds_per_combination": spc,
+               "resumed": res["skipped"], "seconds_per_combination": spc, "jobs": args.jobs,
+               "wall_s_this_run": round(wall, 1),
                "q_prod_min_pct": args.q_prod_min, "best": best}
     (out / "best.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     print(f"{len(rows)} combinations ({res['computed']} computed, {res['skipped']} from the results file), "
-          f"median {spc:.1f} s per combination")
+          f"median {spc:.1f} s per combination; this run {wall:.0f} s wall with {args.jobs} jobs")
     if best is None:
         print(f"no combination reaches Q_prod >= {args.q_prod_min:g} %")
     else:
