@@ -333,3 +333,41 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match="nbs: shape"):
         SharedRegression(y, u, 1, 2, 0, False, None, 2, 60).fit(np.array([1, 2, 1]))
     assert math.isfinite(select_orders(y, u, (1, 1), (1, 2)).score)
+
+
+@pytest.mark.parametrize("padded", [False, True])
+def test_small_solver_rank_and_solution_are_lstsq_s(padded):
+    """Condition numbers from 1 to singular, around lstsq's tolerance eps * max(rows, p) too
+    (decided there by the SVD fallback), with and without padding columns."""
+    from talc_model.arx_batch import _solve_small
+    rng = np.random.default_rng(70)
+    k, p, n_rows = 30, 8, 500
+    limit = 1.0 / (np.finfo(float).eps * n_rows)
+    conds = [1.0, 1e3, 1e6, 1e9, limit / 30, limit * 30, 1e20, np.inf]
+    mats, sizes = [], []
+    for c in conds * 3:
+        q_u, _ = np.linalg.qr(rng.normal(size=(k, p)))
+        q_v, _ = np.linalg.qr(rng.normal(size=(p, p)))
+        s = np.geomspace(1.0, 1.0 / c if np.isfinite(c) else 1e-300, p)
+        if not np.isfinite(c):
+            s[-1] = 0.0
+        mats.append(5.0 * (q_u * s) @ q_v.T)
+        sizes.append(p)
+    b = rng.normal(size=k)
+    sub = np.array(mats)
+    p_each = None
+    if padded:                       # drop trailing columns of some and pad them as fit() does
+        sizes = [int(rng.integers(3, p + 1)) for _ in mats]
+        p_each = np.array(sizes)
+        pad = np.arange(p)[None, :] >= p_each[:, None]
+        sub = np.where(pad[:, None, :], 0.0, sub)
+        sub = np.concatenate([sub, pad[:, :, None] * np.eye(p)[None]], axis=1)
+    rhs = np.concatenate([b, np.zeros(p)]) if padded else b
+    theta, full = _solve_small(sub, rhs, n_rows, p_each)
+    for i, (a, pi) in enumerate(zip(mats, sizes)):
+        a = a[:, :pi]
+        ref, _, rank, sv = np.linalg.lstsq(a, b, rcond=np.finfo(float).eps * max(n_rows, pi))
+        assert full[i] == (rank == pi), (i, sv[0] / sv[-1] if sv[-1] else np.inf)
+        if sv[-1] > 0 and sv[0] / sv[-1] < 1e7:
+            np.testing.assert_allclose(theta[i, :pi], ref, rtol=1e-8, atol=1e-10)
+    assert full.any() and not full.all()

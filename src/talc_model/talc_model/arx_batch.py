@@ -106,15 +106,38 @@ class SharedRegression:
         theta = np.zeros((m, self.n_columns))
         full_rank = np.zeros(m, dtype=bool)
         n_params = self.na + nbs.sum(axis=1) + int(self.intercept)
-        for p in np.unique(n_params):
-            sel = np.flatnonzero(n_params == p)
-            if p == 0 or self.n_rows < p:
-                continue                              # nothing to fit / too few rows
+        fittable = (n_params > 0) & (n_params <= self.n_rows)     # else: nothing to fit / too few rows
+        sizes, counts = np.unique(n_params[fittable], return_counts=True)
+        pooled = []
+        for p, count in zip(sizes, counts):
+            sel = np.flatnonzero(fittable & (n_params == p))
+            if count < POOL_BELOW:
+                pooled.append(sel)
+                continue
             idx = np.nonzero(self._column_mask(nbs[sel]))[1].reshape(sel.size, p)   # (M_p, p)
-            sub = np.moveaxis(self.r[: idx.max() + 1, idx], 1, 0)           # (M_p, K, p), rows below are 0
-            th, ok = _solve_small(sub, self.qtb[: idx.max() + 1], self.n_rows)
-            rows_sel = np.repeat(sel, p)
-            theta[rows_sel, idx.ravel()] = th.ravel()
+            k = idx.max() + 1                                                # rows below are 0
+            sub = np.moveaxis(self.r[:k, idx], 1, 0)                         # (M_p, K, p)
+            th, ok = _solve_small(sub, self.qtb[:k], self.n_rows)
+            theta[np.repeat(sel, p), idx.ravel()] = th.ravel()
+            full_rank[sel] = ok
+        if pooled:
+            # small groups of different sizes: one padded stack (see _solve_small)
+            sel = np.concatenate(pooled)
+            mask = self._column_mask(nbs[sel])
+            p_each = mask.sum(axis=1)
+            p_max = int(p_each.max())
+            rows, cols = np.nonzero(mask)
+            pos = (np.cumsum(mask, axis=1) - 1)[rows, cols]
+            r_top = self.r[: int(cols.max()) + 1]                         # rows below are 0
+            r_ext = np.concatenate([r_top, np.zeros((r_top.shape[0], 1))], axis=1)  # + a zero column
+            idx = np.full((sel.size, p_max), r_ext.shape[1] - 1)
+            idx[rows, pos] = cols
+            pad = np.arange(p_max)[None, :] >= p_each[:, None]              # (M, p_max)
+            sub = np.concatenate([np.moveaxis(r_ext[:, idx], 1, 0),
+                                  pad[:, :, None] * np.eye(p_max)[None, :, :]], axis=1)
+            qtb = np.concatenate([self.qtb[: r_top.shape[0]], np.zeros(p_max)])
+            th, ok = _solve_small(sub, qtb, self.n_rows, p_each)
+            theta[sel[rows], cols] = th[rows, pos]
             full_rank[sel] = ok
         return theta, full_rank
 
@@ -124,7 +147,13 @@ class SharedRegression:
 RANK_DECISION_MARGIN = 100.0
 
 
-def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray]:
+#: groups of candidates with the same number of parameters smaller than this are pooled
+#: into one padded stack (a coordinate-search sweep has ~10 candidates of 10 sizes)
+POOL_BELOW = 8
+
+
+def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int,
+                 p_each: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Least squares min |sub[m] theta - qtb| for a stack of K x p matrices; (theta, full rank).
 
     Full rank means what ``numpy.linalg.lstsq`` (and ``matrix_rank``) on the n_rows x p
@@ -133,35 +162,47 @@ def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int) -> tuple[np.ndar
     number lies in [max|T_ii| / min|T_ii|, |T|_F |T^-1|_F] and in [|T|_F |T^-1|_F / p, ..];
     candidates whose bounds clear the tolerance by :data:`RANK_DECISION_MARGIN` are decided
     from them (theta = T^-1 Q^T qtb), the others by an SVD as lstsq does it.
+
+    ``p_each``: candidate m uses only its first p_each[m] columns; the others are padding,
+    zero in the K rows of the problem and a unit vector in an extra row of their own (so
+    they are orthogonal to the real columns and to each other: T is block diagonal with an
+    identity block, the real block and its solution are those of the unpadded problem).
     """
-    m, _, p = sub.shape
-    limit = 1.0 / (np.finfo(float).eps * max(n_rows, p))      # largest admissible condition
-    theta = np.zeros((m, p))
+    m, _, p_max = sub.shape
+    p_each = np.full(m, p_max) if p_each is None else np.asarray(p_each)
+    real = np.arange(p_max)[None, :] < p_each[:, None]                   # (M, p_max)
+    real2 = real[:, :, None] & real[:, None, :]
+    eps = np.finfo(float).eps
+    limit = 1.0 / (eps * np.maximum(n_rows, p_each))        # largest admissible condition
+    theta = np.zeros((m, p_max))
     full = np.zeros(m, dtype=bool)
     q, t = np.linalg.qr(sub)
     diag = np.abs(np.diagonal(t, axis1=1, axis2=2))
-    dmin, dmax = diag.min(axis=1), diag.max(axis=1)
-    undecided = ~(dmin * limit <= dmax * RANK_DECISION_MARGIN)    # else surely deficient
+    dmin = np.where(real, diag, np.inf).min(axis=1)
+    dmax = np.where(real, diag, 0.0).max(axis=1)
+    undecided = ~(dmin * limit * RANK_DECISION_MARGIN <= dmax)    # else surely deficient
     inv_idx = np.flatnonzero(undecided)
     if inv_idx.size:
         with np.errstate(over="ignore", invalid="ignore"):
             t_inv = np.linalg.inv(t[inv_idx])
-            bound = np.linalg.norm(t[inv_idx], axis=(1, 2)) * np.linalg.norm(t_inv, axis=(1, 2))
-        sure_full = bound * RANK_DECISION_MARGIN < limit
-        sure_deficient = bound > limit * RANK_DECISION_MARGIN * p
+            r2 = real2[inv_idx]
+            bound = (np.linalg.norm(np.where(r2, t[inv_idx], 0.0), axis=(1, 2))
+                     * np.linalg.norm(np.where(r2, t_inv, 0.0), axis=(1, 2)))
+        lim = limit[inv_idx]
+        sure_full = bound * RANK_DECISION_MARGIN < lim
+        sure_deficient = bound > lim * RANK_DECISION_MARGIN * p_each[inv_idx]
         good = inv_idx[sure_full]
         qtb_t = np.einsum("mkp,k->mp", q[good], qtb)
         theta[good] = np.einsum("mpq,mq->mp", t_inv[sure_full], qtb_t)
         full[good] = True
         undecided[inv_idx[sure_full | sure_deficient]] = False
-    svd_idx = np.flatnonzero(undecided)
-    if svd_idx.size:
-        uu, s, vt = np.linalg.svd(sub[svd_idx], full_matrices=False)
-        ok = np.all(s > np.finfo(float).eps * max(n_rows, p) * s[:, :1], axis=1)
+    for i in np.flatnonzero(undecided):                     # rare: near lstsq's tolerance
+        p = int(p_each[i])
+        a = sub[i, :, :p]
+        uu, s, vt = np.linalg.svd(a, full_matrices=False)
+        full[i] = bool(np.all(s > eps * max(n_rows, p) * s[0]))
         s_safe = np.where(s > 0, s, 1.0)
-        coef = np.einsum("mkp,k->mp", uu, qtb) / s_safe
-        theta[svd_idx] = np.einsum("mpq,mp->mq", vt, coef)
-        full[svd_idx] = ok
+        theta[i, :p] = vt.T @ ((uu.T @ qtb) / s_safe)
     return theta, full
 
 
