@@ -21,8 +21,8 @@ Here the work is shared:
   input-lag matrix with the stacked B coefficients; the autoregressive recursion then runs once
   over time with all candidates as a vector (summed in the order of ``scipy.signal.lfilter``'s
   transposed direct form), measured outputs replacing predictions where asked (state update).
-  A handful of candidates in pure simulation (a coordinate-search sweep) is filtered one by
-  one with ``scipy.signal.lfilter`` instead, which is faster there.
+  A handful of candidates over many steps in pure simulation (a coordinate-search sweep) is
+  filtered one by one with ``scipy.signal.lfilter`` instead, which is faster there.
 
 Nothing here imports rclpy; :mod:`talc_model.order_selection` is the user.
 """
@@ -242,10 +242,11 @@ def poles_inside(a: np.ndarray, margin: float = 0.0, real_positive: bool = False
     return ok
 
 
-#: pure simulations of fewer than this many candidates per unit of n_a run one
-#: ``scipy.signal.lfilter`` each (~40 us) instead of the vectorised time loop (~2.5 ms per n_a
-#: for 1,000 steps, measured on the 2-core development machine)
-LFILTER_BELOW = 32
+#: a pure simulation filters each candidate with ``scipy.signal.lfilter`` (~25 us) instead
+#: of running the vectorised time loop (~1-2 us per step and unit of n_a, nearly independent
+#: of the number of candidates) when candidates * LFILTER_STEPS < steps * n_a; measured on
+#: the 2-core development machine
+LFILTER_STEPS = 25
 
 
 def simulate_batch(a: np.ndarray, bu: np.ndarray, y_before: np.ndarray,
@@ -272,12 +273,15 @@ def simulate_batch(a: np.ndarray, bu: np.ndarray, y_before: np.ndarray,
     hist[:na] = y_before[:, None]
     at = np.ascontiguousarray(a.T)          # at[i] = a_{i+1} of every candidate
     rep = np.zeros(t_len, dtype=bool) if replace is None else np.asarray(replace, dtype=bool)
-    if not np.any(rep) and m < LFILTER_BELOW * na:
-        # few candidates (a coordinate-search sweep): a C filter each beats a Python time loop
-        for i in range(m):
-            den = np.concatenate(([1.0], a[i]))
-            zi = signal.lfiltic([1.0], den, y_before[::-1])
-            pred[:, i], _ = signal.lfilter([1.0], den, bu[:, i], zi=zi)
+    if not np.any(rep) and m * LFILTER_STEPS < t_len * na:
+        # few candidates, many steps (a coordinate-search sweep): a C filter each is faster.
+        # Initial state of the transposed direct form for y_before (what lfiltic computes):
+        # zi[j] = -(a_{j+1} y[-1] + a_{j+2} y[-2] + .. + a_na y[-(na-j)])
+        y_rev = y_before[::-1]
+        zi = np.array([[-np.dot(a[i, j:], y_rev[: na - j]) for j in range(na)] for i in range(m)])
+        with np.errstate(over="ignore", invalid="ignore"):
+            for i in range(m):
+                pred[:, i], _ = signal.lfilter([1.0], np.concatenate(([1.0], a[i])), bu[:, i], zi=zi[i])
         return pred
     with np.errstate(over="ignore", invalid="ignore"):   # unstable candidates may overflow
         if na == 1:

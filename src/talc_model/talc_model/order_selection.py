@@ -39,7 +39,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from .arx import ArxModel, ArxOrders, RankDeficientError, fit_arx
 from .arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
@@ -96,10 +96,21 @@ def _validation_residuals(model: ArxModel, y: np.ndarray, u: np.ndarray, split: 
     return res[scored[split:]]
 
 
+_THREADPOOLS: list[ThreadpoolController] = []
+
+
+def _single_threaded_blas():
+    """Context limiting BLAS to one thread. The controller (which scans the loaded libraries,
+    ~3 ms) is made once per process; ``threadpool_limits`` would scan on every call."""
+    if not _THREADPOOLS:
+        _THREADPOOLS.append(ThreadpoolController())
+    return _THREADPOOLS[0].limit(limits=1, user_api="blas")
+
+
 def select_orders(*args, **kwargs) -> "OrderSelection":
     """See :func:`_select_orders`; runs with single-threaded BLAS: the hundreds of small
     least-squares problems are 10-100x slower with a multi-threaded BLAS on a busy machine."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _single_threaded_blas():
         return _select_orders(*args, **kwargs)
 
 
@@ -107,7 +118,7 @@ def _select_orders_reference(*args, **kwargs) -> "OrderSelection":
     """:func:`select_orders` with one :func:`fit_arx` and one :meth:`ArxModel.simulate` per
     candidate (the implementation before the batched one). Kept as the reference the
     batched evaluation is tested against; not for production use (~100x slower)."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _single_threaded_blas():
         return _select_orders(*args, _batched=False, **kwargs)
 
 
