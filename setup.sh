@@ -80,6 +80,14 @@ if ! stamp_ok python "$h"; then
   rm -f "$STAMPS/cmake-paths"
 fi
 
+STEP="install the benchmark peers (requirements/bench-peers.txt, without dependency resolution)"
+h=$(hash_of "$ROOT/requirements/bench-peers.txt")
+if ! stamp_ok peers "$h"; then
+  say "installing benchmark peers"
+  "${PIP[@]}" --no-deps -r "$ROOT/requirements/bench-peers.txt"
+  stamp_set peers "$h"
+fi
+
 # ---------------------------------------------------------------------------------------
 STEP="repair the build-farm paths in the wheels' cmake export files"
 if ! stamp_ok cmake-paths "$(hash_of "$STAMPS/ros" "$STAMPS/python")"; then

@@ -7,6 +7,10 @@ TALC part (this module):
   ``talc.statsmodels_wls_7x200h_ms`` the same fits with statsmodels ``WLS`` as the peer,
   ``talc.refit_speedup_vs_statsmodels`` their ratio and ``talc.refit_max_param_diff`` the
   largest parameter difference between the two (they solve the same problem);
+- ``talc.arx_ols_fit_7x200h_ms`` / ``talc.sysidentpy_frols_7x200h_ms``: the same 7 fits
+  unweighted (n_k = 1 and a constant, 32 parameters) with our ``fit_arx`` and with
+  sysidentpy's FROLS keeping every regressor, ``talc.fit_speedup_vs_sysidentpy`` their
+  ratio, ``talc.sysidentpy_max_prediction_diff_um`` the largest one-step prediction difference;
 - ``talc.order_selection_7x200h_s``: MDL order selection over n_a <= 1, n_b <= 10 (coordinate
   search) for 7 components on the same history;
 - ``fe.<static|fir|arx>.<y|z>.{rms_um,p99_um}``: the FE study of thesis §4.2 on the twin's
@@ -104,6 +108,65 @@ def refit_speed(repeats: int = 5) -> dict[str, Any]:
             "talc.refit_speedup_vs_statsmodels": _round(mp / mo, 2),
             "talc.refit_max_param_diff": float(f"{diff:.3g}"),
             "talc.order_selection_7x200h_s": _round(t_sel, 2)}
+
+
+def sysidentpy_comparison(repeats: int = 3) -> dict[str, Any]:
+    """7 ordinary least-squares ARX fits on 200 h of 5-min history, ours versus sysidentpy.
+
+    The same model in both: y(k-1), inputs at lags 1..10 (sysidentpy's lags start at 1, so our
+    n_k = 1) and a constant (sysidentpy's degree-1 polynomial basis has one), 32 parameters,
+    unweighted (sysidentpy has no sample weights). sysidentpy's FROLS with
+    ``order_selection=False`` and ``n_terms`` = all 32 candidates orthogonalises and keeps every
+    regressor, then ``LeastSquares`` estimates them. The agreement figure is the largest
+    difference of the two models' one-step-ahead predictions over the history.
+    """
+    from sysidentpy.basis_function import Polynomial
+    from sysidentpy.model_structure_selection import FROLS
+    from sysidentpy.parameter_estimation import LeastSquares
+
+    from .arx import ArxOrders, fit_arx, regression_matrix
+    from .synthetic_plant import make_plant, probe_noise_std
+    plant = make_plant(hours=200.0, step_s=300.0, seed=11)
+    t = plant.temperatures
+    u = np.column_stack([t["ambient"] - t["ambient"][0], t["ws"] - t["ws"][0],
+                         (t["c_coolant_out"] - t["c_coolant_in"]) - (t["c_coolant_out"][0] - t["c_coolant_in"][0])])
+    rng = np.random.default_rng(0)
+    noise = probe_noise_std()
+    ys = [plant.errors[c] + rng.normal(0, noise[c], u.shape[0]) for c in FIVE_AXIS_COMPONENTS]
+    orders = ArxOrders(1, (10, 10, 10), nk=1, intercept=True)
+
+    def ours():
+        return [fit_arx(y, u, orders) for y in ys]
+
+    def peer():
+        out = []
+        for y in ys:
+            m = FROLS(order_selection=False, n_terms=orders.n_params, ylag=1, xlag=[list(range(1, 11))] * 3,
+                      estimator=LeastSquares(), basis_function=Polynomial(degree=1))
+            m.fit(X=u, y=y.reshape(-1, 1))
+            out.append(m)
+        return out
+
+    from .blas_threads import single_thread_blas
+    with single_thread_blas(), np.errstate(all="ignore"):
+        t_ours, t_peer = [], []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            a = ours()
+            t_ours.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            b = peer()
+            t_peer.append(time.perf_counter() - t0)
+        diff = 0.0
+        for y, mo, mp in zip(ys, a, b):
+            phi, _, rows = regression_matrix(y, u, orders)
+            pred_peer = np.asarray(mp.predict(X=u, y=y.reshape(-1, 1), steps_ahead=1)).ravel()
+            diff = max(diff, float(np.max(np.abs(pred_peer[rows] - phi @ mo.theta))))
+    mo_, mp_ = statistics.median(t_ours), statistics.median(t_peer)
+    return {"talc.arx_ols_fit_7x200h_ms": _round(1e3 * mo_, 2),
+            "talc.sysidentpy_frols_7x200h_ms": _round(1e3 * mp_, 2),
+            "talc.fit_speedup_vs_sysidentpy": _round(mp_ / mo_, 2),
+            "talc.sysidentpy_max_prediction_diff_um": float(f"{diff:.3g}")}
 
 
 # ------------------------------------------------------------------ FE study (thesis §4.2)
@@ -207,6 +270,7 @@ def run(args) -> dict[str, Any]:
         out_dir.mkdir(parents=True, exist_ok=True)
     jobs: list[tuple[str, Callable[[], tuple[dict, str | None]]]] = [
         ("ARX refit speed", lambda: (refit_speed(2 if quick else 5), None)),
+        ("ARX vs sysidentpy", lambda: (sysidentpy_comparison(1 if quick else 3), None)),
         ("FE study", lambda: (fe_study(), None)),
     ]
     for scen, preset in TALC_RUNS:
