@@ -132,7 +132,7 @@ class _PerCandidateScorer:
         self.state_updates, self.criterion = state_updates, criterion
         self.margin, self.real_positive_poles = margin, real_positive_poles
         self.require_stable = require_stable
-        self.deficient = 0
+        self.deficient_keys: set[tuple] = set()
 
     def evaluate(self, key: tuple) -> tuple[float, ArxModel | None, float]:
         """(score, model fitted on the training part, validation RMS) of candidate ``key``."""
@@ -143,7 +143,7 @@ class _PerCandidateScorer:
         try:
             m = fit_arx(self.y, self.u, orders, self.weights, start=self.start, stop=self.split)
         except RankDeficientError:
-            self.deficient += 1
+            self.deficient_keys.add(key)
             return math.inf, None, math.nan
         if self.require_stable and not m.is_stable(self.margin, self.real_positive_poles):
             return math.inf, None, math.nan
@@ -171,7 +171,7 @@ class _BatchedScorer:
         self.weights, self.start, self.split = weights, start, split
         self.criterion, self.margin = criterion, margin
         self.real_positive_poles, self.require_stable = real_positive_poles, require_stable
-        self.deficient = 0
+        self.deficient_keys: set[tuple] = set()
         self._groups: dict[int, SharedRegression] = {}
         self._u_val = input_lag_matrix(u, nb_max, nk, intercept, split)   # (T, P_u)
         self._y_val = y[split:]
@@ -195,7 +195,7 @@ class _BatchedScorer:
             n_params = na + nbs.sum(axis=1) + int(self.intercept)
             g = self._group(na)
             theta, full_rank = g.fit(nbs)
-            self.deficient += int(np.sum(~full_rank & (n_params > 0)))
+            self.deficient_keys.update(keys[members[i]] for i in np.flatnonzero(~full_rank & (n_params > 0)))
             keep = full_rank.copy()
             if self.require_stable:
                 keep &= poles_inside(theta[:, :na], self.margin, self.real_positive_poles)
@@ -291,14 +291,23 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
             real_positive_poles, require_stable)
     reference = _PerCandidateScorer(*args)
     scorer = _BatchedScorer(y, u, nb_hi, *args[2:]) if _batched else reference
-    cache: dict[tuple, float] = {}
+    cache: dict[tuple, float] = {}      # the candidates the search asked for, in that order
+    ahead: dict[tuple, float] = {}      # scored in advance, not (yet) asked for
+
+    def score_ahead(keys: list[tuple]) -> None:
+        todo = [k for k in dict.fromkeys(keys) if k not in cache and k not in ahead]
+        if todo:
+            ahead.update(zip(todo, scorer.scores(todo)))
 
     def scores(keys: list[tuple]) -> list[float]:
-        new = [k for k in dict.fromkeys(keys) if k not in cache]
-        cache.update(zip(new, scorer.scores(new)))
+        score_ahead(keys)
+        for k in keys:
+            if k not in cache:
+                cache[k] = ahead.pop(k)
         return [cache[k] for k in keys]
 
-    _search(scores, range(na_lo, na_hi + 1), range(nb_lo, nb_hi + 1), r, exhaustive_limit)
+    _search(scores, range(na_lo, na_hi + 1), range(nb_lo, nb_hi + 1), r, exhaustive_limit,
+            score_ahead if _batched else None)
 
     # ties (within 1e-9 relative) go to the smallest model, then to the smallest score
     best_key, score, model, rms = _winner(cache, nk, intercept, reference, _batched)
@@ -314,7 +323,8 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
         except RankDeficientError:
             pass
     model.extra["validation_rms"] = rms
-    return OrderSelection(model, orders, score, rms, len(cache), scorer.deficient)
+    deficient = sum(1 for k in cache if k in scorer.deficient_keys)
+    return OrderSelection(model, orders, score, rms, len(cache), deficient)
 
 
 def _winner(cache: dict[tuple, float], nk: int, intercept: bool, reference: _PerCandidateScorer,
@@ -355,26 +365,44 @@ def _winner(cache: dict[tuple, float], nk: int, intercept: bool, reference: _Per
             return key, score, model, rms
 
 
-def _search(scores, na_values: range, nb_values: range, r: int, exhaustive_limit: int) -> None:
+def _search(scores, na_values: range, nb_values: range, r: int, exhaustive_limit: int,
+            score_ahead=None) -> None:
     """Exhaustive search while the grid has at most ``exhaustive_limit`` candidates, else a
     coordinate search from the smallest orders (one order at a time, repeated until no
-    improvement). ``scores(keys)`` scores a list of (na, nb) at once; the candidates of one
-    coordinate sweep do not depend on each other's scores, so each sweep is one batch."""
+    improvement). ``scores(keys)`` scores a list of (na, nb) at once. In a coordinate round
+    the candidates of the remaining sweeps are known as long as no sweep improves, so
+    ``score_ahead(keys)`` (if given) is handed all of them before each sweep: one batch per
+    round and per improvement instead of one per sweep. Which candidates count as tried, and
+    in which order, is decided by ``scores`` alone."""
     n_candidates = len(na_values) * len(nb_values) ** r
     if n_candidates <= exhaustive_limit:
         scores([(na, tuple(nb)) for na in na_values for nb in itertools.product(nb_values, repeat=r)])
         return
+
+    def sweep_keys(na: int, nb: tuple, j: int) -> list[tuple]:
+        return [(na, nb[:j] + (v,) + nb[j + 1:]) for v in nb_values]
+
+    def look_ahead(na: int, nb: tuple, first_j: int, with_na: bool) -> None:
+        if score_ahead is not None:
+            keys = [(v, nb) for v in na_values] if with_na else []
+            for j in range(first_j, r):
+                keys += sweep_keys(na, nb, j)
+            score_ahead(keys)
+
     cur_na, cur_nb = na_values[0], (nb_values[0],) * r
+    look_ahead(cur_na, cur_nb, 0, True)
     best = scores([(cur_na, cur_nb)])[0]
     improved = True
     while improved:
         improved = False
+        look_ahead(cur_na, cur_nb, 0, True)
         trials = [(na, cur_nb) for na in na_values]
         for (na, _), s in zip(trials, scores(trials)):
             if s < best:
                 best, cur_na, improved = s, na, True
         for j in range(r):
-            trials = [(cur_na, cur_nb[:j] + (nb,) + cur_nb[j + 1:]) for nb in nb_values]
+            look_ahead(cur_na, cur_nb, j, False)
+            trials = sweep_keys(cur_na, cur_nb, j)
             for (_, nb), s in zip(trials, scores(trials)):
                 if s < best:
                     best, cur_nb, improved = s, nb, True
