@@ -158,7 +158,8 @@ def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int,
 
     Full rank means what ``numpy.linalg.lstsq`` (and ``matrix_rank``) on the n_rows x p
     matrix decides: smallest singular value > eps * max(n_rows, p) * largest. A stacked QR
-    gives sub = Q T (T p x p upper triangular, the same singular values); the condition
+    (of [sub | qtb], so Q^T qtb comes without forming Q) gives sub = Q T (T p x p upper
+    triangular, the same singular values); the condition
     number lies in [max|T_ii| / min|T_ii|, |T|_F |T^-1|_F] and in [|T|_F |T^-1|_F / p, ..];
     candidates whose bounds clear the tolerance by :data:`RANK_DECISION_MARGIN` are decided
     from them (theta = T^-1 Q^T qtb), the others by an SVD as lstsq does it.
@@ -176,7 +177,11 @@ def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int,
     limit = 1.0 / (eps * np.maximum(n_rows, p_each))        # largest admissible condition
     theta = np.zeros((m, p_max))
     full = np.zeros(m, dtype=bool)
-    q, t = np.linalg.qr(sub)
+    # QR of [sub | qtb] without forming Q: R = [[T, Q^T qtb], [0, residual]]
+    aug = np.concatenate([sub, np.broadcast_to(qtb[None, :, None], (m, qtb.size, 1))], axis=2)
+    r_aug = np.linalg.qr(aug, mode="r")
+    t = r_aug[:, :p_max, :p_max]
+    qtb_t_all = r_aug[:, :p_max, p_max]
     diag = np.abs(np.diagonal(t, axis1=1, axis2=2))
     dmin = np.where(real, diag, np.inf).min(axis=1)
     dmax = np.where(real, diag, 0.0).max(axis=1)
@@ -192,8 +197,7 @@ def _solve_small(sub: np.ndarray, qtb: np.ndarray, n_rows: int,
         sure_full = bound * RANK_DECISION_MARGIN < lim
         sure_deficient = bound > lim * RANK_DECISION_MARGIN * p_each[inv_idx]
         good = inv_idx[sure_full]
-        qtb_t = np.einsum("mkp,k->mp", q[good], qtb)
-        theta[good] = np.einsum("mpq,mq->mp", t_inv[sure_full], qtb_t)
+        theta[good] = np.einsum("mpq,mq->mp", t_inv[sure_full], qtb_t_all[good])
         full[good] = True
         undecided[inv_idx[sure_full | sure_deficient]] = False
     for i in np.flatnonzero(undecided):                     # rare: near lstsq's tolerance
