@@ -8,7 +8,9 @@ between (as TALC weighs predicted samples), n_a 0..1 and n_b 1..10 per input (Ta
 and for the per-candidate one it replaced (``_select_orders_reference``: a ``fit_arx`` and
 an ``ArxModel.simulate`` per candidate), in pure simulation and with TALC's state updates,
 plus the coordinate search (``exhaustive_limit`` below the grid size) that
-``bench_model`` times. Figures (keys ``order_selection.<case>.*``): ``batched_s`` and
+``bench_model`` times, and with a fourth input (the C-axis speed, an NC signal like the
+sweep's MWF state), whose 10,000 candidates exceed ``exhaustive_limit`` (4,000) so that the
+coordinate search runs, as in ``thermal-comp sweep`` with its four default inputs. Figures (keys ``order_selection.<case>.*``): ``batched_s`` and
 ``per_candidate_s`` (median of ``repeats``, single-threaded BLAS as in production),
 ``speedup``, ``candidates``, ``same_result`` (same orders, and score and theta within 1e-9
 relative). Call :func:`run` (``args.quick``: one repeat).
@@ -29,11 +31,14 @@ CASES = {
     "exhaustive_2000_state_updates": {"na_range": (0, 1), "nb_range": (1, 10), "state_updates": True},
     "coordinate_1x10": {"na_range": (1, 1), "nb_range": (1, 10), "state_updates": False,
                         "exhaustive_limit": 200},
+    "coordinate_4_inputs": {"na_range": (1, 1), "nb_range": (1, 10), "state_updates": False,
+                            "inputs": "u4"},
 }
 
 
 def problem(hours: float = 200.0, step_s: float = 300.0, seed: int = 11) -> dict[str, np.ndarray]:
-    """y, u, weights and measured mask of the benchmark problem (fixed seed)."""
+    """y, u (3 temperatures), u4 (and the C-axis speed), weights and measured mask of the
+    benchmark problem (fixed seed)."""
     from .synthetic_plant import make_plant, probe_noise_std
     plant = make_plant(hours=hours, step_s=step_s, seed=seed)
     t = plant.temperatures
@@ -44,7 +49,8 @@ def problem(hours: float = 200.0, step_s: float = 300.0, seed: int = 11) -> dict
     y = plant.errors[COMPONENT] + rng.normal(0.0, probe_noise_std()[COMPONENT], u.shape[0])
     measured = np.zeros(u.shape[0], bool)
     measured[:: int(round(7200.0 / step_s))] = True          # a probe every 2 h
-    return {"y": y, "u": u, "weights": np.where(measured, 1.0, 0.05), "measured": measured}
+    u4 = np.column_stack([u, plant.machine_state["c_axis_rpm"] / 1000.0])
+    return {"y": y, "u": u, "u4": u4, "weights": np.where(measured, 1.0, 0.05), "measured": measured}
 
 
 def _timed(fn, repeats: int):
@@ -62,10 +68,10 @@ def order_selection_speed(repeats: int = 3) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, case in CASES.items():
         kw = dict(case)
-        na_range, nb_range = kw.pop("na_range"), kw.pop("nb_range")
+        na_range, nb_range, u = kw.pop("na_range"), kw.pop("nb_range"), p[kw.pop("inputs", "u")]
 
-        def call(fn, kw=kw, na_range=na_range, nb_range=nb_range):
-            return fn(p["y"], p["u"], na_range, nb_range, weights=p["weights"],
+        def call(fn, kw=kw, na_range=na_range, nb_range=nb_range, u=u):
+            return fn(p["y"], u, na_range, nb_range, weights=p["weights"],
                       measured=p["measured"], **kw)
 
         t_new, new = _timed(lambda: call(select_orders), repeats)
