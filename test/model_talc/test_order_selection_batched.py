@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, fit_arx, solve_wls
+from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, fit_arx
 from talc_model.arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
-from talc_model.order_selection import (_BatchedScorer, _PerCandidateScorer, _select_orders_reference,
-                                        select_orders)
+from talc_model.order_selection import (_BatchedScorer, _PerCandidateScorer, _scoring_problem,
+                                        _select_orders_reference, select_orders)
 
 REL = 1e-9
 
@@ -77,21 +77,11 @@ NA_RANGES = [(0, 1), (1, 1), (1, 2)]
 
 
 def _scorers(y, u, na_range, nb_range, kw):
-    """Both scorers set up as _select_orders sets them up, and every key of the grid."""
-    n, r = u.shape
-    nk, intercept = kw.get("nk", 0), kw.get("intercept", False)
-    measured = kw.get("measured")
-    scored = np.isfinite(y) if measured is None else (measured & np.isfinite(y))
-    split = int(round(0.6 * n))
-    while split > 0 and not np.all(np.isfinite(y[max(0, split - max(na_range[1], 1)):split])):
-        split -= 1
-    start = ArxOrders(na_range[1], (nb_range[1],) * r, nk, intercept).max_lag
-    args = (y, u, nk, intercept, kw.get("weights"), start, split, scored, kw.get("state_updates", False),
-            kw.get("criterion", "mdl"), 1.0 - kw.get("max_pole_radius", 1.0),
-            kw.get("real_positive_poles", False), kw.get("require_stable", True))
+    """Both scorers set up as select_orders sets them up, and every key of the grid."""
+    problem = _scoring_problem(y, u, na_range, nb_range, **kw)
     keys = [(na, nb) for na in range(na_range[0], na_range[1] + 1)
-            for nb in itertools.product(range(nb_range[0], nb_range[1] + 1), repeat=r)]
-    return _PerCandidateScorer(*args), _BatchedScorer(y, u, nb_range[1], *args[2:]), keys
+            for nb in itertools.product(range(nb_range[0], nb_range[1] + 1), repeat=u.shape[1])]
+    return _PerCandidateScorer(problem), _BatchedScorer(problem), keys
 
 
 def _assert_same_scores(ref_scores, batch_scores):

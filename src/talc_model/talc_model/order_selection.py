@@ -122,33 +122,88 @@ def _select_orders_reference(*args, **kwargs) -> "OrderSelection":
         return _select_orders(*args, _batched=False, **kwargs)
 
 
+@dataclass(frozen=True)
+class _ScoringProblem:
+    """What every candidate of one order selection is fitted and scored on."""
+
+    y: np.ndarray
+    u: np.ndarray                # N x r, finite
+    nb_max: int
+    nk: int
+    intercept: bool
+    weights: np.ndarray | None
+    start: int                   # first training row (largest lag of the largest orders)
+    split: int                   # training rows [start, split), validation from split on
+    scored: np.ndarray           # validation residuals are scored where True
+    state_updates: bool
+    criterion: str
+    margin: float                # poles must lie within radius 1 - margin
+    real_positive_poles: bool
+    require_stable: bool
+
+
+def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_range: tuple[int, int],
+                     *, nk: int = 0, intercept: bool = False, criterion: str = "mdl",
+                     train_fraction: float = 0.6, weights: np.ndarray | None = None,
+                     measured: np.ndarray | None = None, require_stable: bool = True,
+                     state_updates: bool = False, max_pole_radius: float = 1.0,
+                     real_positive_poles: bool = False) -> _ScoringProblem:
+    """Check the arguments of :func:`select_orders` and split the data (see there)."""
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion: {criterion!r} is not one of {list(CRITERIA)}")
+    if not 0 < max_pole_radius <= 1:
+        raise ValueError(f"max_pole_radius: {max_pole_radius} must be in (0, 1]")
+    if not 0.1 <= train_fraction <= 0.95:
+        raise ValueError(f"train_fraction: {train_fraction} must be within [0.1, 0.95]")
+    y = np.asarray(y, dtype=float)
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1:
+        u = u[:, None]
+    if not np.all(np.isfinite(u)):
+        raise ValueError("inputs u: non-finite values (hold or drop unavailable inputs first)")
+    n, r = u.shape
+    na_lo, na_hi = int(na_range[0]), int(na_range[1])
+    nb_lo, nb_hi = int(nb_range[0]), int(nb_range[1])
+    if na_lo < 0 or na_hi < na_lo or nb_lo < 0 or nb_hi < nb_lo:
+        raise ValueError(f"order ranges: na {na_range}, nb {nb_range} are not valid (min <= max, >= 0)")
+    scored = np.isfinite(y) if measured is None else (np.asarray(measured, bool) & np.isfinite(y))
+    split = int(round(train_fraction * n))
+    # simulation starts from measured outputs: move the split back past missing samples
+    while split > 0 and not np.all(np.isfinite(y[max(0, split - max(na_hi, 1)):split])):
+        split -= 1
+    max_orders = ArxOrders(na_hi, (nb_hi,) * r, nk, intercept)
+    # common first row so that every candidate is scored on the same samples
+    start = max_orders.max_lag
+    if split <= start:
+        raise RankDeficientError(f"order selection: {n} samples leave no training rows after the "
+                                 f"largest lag {start}", rank=0, n_params=max_orders.n_params)
+    return _ScoringProblem(y, u, nb_hi, nk, intercept, weights, start, split, scored, state_updates,
+                           criterion, 1.0 - max_pole_radius, real_positive_poles, require_stable)
+
+
 class _PerCandidateScorer:
     """Scores candidates one by one: fit_arx, is_stable, ArxModel.simulate, criterion_value."""
 
-    def __init__(self, y, u, nk, intercept, weights, start, split, scored, state_updates,
-                 criterion, margin, real_positive_poles, require_stable):
-        self.y, self.u, self.nk, self.intercept = y, u, nk, intercept
-        self.weights, self.start, self.split, self.scored = weights, start, split, scored
-        self.state_updates, self.criterion = state_updates, criterion
-        self.margin, self.real_positive_poles = margin, real_positive_poles
-        self.require_stable = require_stable
+    def __init__(self, problem: _ScoringProblem):
+        self.p = problem
         self.deficient_keys: set[tuple] = set()
 
     def evaluate(self, key: tuple) -> tuple[float, ArxModel | None, float]:
         """(score, model fitted on the training part, validation RMS) of candidate ``key``."""
+        p = self.p
         na, nb = key
-        orders = ArxOrders(na, nb, self.nk, self.intercept)
+        orders = ArxOrders(na, nb, p.nk, p.intercept)
         if orders.n_params == 0:
             return math.inf, None, math.nan
         try:
-            m = fit_arx(self.y, self.u, orders, self.weights, start=self.start, stop=self.split)
+            m = fit_arx(p.y, p.u, orders, p.weights, start=p.start, stop=p.split)
         except RankDeficientError:
             self.deficient_keys.add(key)
             return math.inf, None, math.nan
-        if self.require_stable and not m.is_stable(self.margin, self.real_positive_poles):
+        if p.require_stable and not m.is_stable(p.margin, p.real_positive_poles):
             return math.inf, None, math.nan
-        res = _validation_residuals(m, self.y, self.u, self.split, self.scored, self.state_updates)
-        s = criterion_value(self.criterion, res, orders)
+        res = _validation_residuals(m, p.y, p.u, p.split, p.scored, p.state_updates)
+        s = criterion_value(p.criterion, res, orders)
         if not math.isfinite(s):
             s = math.inf
         rms = float(np.sqrt(np.mean(res ** 2))) if res.size else math.nan
@@ -165,24 +220,21 @@ class _BatchedScorer:
     #: bytes of the (validation steps x candidates) arrays of one simulated chunk
     CHUNK_BYTES = 32 * 2 ** 20
 
-    def __init__(self, y, u, nb_max, nk, intercept, weights, start, split, scored, state_updates,
-                 criterion, margin, real_positive_poles, require_stable):
-        self.y, self.u, self.nb_max, self.nk, self.intercept = y, u, nb_max, nk, intercept
-        self.weights, self.start, self.split = weights, start, split
-        self.criterion, self.margin = criterion, margin
-        self.real_positive_poles, self.require_stable = real_positive_poles, require_stable
+    def __init__(self, problem: _ScoringProblem):
+        p = self.p = problem
         self.deficient_keys: set[tuple] = set()
         self._groups: dict[int, SharedRegression] = {}
-        self._u_val = input_lag_matrix(u, nb_max, nk, intercept, split)   # (T, P_u)
-        self._y_val = y[split:]
-        self._scored_val = scored[split:]
+        self._u_val = input_lag_matrix(p.u, p.nb_max, p.nk, p.intercept, p.split)   # (T, P_u)
+        self._y_val = p.y[p.split:]
+        self._scored_val = p.scored[p.split:]
         # the state update replaces predictions at measured samples (if there are any)
-        self._replace = self._scored_val if state_updates and np.any(self._scored_val) else None
+        self._replace = self._scored_val if p.state_updates and np.any(self._scored_val) else None
 
     def _group(self, na: int) -> SharedRegression:
+        p = self.p
         if na not in self._groups:
-            self._groups[na] = SharedRegression(self.y, self.u, na, self.nb_max, self.nk, self.intercept,
-                                                self.weights, self.start, self.split)
+            self._groups[na] = SharedRegression(p.y, p.u, na, p.nb_max, p.nk, p.intercept,
+                                                p.weights, p.start, p.split)
         return self._groups[na]
 
     def scores(self, keys: list[tuple]) -> list[float]:
@@ -191,14 +243,14 @@ class _BatchedScorer:
         for i, (na, _) in enumerate(keys):
             by_na.setdefault(na, []).append(i)
         for na, members in by_na.items():
-            nbs = np.array([keys[i][1] for i in members], dtype=int).reshape(len(members), self.u.shape[1])
-            n_params = na + nbs.sum(axis=1) + int(self.intercept)
+            nbs = np.array([keys[i][1] for i in members], dtype=int).reshape(len(members), self.p.u.shape[1])
+            n_params = na + nbs.sum(axis=1) + int(self.p.intercept)
             g = self._group(na)
             theta, full_rank = g.fit(nbs)
             self.deficient_keys.update(keys[members[i]] for i in np.flatnonzero(~full_rank & (n_params > 0)))
             keep = full_rank.copy()
-            if self.require_stable:
-                keep &= poles_inside(theta[:, :na], self.margin, self.real_positive_poles)
+            if self.p.require_stable:
+                keep &= poles_inside(theta[:, :na], self.p.margin, self.p.real_positive_poles)
             idx = np.flatnonzero(keep)
             chunk = max(1, self.CHUNK_BYTES // (8 * max(1, self._y_val.size)))
             for c0 in range(0, idx.size, chunk):
@@ -209,8 +261,8 @@ class _BatchedScorer:
                     if ni == 0:
                         continue
                     n_ord = na + sum(key[1])
-                    s = _criterion_from_mse(self.criterion, float(vi), int(ni),
-                                            n_ord + int(self.intercept), n_ord)
+                    s = _criterion_from_mse(self.p.criterion, float(vi), int(ni),
+                                            n_ord + int(self.p.intercept), n_ord)
                     out[members[i]] = s if math.isfinite(s) else math.inf
         return out
 
@@ -218,7 +270,7 @@ class _BatchedScorer:
         """Mean squared finite validation residual and their number, per candidate."""
         with np.errstate(over="ignore", invalid="ignore"):
             bu = self._u_val @ theta[:, na:].T                               # (T, M)
-            pred = simulate_batch(theta[:, :na], bu, self.y[self.split - na:self.split],
+            pred = simulate_batch(theta[:, :na], bu, self.p.y[self.p.split - na:self.p.split],
                                   self._replace, self._y_val)
             res = self._y_val[self._scored_val, None] - pred[self._scored_val]
             finite = np.isfinite(res)
@@ -258,39 +310,14 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     :meth:`ArxModel.simulate`), so the returned model, score and RMS are those of the
     per-candidate evaluation (:func:`_select_orders_reference`).
     """
-    if criterion not in CRITERIA:
-        raise ValueError(f"criterion: {criterion!r} is not one of {list(CRITERIA)}")
-    if not 0 < max_pole_radius <= 1:
-        raise ValueError(f"max_pole_radius: {max_pole_radius} must be in (0, 1]")
-    margin = 1.0 - max_pole_radius
-    if not 0.1 <= train_fraction <= 0.95:
-        raise ValueError(f"train_fraction: {train_fraction} must be within [0.1, 0.95]")
-    y = np.asarray(y, dtype=float)
-    u = np.asarray(u, dtype=float)
-    if u.ndim == 1:
-        u = u[:, None]
-    if not np.all(np.isfinite(u)):
-        raise ValueError("inputs u: non-finite values (hold or drop unavailable inputs first)")
-    n, r = u.shape
-    na_lo, na_hi = int(na_range[0]), int(na_range[1])
-    nb_lo, nb_hi = int(nb_range[0]), int(nb_range[1])
-    if na_lo < 0 or na_hi < na_lo or nb_lo < 0 or nb_hi < nb_lo:
-        raise ValueError(f"order ranges: na {na_range}, nb {nb_range} are not valid (min <= max, >= 0)")
-    scored = np.isfinite(y) if measured is None else (np.asarray(measured, bool) & np.isfinite(y))
-    split = int(round(train_fraction * n))
-    # simulation starts from measured outputs: move the split back past missing samples
-    while split > 0 and not np.all(np.isfinite(y[max(0, split - max(na_hi, 1)):split])):
-        split -= 1
-    max_orders = ArxOrders(na_hi, (nb_hi,) * r, nk, intercept)
-    # common first row so that every candidate is scored on the same samples
-    start = max_orders.max_lag
-    if split <= start:
-        raise RankDeficientError(f"order selection: {n} samples leave no training rows after the "
-                                 f"largest lag {start}", rank=0, n_params=max_orders.n_params)
-    args = (y, u, nk, intercept, weights, start, split, scored, state_updates, criterion, margin,
-            real_positive_poles, require_stable)
-    reference = _PerCandidateScorer(*args)
-    scorer = _BatchedScorer(y, u, nb_hi, *args[2:]) if _batched else reference
+    problem = _scoring_problem(y, u, na_range, nb_range, nk=nk, intercept=intercept, criterion=criterion,
+                               train_fraction=train_fraction, weights=weights, measured=measured,
+                               require_stable=require_stable, state_updates=state_updates,
+                               max_pole_radius=max_pole_radius, real_positive_poles=real_positive_poles)
+    y, u, start, margin = problem.y, problem.u, problem.start, problem.margin
+    r = u.shape[1]
+    reference = _PerCandidateScorer(problem)
+    scorer = _BatchedScorer(problem) if _batched else reference
     cache: dict[tuple, float] = {}      # the candidates the search asked for, in that order
     ahead: dict[tuple, float] = {}      # scored in advance, not (yet) asked for
 
@@ -306,14 +333,17 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
                 cache[k] = ahead.pop(k)
         return [cache[k] for k in keys]
 
-    _search(scores, range(na_lo, na_hi + 1), range(nb_lo, nb_hi + 1), r, exhaustive_limit,
+    _search(scores, range(int(na_range[0]), int(na_range[1]) + 1),
+            range(int(nb_range[0]), int(nb_range[1]) + 1), r, exhaustive_limit,
             score_ahead if _batched else None)
 
     # ties (within 1e-9 relative) go to the smallest model, then to the smallest score
     best_key, score, model, rms = _winner(cache, nk, intercept, reference, _batched)
     if best_key is None:
+        largest = ArxOrders(int(na_range[1]), (problem.nb_max,) * r, nk, intercept)
         raise RankDeficientError(f"order selection: none of {len(cache)} candidates is identifiable "
-                                 f"on {split - start} training rows", rank=0, n_params=max_orders.n_params)
+                                 f"on {problem.split - start} training rows", rank=0,
+                                 n_params=largest.n_params)
     orders = model.orders
     if refit_on_all:
         try:
