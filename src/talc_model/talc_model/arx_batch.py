@@ -11,10 +11,12 @@ Here the work is shared:
   decomposition A = Q R of the sqrt(W)-weighted largest matrix gives every candidate's
   problem min |A_S theta - b| as the small problem min |R_S theta - Q^T b| (A_S = Q R_S with
   orthonormal Q: same minimiser and the same singular values, hence the same rank).
-- The small problems are solved by a stacked SVD over all candidates with the same number of
-  parameters, with the rank tolerance of ``numpy.linalg.lstsq`` / ``matrix_rank``
-  (eps * max(rows, parameters) * largest singular value), so the full-rank verdict is the one
-  :func:`talc_model.arx.solve_wls` gives.
+- The small problems are solved by a stacked QR over all candidates with the same number of
+  parameters (small groups of different sizes pooled into one stack with padding columns).
+  The full-rank verdict is the one of ``numpy.linalg.lstsq`` / ``matrix_rank`` in
+  :func:`talc_model.arx.solve_wls` (smallest singular value > eps * max(rows, parameters) *
+  largest): decided from rigorous condition-number bounds of the triangular factor where they
+  clear that tolerance by a wide margin, by an SVD otherwise (see :func:`_solve_small`).
 - Stability: the pole of n_a = 1 is -a1 (exact); for n_a >= 2 the companion matrices are
   stacked and their eigenvalues taken at once (what ``numpy.roots`` does for one polynomial).
 - Simulation mode: the input part B(q) u (+ c) of all candidates is one matrix product of the
