@@ -11,7 +11,8 @@ thesis's 5 um; ``*_spindle*`` add the spindle speed (known to the CNC) as an ARX
 ``*_load_probing`` also probe densely after every spindle-speed change (12 x 10 min, like a
 no-good phase); both are reported separately.
 
-``talc_own_cp`` and ``agp`` replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
+``talc_own_cp``, ``agp`` and ``agp_load_probing`` (plus dense probing after every
+spindle-speed change, :mod:`talc_model.fl_thermal_load_probing`; reported separately) replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
 and see a displacement only when their own schedule probes: TALC in its calibration phase
 (every 5 min + 95 s), then every 2 h (``post_cp_interval_h = 2``) and in its no-good phases
 (12 probes every 10 min); the AGP in its calibration phase (every 6 min, >= 4 h), then every
@@ -156,13 +157,24 @@ def run_calibrated_talc_variants(data: FlThermalData, splits: Splits, *, variant
     return figures, comp, probes
 
 
-def adaptive_configs(data: FlThermalData, splits: Splits, talc_inputs: Sequence[str]) -> dict[str, tuple[str, dict]]:
-    """name -> (kind, config) of the adaptive models."""
+def adaptive_configs(data: FlThermalData, splits: Splits, talc_inputs: Sequence[str],
+                     agp_load_probing: bool = False) -> dict[str, tuple[str, dict]]:
+    """name -> (kind, config) of the replayed adaptive models (``agp_load_probing``: also the AGP
+    with dense probing after load changes; each extra probing may re-optimise the GP, which makes
+    that replay take many minutes)."""
     max_err = max(float(np.max(np.abs(data.displacement_um[c][:splits.n_train]))) for c in CHANNELS)
     max_err = 10.0 * math.ceil(max(max_err, 1e-9) / 10.0)
     agp = {"components": list(CHANNELS), "sensors": list(SENSORS), "control_interval_s": PROBE_INTERVAL_S,
            "probe_duration_s": PROBE_DURATION_S, "max_expected_error_um": max_err}
-    return {"talc_own_cp": ("talc", talc_config(talc_inputs)), "agp": ("agp", agp)}
+    configs = {"talc_own_cp": ("talc", talc_config(talc_inputs)), "agp": ("agp", agp)}
+    if agp_load_probing:
+        configs["agp_load_probing"] = ("agp", dict(agp))
+    return configs
+
+
+#: replayed models whose schedule also probes densely after every spindle-speed change
+#: (:class:`talc_model.fl_thermal_load_probing.LoadDrivenProbing`, same phase as TALC's NG phase)
+LOAD_PROBING_REPLAYS = ("agp_load_probing",)
 
 
 def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tuple[str, dict]],
@@ -173,8 +185,11 @@ def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tupl
     figures: dict[str, Any] = {}
     predictions: dict[str, dict[str, np.ndarray]] = {}
     probe_rows: dict[str, list[int]] = {}
+    from talc_model.fl_thermal_load_probing import LoadDrivenProbing
     for name, (kind, cfg) in configs.items():
         model = make_model(kind, cfg)
+        if name in LOAD_PROBING_REPLAYS:
+            model = LoadDrivenProbing(model, load_key=SPINDLE_COLUMN, probe_duration_s=PROBE_DURATION_S)
         t0 = time.perf_counter()
         res = run_virtual_experiment(data.recording, model, columns=_columns(), probed_components=list(CHANNELS),
                                      progress=show_progress, compute_metrics=False)
@@ -198,5 +213,6 @@ def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tupl
         fig["no_good_phases"] = int(res.final_status.get("no_good_phases", 0))
         fig["parameter_updates"] = int(res.final_status.get("parameter_updates", 0))
         fig["replay_s"] = round(wall, 1)
+        fig["load_change_phases"] = int(getattr(model, "load_phases", 0))
         figures[name] = fig
     return figures, predictions, probe_rows

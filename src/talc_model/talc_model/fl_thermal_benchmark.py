@@ -1,6 +1,7 @@
 """FL_THERMAL benchmark (issue 10 part 1): our models on a real 46 h spindle recording.
 
-``thermal-comp bench fl-thermal --json OUT [--out-dir DIR] [--quick] [--csv=PATH --rows=N --every=K --no-adaptive]``
+``thermal-comp bench fl-thermal --json OUT [--out-dir DIR] [--quick] [--csv=PATH --rows=N --every=K --no-adaptive
+--agp-load-probing]``
 (suite options in the ``--name=value`` form, so the bench command passes them through)
 
 Protocol (the authors' split, ``shared/data/fl_thermal/README.md``): rows are split
@@ -202,7 +203,7 @@ def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[s
 
 #: adaptive models drawn in the prediction plot / in the adaptive plot (with their probe instants)
 ADAPTIVE_IN_PREDICTION_PLOT = ("talc", "agp")
-ADAPTIVE_PLOT = ("talc", "talc_load_probing", "agp")
+ADAPTIVE_PLOT = ("talc", "talc_load_probing", "agp", "agp_load_probing")   # those that were run
 
 
 def plot_adaptive(data: FlThermalData, splits: Splits, compensation: Mapping[str, Mapping[str, np.ndarray]],
@@ -242,7 +243,7 @@ def _mae_rows(data: FlThermalData, splits: Splits, per: Mapping[str, np.ndarray]
 def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = None, adaptive: bool = True,
                   tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID, adaptive_overrides: Mapping[str, dict] | None = None,
                   talc_groups: Sequence[int] | None = None, arx_groups: Sequence[int] | None = None,
-                  show_progress: bool = True) -> dict[str, Any]:
+                  agp_load_probing: bool = False, show_progress: bool = True) -> dict[str, Any]:
     """The whole protocol on ``data``; returns the figures (and writes the PNG into ``out_dir``)."""
     from threadpoolctl import threadpool_limits
     splits = Splits.authors(len(data))
@@ -259,9 +260,10 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
     figures["open_loop_s"] = round(time.perf_counter() - t0, 1)
     if adaptive:
         overrides = dict(adaptive_overrides or {})
-        unknown = sorted(set(overrides) - {"talc_own_cp", "agp"})
+        unknown = sorted(set(overrides) - {"talc_own_cp", "agp", "agp_load_probing"})
         if unknown:
-            raise FlThermalError(f"adaptive_overrides: {unknown} are not replayed adaptive models (talc_own_cp, agp)")
+            raise FlThermalError(f"adaptive_overrides: {unknown} are not replayed adaptive models "
+                                 "(talc_own_cp, agp, agp_load_probing)")
         t1 = time.perf_counter()
         with threadpool_limits(1):
             figures["adaptive"], adaptive_pred, probe_rows = run_calibrated_talc_variants(
@@ -269,8 +271,11 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         groups = {} if talc_groups is None else {"candidates": talc_groups}
         talc_inputs, talc_scores = select_talc_inputs(data, splits, overrides=overrides.get("talc_own_cp"),
                                                       show_progress=show_progress, **groups)
-        configs = adaptive_configs(data, splits, talc_inputs)
+        configs = adaptive_configs(data, splits, talc_inputs, agp_load_probing=agp_load_probing)
         for name, extra in overrides.items():
+            if name not in configs:
+                raise FlThermalError(f"adaptive_overrides: {name!r} is not run (agp_load_probing needs "
+                                     "agp_load_probing=True)")
             configs[name][1].update(extra)
         replay_fig, replay_pred, replay_probes = run_adaptive(data, splits, configs, show_progress=show_progress)
         replay_fig["talc_own_cp"]["inputs"] = list(talc_inputs)
@@ -291,7 +296,8 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         figures["plot"] = str(png)
         if adaptive:
             png = out / "fl_thermal_adaptive.png"
-            plot_adaptive(data, splits, {k: adaptive_pred[k] for k in ADAPTIVE_PLOT}, probe_rows, png)
+            plot_adaptive(data, splits, {k: adaptive_pred[k] for k in ADAPTIVE_PLOT if k in adaptive_pred},
+                          probe_rows, png)
             figures["plot_adaptive"] = str(png)
     return figures
 
@@ -302,6 +308,8 @@ def _parse_extra(extra: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--rows", type=int, default=None, help="use only the first N rows (smoke runs)")
     ap.add_argument("--every", type=int, default=1, help="use every K-th row")
     ap.add_argument("--no-adaptive", action="store_true", help="open loop only")
+    ap.add_argument("--agp-load-probing", action="store_true",
+                    help="also replay the AGP with dense probing after every spindle-speed change (slow)")
     return ap.parse_args([e for e in extra if e != "--"])
 
 
@@ -310,7 +318,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     opts = _parse_extra(getattr(args, "extra", None) or [])
     every = opts.every if opts.every != 1 or not getattr(args, "quick", False) else 4
     data = load_fl_thermal(opts.csv, rows=opts.rows, every=every)
-    figures = run_benchmark(data, out_dir=getattr(args, "out_dir", None), adaptive=not opts.no_adaptive)
+    figures = run_benchmark(data, out_dir=getattr(args, "out_dir", None), adaptive=not opts.no_adaptive,
+                            agp_load_probing=opts.agp_load_probing)
     figures["every_nth_row"] = every
     print_table(figures)
     return figures
