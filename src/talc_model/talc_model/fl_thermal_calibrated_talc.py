@@ -5,18 +5,20 @@ sensors of k-means groups, orders by MDL, chosen on the calibration rows), ident
 calibration rows 0..n_train-1 (the authors' protocol gives a model every training displacement;
 a real calibration phase would probe at every 5-min grid sample of those 27.8 h, and Q_prod
 charges exactly those probings). After calibration the ARX runs in simulation mode on the
-temperatures and every probing updates the model's state: the measured error replaces the
-prediction through the slow-error Kalman filter of :mod:`talc_model.fl_thermal_probe_update`
-(an exact "measurement replaces prediction" would lock in the fast transient a probe happens
-to catch). A residual beyond the action-control limit (ACL) starts a no-good phase of 12 probes
-every 10 min. The ARX parameters are not re-estimated after calibration: a 2-h probe adds one
+temperatures (read between its grid samples with the current inputs, ``subgrid``, or held,
+``grid_hold``), and every probing updates the model's state through the slow-error Kalman filter
+of :mod:`talc_model.fl_thermal_probe_update`: its noise ratio r lets a probe count less than
+fully when fast transients dominate what one probe catches, r = 0 is TALC's "measurement
+replaces prediction" (on FL_THERMAL the walk-forward chose r = 0 on every channel), and the
+estimated offset decays with the time constant tau. A residual beyond the action-control
+limit (ACL) starts a no-good phase of 12 probes every 10 min. The ARX parameters are not re-estimated after calibration: a 2-h probe adds one
 sample to the ~330 of the calibration grid.
 
 Hyper-parameters, chosen WITHOUT rows >= n_train (walk-forward inside the training rows): for
 each fold start k in ``FOLD_STARTS`` (fractions of the training rows) the whole procedure is
 repeated with rows 0..k-1 as calibration (input sets, orders, ARX fit) and rows k..n_train-1
-replayed with 2-h probes and the ACL; per channel the (bias time constant, noise ratio) pair
-with the lowest mean MAE over the folds is taken. The ACL is a user setting, not tuned:
+replayed with 2-h probes and the ACL; per channel the (evaluation, tau, r) triple with the
+lowest mean MAE over the folds is taken. The ACL is a user setting, not tuned:
 ``acl_um = 5`` is the thesis's value for a 5-axis machine, 1 um the setting a 1-um target asks
 for; each ACL is reported with its own Q_prod. The load-driven variant (``load_probing``) also
 starts a dense-probing phase at every spindle-speed change (known to the CNC): the model is
