@@ -13,6 +13,8 @@ TALC part (this module):
   ratio, ``talc.sysidentpy_max_prediction_diff_um`` the largest one-step prediction difference;
 - ``talc.order_selection_7x200h_s``: MDL order selection over n_a <= 1, n_b <= 10 (coordinate
   search) for 7 components on the same history;
+- ``order_selection.<case>.*``: one order selection batched versus per candidate
+  (:mod:`talc_model.bench_order_selection`);
 - ``fe.<static|fir|arx>.<y|z>.{rms_um,p99_um}``: the FE study of thesis §4.2 on the twin's
   ``fe-two-source`` (training) and ``fe-two-source-swapped`` (validation, simulation mode);
 - ``talc.<scenario>.*``: the virtual experiment (TALC replayed on the twin, probing only
@@ -251,6 +253,11 @@ def talc_replay(scenario: str, config: dict, hours: float | None, out_dir: pathl
     return out, "\n".join(lines)
 
 
+def _order_selection_speed(quick: bool) -> dict[str, Any]:
+    from .bench_order_selection import order_selection_speed
+    return order_selection_speed(1 if quick else 3)
+
+
 def _agp_cd_figures(args) -> dict[str, Any]:
     """Hook: the AGP / CD half of issue 6 (talc_model.bench_agp_cd.figures)."""
     try:
@@ -271,6 +278,7 @@ def run(args) -> dict[str, Any]:
     jobs: list[tuple[str, Callable[[], tuple[dict, str | None]]]] = [
         ("ARX refit speed", lambda: (refit_speed(2 if quick else 5), None)),
         ("ARX vs sysidentpy", lambda: (sysidentpy_comparison(1 if quick else 3), None)),
+        ("order selection batched vs per candidate", lambda: (_order_selection_speed(quick), None)),
         ("FE study", lambda: (fe_study(), None)),
     ]
     for scen, preset in TALC_RUNS:
