@@ -116,7 +116,7 @@ def sweep_case(scenario: str, quick: bool, jobs: int, out_dir: pathlib.Path | No
         case_dir = out_dir / (f"sweep_{scenario}" + (f"_{label}" if label else ""))
         case_dir.mkdir(parents=True, exist_ok=True)
         write_table(rows, case_dir / "table.csv")
-        plot_sweep(rows, case_dir, title=f"{scenario} {label} ({len(rows)} combinations)".replace("  ", " "))
+        plot_sweep(rows, case_dir, title=f"{scenario} {label}".strip())
     line = (f"{scenario}{' ' + label if label else ''}: {len(rows)} combinations, best with Q_prod >= 95 %: "
             + (f"P99_lin {best['p99_lin_um']:.2f} um at Q_prod {best['q_prod_pct']:.2f} %" if best else "none")
             + f"; {spc:.1f} s per combination, {wall:.0f} s wall with {jobs} jobs"
