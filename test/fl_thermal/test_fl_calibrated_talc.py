@@ -92,6 +92,13 @@ def test_calibrated_talc_sees_only_the_training_rows_and_its_own_probes(slice_da
     figs = calibrated_talc_figures(data, splits, a)
     assert figs["calibration_probings"] == 72 and figs["probing_cycles_after_calibration"] == len(a.probe_rows) > 0
     assert figs["probing_cycles_test_rows"] + figs["probing_cycles_validation_rows"] == len(a.probe_rows)
+    first = a.probe_rows[0]
+    assert figs["first_probe_after_calibration_h"] == round(data.time_s[first] / 3600.0, 2)
+    y, c = data.displacement_um["ch2"], a.compensation["ch2"]
+    n_blind, n_seen = first - splits.n_train, splits.test_end - first
+    whole = (figs["ch2"]["mae_before_first_probe_um"] * n_blind + figs["ch2"]["mae_from_first_probe_um"] * n_seen) \
+        / (n_blind + n_seen)
+    assert whole == pytest.approx(figs["ch2"]["mae_um"], abs=2e-3)         # the two parts make up the test MAE
 
 
 def test_walk_forward_rejects_folds_without_room(slice_data):

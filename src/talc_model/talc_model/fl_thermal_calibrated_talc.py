@@ -177,11 +177,17 @@ def calibrated_talc_figures(data: FlThermalData, splits: Splits, result: Calibra
     ``q_prod_pct`` over the whole recording, charging the calibration phase one probing per 5-min
     grid sample of the training rows; ``q_prod_after_calibration_pct`` over the rows after it."""
     figures: dict[str, Any] = {}
+    first = result.probe_rows[0] if result.probe_rows else splits.n
+    blind, seen = slice(splits.n_train, min(first, splits.test_end)), slice(min(first, splits.test_end),
+                                                                          splits.test_end)
     for ch in CHANNELS:
         y = data.displacement_um[ch]
         c, p, f = result.compensation[ch], result.prediction[ch], result.filters[ch]
         figures[ch] = {"mae_um": round(mae(y[splits.test], c[splits.test]), 3),
                        "mae_validation_um": round(mae(y[splits.validation], c[splits.validation]), 3),
+                       # test rows before / from the first probing after calibration (blind / probed)
+                       "mae_before_first_probe_um": round(mae(y[blind], c[blind]), 3),
+                       "mae_from_first_probe_um": round(mae(y[seen], c[seen]), 3),
                        "open_loop_mae_um": round(mae(y[splits.test], p[splits.test]), 3),
                        "open_loop_mae_validation_um": round(mae(y[splits.validation], p[splits.validation]), 3),
                        "walk_forward_mae_um": round(result.walk_forward_mae_um[ch], 3),
@@ -203,4 +209,6 @@ def calibrated_talc_figures(data: FlThermalData, splits: Splits, result: Calibra
     figures["q_prod_pct"] = round(q_prod_pct(result.calibration_probings + len(rows), total_s, dur), 2)
     figures["q_prod_after_calibration_pct"] = round(q_prod_pct(len(rows), after_s, dur), 2)
     figures["calibration_end_h"] = round(float(data.time_s[splits.n_train - 1] / 3600.0), 2)
+    figures["first_probe_after_calibration_h"] = (round(float(data.time_s[first] / 3600.0), 2)
+                                                  if first < splits.n else None)
     return figures
