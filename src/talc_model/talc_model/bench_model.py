@@ -60,13 +60,9 @@ def _recording(machine: str, scenario: str, hours: float | None = None, seed: in
 
 
 # ------------------------------------------------------------------ refit speed
-def refit_speed(repeats: int = 5) -> dict[str, Any]:
-    """7 ARX WLS refits on 200 h of 5-min history, ours versus statsmodels WLS."""
-    import statsmodels.api as sm
-    from threadpoolctl import threadpool_limits
-
-    from .arx import ArxOrders, fit_arx, regression_matrix
-    from .order_selection import select_orders
+def _refit_problem() -> tuple[np.ndarray, list[np.ndarray]]:
+    """200 h of 5-min history of the synthetic plant: the three TALC input deltas and the 7
+    errors with probe noise (seeded)."""
     from .synthetic_plant import make_plant, probe_noise_std
     plant = make_plant(hours=200.0, step_s=300.0, seed=11)
     t = plant.temperatures
@@ -74,7 +70,17 @@ def refit_speed(repeats: int = 5) -> dict[str, Any]:
                          (t["c_coolant_out"] - t["c_coolant_in"]) - (t["c_coolant_out"][0] - t["c_coolant_in"][0])])
     rng = np.random.default_rng(0)
     noise = probe_noise_std()
-    ys = [plant.errors[c] + rng.normal(0, noise[c], u.shape[0]) for c in FIVE_AXIS_COMPONENTS]
+    return u, [plant.errors[c] + rng.normal(0, noise[c], u.shape[0]) for c in FIVE_AXIS_COMPONENTS]
+
+
+def refit_speed(repeats: int = 5) -> dict[str, Any]:
+    """7 ARX WLS refits on 200 h of 5-min history, ours versus statsmodels WLS."""
+    import statsmodels.api as sm
+    from threadpoolctl import threadpool_limits
+
+    from .arx import ArxOrders, fit_arx, regression_matrix
+    from .order_selection import select_orders
+    u, ys = _refit_problem()
     measured = np.zeros(u.shape[0], bool)
     measured[::24] = True                            # a probe every 2 h
     weights = np.where(measured, 1.0, 0.05)           # TALC's low weight on predicted samples
@@ -127,14 +133,7 @@ def sysidentpy_comparison(repeats: int = 3) -> dict[str, Any]:
     from sysidentpy.parameter_estimation import LeastSquares
 
     from .arx import ArxOrders, fit_arx, regression_matrix
-    from .synthetic_plant import make_plant, probe_noise_std
-    plant = make_plant(hours=200.0, step_s=300.0, seed=11)
-    t = plant.temperatures
-    u = np.column_stack([t["ambient"] - t["ambient"][0], t["ws"] - t["ws"][0],
-                         (t["c_coolant_out"] - t["c_coolant_in"]) - (t["c_coolant_out"][0] - t["c_coolant_in"][0])])
-    rng = np.random.default_rng(0)
-    noise = probe_noise_std()
-    ys = [plant.errors[c] + rng.normal(0, noise[c], u.shape[0]) for c in FIVE_AXIS_COMPONENTS]
+    u, ys = _refit_problem()
     orders = ArxOrders(1, (10, 10, 10), nk=1, intercept=True)
 
     def ours():
