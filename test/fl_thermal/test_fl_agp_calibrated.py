@@ -1,0 +1,119 @@
+"""Calibrated AGP on FL_THERMAL: sigma_max probes in unseen states, rate limit, state update, no look ahead."""
+import copy
+
+import numpy as np
+import pytest
+
+from talc_model.fl_thermal_agp import (AgpSchedule, agp_features, calibrated_agp_figures, fit_calibration_gps,
+                                       replay_agp, run_calibrated_agp, slow_error_compensation)
+from talc_model.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
+from talc_model.fl_thermal_probe_update import SlowErrorFilter
+
+DT = 15.0
+
+
+@pytest.fixture(scope="module")
+def slice_data(shared_dir):
+    return load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
+
+
+def _synthetic(n=2400, jump_row=1200):
+    """One input that sweeps 0..1 during calibration and jumps to 3 (never seen) at jump_row;
+    two channels that are smooth functions of it."""
+    rng = np.random.default_rng(5)
+    t = np.arange(n) * DT
+    x = np.where(np.arange(n) < jump_row, 0.5 + 0.5 * np.sin(t / 3000.0), 3.0)
+    X = x[:, None]
+    Y = np.column_stack([3.0 * x, -2.0 * x + 1.0]) + rng.normal(0, 0.05, (n, 2))
+    return t, X, Y
+
+
+def test_an_unseen_state_triggers_sigma_max_probes_no_closer_than_the_rate_limit():
+    t, X, Y = _synthetic()
+    start = 600
+    cal = np.arange(0, start, 20)
+    gps = fit_calibration_gps(X, Y, cal, max_err=10.0)
+    schedule = AgpSchedule()
+    tr = replay_agp(t, X, Y, start, len(t), gps, cal, 1.0, schedule)
+    sigma = [r for r, why in zip(tr.probe_rows, tr.probe_reasons) if why == "sigma_max"]
+    assert sigma and sigma[0] >= 1200                      # calm before the jump: no sigma_max probe
+    assert t[sigma[0]] - t[1200] <= 15.0                   # ... and one right after it (rate limit long past)
+    gaps = np.diff(t[tr.probe_rows])
+    assert np.all(gaps >= schedule.min_sigma_probe_interval_s + schedule.probe_duration_s - 1e-9)
+    # before the jump only control measurements, one per 2 h + cycle
+    before = [r for r in tr.probe_rows if r < 1200]
+    assert all(why == "control" for r, why in zip(tr.probe_rows, tr.probe_reasons) if r < 1200)
+    assert np.allclose(np.diff(t[[int(cal[-1])] + before]), 7200.0 + 95.0, atol=DT)
+    # the recalibration learnt the new state: the GP mean there is close to the truth afterwards
+    k = sigma[-1] + 1
+    assert abs(tr.mean[k, 0] - 9.0) < 1.0 and abs(tr.mean[k, 1] + 5.0) < 1.0
+    assert tr.refits_optimised >= len(sigma)
+
+
+def test_the_gp_inputs_are_read_only_at_calibration_and_probe_rows():
+    t, X, Y = _synthetic()
+    start = 600
+    cal = np.arange(0, start, 20)
+    gps = fit_calibration_gps(X, Y, cal, max_err=10.0)
+    tr = replay_agp(t, X, Y, start, len(t), gps, cal, 1.0, AgpSchedule())
+    seen = set(cal.tolist()) | set(tr.probe_rows)
+    poisoned = Y.copy()
+    poisoned[[r for r in range(len(t)) if r not in seen]] = 1e6
+    tr2 = replay_agp(t, X, poisoned, start, len(t), gps, cal, 1.0, AgpSchedule())
+    assert tr2.probe_rows == tr.probe_rows and np.array_equal(tr2.mean, tr.mean, equal_nan=True)
+
+
+def test_an_exact_probe_cancels_a_constant_error_from_the_next_row_and_decays_with_tau():
+    n = 100
+    t = np.arange(n) * 60.0
+    y = np.full(n, 5.0)
+    gp_mean = np.zeros(n)                  # the GP misses a constant 5 um
+    probes = [40]
+    post = np.array([0.0])
+    held = slow_error_compensation(t, y, gp_mean, probes, post, 10, n, SlowErrorFilter(1e9, 0.0))
+    assert np.all(np.isnan(held[:10])) and np.allclose(held[10:41], 0.0) and np.allclose(held[41:], 5.0, atol=1e-4)
+    tau = 1800.0
+    dec = slow_error_compensation(t, y, gp_mean, probes, post, 10, n, SlowErrorFilter(tau, 0.0))
+    assert np.allclose(dec[41:], 5.0 * np.exp(-(t[41:] - t[40]) / tau))
+    noisy = slow_error_compensation(t, y, gp_mean, probes, post, 10, n, SlowErrorFilter(1e9, 1.0))
+    assert 0.0 < noisy[41] < 5.0                          # a noisy probe counts less than fully
+
+
+def test_bad_settings_are_named(slice_data):
+    with pytest.raises(FlThermalError, match="min_sigma_probe_interval_s"):
+        AgpSchedule(min_sigma_probe_interval_s=0.0)
+    with pytest.raises(FlThermalError, match="sensors"):
+        agp_features(slice_data, ["t99"], ())
+    with pytest.raises(FlThermalError, match="sigma_max_ratios"):
+        run_calibrated_agp(slice_data, Splits.authors(len(slice_data)), sigma_max_ratios=(1.5,))
+    t, X, Y = _synthetic(200, 150)
+    cal = np.arange(0, 100, 20)
+    gps = fit_calibration_gps(X, Y, cal, max_err=10.0)
+    with pytest.raises(FlThermalError, match="sigma_max_um"):
+        replay_agp(t, X, Y, 100, 200, gps, cal, float("nan"), AgpSchedule())
+
+
+def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_probes(slice_data):
+    data = slice_data
+    splits = Splits.authors(len(data))
+    kw = dict(feature_tau_sets=((), (1800.0,)), sigma_max_ratios=(0.1,), fold_starts=(0.7,),
+              tau_grid=(3600.0, 28800.0), ratio_grid=(0.0, 1.0))
+    res = run_calibrated_agp(data, splits, **kw)
+    fig = calibrated_agp_figures(data, splits, res)
+    rows = res.trajectory.probe_rows
+    assert rows and all(r >= splits.n_train for r in rows)
+    assert fig["probing_cycles"] == fig["calibration_probings"] + len(rows)
+    assert fig["sigma_max_probings"] + fig["control_probings"] == len(rows)
+    assert fig["q_prod_pct"] < fig["q_prod_after_calibration_pct"] < 100.0
+    for ch in CHANNELS:
+        assert np.isfinite(fig[ch]["mae_um"]) and np.isfinite(fig[ch]["mae_validation_um"])
+    poisoned = copy.deepcopy(data)
+    keep = np.zeros(len(data), bool)
+    keep[:splits.n_train] = True
+    keep[rows] = True
+    for ch in CHANNELS:
+        poisoned.displacement_um[ch][~keep] = -1e6
+    res2 = run_calibrated_agp(poisoned, splits, **kw)
+    assert res2.trajectory.probe_rows == rows
+    for ch in CHANNELS:
+        assert np.array_equal(res2.compensation[ch], res.compensation[ch], equal_nan=True)
