@@ -4,8 +4,8 @@ import copy
 import numpy as np
 import pytest
 
-from talc_model.fl_thermal_agp import (AgpSchedule, agp_features, calibrated_agp_figures, fit_calibration_gps,
-                                       replay_agp, run_calibrated_agp, slow_error_compensation)
+from talc_model.fl_thermal_agp import (AgpSchedule, agp_features, fit_calibration_gps, replay_agp,
+                                       run_agp_calibrated_variant, run_calibrated_agp, slow_error_compensation)
 from talc_model.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
 from talc_model.fl_thermal_probe_update import SlowErrorFilter
 
@@ -98,15 +98,15 @@ def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_prob
     splits = Splits.authors(len(data))
     kw = dict(feature_tau_sets=((), (1800.0,)), sigma_max_ratios=(0.1,), fold_starts=(0.7,),
               tau_grid=(3600.0, 28800.0), ratio_grid=(0.0, 1.0))
-    res = run_calibrated_agp(data, splits, **kw)
-    fig = calibrated_agp_figures(data, splits, res)
-    rows = res.trajectory.probe_rows
+    fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=False, **kw)
     assert rows and all(r >= splits.n_train for r in rows)
     assert fig["probing_cycles"] == fig["calibration_probings"] + len(rows)
     assert fig["sigma_max_probings"] + fig["control_probings"] == len(rows)
     assert fig["q_prod_pct"] < fig["q_prod_after_calibration_pct"] < 100.0
+    assert fig["sigma_max_ratio"] == 0.1 and tuple(fig["feature_taus_s"]) in {(), (1800.0,)}
     for ch in CHANNELS:
         assert np.isfinite(fig[ch]["mae_um"]) and np.isfinite(fig[ch]["mae_validation_um"])
+        assert fig[ch]["noise_ratio"] in (0.0, 1.0) and fig[ch]["bias_time_constant_h"] in (1.0, 8.0)
     poisoned = copy.deepcopy(data)
     keep = np.zeros(len(data), bool)
     keep[:splits.n_train] = True
@@ -116,4 +116,4 @@ def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_prob
     res2 = run_calibrated_agp(poisoned, splits, **kw)
     assert res2.trajectory.probe_rows == rows
     for ch in CHANNELS:
-        assert np.array_equal(res2.compensation[ch], res.compensation[ch], equal_nan=True)
+        assert np.array_equal(res2.compensation[ch], comp[ch], equal_nan=True)

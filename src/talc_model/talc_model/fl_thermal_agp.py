@@ -372,3 +372,20 @@ def calibrated_agp_figures(data: FlThermalData, splits: Splits, result: Calibrat
     figures["q_prod_after_calibration_pct"] = round(q_prod_pct(len(rows), after_s, dur), 2)
     figures["walk_forward"] = result.walk_forward
     return figures
+
+
+def run_agp_calibrated_variant(data: FlThermalData, splits: Splits, *, show_progress: bool = True, **selection
+                               ) -> tuple[dict[str, Any], dict[str, np.ndarray], list[int]]:
+    """Bench row ``agp_calibrated``: figures, compensation per channel and probe rows."""
+    import time
+    from tqdm import tqdm
+    n_taus = len(selection.get("feature_tau_sets", FEATURE_TAU_SETS))
+    n_ratios = len(selection.get("sigma_max_ratios", SIGMA_MAX_RATIOS))
+    n_folds = len(selection.get("fold_starts", FOLD_STARTS))
+    t0 = time.perf_counter()
+    with tqdm(total=n_folds * n_taus * n_ratios + 1, desc="adaptive AGP (calibrated on the training rows)",
+              unit="replay", disable=not show_progress, leave=False) as bar:
+        res = run_calibrated_agp(data, splits, progress=bar.update, **selection)
+    figures = calibrated_agp_figures(data, splits, res)
+    figures["run_s"] = round(time.perf_counter() - t0, 1)
+    return figures, res.compensation, list(res.trajectory.probe_rows)

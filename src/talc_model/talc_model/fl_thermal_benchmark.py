@@ -1,7 +1,7 @@
 """FL_THERMAL benchmark (issue 10 part 1): our models on a real 46 h spindle recording.
 
 ``thermal-comp bench fl-thermal --json OUT [--out-dir DIR] [--quick] [--csv=PATH --rows=N --every=K --no-adaptive
---agp-load-probing]``
+--agp-load-probing --no-agp-calibrated]``
 (suite options in the ``--name=value`` form, so the bench command passes them through)
 
 Protocol (the authors' split, ``shared/data/fl_thermal/README.md``): rows are split
@@ -29,7 +29,11 @@ validation (last 20 %, rows 8892-11114). Displacements are taken relative to the
   (:mod:`talc_model.fl_thermal_calibrated_talc`). ``talc_own_cp`` and ``agp``: TALC and the AGP
   replaying the whole recording from row 0 with their own calibration phase.
   ``talc_load_probing`` (and ``talc_spindle_load_probing``) also probe densely after every
-  spindle-speed change, reported separately with their own Q_prod. MAE is the mean
+  spindle-speed change, reported separately with their own Q_prod. ``agp_calibrated``
+  (:mod:`talc_model.fl_thermal_agp`): the AGP calibrated on the training rows like ``talc``, GP
+  inputs = medoid temperatures and low-pass copies, probing every 2 h and whenever its predictive
+  std exceeds sigma_max (at most every 10 min), each probe feeding the GP and the slow-error
+  Kalman filter; its selection is a walk-forward inside the training rows. MAE is the mean
   |true - compensation| on the test rows (and on the validation rows).
 
 Figures: ``open_loop.<model>.<ch>.mae_um`` (test rows), ``...mae_validation_um``,
@@ -203,7 +207,7 @@ def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[s
 
 #: adaptive models drawn in the prediction plot / in the adaptive plot (with their probe instants)
 ADAPTIVE_IN_PREDICTION_PLOT = ("talc", "agp")
-ADAPTIVE_PLOT = ("talc", "talc_load_probing", "agp", "agp_load_probing")   # those that were run
+ADAPTIVE_PLOT = ("talc", "talc_load_probing", "agp", "agp_calibrated", "agp_load_probing")   # those that were run
 
 
 def plot_adaptive(data: FlThermalData, splits: Splits, compensation: Mapping[str, Mapping[str, np.ndarray]],
@@ -243,7 +247,9 @@ def _mae_rows(data: FlThermalData, splits: Splits, per: Mapping[str, np.ndarray]
 def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = None, adaptive: bool = True,
                   tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID, adaptive_overrides: Mapping[str, dict] | None = None,
                   talc_groups: Sequence[int] | None = None, arx_groups: Sequence[int] | None = None,
-                  agp_load_probing: bool = False, show_progress: bool = True) -> dict[str, Any]:
+                  agp_load_probing: bool = False, agp_calibrated: bool = True,
+                  agp_calibrated_selection: Mapping[str, Any] | None = None,
+                  show_progress: bool = True) -> dict[str, Any]:
     """The whole protocol on ``data``; returns the figures (and writes the PNG into ``out_dir``)."""
     from threadpoolctl import threadpool_limits
     splits = Splits.authors(len(data))
@@ -268,6 +274,13 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         with threadpool_limits(1):
             figures["adaptive"], adaptive_pred, probe_rows = run_calibrated_talc_variants(
                 data, splits, group_candidates=arx_groups, show_progress=show_progress)
+        if agp_calibrated:
+            from talc_model.fl_thermal_agp import run_agp_calibrated_variant
+            with threadpool_limits(1):
+                fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=show_progress,
+                                                             **dict(agp_calibrated_selection or {}))
+            figures["adaptive"]["agp_calibrated"], adaptive_pred["agp_calibrated"] = fig, comp
+            probe_rows["agp_calibrated"] = rows
         groups = {} if talc_groups is None else {"candidates": talc_groups}
         talc_inputs, talc_scores = select_talc_inputs(data, splits, overrides=overrides.get("talc_own_cp"),
                                                       show_progress=show_progress, **groups)
@@ -308,6 +321,8 @@ def _parse_extra(extra: Sequence[str]) -> argparse.Namespace:
     ap.add_argument("--rows", type=int, default=None, help="use only the first N rows (smoke runs)")
     ap.add_argument("--every", type=int, default=1, help="use every K-th row")
     ap.add_argument("--no-adaptive", action="store_true", help="open loop only")
+    ap.add_argument("--no-agp-calibrated", action="store_true",
+                    help="skip the AGP calibrated on the training rows (its walk-forward takes a few minutes)")
     ap.add_argument("--agp-load-probing", action="store_true",
                     help="also replay the AGP with dense probing after every spindle-speed change (slow)")
     return ap.parse_args([e for e in extra if e != "--"])
@@ -319,7 +334,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     every = opts.every if opts.every != 1 or not getattr(args, "quick", False) else 4
     data = load_fl_thermal(opts.csv, rows=opts.rows, every=every)
     figures = run_benchmark(data, out_dir=getattr(args, "out_dir", None), adaptive=not opts.no_adaptive,
-                            agp_load_probing=opts.agp_load_probing)
+                            agp_load_probing=opts.agp_load_probing, agp_calibrated=not opts.no_agp_calibrated)
     figures["every_nth_row"] = every
     print_table(figures)
     return figures
