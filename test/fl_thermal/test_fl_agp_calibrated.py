@@ -93,12 +93,13 @@ def test_bad_settings_are_named(slice_data):
         replay_agp(t, X, Y, 100, 200, gps, cal, float("nan"), AgpSchedule())
 
 
-def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_probes(slice_data):
+def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_probes(slice_data, tmp_path):
     data = slice_data
     splits = Splits.authors(len(data))
     kw = dict(feature_tau_sets=((), (1800.0,)), sigma_max_ratios=(0.1,), fold_starts=(0.7,),
               tau_grid=(3600.0, 28800.0), ratio_grid=(0.0, 1.0))
-    fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=False, **kw)
+    fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=False, out_dir=tmp_path, **kw)
+    assert (tmp_path / "fl_thermal_agp_calibrated.png").stat().st_size > 0
     assert rows and all(r >= splits.n_train for r in rows)
     assert fig["probing_cycles"] == fig["calibration_probings"] + len(rows)
     assert fig["sigma_max_probings"] + fig["control_probings"] == len(rows)

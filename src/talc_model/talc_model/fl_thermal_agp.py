@@ -342,11 +342,17 @@ def calibrated_agp_figures(data: FlThermalData, splits: Splits, result: Calibrat
     figures: dict[str, Any] = {}
     tr = result.trajectory
     rows = tr.probe_rows
+    first = rows[0] if rows else splits.n
+    blind, seen = slice(splits.n_train, min(first, splits.test_end)), slice(min(first, splits.test_end),
+                                                                          splits.test_end)
     for ch in CHANNELS:
         y = data.displacement_um[ch]
         c, f = result.compensation[ch], result.filters[ch]
         figures[ch] = {"mae_um": round(mae(y[splits.test], c[splits.test]), 3),
                        "mae_validation_um": round(mae(y[splits.validation], c[splits.validation]), 3),
+                       # test rows before / from the first probing after calibration (blind / probed)
+                       "mae_before_first_probe_um": round(mae(y[blind], c[blind]), 3),
+                       "mae_from_first_probe_um": round(mae(y[seen], c[seen]), 3),
                        "gp_mean_mae_um": round(mae(y[splits.test], result.gp_mean[ch][splits.test]), 3),
                        "bias_time_constant_h": round(f.bias_time_constant_s / 3600.0, 3),
                        "noise_ratio": f.noise_ratio}
@@ -374,9 +380,46 @@ def calibrated_agp_figures(data: FlThermalData, splits: Splits, result: Calibrat
     return figures
 
 
-def run_agp_calibrated_variant(data: FlThermalData, splits: Splits, *, show_progress: bool = True, **selection
-                               ) -> tuple[dict[str, Any], dict[str, np.ndarray], list[int]]:
-    """Bench row ``agp_calibrated``: figures, compensation per channel and probe rows."""
+def plot_agp_uncertainty(data: FlThermalData, splits: Splits, result: CalibratedAgp, path) -> None:
+    """PNG: per channel, measured vs compensation (top) and the GP's predictive std against the
+    effective threshold's floor sigma_max (bottom), probings as ticks (control / sigma_max)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    tr = result.trajectory
+    rows = slice(splits.n_train, splits.n)
+    th = data.time_s[rows] / 3600.0
+    fig, axes = plt.subplots(len(CHANNELS), 2, figsize=(15, 2.8 * len(CHANNELS)), sharex=True)
+    for j, ch in enumerate(CHANNELS):
+        y = data.displacement_um[ch][rows]
+        ax, ax_s = axes[j]
+        ax.plot(th, y, color="k", lw=1.4, label="measured")
+        ax.plot(th, result.compensation[ch][rows], lw=1, label="agp_calibrated compensation")
+        ax.set_ylabel(f"{ch} (um)")
+        ax_s.plot(th, tr.std[rows, j], lw=1, color="tab:purple", label="GP predictive std")
+        ax_s.axhline(tr.sigma_max_um, color="tab:red", ls="--", lw=1, label="sigma_max")
+        for r, why in zip(tr.probe_rows, tr.probe_reasons):
+            for a in (ax, ax_s):
+                a.axvline(data.time_s[r] / 3600.0, color="tab:red" if why == "sigma_max" else "tab:green",
+                          lw=0.4, alpha=0.5)
+        for a in (ax, ax_s):
+            a.axvline(data.time_s[splits.test_end] / 3600.0, color="0.5", ls=":", lw=1)
+        ax_s.set_ylabel("std (um)")
+    axes[0][0].legend(fontsize=7)
+    axes[0][1].legend(fontsize=7)
+    axes[0][0].set_title("after calibration: red lines = sigma_max probings, green = 2-h control probings; "
+                         "dotted = test | validation", fontsize=8)
+    axes[-1][0].set_xlabel("time since start (h)")
+    axes[-1][1].set_xlabel("time since start (h)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def run_agp_calibrated_variant(data: FlThermalData, splits: Splits, *, show_progress: bool = True,
+                               out_dir=None, **selection) -> tuple[dict[str, Any], dict[str, np.ndarray], list[int]]:
+    """Bench row ``agp_calibrated``: figures, compensation per channel and probe rows (and, with
+    ``out_dir``, ``fl_thermal_agp_calibrated.png``: the GP std against sigma_max)."""
     import time
     from tqdm import tqdm
     n_taus = len(selection.get("feature_tau_sets", FEATURE_TAU_SETS))
@@ -388,4 +431,10 @@ def run_agp_calibrated_variant(data: FlThermalData, splits: Splits, *, show_prog
         res = run_calibrated_agp(data, splits, progress=bar.update, **selection)
     figures = calibrated_agp_figures(data, splits, res)
     figures["run_s"] = round(time.perf_counter() - t0, 1)
+    if out_dir is not None:
+        import pathlib
+        png = pathlib.Path(out_dir) / "fl_thermal_agp_calibrated.png"
+        png.parent.mkdir(parents=True, exist_ok=True)
+        plot_agp_uncertainty(data, splits, res, png)
+        figures["plot"] = str(png)
     return figures, res.compensation, list(res.trajectory.probe_rows)

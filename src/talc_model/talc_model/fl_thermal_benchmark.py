@@ -278,7 +278,7 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
             from talc_model.fl_thermal_agp import run_agp_calibrated_variant
             with threadpool_limits(1):
                 fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=show_progress,
-                                                             **dict(agp_calibrated_selection or {}))
+                                                             out_dir=out_dir, **dict(agp_calibrated_selection or {}))
             figures["adaptive"]["agp_calibrated"], adaptive_pred["agp_calibrated"] = fig, comp
             probe_rows["agp_calibrated"] = rows
         groups = {} if talc_groups is None else {"candidates": talc_groups}
