@@ -212,6 +212,19 @@ class ArxModel:
             ok &= (np.abs(p.imag) <= 1e-6) & (p.real > 0)
         return bool(np.all(ok))
 
+    def input_gain_ratios(self) -> np.ndarray:
+        """Per input: sum |b_i| / |sum b_i| (1 for a single coefficient, inf for a zero static
+        gain with non-zero coefficients, 0 for an input the model does not use).
+
+        A large ratio is a differentiator: lags of large, opposite coefficients whose net
+        (static) effect is small. It amplifies input changes faster than any seen in the data
+        it was fitted on (see :func:`talc_model.order_selection.select_orders`,
+        ``max_input_gain_ratio``)."""
+        out = []
+        for bj in self.b:
+            out.append(_gain_ratio(np.abs(bj).sum(), bj.sum()))
+        return np.array(out, dtype=float)
+
     def input_part(self, u: np.ndarray) -> np.ndarray:
         """B(q) u[k] (+ c) for every k >= the largest input lag (NaN before)."""
         u = np.asarray(u, dtype=float)
@@ -308,6 +321,19 @@ class ArxModel:
             raise ValueError(f"ARX state: 'theta' has {theta.size} values, orders need {orders.n_params}")
         return cls(orders, theta, float(d.get("residual_std", np.nan)),
                    int(d.get("n_fit_samples", 0)), dict(d.get("extra", {})))
+
+
+def _gain_ratio(abs_sum: float, net: float) -> float:
+    if abs_sum <= 1e-300:
+        return 0.0
+    return abs_sum / abs(net) if net != 0 else float("inf")
+
+
+def input_gains_admissible(b_abs_sum: np.ndarray, b_net: np.ndarray, max_ratio: float) -> np.ndarray:
+    """Elementwise: sum |b| <= max_ratio * |sum b| (with a 1e-12 allowance for unused inputs)."""
+    if not np.isfinite(max_ratio):
+        return np.ones(np.shape(b_abs_sum), dtype=bool)
+    return np.asarray(b_abs_sum) <= max_ratio * np.abs(b_net) + 1e-12
 
 
 def fit_arx(y: np.ndarray, u: np.ndarray, orders: ArxOrders, weights: np.ndarray | None = None,

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from .arx import ArxModel, ArxOrders, RankDeficientError, fit_arx
+from .arx import ArxModel, ArxOrders, RankDeficientError, fit_arx, input_gains_admissible
 from .arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
 
 CRITERIA = ("mdl", "mdl_as_printed", "aic", "bic")
@@ -140,6 +140,7 @@ class _ScoringProblem:
     margin: float                # poles must lie within radius 1 - margin
     real_positive_poles: bool
     require_stable: bool
+    max_input_gain_ratio: float = math.inf
 
 
 def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_range: tuple[int, int],
@@ -147,7 +148,7 @@ def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb
                      train_fraction: float = 0.6, weights: np.ndarray | None = None,
                      measured: np.ndarray | None = None, require_stable: bool = True,
                      state_updates: bool = False, max_pole_radius: float = 1.0,
-                     real_positive_poles: bool = False) -> _ScoringProblem:
+                     real_positive_poles: bool = False, max_input_gain_ratio: float = math.inf) -> _ScoringProblem:
     """Check the arguments of :func:`select_orders` and split the data (see there)."""
     if criterion not in CRITERIA:
         raise ValueError(f"criterion: {criterion!r} is not one of {list(CRITERIA)}")
@@ -155,6 +156,8 @@ def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb
         raise ValueError(f"max_pole_radius: {max_pole_radius} must be in (0, 1]")
     if not 0.1 <= train_fraction <= 0.95:
         raise ValueError(f"train_fraction: {train_fraction} must be within [0.1, 0.95]")
+    if not max_input_gain_ratio >= 1:
+        raise ValueError(f"max_input_gain_ratio: {max_input_gain_ratio} must be >= 1 (inf = no bound)")
     y = np.asarray(y, dtype=float)
     u = np.asarray(u, dtype=float)
     if u.ndim == 1:
@@ -178,7 +181,16 @@ def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb
         raise RankDeficientError(f"order selection: {n} samples leave no training rows after the "
                                  f"largest lag {start}", rank=0, n_params=max_orders.n_params)
     return _ScoringProblem(y, u, nb_hi, nk, intercept, weights, start, split, scored, state_updates,
-                           criterion, 1.0 - max_pole_radius, real_positive_poles, require_stable)
+                           criterion, 1.0 - max_pole_radius, real_positive_poles, require_stable,
+                           float(max_input_gain_ratio))
+
+
+def _gains_ok(model: ArxModel, max_ratio: float) -> bool:
+    if not math.isfinite(max_ratio):
+        return True
+    b = model.b
+    return bool(np.all(input_gains_admissible(np.array([np.abs(x).sum() for x in b]),
+                                              np.array([x.sum() for x in b]), max_ratio)))
 
 
 class _PerCandidateScorer:
@@ -201,6 +213,8 @@ class _PerCandidateScorer:
             self.deficient_keys.add(key)
             return math.inf, None, math.nan
         if p.require_stable and not m.is_stable(p.margin, p.real_positive_poles):
+            return math.inf, None, math.nan
+        if not _gains_ok(m, p.max_input_gain_ratio):
             return math.inf, None, math.nan
         res = _validation_residuals(m, p.y, p.u, p.split, p.scored, p.state_updates)
         s = criterion_value(p.criterion, res, orders)
@@ -251,6 +265,11 @@ class _BatchedScorer:
             keep = full_rank.copy()
             if self.p.require_stable:
                 keep &= poles_inside(theta[:, :na], self.p.margin, self.p.real_positive_poles)
+            if math.isfinite(self.p.max_input_gain_ratio):
+                r_in, nbm = self.p.u.shape[1], self.p.nb_max
+                b = theta[:, na:na + r_in * nbm].reshape(theta.shape[0], r_in, nbm)
+                keep &= np.all(input_gains_admissible(np.abs(b).sum(axis=2), b.sum(axis=2),
+                                                      self.p.max_input_gain_ratio), axis=1)
             idx = np.flatnonzero(keep)
             chunk = max(1, self.CHUNK_BYTES // (8 * max(1, self._y_val.size)))
             for c0 in range(0, idx.size, chunk):
@@ -286,7 +305,8 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
                   measured: np.ndarray | None = None, exhaustive_limit: int = 4000,
                   refit_on_all: bool = True, require_stable: bool = True,
                   state_updates: bool = False, max_pole_radius: float = 1.0,
-                  real_positive_poles: bool = False, _batched: bool = True) -> OrderSelection:
+                  real_positive_poles: bool = False, max_input_gain_ratio: float = math.inf,
+                  _batched: bool = True) -> OrderSelection:
     """Choose ARX orders for output ``y`` and inputs ``u`` (N x r) by ``criterion``.
 
     ``na_range``/``nb_range`` are inclusive (min, max); the same n_b range applies to every
@@ -300,6 +320,10 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     constant longer than -step / ln(max_pole_radius): a near-unit pole fitted to noise makes
     the simulation drift like an integrator between measurements. ``real_positive_poles``
     also skips candidates with complex or negative poles (see :meth:`ArxModel.is_stable`).
+    ``max_input_gain_ratio`` (inf = off) skips candidates with an input whose coefficients
+    sum in absolute value to more than this many times their net (static) gain
+    (:meth:`ArxModel.input_gain_ratios`): a differentiator fitted to slow data amplifies a
+    faster input change than any it was fitted on.
     ``state_updates``: validate with the TALC predictor (measured outputs replace the
     predictions, scored at the next measured samples) instead of pure simulation; this is
     how the model is used between sparse measurements after the calibration phase.
@@ -313,7 +337,8 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     problem = _scoring_problem(y, u, na_range, nb_range, nk=nk, intercept=intercept, criterion=criterion,
                                train_fraction=train_fraction, weights=weights, measured=measured,
                                require_stable=require_stable, state_updates=state_updates,
-                               max_pole_radius=max_pole_radius, real_positive_poles=real_positive_poles)
+                               max_pole_radius=max_pole_radius, real_positive_poles=real_positive_poles,
+                               max_input_gain_ratio=max_input_gain_ratio)
     y, u, start, margin = problem.y, problem.u, problem.start, problem.margin
     r = u.shape[1]
     reference = _PerCandidateScorer(problem)
@@ -348,7 +373,8 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     if refit_on_all:
         try:
             full = fit_arx(y, u, orders, weights, start=start)
-            if full.is_stable(margin, real_positive_poles) or not require_stable:
+            if (full.is_stable(margin, real_positive_poles) or not require_stable) \
+                    and _gains_ok(full, problem.max_input_gain_ratio):
                 model = full
         except RankDeficientError:
             pass

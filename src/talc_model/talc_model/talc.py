@@ -122,6 +122,10 @@ class TalcConfig:
     max_time_constant_h: float = 24.0
     #: reject models with complex or negative poles (heat conduction has real poles in (0, 1))
     real_positive_poles: bool = False
+    #: reject models with an input whose coefficients sum in absolute value to more than this
+    #: many times their net (static) gain: a differentiator fitted to slow data amplifies a
+    #: faster input change than any it saw (a hall door: 3 K in 25 min); inf = off
+    max_input_gain_ratio: float = math.inf
     # --- weighted least squares
     predicted_weight: float = 0.3          # weight of samples that only carry a prediction (see docs)
     resimulate_history_on_update: bool = False  # regenerate predicted samples with new parameters
@@ -147,11 +151,14 @@ class TalcConfig:
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"TALC config '{name}': {v!r} must be a finite number > 0")
         for name in ("cp_length_h", "post_cp_interval_h", "update_interval_h", "history_window_h",
-                     "max_time_constant_h", "min_input_range",
+                     "max_time_constant_h", "min_input_range", "max_input_gain_ratio",
                      "acl_linear_um", "acl_angular_um_per_m", "ng_measurements"):
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or math.isnan(v) or v < 0:
                 raise ValueError(f"TALC config '{name}': {v!r} must be a number >= 0 (inf allowed)")
+        if self.max_input_gain_ratio < 1:
+            raise ValueError(f"TALC config 'max_input_gain_ratio': {self.max_input_gain_ratio!r} must be >= 1 "
+                             "(inf = no bound)")
         if self.post_cp_interval_h == 0 or self.ng_measurements == 0:
             raise ValueError("TALC config 'post_cp_interval_h' and 'ng_measurements' must be > 0")
         for name in ("na_max", "nb_max", "na_min", "nb_min", "nb_max_final", "nk", "uncertainty_window",
@@ -656,7 +663,8 @@ class TalcModel:
                             measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
                             state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates,
                             max_pole_radius=self._max_pole_radius(),
-                            real_positive_poles=c.real_positive_poles)
+                            real_positive_poles=c.real_positive_poles,
+                            max_input_gain_ratio=c.max_input_gain_ratio)
         if np.all(active):
             return sel
         nb_iter = iter(sel.model.orders.nb)
@@ -689,7 +697,9 @@ class TalcModel:
         return math.exp(-self.step / (tau_h * 3600.0))
 
     def _admissible(self, m: ArxModel) -> bool:
-        return m.is_stable(1.0 - self._max_pole_radius(), self.config.real_positive_poles)
+        ratio = self.config.max_input_gain_ratio
+        return m.is_stable(1.0 - self._max_pole_radius(), self.config.real_positive_poles) and \
+            (not math.isfinite(ratio) or bool(np.all(m.input_gain_ratios() <= ratio + 1e-9)))
 
     def _first_fit(self, t_s: float) -> None:
         try:
