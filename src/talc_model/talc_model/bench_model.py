@@ -60,6 +60,20 @@ def _recording(machine: str, scenario: str, hours: float | None = None, seed: in
 
 
 # ------------------------------------------------------------------ refit speed
+def _time_alternately(ours: Callable[[], Any], peer: Callable[[], Any], repeats: int):
+    """Run ``ours`` and ``peer`` alternately ``repeats`` times; (last results, wall times)."""
+    t_ours, t_peer = [], []
+    a = b = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        a = ours()
+        t_ours.append(time.perf_counter() - t0)
+        t0 = time.perf_counter()
+        b = peer()
+        t_peer.append(time.perf_counter() - t0)
+    return a, b, t_ours, t_peer
+
+
 def _refit_problem() -> tuple[np.ndarray, list[np.ndarray]]:
     """200 h of 5-min history of the synthetic plant: the three TALC input deltas and the 7
     errors with probe noise (seeded)."""
@@ -97,14 +111,7 @@ def refit_speed(repeats: int = 5) -> dict[str, Any]:
         return out
 
     with threadpool_limits(limits=1, user_api="blas"):
-        t_ours, t_peer = [], []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            a = ours()
-            t_ours.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            b = peer()
-            t_peer.append(time.perf_counter() - t0)
+        a, b, t_ours, t_peer = _time_alternately(ours, peer, repeats)
     diff = max(float(np.max(np.abs(m.theta - r.params))) for m, r in zip(a, b))
     t0 = time.perf_counter()
     for y in ys:
@@ -150,14 +157,7 @@ def sysidentpy_comparison(repeats: int = 3) -> dict[str, Any]:
 
     from .blas_threads import single_thread_blas
     with single_thread_blas(), np.errstate(all="ignore"):
-        t_ours, t_peer = [], []
-        for _ in range(repeats):
-            t0 = time.perf_counter()
-            a = ours()
-            t_ours.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            b = peer()
-            t_peer.append(time.perf_counter() - t0)
+        a, b, t_ours, t_peer = _time_alternately(ours, peer, repeats)
         diff = 0.0
         for y, mo, mp in zip(ys, a, b):
             phi, _, rows = regression_matrix(y, u, orders)

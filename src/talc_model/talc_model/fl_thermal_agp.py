@@ -53,7 +53,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from talc_model.agp import ArdGaussianProcess, sensor_groups
-from talc_model.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, mae
+from talc_model.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
 from talc_model.fl_thermal_probe_update import SlowErrorFilter, q_prod_pct
 
 #: Low-pass time constant sets of the GP inputs (s): none (the thesis's static map), the
@@ -302,11 +302,7 @@ def run_calibrated_agp(data: FlThermalData, splits: Splits, *, schedule: AgpSche
         raise FlThermalError(f"sigma_max_ratios: {bad!r} must lie in (0, 1)")
     Y = np.column_stack([data.displacement_um[ch] for ch in CHANNELS])
     folds = []
-    for f in fold_starts:
-        k = int(f * n)
-        if k < 40 or n - k < 20:
-            raise FlThermalError(f"fold_starts: {f!r} of {n} training rows leaves calibration {k} / replay "
-                                 f"{n - k} rows (need >= 40 / 20)")
+    for k in walk_forward_fold_rows(fold_starts, n):
         folds.append((k, _calibrated_trajectory(data, Y, k, n, feature_tau_sets, sigma_max_ratios, schedule, seed,
                                                 progress)))
     scores: dict[str, Any] = {}

@@ -36,7 +36,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from talc_model.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
-from talc_model.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, mae
+from talc_model.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
 from talc_model.fl_thermal_probe_update import ProbeSchedule, SlowErrorFilter, q_prod_pct, run_probe_updates
 
 #: Slow-error time constants tried (s): 30 min (spindle nose) ... 24 h (a drifting reference).
@@ -118,11 +118,7 @@ def walk_forward_filter(data: FlThermalData, splits: Splits, channel: str, sched
     n = splits.n_train
     y = data.displacement_um[channel]
     folds = []
-    for f in fold_starts:
-        k = int(f * n)
-        if k < 40 or n - k < 20:
-            raise FlThermalError(f"fold_starts: {f!r} of {n} training rows leaves calibration {k} / replay "
-                                 f"{n - k} rows (need >= 40 / 20)")
+    for k in walk_forward_fold_rows(fold_starts, n):
         folds.append((k, calibrated_arx(data, k, channel, group_candidates, with_spindle, arx_cache)[0]))
     changes = load_change_rows(data) if load_probing else []
     scores: dict[str, float] = {}

@@ -103,6 +103,19 @@ class Splits:
         return slice(self.test_end, self.n)
 
 
+def walk_forward_fold_rows(fold_starts, n: int) -> list[int]:
+    """Row k of each walk-forward fold inside ``n`` training rows: calibrate on rows 0..k-1,
+    replay k..n-1; each fold must leave >= 40 calibration and >= 20 replay rows."""
+    rows = []
+    for f in fold_starts:
+        k = int(f * n)
+        if k < 40 or n - k < 20:
+            raise FlThermalError(f"fold_starts: {f!r} of {n} training rows leaves calibration {k} / replay "
+                                 f"{n - k} rows (need >= 40 / 20)")
+        rows.append(k)
+    return rows
+
+
 def mae(true: np.ndarray, pred: np.ndarray) -> float:
     """Mean absolute error over samples where both are finite."""
     ok = np.isfinite(true) & np.isfinite(pred)
