@@ -110,9 +110,14 @@ def test_cycles_over_the_action_in_simulated_time(graph):
     status, res, fb = _run_goal(ex, client, _goal(set_reference=True))
     assert status == GoalStatus.STATUS_SUCCEEDED, res.message
     assert res.success and "reference" in res.message
-    assert [f.points_done for f in fb] == list(range(1, 26))
+    # feedback is a keep-last topic: on a loaded machine a slow client may miss some of the 25
+    # (CI saw 7 and 8 dropped); what arrives is in order, stage-consistent and ends at the last
+    done = [f.points_done for f in fb]
+    assert done == sorted(set(done)) and set(done) <= set(range(1, 26)) and done[-1] == 25, done
+    assert len(done) >= 5
     assert {f.points_total for f in fb} == {25}
-    assert fb[0].stage == "C=0 point 1/5" and fb[-1].stage == "C=360 point 5/5"
+    assert all(f.stage == f"C={90 * ((f.points_done - 1) // 5)} point {(f.points_done - 1) % 5 + 1}/5" for f in fb)
+    assert fb[-1].stage == "C=360 point 5/5"
     assert res.duration_s == pytest.approx(95.0)
 
     status, res, _ = _run_goal(ex, client, _goal(ProbeCycle.Goal.ARTEFACT_GUIDE_BUSH,
