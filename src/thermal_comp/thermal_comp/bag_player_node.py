@@ -193,7 +193,8 @@ class BagPlayerNode(Node):
                             break
                         self._stop.wait(min(period, due - now))
                         now = min(time.monotonic(), due)
-                        self._publish_clock(start + int((now - wall0) * rate * 1e9))
+                        # float round-off may land 1 ns past the instant: /clock never goes back
+                        self._publish_clock(min(t_ns, start + int((now - wall0) * rate * 1e9)))
                 self._publish_clock(t_ns)
                 used = []
                 for m in group:
