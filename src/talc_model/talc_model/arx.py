@@ -225,6 +225,13 @@ class ArxModel:
             out.append(_gain_ratio(np.abs(bj).sum(), bj.sum()))
         return np.array(out, dtype=float)
 
+    def input_gains_admissible(self, max_ratio: float) -> bool:
+        """No input's coefficients sum in absolute value to more than ``max_ratio`` times their
+        net gain (:func:`input_gains_admissible`; inf: always true)."""
+        b = self.b
+        return bool(np.all(input_gains_admissible(np.array([np.abs(x).sum() for x in b]),
+                                                  np.array([x.sum() for x in b]), max_ratio)))
+
     def input_part(self, u: np.ndarray) -> np.ndarray:
         """B(q) u[k] (+ c) for every k >= the largest input lag (NaN before)."""
         u = np.asarray(u, dtype=float)
@@ -321,6 +328,17 @@ class ArxModel:
             raise ValueError(f"ARX state: 'theta' has {theta.size} values, orders need {orders.n_params}")
         return cls(orders, theta, float(d.get("residual_std", np.nan)),
                    int(d.get("n_fit_samples", 0)), dict(d.get("extra", {})))
+
+
+def as_finite_input_matrix(u: np.ndarray) -> np.ndarray:
+    """``u`` as a float (N x r) matrix; non-finite inputs raise (identification needs them held
+    or dropped first)."""
+    u = np.asarray(u, dtype=float)
+    if u.ndim == 1:
+        u = u[:, None]
+    if not np.all(np.isfinite(u)):
+        raise ValueError("inputs u: non-finite values (hold or drop unavailable inputs first)")
+    return u
 
 
 def _gain_ratio(abs_sum: float, net: float) -> float:

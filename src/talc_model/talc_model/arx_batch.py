@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from .arx import ArxOrders, regression_matrix
+from .arx import ArxOrders, as_finite_input_matrix, regression_matrix
 
 
 class SharedRegression:
@@ -47,11 +47,7 @@ class SharedRegression:
     def __init__(self, y: np.ndarray, u: np.ndarray, na: int, nb_max: int, nk: int, intercept: bool,
                  weights: np.ndarray | None, start: int, stop: int):
         y = np.asarray(y, dtype=float)
-        u = np.asarray(u, dtype=float)
-        if u.ndim == 1:
-            u = u[:, None]
-        if not np.all(np.isfinite(u)):
-            raise ValueError("inputs u: non-finite values (hold or drop unavailable inputs first)")
+        u = as_finite_input_matrix(u)
         self.na = int(na)
         self.nb_max = int(nb_max)
         self.n_inputs = u.shape[1]

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from .arx import ArxModel, ArxOrders, RankDeficientError, fit_arx, input_gains_admissible
+from .arx import ArxModel, ArxOrders, RankDeficientError, as_finite_input_matrix, fit_arx, input_gains_admissible
 from .arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
 
 CRITERIA = ("mdl", "mdl_as_printed", "aic", "bic")
@@ -159,11 +159,7 @@ def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb
     if not max_input_gain_ratio >= 1:
         raise ValueError(f"max_input_gain_ratio: {max_input_gain_ratio} must be >= 1 (inf = no bound)")
     y = np.asarray(y, dtype=float)
-    u = np.asarray(u, dtype=float)
-    if u.ndim == 1:
-        u = u[:, None]
-    if not np.all(np.isfinite(u)):
-        raise ValueError("inputs u: non-finite values (hold or drop unavailable inputs first)")
+    u = as_finite_input_matrix(u)
     n, r = u.shape
     na_lo, na_hi = int(na_range[0]), int(na_range[1])
     nb_lo, nb_hi = int(nb_range[0]), int(nb_range[1])
@@ -183,14 +179,6 @@ def _scoring_problem(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb
     return _ScoringProblem(y, u, nb_hi, nk, intercept, weights, start, split, scored, state_updates,
                            criterion, 1.0 - max_pole_radius, real_positive_poles, require_stable,
                            float(max_input_gain_ratio))
-
-
-def _gains_ok(model: ArxModel, max_ratio: float) -> bool:
-    if not math.isfinite(max_ratio):
-        return True
-    b = model.b
-    return bool(np.all(input_gains_admissible(np.array([np.abs(x).sum() for x in b]),
-                                              np.array([x.sum() for x in b]), max_ratio)))
 
 
 class _PerCandidateScorer:
@@ -214,7 +202,7 @@ class _PerCandidateScorer:
             return math.inf, None, math.nan
         if p.require_stable and not m.is_stable(p.margin, p.real_positive_poles):
             return math.inf, None, math.nan
-        if not _gains_ok(m, p.max_input_gain_ratio):
+        if not m.input_gains_admissible(p.max_input_gain_ratio):
             return math.inf, None, math.nan
         res = _validation_residuals(m, p.y, p.u, p.split, p.scored, p.state_updates)
         s = criterion_value(p.criterion, res, orders)
@@ -374,7 +362,7 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
         try:
             full = fit_arx(y, u, orders, weights, start=start)
             if (full.is_stable(margin, real_positive_poles) or not require_stable) \
-                    and _gains_ok(full, problem.max_input_gain_ratio):
+                    and full.input_gains_admissible(problem.max_input_gain_ratio):
                 model = full
         except RankDeficientError:
             pass

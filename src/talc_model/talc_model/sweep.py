@@ -304,14 +304,16 @@ def run_sweep(recording, run: SweepRun, points: Sequence[SweepPoint], results_pa
         bar = tqdm(total=len(todo), desc="sweep", unit="comb")
     try:
         with results_path.open("a") as fh:
+            def record(row: dict) -> None:
+                _append(fh, row)
+                new[row["key"]] = row
+                if bar is not None:
+                    bar.update(1)
+
             if jobs == 1 or len(todo) <= 1:
                 fn = evaluate or evaluate_point
                 for p in todo:
-                    row = fn(recording, run, p)
-                    _append(fh, row)
-                    new[row["key"]] = row
-                    if bar is not None:
-                        bar.update(1)
+                    record(fn(recording, run, p))
             else:
                 if evaluate is not None:
                     raise SweepError("a custom evaluate function runs only with jobs == 1")
@@ -319,11 +321,7 @@ def run_sweep(recording, run: SweepRun, points: Sequence[SweepPoint], results_pa
                                                             initargs=(recording, run)) as pool:
                     futures = [pool.submit(_evaluate_in_worker, p) for p in todo]
                     for fut in concurrent.futures.as_completed(futures):
-                        row = fut.result()
-                        _append(fh, row)
-                        new[row["key"]] = row
-                        if bar is not None:
-                            bar.update(1)
+                        record(fut.result())
     finally:
         if bar is not None:
             bar.close()

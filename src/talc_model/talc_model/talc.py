@@ -56,8 +56,8 @@ import numpy as np
 
 from .adaptive_model import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, PHASE_CALIBRATION,
                              PHASE_COMPENSATION, PHASE_NO_GOOD, ModelStatusData, register_model)
-from .blas_threads import single_thread_blas
 from .arx import ArxModel, ArxOrders, RankDeficientError, check_full_rank, fit_arx, regression_matrix
+from .blas_threads import single_thread_blas
 from .metrics import q_prod
 from .order_selection import CRITERIA, select_orders
 
@@ -554,6 +554,10 @@ class TalcModel:
             active = np.ones(len(self.input_names), bool)
         return ArxOrders(c.na_max, tuple(nb if a else 0 for a in active), c.nk, c.intercept)
 
+    def _training_split(self, first: int) -> int:
+        """End of the training part of the order selection's split of grid rows [first, n)."""
+        return first + int(round(self.config.train_fraction * (self.grid.n - first)))
+
     def _active_inputs(self, first: int, stop: int) -> np.ndarray:
         """Inputs that varied by more than ``min_input_range`` on grid rows [first, stop)."""
         u = self.grid.u[first:stop]
@@ -602,11 +606,9 @@ class TalcModel:
         if c.cp_length_h > 0 and t_s - self.t0 < c.cp_length_h * 3600.0:
             return False
         g = self.grid
-        first_any = [int(np.flatnonzero(np.isfinite(g.y[: g.n, j]))[0]) for j in range(len(self.component_names))
-                     if np.any(np.isfinite(g.y[: g.n, j]))]
-        first0 = min(first_any) if first_any else 0
-        active = self._active_inputs(first0, first0 + int(round(c.train_fraction * (g.n - first0))))
-        orders = self._max_orders(active)
+        measured_any = np.flatnonzero(np.any(np.isfinite(g.y[: g.n]), axis=1))
+        first0 = int(measured_any[0]) if measured_any.size else 0
+        orders = self._max_orders(self._active_inputs(first0, self._training_split(first0)))
         need = max(orders.order_sum, math.ceil(c.cp_min_samples_per_parameter * orders.n_params))
         if self._n_measured() < need:
             self.message = (f"calibration phase continues: {self._n_measured()} of {need} measured samples "
@@ -617,7 +619,7 @@ class TalcModel:
             y, m = self._training_outputs(j)
             # the first fit estimates on the training part of the split: it must be identifiable
             first = int(np.flatnonzero(np.isfinite(y))[0]) if np.any(np.isfinite(y)) else 0
-            split = first + int(round(c.train_fraction * (g.n - first)))
+            split = self._training_split(first)
             phi, target, rows = regression_matrix(y[:split], g.u[:split], orders, start=first + orders.max_lag)
             ok = np.isfinite(target) & np.all(np.isfinite(phi), axis=1)
             try:
@@ -656,7 +658,7 @@ class TalcModel:
         the others get n_b = 0 in the returned model (see ``min_input_range``)."""
         c = self.config
         g = self.grid
-        active = self._active_inputs(first, first + int(round(c.train_fraction * (g.n - first))))
+        active = self._active_inputs(first, self._training_split(first))
         sel = select_orders(y[first:], g.u[first: g.n][:, active], (c.na_min, c.na_max), (c.nb_min, nb_max),
                             nk=c.nk, intercept=c.intercept, criterion=c.criterion,
                             train_fraction=c.train_fraction, weights=w[first:],
@@ -697,9 +699,8 @@ class TalcModel:
         return math.exp(-self.step / (tau_h * 3600.0))
 
     def _admissible(self, m: ArxModel) -> bool:
-        ratio = self.config.max_input_gain_ratio
         return m.is_stable(1.0 - self._max_pole_radius(), self.config.real_positive_poles) and \
-            (not math.isfinite(ratio) or bool(np.all(m.input_gain_ratios() <= ratio + 1e-9)))
+            m.input_gains_admissible(self.config.max_input_gain_ratio)
 
     def _first_fit(self, t_s: float) -> None:
         try:
