@@ -118,3 +118,52 @@ def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_prob
     assert res2.trajectory.probe_rows == rows
     for ch in CHANNELS:
         assert np.array_equal(res2.compensation[ch], comp[ch], equal_nan=True)
+
+
+def test_the_fast_sensor_is_the_one_whose_fast_part_the_displacements_follow():
+    from talc_model.fl_thermal_agp import agp_input_sensors, fast_sensor
+    from talc_model.fl_thermal_data import SENSORS
+    rng = np.random.default_rng(11)
+    n = 3000
+    t = np.arange(n) * DT
+    slow = np.linspace(0.0, 5.0, n)
+    wiggle = np.sin(2 * np.pi * t / 1500.0)                 # a 25-min oscillation near the spindle
+    T = slow[:, None] + rng.normal(0, 0.02, (n, len(SENSORS)))
+    T[:, 6] += 3.0 * np.sin(2 * np.pi * t / 5000.0)          # large but slow swings on t7
+    T[:, 3] += 0.5 * wiggle                                  # the wiggle on t4
+    D = np.column_stack([2.0 * slow + 1.5 * np.roll(wiggle, 8), -slow - np.roll(wiggle, 8)])
+    assert fast_sensor(t, T, D) == "t4"
+    sensors = agp_input_sensors(T, time_s=t, displacements=D)
+    assert sensors[-1] == "t4" and len(set(sensors)) == len(sensors)
+    assert "t4" not in agp_input_sensors(T) or agp_input_sensors(T).count("t4") == 1
+    with pytest.raises(FlThermalError, match="temperatures"):
+        fast_sensor(t, T[:, :5], D)
+
+
+def test_the_uncertainty_weighted_hold_trusts_the_gp_where_it_is_sure_and_the_probe_where_not():
+    from talc_model.fl_thermal_agp import measured_hold_rate, uncertainty_weighted_hold
+    n = 200
+    t = np.arange(n) * 60.0
+    y = np.zeros(n)
+    y[[9, 100]] = [1.0, 4.0]                                 # the two measured values
+    c = np.full(n, 10.0)                                      # the GP compensation
+    std = np.where(np.arange(n) < 100, 0.01, 100.0)           # sure before row 100, lost after
+    out = uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, 1.0)
+    assert np.all(np.isnan(out[:10]))
+    assert np.allclose(out[20:100], 10.0, atol=0.01)          # small std: the GP
+    assert out[100] == pytest.approx(1.0, abs=0.01)           # row 100 before its probe: lost, holds row 9
+    assert np.all(np.abs(out[101:] - 4.0) < 0.01)             # huge std: the measurement of row 100
+    assert np.array_equal(uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, float("inf"))[10:], c[10:])
+    held = uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, 0.0)
+    assert np.allclose(held[10:101], 1.0) and np.allclose(held[101:], 4.0)
+    with pytest.raises(FlThermalError, match="hold_rate"):
+        uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, -1.0)
+    with pytest.raises(FlThermalError, match="measured_rows"):
+        uncertainty_weighted_hold(t, y, c, std, [10, 100], 10, n, 1.0)
+    # a random walk with 4 um^2/h is measured as such
+    rng = np.random.default_rng(3)
+    tt = np.arange(20000) * DT
+    walk = np.cumsum(rng.normal(0.0, np.sqrt(4.0 * DT / 3600.0), tt.size))
+    assert measured_hold_rate(tt, walk, tt.size) == pytest.approx(4.0, rel=0.1)
+    with pytest.raises(FlThermalError, match="lag_s"):
+        measured_hold_rate(tt[:10], walk[:10], 10)
