@@ -6,8 +6,11 @@ is (one probing per 5-min grid sample; those samples are the GP's calibration po
 
 - **Inputs** (thesis §5.1 logic for the sensors, dynamics added): one medoid sensor per unique
   sensor group (k-means elbow of :func:`talc_model.agp.sensor_groups` on the calibration rows'
-  temperatures), as changes from row 0, plus first-order low-pass copies of them with time
-  constants ``feature_taus_s`` (:func:`talc_model.lagged_temperature_model.lagged_features`).
+  temperatures), plus the :func:`fast_sensor` (the one whose fast part the displacements' fast
+  parts follow on the calibration rows; a medoid stands for its group's slow level and averages
+  the spindle-near sensor's swings away), as changes from row 0, plus first-order low-pass
+  copies of them with time constants ``feature_taus_s``
+  (:func:`talc_model.lagged_temperature_model.lagged_features`).
   A temperature minus its low-pass copy is a rate: a cooling-down machine at a temperature it
   once reached while warming up is then a state the calibration did not see, and the GP's
   predictive std rises there.
@@ -26,6 +29,12 @@ is (one probing per 5-min grid sample; those samples are the GP's calibration po
   :mod:`talc_model.fl_thermal_probe_update` takes the residual left after that update
   (measured - new GP mean): it carries what the GP cannot (a drifting reference, a heat flow
   the inputs miss) between probes and decays with its time constant tau.
+- **Between probes** (:func:`uncertainty_weighted_hold`): the compensation blends the GP's (with
+  the Kalman state) and the last measured displacement by their variances: the GP's predictive
+  variance against the variance a held measurement gains with time, the displacement's
+  random-walk rate *measured* on the calibration rows (:func:`measured_hold_rate`, 10-min
+  changes). Where the GP knows the state it is followed; right after a probe and in a state it
+  has not seen (large std, its mean swinging back towards the training mean) the measurement is.
 
 The GP's trajectory (mean, std, probe rows) does not depend on the Kalman filter, so the replay
 runs once per (feature time constants, sigma_max ratio) and the filters are scored on it.
@@ -33,8 +42,8 @@ runs once per (feature time constants, sigma_max ratio) and the filters are scor
 **Every hyper-parameter is chosen without rows >= n_train** (walk-forward inside the training
 rows, as :mod:`talc_model.fl_thermal_calibrated_talc`): for each fold start k = 60, 70, 80 % of
 the training rows, inputs, GP and expected maximum error come from rows 0..k-1 only and rows
-k..n_train-1 are replayed. Per channel the Kalman (tau, r) with the lowest mean fold MAE is
-taken. The (feature time constants, sigma_max ratio) pair: among the pairs whose walk-forward
+k..n_train-1 are replayed (hold rate measured on rows 0..k-1). Per channel the Kalman (tau, r)
+with the lowest mean fold MAE is taken. The (feature time constants, sigma_max ratio) pair: among the pairs whose walk-forward
 MAE meets ``target_um`` on every channel, the one with the fewest probings; if none does, the
 lowest channel-mean walk-forward MAE. The sigma_max ratios tried span the thesis's range
 (5-15 %). Kernel bounds are the AGP's defaults (not tuned: the walk-forward budget went to
