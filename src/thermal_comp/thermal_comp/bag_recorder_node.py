@@ -145,6 +145,11 @@ class BagRecorderNode(Node):
             self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
         return on_message
 
+    def drain_activity(self) -> int:
+        """Messages written so far: after a stop signal the node runtime spins on while this
+        still moves, so what already arrived is written before the bag is closed."""
+        return self.writer.message_count
+
     def close(self) -> None:
         self.writer.close()
         self.get_logger().info(f"bag {self.writer.path} closed: {self.writer.message_count} messages")

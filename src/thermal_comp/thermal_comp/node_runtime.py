@@ -17,6 +17,7 @@ import math
 import signal
 import sys
 import threading
+import time
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Sequence
 
@@ -157,6 +158,32 @@ def s_to_stamp(t_s: float):
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+#: After a stop signal a node with ``drain_activity`` keeps spinning while its counter still
+#: moves: until it stood still this long (s) ...
+DRAIN_QUIET_S = 0.3
+#: ... but no longer than this (s).
+DRAIN_MAX_S = 3.0
+
+
+def _drain(executor, node, context) -> None:
+    """Take what already arrived before closing: a recorder stopped right after the last instant
+    still has that instant's messages in its subscription queues. ``node.drain_activity()``
+    returns a counter (messages written); spin until it has not moved for ``DRAIN_QUIET_S``,
+    at most ``DRAIN_MAX_S``. Nodes without it stop at once."""
+    activity = getattr(node, "drain_activity", None)
+    if not callable(activity):
+        return
+    start = last_change = time.monotonic()
+    seen = activity()
+    while context.ok() and time.monotonic() - start < DRAIN_MAX_S:
+        executor.spin_once(timeout_sec=0.05)
+        now_seen = activity()
+        if now_seen != seen:
+            seen, last_change = now_seen, time.monotonic()
+        elif time.monotonic() - last_change >= DRAIN_QUIET_S:
+            return
+
+
 def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
              multi_threaded: bool = False, num_threads: int = 2, poll_s: float = 0.1) -> int:
     """Run one node in its own context until SIGINT, SIGTERM or an external shutdown.
@@ -191,6 +218,7 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
         executor.add_node(node)
         while context.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=poll_s)
+        _drain(executor, node, context)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
