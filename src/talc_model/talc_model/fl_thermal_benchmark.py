@@ -175,11 +175,19 @@ def print_table(figures: Mapping[str, Any]) -> None:
             if "q_prod_after_calibration_pct" in per:
                 q += f" ({per['q_prod_after_calibration_pct']:.2f})"
             table.add_row(f"{group} {name}", *cells, q)
+            if all("hold_last_measurement_mae_um" in per[ch] for ch in CHANNELS):
+                # what holding each of this model's measurements would give on its own schedule
+                table.add_row(f"  (hold {name}'s probes)",
+                              *[f"{per[ch]['hold_last_measurement_mae_um']:.3f} "
+                                f"[{per[ch]['hold_last_measurement_mae_validation_um']:.3f}]" for ch in CHANNELS],
+                              "same")
     console = Console(width=max(140, Console().width))
     console.print(table)
     console.print(f"green: beats {BEST_PUBLISHED} (open loop) / <= 1 um (adaptive) on the test rows. "
                   "Q_prod (in brackets: after calibration) charges 95 s per probing; the calibrated talc* "
-                  "models are charged one probing per 5-min grid sample of the training rows.")
+                  "models are charged one probing per 5-min grid sample of the training rows. "
+                  "'hold ...'s probes': each measurement of that model held until its next one (the baseline "
+                  "its probing schedule alone gives).")
 
 
 def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[str, Mapping[str, np.ndarray]],
