@@ -43,9 +43,9 @@ runs once per (feature time constants, sigma_max ratio) and the filters are scor
 rows, as :mod:`talc_model.fl_thermal_calibrated_talc`): for each fold start k = 60, 70, 80 % of
 the training rows, inputs, GP and expected maximum error come from rows 0..k-1 only and rows
 k..n_train-1 are replayed (hold rate measured on rows 0..k-1). Per channel the Kalman (tau, r)
-with the lowest mean fold MAE is taken. The (feature time constants, sigma_max ratio) pair: among the pairs whose walk-forward
-MAE meets ``target_um`` on every channel, the one with the fewest probings; if none does, the
-lowest channel-mean walk-forward MAE. The sigma_max ratios tried span the thesis's range
+with the lowest mean fold MAE is taken. The (feature time constants, sigma_max ratio) pair:
+among the pairs whose walk-forward MAE meets ``target_um`` on every channel, the one with the
+fewest probings; if none does, the lowest channel-mean walk-forward MAE. The sigma_max ratios tried span the thesis's range
 (5-15 %). Kernel bounds are the AGP's defaults (not tuned: the walk-forward budget went to
 the inputs and sigma_max).
 
@@ -426,12 +426,14 @@ def run_calibrated_agp(data: FlThermalData, splits: Splits, *, schedule: AgpSche
                                                 progress)))
     scores: dict[str, Any] = {}
     candidates = []
+    # each fold's hold rate per channel, from that fold's calibration rows (same for every key)
+    fold_rates = {ch: [measured_hold_rate(data.time_s, Y[:, j], k) for k, _ in folds] if hold else None
+                  for j, ch in enumerate(CHANNELS)}
     for key in folds[0][1]:
         per_ch, filters = {}, {}
         for j, ch in enumerate(CHANNELS):
-            rates = [measured_hold_rate(data.time_s, Y[:, j], k) for k, _ in folds] if hold else None
             filters[ch], per_ch[ch], _ = best_filter(data.time_s, Y[:, j], [(k, n, fl[key][0]) for k, fl in folds],
-                                                     j, tau_grid, ratio_grid, rates)
+                                                     j, tau_grid, ratio_grid, fold_rates[ch])
         probings = float(np.mean([len(fl[key][0].probe_rows) for _, fl in folds]))
         label = f"taus={'+'.join(f'{t / 3600:g}h' for t in key[0]) or 'none'},sigma_ratio={key[1]:g}"
         scores[label] = {"mae_um": {ch: round(v, 3) for ch, v in per_ch.items()},
