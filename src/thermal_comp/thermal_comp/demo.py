@@ -143,6 +143,8 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
          "parameters": {"machine": cfg.machine, "scenario": cfg.scenario, "seed": cfg.seed,
                         "hours": float(cfg.hours or 0.0), "step_s": float(step),
                         "lockstep_participants": participants, "shutdown_when_done": True,
+                        # the recorder is no lock-step participant; the first instant waits for it
+                        "wait_for_subscribers": ["recorder"],
                         "state_path": str(out / "twin_state.pkl")}},
         {"name": "sensors", "module": "thermal_sensors.temperature_publisher_node",
          "parameters": {"source": "twin", "sensor_config": m["sensor_config"], "lockstep_participant": True}},

@@ -45,6 +45,9 @@ PARAMS = [
     # empty names are ignored, so the default means free-running
     Param("lockstep_participants", [""],
           "node names that must acknowledge every instant on sim_sync (none = free-running)"),
+    Param("wait_for_subscribers", [""],
+          "node names (e.g. a bag recorder) that must subscribe to errors/ground_truth before the first "
+          "instant: a recorder that starts after the graph would miss the first instants"),
     Param("real_time_factor", 0.0, "free-running speed: simulated s per wall s (0 = as fast as possible)",
           0.0, 1.0e6),
     Param("resend_after_s", 2.0, "lock-step: re-send the current instant after this many wall s without "
@@ -70,6 +73,7 @@ class MachineSimNode(Node):
             if p["state_path"] else None)
         resumed = self.checkpoint.load() if self.checkpoint is not None else None
         self.participants = [n for n in (p["lockstep_participants"] or []) if n]
+        self.observers = [n for n in (p["wait_for_subscribers"] or []) if n]
         self.publish_truth = p["publish_ground_truth"]
         self.resend_after_s = p["resend_after_s"]
         self.shutdown_when_done = p["shutdown_when_done"]
@@ -159,6 +163,8 @@ class MachineSimNode(Node):
     # ------------------------------------------------------------------ free-running
     def _free_tick(self) -> None:
         if not self.started:
+            if not self._observers_present():
+                return
             self.started = True
             self._publish_instant()
             return
@@ -168,6 +174,14 @@ class MachineSimNode(Node):
         self._publish_instant()
 
     # ------------------------------------------------------------------ lock-step
+    def _observers_present(self) -> bool:
+        """Every node of ``wait_for_subscribers`` has subscribed to the ground-truth topic."""
+        if not self.observers:
+            return True
+        names = {i.node_name for i in
+                 self.get_subscriptions_info_by_topic(self.resolve_topic_name(TOPIC_ERRORS_TRUE))}
+        return all(n in names for n in self.observers)
+
     def _participants_present(self) -> bool:
         names = {i.node_name for i in self.get_publishers_info_by_topic(self.resolve_topic_name(TOPIC_SIM_SYNC))}
         return all(n in names for n in self.participants)
@@ -180,7 +194,7 @@ class MachineSimNode(Node):
 
     def _lockstep_tick(self) -> None:
         if not self.started:
-            if self._participants_present():
+            if self._participants_present() and self._observers_present():
                 self.started = True
                 self._publish_instant()
             return
