@@ -24,9 +24,6 @@ setup(
         "thermal_comp.commands": [
             "cnc-emulator = cnc_bridge.cnc_emulator:main",
         ],
-        "thermal_comp.bench": [
-            "bridge = cnc_bridge.bench_bridge:run",
-        ],
         "console_scripts": [
             "cnc_bridge = cnc_bridge.cnc_bridge_node:main",
         ],

@@ -24,10 +24,6 @@ setup(
         "thermal_comp.commands": [
             "probe = probe_cycle.probe_cli:main",
         ],
-        # `thermal-comp bench SUITE`: "suite = module:function", function(args) -> dict of figures.
-        "thermal_comp.bench": [
-            "probe = probe_cycle.bench_probe:run",
-        ],
         "console_scripts": [
             "probe_cycle_server = probe_cycle.probe_cycle_node:main",
         ],

@@ -19,16 +19,6 @@ setup(
     description="Adaptive thermal-error models: TALC (ARX), adaptive Gaussian process, characteristic diagrams.",
     license="Apache-2.0",
     entry_points={
-        # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
-        # "name = module:function" where function(argv: list[str]) -> int.
-        "thermal_comp.commands": [
-            "replay = talc_model.replay_cli:main",
-            "sweep = talc_model.sweep_cli:main",
-        ],
-        "thermal_comp.bench": [
-            "model = talc_model.bench_model:run",
-            "models = talc_model.bench_sweep:run",
-        ],
         "console_scripts": [
             "talc_model = talc_model.talc_model_node:main",
         ],

@@ -26,7 +26,6 @@ setup(
             "topics = thermal_comp.inspect_cli:topics_main",
             "echo = thermal_comp.inspect_cli:echo_main",
             "nodes = thermal_comp.inspect_cli:nodes_main",
-            "bench = thermal_comp.bench:main",
             "demo = thermal_comp.demo:main",
             "record = thermal_comp.record_cli:main",
             "play = thermal_comp.play_cli:main",
@@ -35,10 +34,7 @@ setup(
         ],
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [
-            "bags = thermal_comp.bench_bags:run",
             "graph = thermal_comp.demo:bench_graph",
-            "fl-thermal = talc_model.fl_thermal_benchmark:run",
-            "faults = thermal_comp.bench_faults:run",
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",

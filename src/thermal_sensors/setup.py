@@ -24,10 +24,6 @@ setup(
         "thermal_comp.commands": [
             "rtd-emulator = thermal_sensors.rtd_emulator:main",
         ],
-        # `thermal-comp bench sensors`: Modbus poll latency and frame throughput.
-        "thermal_comp.bench": [
-            "sensors = thermal_sensors.bench_sensors:run",
-        ],
         "console_scripts": [
             "temperature_publisher = thermal_sensors.temperature_publisher_node:main",
         ],

@@ -25,11 +25,6 @@ setup(
             "diagnose = thermal_twin.diagnose_cli:main",
             "sim = thermal_twin.sim_cli:main",
         ],
-        # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
-        "thermal_comp.bench": [
-            "diagnose = thermal_twin.bench_diagnose:run",
-            "twin = thermal_twin.bench_twin:run",
-        ],
         "console_scripts": [
             "machine_sim = thermal_twin.machine_sim_node:main",
         ],

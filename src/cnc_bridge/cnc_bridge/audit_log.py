@@ -21,7 +21,7 @@ import os
 import pathlib
 from typing import Iterable
 
-from .safety_envelope import flag_names
+from cnc_bridge.safety_envelope import flag_names
 
 HEADER = ("time_s", "wall_time_utc", "axis", "commanded_um", "applied_um", "confirmed", "limits")
 

@@ -27,17 +27,17 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
-from thermal_comp.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
+from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC, Param,
                                        declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
 
-from .audit_log import AuditLog
-from .cnc_backend import TwinBackend
-from .error_transform import (ANGULAR_COMPONENTS, CONVENTION_RIGID, CONVENTIONS,
+from cnc_bridge.audit_log import AuditLog
+from cnc_bridge.cnc_backend import TwinBackend
+from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, CONVENTION_RIGID, CONVENTIONS,
                               DEFAULT_SPHERE_RADIUS_MM, FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
                               TransformInputError, offsets_from_errors)
-from .safety_envelope import LIMIT_WRITE_FAILED, EnvelopeConfig, SafetyEnvelope, flag_names
+from cnc_bridge.safety_envelope import LIMIT_WRITE_FAILED, EnvelopeConfig, SafetyEnvelope, flag_names
 
 PARAMS = [
     Param("backend", "twin", "where offsets go: twin = published for machine_sim; opcua = a CNC",
@@ -94,7 +94,7 @@ PARAMS = [
 def _make_backend(node: Node, p: dict):
     if p["backend"] == "twin":
         return TwinBackend()
-    from .opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map, load_node_map
+    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map, load_node_map
     if p["node_map_file"]:
         node_map, scale = load_node_map(p["node_map_file"])
     else:

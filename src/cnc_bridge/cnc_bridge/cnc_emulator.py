@@ -58,7 +58,7 @@ from asyncua import Server, ua
 from asyncua.common.callback import CallbackType
 from asyncua.crypto.permission_rules import User, UserRole
 
-from .loop_thread import LoopThread
+from cnc_bridge.loop_thread import LoopThread
 
 NAMESPACE_URI = "urn:thermal-comp:cnc-emulator"
 ENDPOINT_PATH = "/thermal-comp/cnc"
@@ -447,9 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _serve_twin(cfg: EmulatorConfig, ros_args: list[str]) -> int:
     """Serve the CNC fed by the twin until Ctrl-C / SIGTERM (an rclpy node in this process)."""
-    from thermal_comp.node_runtime import run_node
+    from thermal_comp_common.node_runtime import run_node
 
-    from .cnc_twin_feed_node import CncTwinFeed
+    from cnc_bridge.cnc_twin_feed_node import CncTwinFeed
     latest: list[dict[str, float]] = [{}]     # replaced whole by the feed (atomic), read by ProbeMove
     emu = CncEmulatorThread(cfg, probe_move=artefact_probe(lambda: latest[0]))
     try:

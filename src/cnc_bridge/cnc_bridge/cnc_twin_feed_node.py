@@ -16,10 +16,10 @@ from typing import Callable
 
 from rclpy.node import Node
 
-from thermal_comp.node_runtime import SENSOR_QOS, TOPIC_ERRORS_TRUE, TOPIC_MACHINE_STATE, EVENT_QOS
+from thermal_comp_common.node_runtime import SENSOR_QOS, TOPIC_ERRORS_TRUE, TOPIC_MACHINE_STATE, EVENT_QOS
 from thermal_comp_msgs.msg import MachineState, ThermalErrors
 
-from .cnc_emulator import CncEmulatorThread
+from cnc_bridge.cnc_emulator import CncEmulatorThread
 
 
 class CncTwinFeed(Node):

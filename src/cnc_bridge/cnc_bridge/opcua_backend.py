@@ -34,7 +34,7 @@ from typing import Mapping
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-from .loop_thread import LoopThread
+from cnc_bridge.loop_thread import LoopThread
 
 log = logging.getLogger("cnc_bridge.opcua")
 

@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     from rich.progress import Progress
     from rich.table import Table
 
-    from thermal_comp.node_runtime import ACTION_PROBE_CYCLE
+    from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE
     from thermal_comp_msgs.action import ProbeCycle
     from thermal_comp_msgs.msg import ThermalErrors
 

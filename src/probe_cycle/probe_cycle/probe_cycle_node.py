@@ -18,7 +18,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from thermal_comp.node_runtime import (ACTION_PROBE_CYCLE, Param, declare_parameters,
+from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, Param, declare_parameters,
                                        run_node, s_to_stamp)
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import ThermalErrors

@@ -18,7 +18,7 @@ import numpy as np
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from thermal_comp.node_runtime import SERVICE_TOUCH_PROBE, stamp_to_s
+from thermal_comp_common.node_runtime import SERVICE_TOUCH_PROBE, stamp_to_s
 from thermal_comp_msgs.srv import TouchProbe
 
 from probe_cycle.cycle_plan import TouchMove

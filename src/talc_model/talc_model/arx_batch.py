@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from .arx import ArxOrders, as_finite_input_matrix, regression_matrix
+from talc_model.arx import ArxOrders, as_finite_input_matrix, regression_matrix
 
 
 class SharedRegression:

@@ -18,7 +18,7 @@ import pathlib
 import tempfile
 from typing import Any, Mapping
 
-from .adaptive_model import AdaptiveModel, model_class, model_from_state
+from talc_model.adaptive_model import AdaptiveModel, model_class, model_from_state
 
 FORMAT = "thermal_comp.model_state"
 FORMAT_VERSION = 1

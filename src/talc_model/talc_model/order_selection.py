@@ -30,7 +30,7 @@ candidate tied with it to rounding) is fitted and scored again by the per-candid
 (:func:`fit_arx`, :meth:`ArxModel.simulate`), so orders, model, score and RMS are those of the
 per-candidate selection, kept as :func:`_select_orders_reference` for the tests; the
 batched scores agree with it to ~1e-12 relative. ~20-40x faster for the 1,000-2,000
-candidates of Table 6.1 (:mod:`talc_model.bench_order_selection`).
+candidates of Table 6.1 (:mod:`thermal_eval.bench_order_selection`).
 """
 from __future__ import annotations
 
@@ -41,8 +41,8 @@ from dataclasses import dataclass
 import numpy as np
 from threadpoolctl import ThreadpoolController
 
-from .arx import ArxModel, ArxOrders, RankDeficientError, as_finite_input_matrix, fit_arx, input_gains_admissible
-from .arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
+from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, as_finite_input_matrix, fit_arx, input_gains_admissible
+from talc_model.arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
 
 CRITERIA = ("mdl", "mdl_as_printed", "aic", "bic")
 

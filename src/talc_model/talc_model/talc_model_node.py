@@ -31,7 +31,7 @@ Wiring (the model itself is the pure core behind :class:`adaptive_model.Adaptive
 """
 from __future__ import annotations
 
-from talc_model.machine_inputs import machine_state_inputs
+from thermal_comp_common.machine_inputs import machine_state_inputs
 
 import math
 import pathlib
@@ -44,7 +44,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
-from thermal_comp.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
+from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
                                        TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
                                        TOPIC_SIM_SYNC, TOPIC_TEMPERATURES, Param,

@@ -32,8 +32,8 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 
-from thermal_comp import node_runtime as rt
-from thermal_comp.bag_player import BagContents, instants, read_bag, wall_delay_s
+from thermal_comp_common import node_runtime as rt
+from thermal_comp_common.bag_reader import BagContents, instants, read_bag, wall_delay_s
 from thermal_comp.bag_recorder_node import message_class
 
 CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,

@@ -1,4 +1,4 @@
-"""bag_recorder node: records topics into a rosbag2 MCAP bag (core: thermal_comp.bag_recorder).
+"""bag_recorder node: records topics into a rosbag2 MCAP bag (core: thermal_comp_common.bag_writer).
 
 Subscribes at start-up to every topic it is given, with the type known up front (no
 discovery wait, nothing early is lost), as raw (serialized) subscriptions, and writes the
@@ -15,9 +15,9 @@ from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 
-from thermal_comp import node_runtime as rt
-from thermal_comp.bag_recorder import BagWriter, TopicInfo, qos_dict, stamp_from_cdr
-from thermal_comp.msg_definitions import first_field_type, normalize_type
+from thermal_comp_common import node_runtime as rt
+from thermal_comp_common.bag_writer import BagWriter, TopicInfo, qos_dict, stamp_from_cdr
+from thermal_comp_common.msg_definitions import first_field_type, normalize_type
 
 #: The topics recorded when none are given: relative name -> (type, QoS the publisher offers).
 DEFAULT_TOPICS: dict[str, tuple[str, QoSProfile]] = {

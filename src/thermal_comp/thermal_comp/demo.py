@@ -171,7 +171,7 @@ class _Monitor:
         from rclpy.executors import SingleThreadedExecutor
         from rosgraph_msgs.msg import Clock
 
-        from thermal_comp import node_runtime as rt
+        from thermal_comp_common import node_runtime as rt
         from thermal_comp_msgs.msg import AxisOffsets, TemperatureArray
         self.ctx = rclpy.context.Context()
         rclpy.init(args=[], context=self.ctx)
@@ -233,7 +233,7 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
     ``on_poll(launcher, sim_s)``, if given, is called on every supervision poll (about 4 Hz)
     with the launcher and the simulated time seen so far (fault injection uses it)."""
     from thermal_comp.cell_config import parse_cell
-    from thermal_comp.domain_ids import claim_domain_id
+    from thermal_comp_common.domain_ids import claim_domain_id
     from thermal_comp.launcher import Launcher
 
     out = cfg.out_dir.resolve()
@@ -354,7 +354,7 @@ def read_series(bag_path: pathlib.Path) -> DemoSeries:
     """Decode ground truth, predictions, measurements, status and offsets from the demo bag."""
     from rclpy.serialization import deserialize_message
 
-    from thermal_comp.bag_player import read_bag
+    from thermal_comp_common.bag_reader import read_bag
     from thermal_comp_msgs.msg import AxisOffsets, ModelStatus, ThermalErrors
     contents = read_bag(bag_path)
     if contents.damage:
@@ -565,7 +565,7 @@ def plot(series: DemoSeries, summary: dict[str, Any], path: pathlib.Path) -> Non
 def write_rrd(bag: pathlib.Path, rrd: pathlib.Path) -> int:
     import rerun as rr
 
-    from thermal_comp.bag_player import read_bag
+    from thermal_comp_common.bag_reader import read_bag
     from thermal_comp.view_cli import log_bag
     rec = rr.RecordingStream("thermal_comp_demo")
     rec.save(str(rrd))

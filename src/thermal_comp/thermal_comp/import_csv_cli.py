@@ -4,9 +4,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from thermal_comp.bag_recorder import BagWriteError
-from thermal_comp.csv_to_bag import CsvImportError, recording_to_bag
-from thermal_twin.recording_csv import RecordingError, read_recording_csv
+from thermal_comp_common.bag_writer import BagWriteError
+from thermal_comp_common.csv_to_bag import CsvImportError, recording_to_bag
+from thermal_comp_common.recording_csv import RecordingError, read_recording_csv
 
 
 def _rows(text: str) -> tuple[int, int | None]:
@@ -20,7 +20,7 @@ def _rows(text: str) -> tuple[int, int | None]:
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
         prog="thermal-comp import-csv", description=__doc__,
-        epilog="Columns (thermal_twin.recording_csv): <id>_c -> TemperatureArray sensor <id>; E_* and "
+        epilog="Columns (thermal_comp_common.recording_csv): <id>_c -> TemperatureArray sensor <id>; E_* and "
                "<name>_um -> ThermalErrors components; machine inputs -> MachineState as machine_sim "
                "names them (<a>_speed_rpm rotary axis A, other *_rpm spindles, *_w drive powers, "
                "coolant_on/oil_on, coolant_temp_degc/oil_temp_degc, door_open). Example: "

@@ -14,7 +14,7 @@ import sys
 import time
 from typing import Any, Iterable
 
-from thermal_comp.message_text import message_to_yaml
+from thermal_comp_common.message_text import message_to_yaml
 
 
 def _type_class(type_name: str):

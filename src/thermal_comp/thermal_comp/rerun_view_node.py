@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from rclpy.node import Node
 
-from thermal_comp import node_runtime as rt
+from thermal_comp_common import node_runtime as rt
 from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, message_class
 from thermal_comp.rerun_logging import RerunLogger, default_blueprint, resolve_layout
 from thermal_comp.rerun_sinks import RerunOutput, open_output

@@ -46,7 +46,7 @@ def _wait_for_interrupt() -> None:
 
 def error_components(contents) -> list[str]:
     """Component names of the first ThermalErrors message of each error topic, in order."""
-    from thermal_comp import msg_definitions
+    from thermal_comp_common import msg_definitions
     store = msg_definitions.typestore()
     comps: list[str] = []
     seen: set[str] = set()
@@ -64,7 +64,7 @@ def error_components(contents) -> list[str]:
 def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = True) -> tuple[int, str | None]:
     """Log every message of a bag (``bag_player.BagContents``) to ``rec``;
     (messages logged, damage report or None)."""
-    from thermal_comp import msg_definitions
+    from thermal_comp_common import msg_definitions
     from thermal_comp.rerun_logging import RerunLogger
     store = msg_definitions.typestore()
     logger = RerunLogger(rec, layout)
@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     spawn = args.spawn or not (args.rrd or args.serve_web)
     contents = None
     if args.bag:
-        from thermal_comp.bag_player import BagReadError, read_bag
+        from thermal_comp_common.bag_reader import BagReadError, read_bag
         try:
             contents = read_bag(args.bag)
         except BagReadError as exc:

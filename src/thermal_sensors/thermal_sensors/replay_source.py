@@ -13,7 +13,7 @@ import numpy as np
 
 from thermal_sensors.sensor_config import SensorConfig, SensorConfigError, config_from_channels
 from thermal_sensors.temperature_source import RawSample
-from thermal_twin.recording_csv import Recording, read_recording_csv
+from thermal_comp_common.recording_csv import Recording, read_recording_csv
 
 
 class ReplaySource:

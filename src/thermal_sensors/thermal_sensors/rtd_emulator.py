@@ -205,7 +205,7 @@ def play_recording(emulator: RtdEmulator, recording, speed: float, loop: bool,
 
 def _serve_twin(config: SensorConfig, ros_args: list[str]) -> int:
     """Serve the twin's live readings until Ctrl-C / SIGTERM (an rclpy node in this process)."""
-    from thermal_comp.node_runtime import run_node
+    from thermal_comp_common.node_runtime import run_node
     from thermal_sensors.rtd_twin_feed_node import RtdTwinFeed
     emu = RtdEmulator(config)
     try:
@@ -250,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.speed > 0 and math.isfinite(args.speed)):
         p.error(f"--speed: {args.speed!r} must be > 0")
     from thermal_sensors.sensor_config import SensorConfigError
-    from thermal_twin.recording_csv import RecordingError, read_recording_csv
+    from thermal_comp_common.recording_csv import RecordingError, read_recording_csv
     try:
         config = load_sensor_config(resolve_sensor_config(args.config))
         require_modbus(config)

@@ -28,7 +28,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
-from thermal_comp.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
+from thermal_comp_common.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                        TOPIC_TWIN_SENSORS, Param, declare_parameters, run_node,
                                        s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import SimSync, TemperatureArray

@@ -17,7 +17,8 @@ from thermal_twin.machine_schema import MachineSpecError, load_machine, save_mac
 from thermal_twin.mismatch_diagnosis import DiagnosisError, diagnose
 from thermal_twin.mismatch_effects import EFFECTS
 from thermal_twin.mismatch_report import write_report
-from thermal_twin.recording_csv import Recording, RecordingError, read_recording_csv
+from thermal_comp_common.bag_recording import load_recording
+from thermal_comp_common.recording_csv import RecordingError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,25 +48,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def load_recording(path: pathlib.Path, temperatures_topic: str = "temperatures",
-                   errors_topic: str = "errors/ground_truth") -> Recording:
-    """A recording CSV, or a bag turned into the same columns (sensor readings at the
-    temperature instants, the last machine state before each, errors at the same stamp).
-    A damaged bag is read up to the damage, with a warning."""
-    if path.suffix.lower() == ".csv":
-        return read_recording_csv(path)
-    from types import SimpleNamespace
-
-    from thermal_comp.bag_player import read_bag
-    from thermal_comp.bag_regression import bag_to_recording
-    contents = read_bag(path)
-    rec = bag_to_recording(contents, SimpleNamespace(temperatures_topic=temperatures_topic,
-                                                     errors_topic=errors_topic))
-    if contents.damage:
-        rec.warnings.append(f"{path}: damaged bag, read up to the damage: {contents.damage}")
-    return rec
-
-
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     effects = tuple(e.strip() for e in args.effects.split(",") if e.strip())
@@ -89,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
         d = diagnose(machine, rec, holdout_fraction=args.holdout_fraction, max_effects=args.max_effects,
                      min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
                      effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet)
-    except (MachineSpecError, RecordingError, DiagnosisError, ValueError) as exc:
+    except (MachineSpecError, RecordingError, DiagnosisError, ValueError, OSError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
         return 1
     out = pathlib.Path(args.out)

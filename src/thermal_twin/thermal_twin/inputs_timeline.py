@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thermal_twin.machine_schema import Machine
-from thermal_twin.recording_csv import Recording
+from thermal_comp_common.recording_csv import Recording
 
 
 class TimelineError(ValueError):

@@ -24,13 +24,13 @@ from rclpy.clock import Clock as RclClock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
-from thermal_comp.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
+from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC, TOPIC_TWIN_SENSORS,
                                        Param, declare_parameters, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, TemperatureArray, ThermalErrors
 from thermal_comp_msgs.srv import TouchProbe
 from thermal_twin.machine_schema import load_machine
-from thermal_twin.machine_state_fields import error_components, machine_state_fields
+from thermal_comp_common.machine_state_fields import error_components, machine_state_fields
 from thermal_twin.scenario_runner import ScenarioRunner
 from thermal_twin.scenarios import make_timeline
 
@@ -318,7 +318,7 @@ class TwinCheckpoint:
 
 
 def main(args=None) -> int:
-    from thermal_comp.node_runtime import run_node
+    from thermal_comp_common.node_runtime import run_node
     return run_node(MachineSimNode, args)
 
 

@@ -1,7 +1,7 @@
 """The mismatch finder end to end: simulate, locate, diagnose, hypothesise, model, report.
 
 :func:`diagnose` takes a twin (YAML path, preset name or mapping) and a
-:class:`~thermal_twin.recording_csv.Recording` and returns a :class:`Diagnosis` holding the
+:class:`~thermal_comp_common.recording_csv.Recording` and returns a :class:`Diagnosis` holding the
 JSON-ready report (keys as issue 9 lists them), the augmented machine description and the
 series for the plots. The recording is split chronologically: the first
 ``1 - holdout_fraction`` is the training window (every fit), the rest is held out (only
@@ -21,7 +21,7 @@ from thermal_twin.machine_schema import Machine, load_machine
 from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
 from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, run_round
 from thermal_twin.mismatch_report import DiagnosisSeries
-from thermal_twin.recording_csv import Recording, column_kind, error_unit
+from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
 
 CORRELATED_NOTE = ("Candidate effects whose fitted output changes are nearly collinear on this "
                    "recording cannot be told apart by any fit; they are listed under "

@@ -38,7 +38,7 @@ from thermal_twin.inputs_timeline import timeline_from_recording
 from thermal_twin.machine_schema import MachineSpecError, load_machine
 from thermal_twin.mismatch_effects import Candidate
 from thermal_twin.mismatch_twin_eval import expected_outputs
-from thermal_twin.recording_csv import Recording
+from thermal_comp_common.recording_csv import Recording
 
 BIC_THRESHOLD = -2.0
 

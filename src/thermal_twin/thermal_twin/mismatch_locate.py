@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from .mismatch_statistics import fill_gaps, is_speed_like
+from thermal_twin.mismatch_statistics import fill_gaps, is_speed_like
 
 
 def noise_sigma(x: np.ndarray) -> float:

@@ -5,7 +5,7 @@ import pathlib
 
 import numpy as np
 
-from thermal_twin.recording_csv import Recording, error_unit
+from thermal_comp_common.recording_csv import Recording, error_unit
 
 
 def plot_recording(rec: Recording, path: str | pathlib.Path, title: str = "") -> pathlib.Path:

@@ -12,7 +12,7 @@ import sys
 from thermal_twin.inputs_timeline import TimelineError
 from thermal_twin.machine_schema import MachineSpecError, load_machine
 from thermal_twin.presets import preset_names
-from thermal_twin.recording_csv import RecordingError, write_recording_csv
+from thermal_comp_common.recording_csv import RecordingError, write_recording_csv
 from thermal_twin.scenarios import SCENARIOS, ScenarioError, make_timeline
 from thermal_twin.simulate import simulate
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from thermal_twin.inputs_timeline import InputsTimeline
 from thermal_twin.machine_schema import Machine, load_machine
-from thermal_twin.recording_csv import Recording
+from thermal_comp_common.recording_csv import Recording
 from thermal_twin.sensor_model import SensorBank
 from thermal_twin.thermal_network import ThermalNetwork
 from thermal_twin.thermo_elastic import ErrorMap

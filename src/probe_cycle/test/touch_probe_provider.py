@@ -1,0 +1,81 @@
+"""Test-side TouchProbe provider: the ``twin/touch_probe`` service on the artefact model.
+
+A stand-in for machine_sim in the probe tests. Its simulated clock starts at ``t0_s``,
+and each request advances it by the request's ``duration_s``; the answer is taken at the
+end of the move. The true errors are ``errors_before`` (JSON) until ``step_time_s`` and
+``errors_after`` from then on. Run: ``python touch_probe_provider.py --ros-args -p ...``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+
+import numpy as np
+from rclpy.node import Node
+
+from thermal_comp_common.node_runtime import (SERVICE_TOUCH_PROBE, Param, declare_parameters,
+                                       run_node, s_to_stamp)
+from thermal_comp_msgs.srv import TouchProbe
+from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, touch_trigger_position
+
+
+class TouchProbeProvider(Node):
+    def __init__(self, context=None):
+        super().__init__("touch_probe_provider", context=context)
+        p = declare_parameters(self, [
+            Param("errors_before", "{}", "true errors (JSON) before step_time_s"),
+            Param("errors_after", "{}", "true errors (JSON) from step_time_s on"),
+            Param("step_time_s", 1e9, "simulated instant of the error step, s"),
+            Param("t0_s", 1000.0, "simulated time at start, s"),
+            Param("axis_resolution_um", 1.0, "probe readout resolution, um", 0.0, 10.0),
+            Param("seed", -1, "probe scatter seed; -1 = no scatter"),
+        ])
+        self.before = json.loads(p["errors_before"])
+        self.after = json.loads(p["errors_after"])
+        self.step = p["step_time_s"]
+        self.t = p["t0_s"]
+        self.geometry = dataclasses.replace(
+            DEFAULT_GEOMETRY, probe=dataclasses.replace(DEFAULT_GEOMETRY.probe,
+                                                        axis_resolution_um=p["axis_resolution_um"]))
+        self.rng = np.random.default_rng(p["seed"]) if p["seed"] >= 0 else None
+        self.requests = 0
+        self.create_service(TouchProbe, SERVICE_TOUCH_PROBE, self._serve)
+        self.get_logger().info("touch probe provider ready")
+
+    def _serve(self, req, res):
+        self.t += req.duration_s
+        self.requests += 1
+        errors = self.before if self.t < self.step else self.after
+        try:
+            ok, pos = touch_trigger_position(req.artefact, req.c_axis_deg, req.b_axis_deg,
+                                             np.array(req.start_mm), np.array(req.direction),
+                                             req.max_travel_mm, errors, {}, self.geometry,
+                                             self.rng)
+        except ValueError as exc:
+            res.triggered, res.message = False, str(exc)
+            pos = np.array(req.start_mm)
+        else:
+            res.triggered = bool(ok)
+        res.trigger_position_mm = [float(v) for v in pos]
+        res.stamp = s_to_stamp(self.t)
+        return res
+
+
+if __name__ == "__main__":
+    sys.exit(run_node(TouchProbeProvider))
+
+
+def stop_processes(procs) -> None:
+    """Terminate test processes (kill after 10 s) and print their output (pytest shows it
+    when a test failed)."""
+    import subprocess
+    for p in procs:
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+        print(p.stdout.read())

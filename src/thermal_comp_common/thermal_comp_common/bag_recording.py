@@ -1,0 +1,99 @@
+"""A recorded bag as a :class:`~thermal_comp_common.recording_csv.Recording` (no rclpy).
+
+Replay, regression, evaluation and the mismatch finder all read bags through this one
+conversion: one row per temperature instant, machine inputs and error components aligned
+to it.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from thermal_comp_common import msg_definitions
+from thermal_comp_common.bag_reader import BagContents
+from thermal_comp_common.machine_inputs import machine_state_inputs
+from thermal_comp_common.recording_csv import Recording
+
+
+class BagRecordingError(ValueError):
+    """The bag cannot be turned into a recording; the message names the bag and topic."""
+
+
+def _topic(contents: BagContents, rel: str) -> str:
+    want = "/" + rel.strip("/")
+    matches = [t for t in contents.topics if t == want or t.endswith(want)]
+    if len(matches) != 1:
+        raise BagRecordingError(f"{contents.path}: topic '{rel}': found {matches or 'none'} "
+                              f"among {sorted(contents.topics)}")
+    return matches[0]
+
+
+def bag_to_recording(contents: BagContents, temperatures_topic: str = "temperatures",
+                     errors_topic: str = "errors/ground_truth") -> Recording:
+    """The bag as a :class:`Recording` at the temperature instants.
+
+    Columns: ``<sensor>_c`` (status other than OK -> NaN, as the node passes them), machine
+    inputs (last machine state at or before the instant), error components at the same
+    stamp (``E_*`` as is, others ``<name>_um``; NaN when none was published then). An
+    instant published twice (machine_sim re-sends one whose acknowledgements are late) is
+    one row: the later message.
+    """
+    store = msg_definitions.typestore()
+    t_topic = _topic(contents, temperatures_topic)
+    e_topic = _topic(contents, errors_topic)
+    s_topics = [t for t in contents.topics if t.endswith("/machine_state")]
+    rows: list[tuple[float, dict[str, float]]] = []
+    state: dict[str, float] = {}
+    errors_at: dict[int, dict[str, float]] = {}
+    for m in contents.messages:
+        if m.topic == e_topic:
+            msg = store.deserialize_cdr(m.data, m.type)
+            errors_at[m.log_time_ns] = {
+                (c if c.startswith("E_") else f"{c}_um"): float(v)
+                for c, v in zip(msg.component_names, msg.values)}
+    for m in contents.messages:
+        if m.topic in s_topics:
+            state = machine_state_inputs(store.deserialize_cdr(m.data, m.type))
+        elif m.topic == t_topic:
+            msg = store.deserialize_cdr(m.data, m.type)
+            row = {f"{sid}_c": (float(v) if int(st) == 0 else math.nan)
+                   for sid, v, st in zip(msg.sensor_ids, msg.temperatures_degc, msg.status)}
+            row.update(state)
+            row.update(errors_at.get(m.log_time_ns, {}))
+            t = m.log_time_ns / 1e9
+            if rows and rows[-1][0] == t:   # an instant re-sent by machine_sim: one row per instant
+                rows[-1] = (t, row)
+            else:
+                rows.append((t, row))
+    if not rows:
+        raise BagRecordingError(f"{contents.path}: no messages on {t_topic}")
+    names: list[str] = []
+    for _, row in rows:
+        names += [k for k in row if k not in names]
+    cols = {n: np.array([row.get(n, math.nan) for _, row in rows]) for n in names}
+    return Recording(np.array([t for t, _ in rows]), cols, source=str(contents.path))
+
+
+def load_recording(path, temperatures_topic: str = "temperatures",
+                   errors_topic: str = "errors/ground_truth") -> Recording:
+    """A recording CSV, or a bag folder / ``.mcap`` file turned into the same columns.
+
+    A damaged bag is read up to the damage, with a warning in ``Recording.warnings``.
+    Raises ``FileNotFoundError`` for a missing path and ``ValueError`` (naming the file,
+    column or topic) for content that cannot be read.
+    """
+    import pathlib
+
+    from thermal_comp_common.bag_reader import read_bag
+    from thermal_comp_common.recording_csv import read_recording_csv
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"recording {str(path)!r}: no such file or folder")
+    if path.is_file() and path.suffix.lower() == ".csv":
+        return read_recording_csv(path)
+    contents = read_bag(path)
+    rec = bag_to_recording(contents, temperatures_topic, errors_topic)
+    if contents.damage:
+        rec.warnings.append(f"{path}: damaged bag, read up to the damage: {contents.damage}")
+    return rec

@@ -1,0 +1,43 @@
+"""ament_python package thermal_eval (also installs editable into the repo's venv via setup.sh)."""
+from setuptools import find_packages, setup
+
+PACKAGE = "thermal_eval"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    package_data={PACKAGE: ["**/*.yaml", "**/*.csv", "**/*.json"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="thermal-comp developers",
+    maintainer_email="thermal-comp@example.org",
+    description="Evaluation of thermal-comp: benchmarks, dataset loaders, replay, sweeps, virtual experiments, fault injection.",
+    license="Apache-2.0",
+    entry_points={
+        # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
+        # "name = module:function" where function(argv: list[str]) -> int.
+        "thermal_comp.commands": [
+            "bench = thermal_eval.bench:main",
+            "replay = thermal_eval.replay_cli:main",
+            "sweep = thermal_eval.sweep_cli:main",
+        ],
+        # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
+        "thermal_comp.bench": [
+            "bags = thermal_eval.bench_bags:run",
+            "bridge = thermal_eval.bench_bridge:run",
+            "diagnose = thermal_eval.bench_diagnose:run",
+            "faults = thermal_eval.bench_faults:run",
+            "fl-thermal = thermal_eval.fl_thermal_benchmark:run",
+            "model = thermal_eval.bench_model:run",
+            "models = thermal_eval.bench_sweep:run",
+            "probe = thermal_eval.bench_probe:run",
+            "sensors = thermal_eval.bench_sensors:run",
+            "twin = thermal_eval.bench_twin:run",
+        ],
+    },
+)

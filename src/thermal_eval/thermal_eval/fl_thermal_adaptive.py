@@ -1,0 +1,218 @@
+"""Adaptive models on FL_THERMAL: TALC and AGP with one probing every 2 h after calibration.
+
+``talc`` (and its variants ``talc_acl5``, ``talc_spindle``, ``talc_spindle_acl5``):
+TALC's ARX calibrated on the training rows 0..6668 (the authors' protocol; Q_prod charges one
+probing per 5-min grid sample of them), then one probing of the five channels every 2 h and
+no-good phases, each probing updating the model's state
+(:mod:`thermal_eval.fl_thermal_calibrated_talc`, :mod:`thermal_eval.fl_thermal_probe_update`; the
+rule that picks every hyper-parameter on the training rows is stated there). The action-control
+limit is the user's tolerance: ``talc`` uses 1 um (the issue's target), ``talc_acl5`` the
+thesis's 5 um; ``*_spindle*`` add the spindle speed (known to the CNC) as an ARX input and
+``*_load_probing`` also probe densely after every spindle-speed change (12 x 10 min, like a
+no-good phase); both are reported separately.
+
+``talc_own_cp``, ``agp`` and ``agp_load_probing`` (plus dense probing after every
+spindle-speed change, :mod:`thermal_eval.fl_thermal_load_probing`; reported separately) replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
+and see a displacement only when their own schedule probes: TALC in its calibration phase
+(every 5 min + 95 s), then every 2 h (``post_cp_interval_h = 2``) and in its no-good phases
+(12 probes every 10 min); the AGP in its calibration phase (every 6 min, >= 4 h), then every
+2 h as a control measurement (``control_interval_s = 7200``) and whenever its predictive std
+exceeds sigma_max (recalibration). Q_prod charges 95 s per probing.
+
+Configuration, fixed without the test rows:
+
+- ``talc_own_cp`` (TALC from row 0) identifies ARX models whose calibration phase needs sum-of-orders measurements, so 16
+  correlated temperatures (16 x 10 input lags) are not practical; its inputs are the medoid
+  sensors of k-means groups of the *training-row temperatures* (z-scored series, as the AGP
+  groups sensors), and the number of groups is chosen from ``TALC_GROUP_CANDIDATES`` by
+  replaying TALC over the training rows only and scoring, like the open-loop walk-forward,
+  the mean MAE over channels on the second half of the training rows. Everything a TALC
+  prediction is scored on was predicted before the probe that measured it.
+- AGP: all 16 temperatures (ARD length scales weigh them); expected maximum error (sigma_max is
+  10 % of it) = the largest |displacement| of the training rows, rounded up to 10 um.
+
+No rclpy here.
+"""
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits, mae
+
+#: One probing every 2 h after calibration (issue 10); 95 s per probing for Q_prod.
+PROBE_INTERVAL_S = 7200.0
+PROBE_DURATION_S = 95.0
+#: Numbers of sensor groups tried for TALC's inputs (one medoid sensor per group).
+TALC_GROUP_CANDIDATES = (2, 3, 4, 6, 8, 10, 12)
+
+
+def sensor_medoids(temperatures: np.ndarray, n_groups: int, names: Sequence[str] = SENSORS,
+                   seed: int = 0) -> list[str]:
+    """One representative sensor per k-means group of the z-scored temperature series.
+
+    The medoid is the member closest to its group centre; returned in sensor order.
+    """
+    from sklearn.cluster import KMeans
+    from threadpoolctl import threadpool_limits
+    T = np.asarray(temperatures, dtype=float)
+    if T.ndim != 2 or T.shape[1] != len(names):
+        raise FlThermalError(f"temperatures: shape {T.shape} does not match {len(names)} sensor names")
+    if not 1 <= n_groups <= T.shape[1]:
+        raise FlThermalError(f"n_groups: {n_groups!r} must be in 1..{T.shape[1]}")
+    sd = T.std(axis=0)
+    z = ((T - T.mean(axis=0)) / np.where(sd > 1e-12, sd, 1.0)).T     # sensors x time
+    with threadpool_limits(1):
+        km = KMeans(n_clusters=n_groups, n_init=10, random_state=seed).fit(z)
+    picks = []
+    for g in range(n_groups):
+        idx = np.flatnonzero(km.labels_ == g)
+        picks.append(int(idx[np.argmin(np.sum((z[idx] - km.cluster_centers_[g]) ** 2, axis=1))]))
+    return [names[i] for i in sorted(picks)]
+
+
+def _columns():
+    from thermal_eval.virtual_experiment import ReplayColumns
+    return ReplayColumns(sensors={s: f"{s}_c" for s in SENSORS}, inputs={SPINDLE_COLUMN: SPINDLE_COLUMN},
+                         errors={c: f"{c}_um" for c in CHANNELS})
+
+
+def talc_config(inputs: Sequence[str]) -> dict[str, Any]:
+    return {"component_names": list(CHANNELS), "angular_components": [], "input_names": list(inputs),
+            "post_cp_interval_h": PROBE_INTERVAL_S / 3600.0, "probe_duration_s": PROBE_DURATION_S}
+
+
+def select_talc_inputs(data: FlThermalData, splits: Splits, candidates: Sequence[int] = TALC_GROUP_CANDIDATES,
+                       overrides: Mapping[str, Any] | None = None, show_progress: bool = True
+                       ) -> tuple[list[str], dict[str, float]]:
+    """TALC inputs chosen on the training rows only (see the module docstring)."""
+    from tqdm import tqdm
+    from talc_model.adaptive_model import make_model
+    from thermal_eval.virtual_experiment import run_virtual_experiment
+    n = splits.n_train
+    train_T = data.temperatures[:n]
+    scores: dict[str, float] = {}
+    best: tuple[float, list[str]] = (math.inf, [])
+    for k in tqdm(list(candidates), desc="TALC inputs (training rows)", disable=not show_progress, leave=False):
+        inputs = sensor_medoids(train_T, int(k))
+        cfg = {**talc_config(inputs), **dict(overrides or {})}
+        res = run_virtual_experiment(data.recording, make_model("talc", cfg), columns=_columns(),
+                                     probed_components=list(CHANNELS), stop=n, compute_metrics=False)
+        half = slice(n // 2, n)
+        score = float(np.mean([mae(data.displacement_um[c][half],
+                                   np.where(np.isfinite(res.predicted[c]), res.predicted[c], 0.0)[half])
+                               for c in CHANNELS]))
+        scores[f"k={k}:" + ",".join(inputs)] = round(score, 3)
+        if score < best[0]:
+            best = (score, inputs)
+    if not best[1]:
+        raise FlThermalError(f"TALC input candidates {list(candidates)!r}: none could be scored")
+    return best[1], scores
+
+
+#: name -> (action-control limit in um, spindle speed as an ARX input, dense probing after every
+#: spindle-speed change) of the calibrated TALC variants.
+CALIBRATED_TALC_VARIANTS: dict[str, tuple[float, bool, bool]] = {
+    "talc": (1.0, False, False), "talc_acl5": (5.0, False, False),
+    "talc_spindle": (1.0, True, False), "talc_spindle_acl5": (5.0, True, False),
+    "talc_load_probing": (1.0, False, True), "talc_spindle_load_probing": (1.0, True, True),
+}
+
+
+def run_calibrated_talc_variants(data: FlThermalData, splits: Splits, *, variants: Sequence[str] | None = None,
+                                 group_candidates: Sequence[int] | None = None, show_progress: bool = True,
+                                 **selection) -> tuple[dict, dict[str, dict[str, np.ndarray]], dict[str, list[int]]]:
+    """Figures, compensation per channel and probe rows of each calibrated TALC variant."""
+    from tqdm import tqdm
+    from thermal_eval.fl_thermal_calibrated_talc import (GROUP_CANDIDATES, calibrated_talc_figures,
+                                                       run_calibrated_talc)
+    from thermal_eval.fl_thermal_probe_update import ProbeSchedule
+    names = list(variants) if variants is not None else list(CALIBRATED_TALC_VARIANTS)
+    unknown = sorted(set(names) - set(CALIBRATED_TALC_VARIANTS))
+    if unknown:
+        raise FlThermalError(f"variants: {unknown} are not calibrated TALC variants ({sorted(CALIBRATED_TALC_VARIANTS)})")
+    groups = tuple(group_candidates or GROUP_CANDIDATES)
+    cache: dict = {}
+    figures: dict[str, Any] = {}
+    comp: dict[str, dict[str, np.ndarray]] = {}
+    probes: dict[str, list[int]] = {}
+    with tqdm(total=len(names) * len(CHANNELS), desc="adaptive TALC (calibrated on the training rows)",
+              unit="channel", disable=not show_progress, leave=False) as bar:
+        for name in names:
+            acl, spindle, load_probing = CALIBRATED_TALC_VARIANTS[name]
+            t0 = time.perf_counter()
+            schedule = ProbeSchedule(probe_interval_s=PROBE_INTERVAL_S, probe_duration_s=PROBE_DURATION_S,
+                                     acl_um=acl)
+            res = run_calibrated_talc(data, splits, schedule, with_spindle=spindle, group_candidates=groups,
+                                      load_probing=load_probing, arx_cache=cache, progress=bar.update, **selection)
+            figures[name] = calibrated_talc_figures(data, splits, res)
+            figures[name]["spindle_input"] = spindle
+            figures[name]["probing_after_load_changes"] = load_probing
+            figures[name]["run_s"] = round(time.perf_counter() - t0, 1)
+            comp[name] = res.compensation
+            probes[name] = list(res.probe_rows)
+    return figures, comp, probes
+
+
+def adaptive_configs(data: FlThermalData, splits: Splits, talc_inputs: Sequence[str],
+                     agp_load_probing: bool = False) -> dict[str, tuple[str, dict]]:
+    """name -> (kind, config) of the replayed adaptive models (``agp_load_probing``: also the AGP
+    with dense probing after load changes; each extra probing may re-optimise the GP, which makes
+    that replay take many minutes)."""
+    max_err = max(float(np.max(np.abs(data.displacement_um[c][:splits.n_train]))) for c in CHANNELS)
+    max_err = 10.0 * math.ceil(max(max_err, 1e-9) / 10.0)
+    agp = {"components": list(CHANNELS), "sensors": list(SENSORS), "control_interval_s": PROBE_INTERVAL_S,
+           "probe_duration_s": PROBE_DURATION_S, "max_expected_error_um": max_err}
+    configs = {"talc_own_cp": ("talc", talc_config(talc_inputs)), "agp": ("agp", agp)}
+    if agp_load_probing:
+        configs["agp_load_probing"] = ("agp", dict(agp))
+    return configs
+
+
+#: replayed models whose schedule also probes densely after every spindle-speed change
+#: (:class:`thermal_eval.fl_thermal_load_probing.LoadDrivenProbing`, same phase as TALC's NG phase)
+LOAD_PROBING_REPLAYS = ("agp_load_probing",)
+
+
+def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tuple[str, dict]],
+                 show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]], dict[str, list[int]]]:
+    """Replay the whole recording through each adaptive model; MAE of the compensation per split."""
+    from talc_model.adaptive_model import make_model
+    from thermal_eval.virtual_experiment import run_virtual_experiment
+    figures: dict[str, Any] = {}
+    predictions: dict[str, dict[str, np.ndarray]] = {}
+    probe_rows: dict[str, list[int]] = {}
+    from thermal_eval.fl_thermal_load_probing import LoadDrivenProbing
+    for name, (kind, cfg) in configs.items():
+        model = make_model(kind, cfg)
+        if name in LOAD_PROBING_REPLAYS:
+            model = LoadDrivenProbing(model, load_key=SPINDLE_COLUMN, probe_duration_s=PROBE_DURATION_S)
+        t0 = time.perf_counter()
+        res = run_virtual_experiment(data.recording, model, columns=_columns(), probed_components=list(CHANNELS),
+                                     progress=show_progress, compute_metrics=False)
+        wall = time.perf_counter() - t0
+        fig: dict[str, Any] = {}
+        predictions[name] = {}
+        for ch in CHANNELS:
+            comp = np.where(np.isfinite(res.predicted[ch]), res.predicted[ch], 0.0)
+            predictions[name][ch] = comp
+            true = data.displacement_um[ch]
+            fig[ch] = {"mae_um": round(mae(true[splits.test], comp[splits.test]), 3),
+                       "mae_validation_um": round(mae(true[splits.validation], comp[splits.validation]), 3)}
+        probes = np.asarray(res.probe_times_s)
+        probe_rows[name] = [int(r) for r in np.searchsorted(data.time_s, probes)]
+        fig["q_prod_pct"] = round(float(res.final_status["q_prod_pct"]), 2)
+        fig["probing_cycles"] = int(probes.size)
+        fig["probing_cycles_test_rows"] = int(np.sum((probes >= data.time_s[splits.n_train]) &
+                                                    (probes < data.time_s[splits.test_end])))
+        after_cal = np.flatnonzero(np.asarray(res.phase) != "calibration")
+        fig["calibration_end_h"] = round(float(data.time_s[after_cal[0]] / 3600.0), 2) if after_cal.size else None
+        fig["no_good_phases"] = int(res.final_status.get("no_good_phases", 0))
+        fig["parameter_updates"] = int(res.final_status.get("parameter_updates", 0))
+        fig["replay_s"] = round(wall, 1)
+        fig["load_change_phases"] = int(getattr(model, "load_phases", 0))
+        figures[name] = fig
+    return figures, predictions, probe_rows

@@ -1,0 +1,122 @@
+"""The FL_THERMAL recording as the benchmark uses it: import, checks, the authors' split.
+
+``shared/data/fl_thermal/fl_thermal.csv`` (MIT, CAIVIAC/FL_THERMAL; README and LICENSE beside
+it): 11,115 rows at 15 s, spindle speed, 5 displacement channels (um), 16 temperatures.
+Displacements are taken relative to the first row. The authors split the rows
+chronologically: first 60 % train (rows 0-6668), next 20 % test (6669-8891), last 20 %
+validation (8892-11114). No rclpy here.
+"""
+from __future__ import annotations
+
+import math
+import os
+import pathlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
+SENSORS = tuple(f"t{i}" for i in range(1, 17))
+SPINDLE_COLUMN = "spindle_rpm"
+TRAIN_FRACTION = 0.6
+TEST_FRACTION = 0.2
+
+class FlThermalError(ValueError):
+    """Bad benchmark input; the message names the file, column or option and its value."""
+
+
+def default_csv_path() -> pathlib.Path:
+    """``$THERMAL_COMP_SHARED/data/fl_thermal/fl_thermal.csv``, else ``shared/`` beside the repository."""
+    env = os.environ.get("THERMAL_COMP_SHARED")
+    shared = pathlib.Path(env) if env else pathlib.Path(__file__).resolve().parents[3].parent / "shared"
+    return shared / "data" / "fl_thermal" / "fl_thermal.csv"
+
+
+@dataclass
+class FlThermalData:
+    """The recording as the benchmark uses it (displacements relative to the first row)."""
+
+    recording: Any                      # thermal_comp_common.recording_csv.Recording (for the replay)
+    time_s: np.ndarray
+    temperatures: np.ndarray            # N x 16, degC, columns SENSORS
+    spindle_rpm: np.ndarray
+    displacement_um: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return int(self.time_s.size)
+
+
+def load_fl_thermal(path: str | pathlib.Path | None = None, rows: int | None = None,
+                    every: int = 1) -> FlThermalData:
+    """Read the FL_THERMAL CSV; optionally its first ``rows`` rows, every ``every``-th row."""
+    from thermal_comp_common.recording_csv import read_recording_csv
+    path = pathlib.Path(path) if path is not None else default_csv_path()
+    if not isinstance(every, int) or every < 1:
+        raise FlThermalError(f"every: {every!r} must be an integer >= 1")
+    if rows is not None and (not isinstance(rows, int) or rows < 50):
+        raise FlThermalError(f"rows: {rows!r} must be an integer >= 50")
+    rec = read_recording_csv(path)
+    needed = [SPINDLE_COLUMN] + [f"{c}_um" for c in CHANNELS] + [f"{s}_c" for s in SENSORS]
+    missing = [c for c in needed if c not in rec.columns]
+    if missing:
+        raise FlThermalError(f"{path}: column(s) {missing} missing (have {sorted(rec.columns)})")
+    for c in needed:
+        bad = np.flatnonzero(~np.isfinite(rec.columns[c]))
+        if bad.size:
+            raise FlThermalError(f"{path}: column '{c}': row {int(bad[0])} is {rec.columns[c][bad[0]]!r} "
+                                 f"({bad.size} non-finite values); the benchmark needs complete rows")
+    stop = len(rec) if rows is None else min(rows, len(rec))
+    idx = np.arange(0, stop, every)
+    sub = type(rec)(rec.time_s[idx].copy(), {k: v[idx].copy() for k, v in rec.columns.items() if k in needed},
+                    source=rec.source, warnings=list(rec.warnings))
+    if len(sub) < 50:
+        raise FlThermalError(f"rows/every: only {len(sub)} rows left, need >= 50")
+    disp = {c: sub.columns[f"{c}_um"] - sub.columns[f"{c}_um"][0] for c in CHANNELS}
+    temps = np.column_stack([sub.columns[f"{s}_c"] for s in SENSORS])
+    return FlThermalData(sub, sub.time_s, temps, sub.columns[SPINDLE_COLUMN].copy(), disp)
+
+
+@dataclass(frozen=True)
+class Splits:
+    """Chronological row ranges: train [0, n_train), test [n_train, test_end), validation [test_end, n)."""
+
+    n_train: int
+    test_end: int
+    n: int
+
+    @classmethod
+    def authors(cls, n: int) -> "Splits":
+        """60 / 20 / 20 % as the authors cut it (11115 rows: 6669 / 8892)."""
+        n_train = int(TRAIN_FRACTION * n)
+        test_end = int((TRAIN_FRACTION + TEST_FRACTION) * n)
+        if not 0 < n_train < test_end < n:
+            raise FlThermalError(f"rows: {n} rows cannot be split 60/20/20")
+        return cls(n_train, test_end, n)
+
+    @property
+    def test(self) -> slice:
+        return slice(self.n_train, self.test_end)
+
+    @property
+    def validation(self) -> slice:
+        return slice(self.test_end, self.n)
+
+
+def walk_forward_fold_rows(fold_starts, n: int) -> list[int]:
+    """Row k of each walk-forward fold inside ``n`` training rows: calibrate on rows 0..k-1,
+    replay k..n-1; each fold must leave >= 40 calibration and >= 20 replay rows."""
+    rows = []
+    for f in fold_starts:
+        k = int(f * n)
+        if k < 40 or n - k < 20:
+            raise FlThermalError(f"fold_starts: {f!r} of {n} training rows leaves calibration {k} / replay "
+                                 f"{n - k} rows (need >= 40 / 20)")
+        rows.append(k)
+    return rows
+
+
+def mae(true: np.ndarray, pred: np.ndarray) -> float:
+    """Mean absolute error over samples where both are finite."""
+    ok = np.isfinite(true) & np.isfinite(pred)
+    return float(np.mean(np.abs(true[ok] - pred[ok]))) if ok.any() else math.nan
