@@ -31,11 +31,9 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
+from thermal_comp_common.components import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, LINEAR_COMPONENTS
 
 #: The seven C-axis / table errors of a 5-axis machine, in the order of the thesis.
-FIVE_AXIS_COMPONENTS = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C")
-LINEAR_COMPONENTS = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T")     # um
-ANGULAR_COMPONENTS = ("E_A0C", "E_B0C", "E_C0C")             # um/m
 #: Axes the 5-axis offsets are written to (B and C are not compensated: their 0.001 deg
 #: command resolution, ~17.5 um/m, is of the order of the angular errors themselves).
 FIVE_AXIS_OFFSET_AXES = ("X", "Y", "Z")

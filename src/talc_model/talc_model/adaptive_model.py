@@ -29,6 +29,7 @@ import importlib
 import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Mapping, Protocol, runtime_checkable
+from thermal_comp_common.components import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, is_angular  # noqa: F401 (re-exported)
 
 #: Phases reported in :attr:`ModelStatusData.phase` (ModelStatus.PHASE_* in the message).
 PHASE_CALIBRATION = "calibration"
@@ -37,14 +38,8 @@ PHASE_NO_GOOD = "no_good"
 PHASES = (PHASE_CALIBRATION, PHASE_COMPENSATION, PHASE_NO_GOOD)
 
 #: The seven thermal location errors of the C axis / table (Blaser thesis §0, Table 5.2).
-FIVE_AXIS_COMPONENTS = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C")
+
 #: Components measured in um/m (all others in um).
-ANGULAR_COMPONENTS = ("E_A0C", "E_B0C", "E_C0C")
-
-
-def is_angular(component: str) -> bool:
-    """True for angular location errors (um/m), False for linear ones (um)."""
-    return component in ANGULAR_COMPONENTS
 
 
 @dataclass

@@ -30,6 +30,7 @@ import numpy as np
 
 from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION, ModelStatusData, register_model
 from talc_model.characteristic_diagram import CharacteristicDiagram, forward_selection, load_case_update
+from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 
 class CdModelError(ValueError):
@@ -38,8 +39,7 @@ class CdModelError(ValueError):
 
 @dataclass
 class CdConfig:
-    components: list[str] = field(default_factory=lambda: ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T",
-                                                           "E_A0C", "E_B0C", "E_C0C"])
+    components: list[str] = field(default_factory=lambda: list(FIVE_AXIS_COMPONENTS))
     sensors: list[str] | None = None          # None: all temperatures seen at the first update
     use_gradients: bool = True
     gradient_window_s: float = 600.0

@@ -37,6 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial.distance import pdist
+from thermal_comp_common.metrics import rmse
 
 
 class CharacteristicDiagramError(ValueError):
@@ -241,13 +242,6 @@ class CharacteristicDiagram:
             raise CharacteristicDiagramError(f"characteristic diagram state: 'coef' has {cd.coef_.size} "
                                              f"values, grid has {int(np.prod(cd.shape_))} vertices")
         return cd
-
-
-def rmse(a, b) -> float:
-    """Root-mean-square difference over the finite pairs (the CD papers' error norm)."""
-    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-    d = d[np.isfinite(d)]
-    return float(np.sqrt(np.mean(d ** 2))) if d.size else math.nan
 
 
 def fit_with_grid_refinement(u, y, u_val, y_val, *, start_intervals: int = 1, max_intervals: int = 32,

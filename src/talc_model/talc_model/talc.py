@@ -58,7 +58,7 @@ from talc_model.adaptive_model import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS,
                              PHASE_COMPENSATION, PHASE_NO_GOOD, ModelStatusData, register_model)
 from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, check_full_rank, fit_arx, regression_matrix
 from talc_model.blas_threads import single_thread_blas
-from talc_model.metrics import q_prod
+from thermal_comp_common.metrics import q_prod
 from talc_model.order_selection import CRITERIA, select_orders
 
 STATE_VERSION = 1

@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 #: Published results the demo is compared with (Blaser thesis, Tables 6.5 and 6.7; P99).
 THESIS_TABLES = {
@@ -52,7 +53,7 @@ MACHINES: dict[str, dict[str, Any]] = {
     "nmv5000": {"scenario": "talc-178h-dry", "model_kind": "talc", "artefact": "sphere",
                 "sensor_config": "nmv5000", "step_s": 300.0, "compensation_mode": "kinematic",
                 "model_config": "talc_nmv5000.yaml",
-                "offset_axes": ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]},
+                "offset_axes": list(FIVE_AXIS_COMPONENTS)},
     "swiss-lathe": {"scenario": "lathe-random-speed", "model_kind": "agp", "artefact": "guide_bush",
                     "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB",
                     "offset_axes": ["GB_X"]},
@@ -448,7 +449,7 @@ def evaluation_start_s(series: DemoSeries) -> float:
 
 
 def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> dict[str, Any]:
-    from talc_model import metrics
+    from thermal_comp_common import metrics
     comp = compensation_in_effect(series)
     t_eval = evaluation_start_s(series)
     window = series.t_true >= t_eval

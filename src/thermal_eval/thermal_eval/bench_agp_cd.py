@@ -100,7 +100,7 @@ def agp_cases(quick: bool, out_dir: pathlib.Path | None, progress) -> dict[str, 
 def agp_multi_tcp(quick: bool, progress) -> dict[str, Any]:
     """Offset models from the random-speed training test, applied to the test-piece run."""
     from talc_model.agp import AdaptiveGaussianProcess, OffsetModel
-    from talc_model.metrics import rms_reduction
+    from thermal_comp_common.metrics import rms_reduction
     from thermal_eval.virtual_experiment import run_virtual_experiment
     train = _recording("swiss_lathe", "lathe-random-speed", hours=24.0 if quick else None)
     temps = {c[:-2]: train.columns[c] for c in train.names("sensor")}
@@ -178,7 +178,7 @@ def _cd_inputs(rec, stride: int) -> tuple[np.ndarray, list[str]]:
 
 def cd_load_cases(quick: bool, progress) -> dict[str, Any]:
     from talc_model.characteristic_diagram import CharacteristicDiagram, forward_selection, load_case_update, rmse
-    from talc_model.metrics import p99, p99_group
+    from thermal_comp_common.metrics import p99, p99_group
     stride = 10                               # 10 min between samples (60 s recordings)
     hours = 48.0 if quick else None
     train = _recording("nmv5000", CD_TRAIN_CASE, hours=hours)
@@ -228,7 +228,7 @@ def cd_model_cases(quick: bool, progress) -> dict[str, Any]:
     """The adaptive CD model (kind "cd", default configuration) replayed on load-case-A..D:
     P99_lin (um) and Q_prod as the TALC figures are reported (virtual experiment)."""
     from talc_model.cd_model import CharacteristicDiagramModel
-    from talc_model.metrics import p99, p99_group
+    from thermal_comp_common.metrics import p99, p99_group
     from thermal_eval.virtual_experiment import run_virtual_experiment
     out: dict[str, Any] = {}
     for case in (CD_TRAIN_CASE,) + CD_CASES:

@@ -26,10 +26,11 @@ import threading
 import time
 
 import numpy as np
+from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 STEP_S = 60.0
 N_SENSORS = 16
-COMPONENTS = ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]
+COMPONENTS = list(FIVE_AXIS_COMPONENTS)
 
 
 def synthetic_stream(instants: int, seed: int = 0) -> list[tuple[str, str, int, bytes]]:

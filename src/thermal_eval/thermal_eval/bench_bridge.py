@@ -29,6 +29,7 @@ import numpy as np
 from cnc_bridge.cnc_emulator import ENDPOINT_PATH, free_tcp_port
 from cnc_bridge.error_transform import five_axis_offsets_um
 from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
+from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 
 def _start_emulator(port: int, extra: list[str]) -> subprocess.Popen:
@@ -48,7 +49,7 @@ def _measure(backend, n: int, label: str) -> np.ndarray:
     env = SafetyEnvelope(EnvelopeConfig(abs_limit_um=50.0, max_rate_um_per_s=5.0, max_step_s=1.0))
     lat = np.empty(n)
     for k in tqdm(range(n), desc=f"bridge latency ({label})", unit="write", leave=False):
-        errors = dict(zip(("E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"),
+        errors = dict(zip(FIVE_AXIS_COMPONENTS,
                           rng.normal(0.0, 5.0, 7)))
         pos = rng.uniform(-300.0, 300.0, 3)
         t0 = time.perf_counter()                       # the prediction arrives
@@ -100,7 +101,7 @@ def _measure_node(n: int) -> np.ndarray:
                 raise RuntimeError(f"bench bridge: timed out waiting for {what}")
             ex.spin_once(timeout_sec=0.01)
     rng = np.random.default_rng(1)
-    names = ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]
+    names = list(FIVE_AXIS_COMPONENTS)
     lat = []
     try:
         spin_until(lambda: pub.get_subscription_count() > 0 and sub.get_publisher_count() > 0,

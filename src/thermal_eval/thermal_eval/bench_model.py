@@ -36,7 +36,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from talc_model import metrics
+from thermal_comp_common import metrics
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS
 
 TALC_INPUTS = ["ambient", "ws_mwf", "c_coolant_delta"]     # the thesis's three temperatures

@@ -24,6 +24,8 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
+from thermal_comp_common import metrics
+
 FAULT_KINDS = ("nan", "out_of_range", "stuck", "spike", "disappear")
 
 
@@ -214,7 +216,7 @@ class LoopResult:
         for c in self.components:
             e = self.true[c][1:]
             p = np.nan_to_num(self.predicted[c][:-1], nan=0.0)
-            out[c] = float(np.percentile(np.abs(e - p), 99))
+            out[c] = metrics.p99(e, p)
         return out
 
 
@@ -535,7 +537,6 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
     summary = summarise(series, cfg, record)
     p99_until = None
     if p99_until_h is not None:   # compensated P99 over the instants before p99_until_h only
-        from talc_model import metrics
 
         from thermal_comp.demo import compensation_in_effect
         comp = compensation_in_effect(series)

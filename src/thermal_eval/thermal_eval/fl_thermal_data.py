@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from thermal_comp_common.metrics import mae  # noqa: F401 (the benchmark's metric, used through this module)
 
 CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
 SENSORS = tuple(f"t{i}" for i in range(1, 17))
@@ -116,7 +117,3 @@ def walk_forward_fold_rows(fold_starts, n: int) -> list[int]:
     return rows
 
 
-def mae(true: np.ndarray, pred: np.ndarray) -> float:
-    """Mean absolute error over samples where both are finite."""
-    ok = np.isfinite(true) & np.isfinite(pred)
-    return float(np.mean(np.abs(true[ok] - pred[ok]))) if ok.any() else math.nan

@@ -177,8 +177,8 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
 
 
 def q_prod_pct(n_probings: int, duration_s: float, probe_duration_s: float) -> float:
-    """Eq. 6.1 via :func:`talc_model.metrics.q_prod`: 100 (1 - N t_M / t_total)."""
-    from talc_model.metrics import q_prod
+    """Eq. 6.1 via :func:`thermal_comp_common.metrics.q_prod`: 100 (1 - N t_M / t_total)."""
+    from thermal_comp_common.metrics import q_prod
     if not duration_s > 0:
         raise ProbeUpdateError(f"duration_s: {duration_s!r} must be > 0")
     return q_prod(int(n_probings), float(duration_s), float(probe_duration_s))

@@ -23,7 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from talc_model import metrics
+from thermal_comp_common import metrics
 from talc_model.adaptive_model import PHASE_CALIBRATION, is_angular
 
 #: Probe repeatability (k = 1) of the sphere cycle, thesis Table 5.4.

@@ -75,8 +75,8 @@ class VirtualExperimentResult:
 def component_metrics(true: np.ndarray, compensation: np.ndarray) -> dict[str, float]:
     """RMS / P2P of the uncompensated and compensated error and their reductions (AGP thesis
     Eqs 4.22-4.27, on the residual) and P99 of |residual| (TALC thesis 4.30), from
-    ``talc_model.metrics`` (E = true error, E_hat = applied compensation)."""
-    from talc_model import metrics
+    ``thermal_comp_common.metrics`` (E = true error, E_hat = applied compensation)."""
+    from thermal_comp_common import metrics
     ok = np.isfinite(true) & np.isfinite(compensation)
     if not ok.any():
         return {}

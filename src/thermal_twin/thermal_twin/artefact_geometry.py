@@ -45,11 +45,11 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
+from thermal_comp_common.components import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS
 
 #: ISO 230-1 location errors of the C axis / table measured by the sphere cycle.
-SPHERE_COMPONENTS = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C")
+SPHERE_COMPONENTS = FIVE_AXIS_COMPONENTS
 #: Angular components (um/m); the others are in um.
-ANGULAR_COMPONENTS = ("E_A0C", "E_B0C", "E_C0C")
 #: Error component of the guide-bush probing (tool side vs guide bush, X direction, um).
 GUIDE_BUSH_COMPONENT = "GB_X"
 

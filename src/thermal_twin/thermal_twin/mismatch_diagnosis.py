@@ -22,6 +22,7 @@ from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
 from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, run_round
 from thermal_twin.mismatch_report import DiagnosisSeries
 from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
+from thermal_comp_common.metrics import rmse
 
 CORRELATED_NOTE = ("Candidate effects whose fitted output changes are nearly collinear on this "
                    "recording cannot be told apart by any fit; they are listed under "
@@ -72,11 +73,6 @@ def shared_channels(machine: Machine, rec: Recording) -> list[str]:
     chans = [machine.sensors[s].column for s in machine.sensors if machine.sensors[s].column in rec.columns]
     chans += [e for e in machine.errors if e in rec.columns]
     return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8]
-
-
-def _rmse(meas: np.ndarray, pred: np.ndarray) -> float:
-    ok = np.isfinite(meas)
-    return float(np.sqrt(np.mean((meas[ok] - pred[ok]) ** 2))) if ok.any() else float("nan")
 
 
 def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
@@ -173,11 +169,11 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
     for c in channels:
         i = channels.index(c)
         chan_report[c].update({
-            "rmse_before": _rmse(meas[c], y0[i]), "rmse_after": _rmse(meas[c], y1[i]),
-            "holdout_rmse_before": _rmse(meas[c][n_train:], y0[i][n_train:]),
-            "holdout_rmse_after": _rmse(meas[c][n_train:], y1[i][n_train:]),
-            "train_rmse_before": _rmse(meas[c][:n_train], y0[i][:n_train]),
-            "train_rmse_after": _rmse(meas[c][:n_train], y1[i][:n_train]),
+            "rmse_before": rmse(meas[c], y0[i]), "rmse_after": rmse(meas[c], y1[i]),
+            "holdout_rmse_before": rmse(meas[c][n_train:], y0[i][n_train:]),
+            "holdout_rmse_after": rmse(meas[c][n_train:], y1[i][n_train:]),
+            "train_rmse_before": rmse(meas[c][:n_train], y0[i][:n_train]),
+            "train_rmse_after": rmse(meas[c][:n_train], y1[i][:n_train]),
             "noise_sigma": problem.sigma[c],
         })
         chan_report[c] = {k: chan_report[c][k] for k in

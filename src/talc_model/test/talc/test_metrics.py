@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from talc_model import metrics
+from thermal_comp_common import metrics
 
 E = np.array([2.0, -4.0, 6.0, 8.0])
 EH = np.array([1.0, -5.0, 6.0, 10.0])      # residuals 1, 1, 0, -2

@@ -40,10 +40,27 @@ def _pair(e, e_hat) -> tuple[np.ndarray, np.ndarray]:
     return e[ok], e_hat[ok]
 
 
+def _finite_residual(e, e_hat) -> np.ndarray:
+    r = np.asarray(e, dtype=float) - np.asarray(e_hat, dtype=float)
+    return r[np.isfinite(r)]
+
+
+def rmse(e, e_hat) -> float:
+    """Root mean square of E - Ê over the samples where both are finite; NaN if none."""
+    r = _finite_residual(e, e_hat)
+    return float(np.sqrt(np.mean(r ** 2))) if r.size else float("nan")
+
+
+def mae(e, e_hat) -> float:
+    """Mean absolute E - Ê over the samples where both are finite; NaN if none."""
+    r = _finite_residual(e, e_hat)
+    return float(np.mean(np.abs(r))) if r.size else float("nan")
+
+
 def e_rms(e, e_hat) -> float:
-    """Root mean square of the residual, Eq. 4.27."""
+    """Root mean square of the residual, Eq. 4.27 (raises when no sample is finite)."""
     e, e_hat = _pair(e, e_hat)
-    return float(np.sqrt(np.mean((e - e_hat) ** 2)))
+    return rmse(e, e_hat)
 
 
 def e_smap(e, e_hat, convert_underestimation: bool = True) -> float:
