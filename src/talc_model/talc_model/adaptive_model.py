@@ -15,8 +15,11 @@ through :class:`AdaptiveModel`:
   learns from is ``measured + applied_compensation`` (Blaser thesis §6.2.4);
 - ``add_failed_measurement(t_s, reason)``: counted, never learned from;
 - ``status(t_s)`` -> :class:`ModelStatusData`;
-- ``to_state()`` / ``from_state(state)``: a JSON-serialisable dict for atomic persistence
-  (see ``model_persistence``).
+- ``to_state()`` / ``from_state(state)``: a JSON-serialisable dict for atomic persistence.
+
+Persistence has one naming everywhere in this package: ``to_state()`` / ``from_state(state)``
+in memory (models and their parts: ARX models, GPs, characteristic diagrams), and
+``save_model(path, model)`` / ``load_model(path)`` for files (``model_persistence``).
 
 Concrete models register themselves with ``@register_model("kind")``;
 :func:`make_model` builds one from a kind and a configuration mapping. A kind that is not

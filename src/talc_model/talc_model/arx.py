@@ -77,11 +77,11 @@ class ArxOrders:
         lags = [self.na] + [self.nk + n - 1 for n in self.nb if n > 0]
         return max(lags)
 
-    def as_dict(self) -> dict:
+    def to_state(self) -> dict:
         return {"na": self.na, "nb": list(self.nb), "nk": self.nk, "intercept": self.intercept}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ArxOrders":
+    def from_state(cls, d: dict) -> "ArxOrders":
         return cls(int(d["na"]), tuple(d["nb"]), int(d.get("nk", 0)), bool(d.get("intercept", False)))
 
 
@@ -315,14 +315,14 @@ class ArxModel:
                 y[last] = y_measured[last]
         return pred
 
-    def as_dict(self) -> dict:
-        return {"orders": self.orders.as_dict(), "theta": self.theta.tolist(),
+    def to_state(self) -> dict:
+        return {"orders": self.orders.to_state(), "theta": self.theta.tolist(),
                 "residual_std": self.residual_std, "n_fit_samples": self.n_fit_samples,
                 "extra": self.extra}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "ArxModel":
-        orders = ArxOrders.from_dict(d["orders"])
+    def from_state(cls, d: dict) -> "ArxModel":
+        orders = ArxOrders.from_state(d["orders"])
         theta = np.asarray(d["theta"], dtype=float)
         if theta.shape != (orders.n_params,):
             raise ValueError(f"ARX state: 'theta' has {theta.size} values, orders need {orders.n_params}")

@@ -262,13 +262,13 @@ class _Grid:
         self.n += 1
         return self.n - 1
 
-    def as_dict(self) -> dict:
+    def to_state(self) -> dict:
         return {"u": self.u[: self.n].tolist(), "y": [[None if not math.isfinite(v) else v for v in row]
                                                        for row in self.y[: self.n].tolist()],
                 "measured": self.measured[: self.n].astype(int).tolist()}
 
     @classmethod
-    def from_dict(cls, d: dict, n_inputs: int, n_outputs: int) -> "_Grid":
+    def from_state(cls, d: dict, n_inputs: int, n_outputs: int) -> "_Grid":
         u = np.asarray(d["u"], dtype=float).reshape(-1, n_inputs)
         y = np.asarray([[np.nan if v is None else v for v in row] for row in d["y"]],
                        dtype=float).reshape(-1, n_outputs)
@@ -723,7 +723,7 @@ class TalcModel:
         self.message = (f"calibration phase ended after {(t_s - self.t0) / 3600:.2f} h, "
                         f"{self.probing_cycles} measurements; orders {summary}")
         self.events.append({"t_s": t_s, "event": "calibration_end",
-                            "orders": {n: m.orders.as_dict() for n, m in models.items()}})
+                            "orders": {n: m.orders.to_state() for n, m in models.items()}})
 
     def _last_measured_index(self) -> int:
         g = self.grid
@@ -836,8 +836,8 @@ class TalcModel:
         return {
             "kind": self.kind, "version": STATE_VERSION, "config": self.config.as_dict(),
             "input_names": list(self.input_names), "t0": self.t0, "t_last": self.t_last,
-            "phase": self.phase, "models": {n: m.as_dict() for n, m in self.models.items()},
-            "grid": self.grid.as_dict() if self.grid is not None else None,
+            "phase": self.phase, "models": {n: m.to_state() for n, m in self.models.items()},
+            "grid": self.grid.to_state() if self.grid is not None else None,
             "input_ref": dict(self.input_ref), "input_last": dict(self.input_last),
             "counters": {"probing_cycles": self.probing_cycles,
                          "failed_probing_cycles": self.failed_probing_cycles,
@@ -863,12 +863,12 @@ class TalcModel:
         if model.input_names:
             model._init_grid()
         if grid is not None:
-            model.grid = _Grid.from_dict(grid, len(model.input_names), len(model.component_names))
+            model.grid = _Grid.from_state(grid, len(model.input_names), len(model.component_names))
         model.t0, model.t_last = state["t0"], state["t_last"]
         if state["phase"] not in (PHASE_CALIBRATION, PHASE_COMPENSATION, PHASE_NO_GOOD):
             raise ValueError(f"TALC state: 'phase' {state['phase']!r} is not a phase")
         model.phase = state["phase"]
-        model.models = {n: ArxModel.from_dict(d) for n, d in state["models"].items()}
+        model.models = {n: ArxModel.from_state(d) for n, d in state["models"].items()}
         model.input_ref = {k: float(v) for k, v in state["input_ref"].items()}
         model.input_last = {k: float(v) for k, v in state["input_last"].items()}
         for k, v in state["counters"].items():
@@ -897,7 +897,7 @@ class TalcModel:
         cfg.update(dict(config or {}))
         cfg["input_names"] = list(trained.input_names)
         model = cls(TalcConfig.from_mapping(cfg))
-        model.models = {n: ArxModel.from_dict(m.as_dict()) for n, m in trained.models.items()}
+        model.models = {n: ArxModel.from_state(m.to_state()) for n, m in trained.models.items()}
         model.phase = PHASE_COMPENSATION
         model.nb_max_selected = trained.nb_max_selected
         model.message = "started from a pre-trained model (no calibration phase)"

@@ -118,9 +118,9 @@ def test_simulation_mode_feeds_back_predictions_and_state_updates():
 def test_unstable_model_detected_and_state_round_trip():
     m = ArxModel(ArxOrders(1, (1,)), np.array([-1.05, 1.0]))
     assert not m.is_stable()
-    d = m.as_dict()
-    m2 = ArxModel.from_dict(d)
+    d = m.to_state()
+    m2 = ArxModel.from_state(d)
     np.testing.assert_array_equal(m2.theta, m.theta)
     d["theta"] = [1.0]
     with pytest.raises(ValueError, match="theta"):
-        ArxModel.from_dict(d)
+        ArxModel.from_state(d)
