@@ -1,0 +1,70 @@
+"""DiagnosticsPublisher: statuses reach /diagnostics at once on change and on the steady timer."""
+from __future__ import annotations
+
+import time
+
+import pytest
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.executors import SingleThreadedExecutor
+
+from thermal_comp_common.diagnostics import (DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS,
+                                             DiagnosticsPublisher, level_of)
+
+pytestmark = [pytest.mark.ros]
+
+
+def test_level_names_and_bytes():
+    assert level_of("warn") == DiagnosticStatus.WARN
+    assert level_of(2) == DiagnosticStatus.ERROR
+    assert level_of(DiagnosticStatus.STALE) == DiagnosticStatus.STALE
+    with pytest.raises(ValueError, match="'LOUD'"):
+        level_of("LOUD")
+    with pytest.raises(ValueError):
+        level_of(7)
+
+
+def _spin_until(executor, cond, deadline_s=10.0):
+    end = time.monotonic() + deadline_s
+    while time.monotonic() < end and not cond():
+        executor.spin_once(timeout_sec=0.05)
+    return cond()
+
+
+def test_publishes_on_change_and_periodically(ros_context):
+    node = rclpy.create_node("diag_under_test", context=ros_context)
+    listener = rclpy.create_node("diag_listener", context=ros_context)
+    got: list[DiagnosticArray] = []
+    listener.create_subscription(DiagnosticArray, TOPIC_DIAGNOSTICS, got.append, DIAGNOSTICS_QOS)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    ex.add_node(listener)
+    try:
+        diag = DiagnosticsPublisher(node, "cell0", period_s=0.2)
+        assert _spin_until(ex, lambda: node.count_subscribers(TOPIC_DIAGNOSTICS) >= 1)
+        diag.set("lock-step", "OK", "running", instant_s=0.0)
+        assert _spin_until(ex, lambda: len(got) >= 1)
+        st = got[0].status[0]
+        assert st.name == "diag_under_test: lock-step"
+        assert st.level == DiagnosticStatus.OK and st.message == "running"
+        assert st.hardware_id == "cell0"
+        assert {kv.key: kv.value for kv in st.values} == {"instant_s": "0.0"}
+        # a change of level publishes at once, with every status
+        diag.set("sensors", "WARN", "2 of 12 stale", stale=2)
+        n = diag.published
+        diag.set("sensors", "ERROR", "all stale", stale=12)
+        assert diag.published == n + 1
+        # the steady timer keeps publishing without any change
+        before = len(got)
+        assert _spin_until(ex, lambda: len(got) >= before + 3)
+        last = {s.name: s for s in got[-1].status}
+        assert last["diag_under_test: sensors"].level == DiagnosticStatus.ERROR
+        assert diag.level("sensors") == DiagnosticStatus.ERROR and diag.level("x") is None
+        # a value change alone does not publish at once (it travels with the next tick)
+        n = diag.published
+        diag.set("sensors", "ERROR", "all stale", stale=11)
+        assert diag.published == n
+    finally:
+        ex.shutdown()
+        node.destroy_node()
+        listener.destroy_node()
