@@ -132,7 +132,7 @@ fi
 # ---------------------------------------------------------------------------------------
 STEP="install our packages (editable)"
 PKGS=(thermal_comp_common thermal_twin thermal_sensors probe_cycle talc_model cnc_bridge thermal_comp thermal_eval)
-h=$(for p in "${PKGS[@]}"; do cat "$ROOT/src/$p/setup.py" "$ROOT/src/$p/package.xml"; done | sha256sum | cut -d' ' -f1)
+h=$(for p in "${PKGS[@]}"; do cat "$ROOT/src/$p/setup.py" "$ROOT/src/$p/setup.cfg" "$ROOT/src/$p/package.xml"; done | sha256sum | cut -d' ' -f1)
 if ! stamp_ok packages "$h" || ! [ -x "$VENV/bin/thermal-comp" ]; then
   say "installing ${PKGS[*]} (editable)"
   args=()
