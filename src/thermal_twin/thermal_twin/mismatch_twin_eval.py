@@ -65,6 +65,15 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
                      stop: int | None = None) -> dict[str, np.ndarray]:
     """Noise-free sensor readings (``<id>_c``) and error components of ``machine`` for the
     resolved input arrays ``inputs`` (every machine input present), over ``time_s[:stop]``."""
+    net, t, X, tb = node_states(machine, time_s, inputs, stop)
+    return outputs_from_states(machine, net, t, X, tb)
+
+
+def node_states(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.ndarray],
+                stop: int | None = None) -> tuple[ThermalNetwork, np.ndarray, np.ndarray, np.ndarray]:
+    """(network, time, node temperatures X (time x nodes), boundary temperatures (time x
+    boundaries)) of ``machine`` for the resolved ``inputs`` over ``time_s[:stop]``; the
+    calibration needs X for the error gains' exact derivatives."""
     t = np.asarray(time_s, dtype=float)[:stop]
     n_t = t.size
     vals = {k: np.asarray(inputs[k], dtype=float)[:n_t] for k in machine.inputs}
@@ -134,7 +143,16 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
                 z[:, i] = lfilter([1.0], [1.0, -lam[i]], h[:, i], zi=[lam[i] * z0[i]])[0]
             X[a + 1:b + 1] = z @ L.T
             x = X[b]
+    return net, t, X, tb
 
+
+def outputs_from_states(machine: Machine, net: ThermalNetwork, t: np.ndarray, X: np.ndarray,
+                        tb: np.ndarray) -> dict[str, np.ndarray]:
+    """Noise-free sensor readings and error components from node and boundary temperatures
+    (errors relative to ``X[0]``)."""
+    n_t = len(t)
+    dt = np.diff(t)
+    x0 = X[0]
     out: dict[str, np.ndarray] = {}
     bank = SensorBank(machine, net.node_names, net.boundary_names)
     if bank.ids:
