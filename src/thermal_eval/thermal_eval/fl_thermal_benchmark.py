@@ -325,7 +325,7 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
 
 def _parse_extra(extra: Sequence[str]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="thermal-comp bench fl-thermal", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--csv", default=None, help="FL_THERMAL CSV (default: shared/data/fl_thermal/fl_thermal.csv)")
+    ap.add_argument("--csv", default=None, help="FL_THERMAL CSV (default: $THERMAL_COMP_SHARED/data/fl_thermal/fl_thermal.csv)")
     ap.add_argument("--rows", type=int, default=None, help="use only the first N rows (smoke runs)")
     ap.add_argument("--every", type=int, default=1, help="use every K-th row")
     ap.add_argument("--no-adaptive", action="store_true", help="open loop only")

@@ -1,6 +1,6 @@
 """The FL_THERMAL recording as the benchmark uses it: import, checks, the authors' split.
 
-``shared/data/fl_thermal/fl_thermal.csv`` (MIT, CAIVIAC/FL_THERMAL; README and LICENSE beside
+``$THERMAL_COMP_SHARED/data/fl_thermal/fl_thermal.csv`` or the bench's ``--csv`` (MIT, CAIVIAC/FL_THERMAL; README and LICENSE beside
 it): 11,115 rows at 15 s, spindle speed, 5 displacement channels (um), 16 temperatures.
 Displacements are taken relative to the first row. The authors split the rows
 chronologically: first 60 % train (rows 0-6668), next 20 % test (6669-8891), last 20 %
@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 from thermal_comp_common.metrics import mae  # noqa: F401 (the benchmark's metric, used through this module)
+from thermal_comp_common.recording_csv import read_recording_csv
 
 CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
 SENSORS = tuple(f"t{i}" for i in range(1, 17))
@@ -27,11 +28,22 @@ class FlThermalError(ValueError):
     """Bad benchmark input; the message names the file, column or option and its value."""
 
 
+SHARED_ENV = "THERMAL_COMP_SHARED"
+CSV_RELATIVE = pathlib.Path("data") / "fl_thermal" / "fl_thermal.csv"
+
+
 def default_csv_path() -> pathlib.Path:
-    """``$THERMAL_COMP_SHARED/data/fl_thermal/fl_thermal.csv``, else ``shared/`` beside the repository."""
-    env = os.environ.get("THERMAL_COMP_SHARED")
-    shared = pathlib.Path(env) if env else pathlib.Path(__file__).resolve().parents[3].parent / "shared"
-    return shared / "data" / "fl_thermal" / "fl_thermal.csv"
+    """``$THERMAL_COMP_SHARED/data/fl_thermal/fl_thermal.csv`` (the pytest plugin sets the variable
+    for tests); one clear error naming both ways to give it when the variable is unset or wrong."""
+    env = os.environ.get(SHARED_ENV)
+    if not env:
+        raise FlThermalError(f"FL_THERMAL data: environment variable {SHARED_ENV} is not set; set it to the "
+                             f"shared/ folder (holding {CSV_RELATIVE}) or give the CSV with --csv PATH")
+    path = pathlib.Path(env) / CSV_RELATIVE
+    if not path.is_file():
+        raise FlThermalError(f"FL_THERMAL data: {SHARED_ENV}={env!r} has no {CSV_RELATIVE}; set it to the "
+                             f"shared/ folder or give the CSV with --csv PATH")
+    return path
 
 
 @dataclass
@@ -51,8 +63,10 @@ class FlThermalData:
 def load_fl_thermal(path: str | pathlib.Path | None = None, rows: int | None = None,
                     every: int = 1) -> FlThermalData:
     """Read the FL_THERMAL CSV; optionally its first ``rows`` rows, every ``every``-th row."""
-    from thermal_comp_common.recording_csv import read_recording_csv
     path = pathlib.Path(path) if path is not None else default_csv_path()
+    if not path.is_file():
+        raise FlThermalError(f"--csv: {str(path)!r} is not a file (or set {SHARED_ENV} to the shared/ folder "
+                             f"and leave --csv out)")
     if not isinstance(every, int) or every < 1:
         raise FlThermalError(f"every: {every!r} must be an integer >= 1")
     if rows is not None and (not isinstance(rows, int) or rows < 50):

@@ -9,7 +9,7 @@ from thermal_eval.fl_thermal_adaptive import sensor_medoids
 from thermal_eval.fl_thermal_arx import arx_open_loop_channel
 from thermal_eval.fl_thermal_benchmark import open_loop_channel
 from thermal_eval.fl_thermal_benchmark import PUBLISHED_MAE_UM, run_benchmark
-from thermal_eval.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
+from thermal_eval.fl_thermal_data import CHANNELS, FlThermalError, Splits, default_csv_path, load_fl_thermal
 
 
 def test_authors_split_of_the_full_recording():
@@ -31,6 +31,19 @@ def test_a_missing_column_is_named(tmp_path, shared_dir):
         load_fl_thermal(bad)
     with pytest.raises(FlThermalError, match="every"):
         load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", every=0)
+
+
+def test_data_location_comes_from_the_setting_with_one_error_naming_both(tmp_path, shared_dir, monkeypatch):
+    monkeypatch.setenv("THERMAL_COMP_SHARED", str(shared_dir))
+    assert default_csv_path() == shared_dir / "data" / "fl_thermal" / "fl_thermal.csv"
+    monkeypatch.delenv("THERMAL_COMP_SHARED")
+    with pytest.raises(FlThermalError, match=r"THERMAL_COMP_SHARED is not set.*--csv"):
+        load_fl_thermal()
+    monkeypatch.setenv("THERMAL_COMP_SHARED", str(tmp_path))
+    with pytest.raises(FlThermalError, match=r"THERMAL_COMP_SHARED=.*--csv"):
+        default_csv_path()
+    with pytest.raises(FlThermalError, match=r"--csv: .*nothing.csv.*THERMAL_COMP_SHARED"):
+        load_fl_thermal(tmp_path / "nothing.csv")
 
 
 def test_sensor_medoids_pick_one_sensor_per_group():
