@@ -35,7 +35,6 @@ lowest P99_lin among the combinations with Q_prod >= 95 % (ties: the higher Q_pr
 """
 from __future__ import annotations
 
-import concurrent.futures
 import hashlib
 import itertools
 import json
@@ -47,6 +46,8 @@ from dataclasses import asdict, dataclass
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 import numpy as np
+
+from thermal_comp_common.task_engine import EngineSpec, map_tasks
 
 INF = math.inf
 #: Table 6.1 ranges of the five varied parameters (TalcConfig field names).
@@ -178,21 +179,6 @@ class SweepRun:
         return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(recording, run: SweepRun) -> None:
-    """Process-pool initialiser: the recording is sent once per worker, BLAS kept to one thread
-    (the workers are the parallelism)."""
-    try:
-        from threadpoolctl import threadpool_limits
-        threadpool_limits(limits=1)
-    except ImportError:
-        pass
-    _WORKER["recording"] = recording
-    _WORKER["run"] = run
-
-
 def evaluate_point(recording, run: SweepRun, point: SweepPoint) -> dict[str, Any]:
     """Replay ``recording`` through a model configured with ``run.base_config`` + ``point``."""
     from thermal_eval.replay_summary import build_model, probe_noise, summarise
@@ -217,8 +203,10 @@ def evaluate_point(recording, run: SweepRun, point: SweepPoint) -> dict[str, Any
             "seconds": time.perf_counter() - t0}
 
 
-def _evaluate_in_worker(point: SweepPoint) -> dict[str, Any]:
-    return evaluate_point(_WORKER["recording"], _WORKER["run"], point)
+def _sweep_task(shared, point: SweepPoint) -> dict[str, Any]:
+    """One combination on a worker of the task engine; ``shared`` = (recording, run, evaluate)."""
+    recording, run, evaluate = shared
+    return evaluate(recording, run, point)
 
 
 # ------------------------------------------------------------------ results file
@@ -281,15 +269,19 @@ def _repair_tail(path: pathlib.Path) -> None:
 
 def run_sweep(recording, run: SweepRun, points: Sequence[SweepPoint], results_path: str | pathlib.Path,
               jobs: int = 1, progress: bool = True,
-              evaluate: Callable[[Any, SweepRun, SweepPoint], dict] | None = None) -> dict[str, Any]:
+              evaluate: Callable[[Any, SweepRun, SweepPoint], dict] | None = None,
+              engine: EngineSpec | None = None) -> dict[str, Any]:
     """Evaluate every point not yet in ``results_path`` (JSONL, appended as each finishes).
 
-    ``jobs > 1`` uses a ``ProcessPoolExecutor``; ``evaluate`` replaces :func:`evaluate_point`
-    (in-process only, for ``jobs == 1``). Returns ``{"rows": all rows of the selected points,
-    "computed": n, "skipped": n, "warnings": [...]}``.
+    ``engine`` says where the replays run (:mod:`thermal_comp_common.task_engine`: the local
+    process pool, or a Dask cluster); without it, a local pool of ``jobs`` processes.
+    ``evaluate`` replaces :func:`evaluate_point` (a module-level function, so it reaches the
+    workers). Returns ``{"rows": all rows of the selected points, "computed": n,
+    "skipped": n, "warnings": [...]}``.
     """
     if jobs < 1:
         raise SweepError(f"--jobs: {jobs} must be >= 1")
+    engine = engine or EngineSpec("local", workers=jobs)
     results_path = pathlib.Path(results_path)
     results_path.parent.mkdir(parents=True, exist_ok=True)
     fp = run.fingerprint()
@@ -304,24 +296,12 @@ def run_sweep(recording, run: SweepRun, points: Sequence[SweepPoint], results_pa
         bar = tqdm(total=len(todo), desc="sweep", unit="comb")
     try:
         with results_path.open("a") as fh:
-            def record(row: dict) -> None:
-                _append(fh, row)
+            shared = (recording, run, evaluate or evaluate_point)
+            for _, row in map_tasks(_sweep_task, shared, todo, engine):
+                _append(fh, row)               # written the moment it arrives: an interruption loses nothing
                 new[row["key"]] = row
                 if bar is not None:
                     bar.update(1)
-
-            if jobs == 1 or len(todo) <= 1:
-                fn = evaluate or evaluate_point
-                for p in todo:
-                    record(fn(recording, run, p))
-            else:
-                if evaluate is not None:
-                    raise SweepError("a custom evaluate function runs only with jobs == 1")
-                with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
-                                                            initargs=(recording, run)) as pool:
-                    futures = [pool.submit(_evaluate_in_worker, p) for p in todo]
-                    for fut in concurrent.futures.as_completed(futures):
-                        record(fut.result())
     finally:
         if bar is not None:
             bar.close()

@@ -1,7 +1,8 @@
-"""``thermal-comp sweep REC --out DIR [--jobs N] [--limit N] [--grid-subset ...]``
+"""``thermal-comp sweep REC --out DIR [--jobs N] [--engine dask --address tcp://HOST:8786] [--limit N] ...``
 
 TALC over the Blaser thesis's Table 6.1 grid (2,191 combinations per load case, see
-``thermal_eval.sweep``) on one recording, in parallel with a progress bar. Writes
+``thermal_eval.sweep``) on one recording, in parallel with a progress bar: on a local process
+pool (default) or on a Dask cluster (``--engine dask``; docs/distributed.md). Writes
 ``DIR/results.jsonl`` (one line per combination; rerun the same command to resume),
 ``DIR/table.csv`` (sorted by P99_lin), ``DIR/best.json`` (lowest P99_lin with Q_prod >= 95 %)
 and the plots ``DIR/p99_vs_qprod.png`` (Fig. 6.9) and ``DIR/qprod_vs_p99_limit.png`` (Fig. 6.10).
@@ -11,10 +12,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import pathlib
 import sys
 import time
+
+from thermal_comp_common.task_engine import EngineSpec, TaskEngineError, default_workers
 
 from thermal_eval.replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
                              ReplayInputError, build_model, load_config_file, load_recording, parse_overrides)
@@ -26,7 +28,15 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp sweep", description=__doc__.split("\n\n")[0])
     ap.add_argument("recording", metavar="REC", help="twin CSV, bag folder or .mcap file (one load case)")
     ap.add_argument("--out", required=True, metavar="DIR", help="folder for results.jsonl, table, plots")
-    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel replays (default: cores)")
+    ap.add_argument("--jobs", type=int, default=default_workers(),
+                    help="parallel replays of the local pool, or the size of a dask LocalCluster started "
+                         "when --engine dask has no --address (default: cores)")
+    ap.add_argument("--engine", choices=("local", "dask"), default="local",
+                    help="where the replays run (default: a local process pool)")
+    ap.add_argument("--address", default=None, metavar="tcp://HOST:PORT",
+                    help="the dask scheduler of a running cluster (with --engine dask)")
+    ap.add_argument("--retries", type=int, default=2,
+                    help="resubmissions of a replay whose worker died (default %(default)s)")
     ap.add_argument("--limit", type=int, default=None, help="only N combinations, spread evenly over the grid")
     ap.add_argument("--grid-subset", default="", metavar="SPEC",
                     help="restrict the grid, e.g. 'cp_length_h=8.5,12;post_cp_interval_h=2,10'; "
@@ -52,6 +62,9 @@ def main(argv: list[str] | None = None) -> int:
         if not (math.isfinite(args.update_interval_h) or math.isinf(args.update_interval_h)) \
                 or args.update_interval_h <= 0:
             raise SweepError(f"--update-interval-h: {args.update_interval_h!r} must be > 0 (or inf)")
+        if args.jobs < 1:
+            raise SweepError(f"--jobs: {args.jobs} must be >= 1")
+        engine = EngineSpec(args.engine, args.address, args.jobs, args.retries)
         base = {"input_names": list(TALC_INPUTS)}
         if args.config:
             base.update(load_config_file(args.config))
@@ -65,9 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         run = SweepRun("talc", base, args.probe_noise_um, args.probe_noise_um_per_m, args.probe_resolution_um,
                        args.seed, str(pathlib.Path(args.recording).resolve()))
         t0 = time.perf_counter()
-        res = run_sweep(rec, run, points, out / "results.jsonl", jobs=args.jobs, progress=not args.no_progress)
+        res = run_sweep(rec, run, points, out / "results.jsonl", jobs=args.jobs, progress=not args.no_progress,
+                        engine=engine)
         wall = time.perf_counter() - t0
-    except (ReplayInputError, ValueError) as exc:
+    except (ReplayInputError, ValueError, TaskEngineError) as exc:
         print(f"thermal-comp sweep: {exc}", file=sys.stderr)
         return 2
     for w in res["warnings"]:
@@ -79,11 +93,12 @@ def main(argv: list[str] | None = None) -> int:
     spc = seconds_per_combination(rows)
     summary = {"recording": args.recording, "combinations": len(rows), "computed": res["computed"],
                "resumed": res["skipped"], "seconds_per_combination": spc, "jobs": args.jobs,
+               "engine": engine.describe(),
                "wall_s_this_run": round(wall, 1),
                "q_prod_min_pct": args.q_prod_min, "best": best}
     (out / "best.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
     print(f"{len(rows)} combinations ({res['computed']} computed, {res['skipped']} from the results file), "
-          f"median {spc:.1f} s per combination; this run {wall:.0f} s wall with {args.jobs} jobs")
+          f"median {spc:.1f} s per combination; this run {wall:.0f} s wall on {engine.describe()}")
     if best is None:
         print(f"no combination reaches Q_prod >= {args.q_prod_min:g} %")
     else:
