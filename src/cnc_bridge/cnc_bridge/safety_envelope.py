@@ -91,6 +91,22 @@ class AxisDecision:
     flags: int               # LIMIT_* bits
 
 
+@dataclass(frozen=True)
+class HeldAdoption:
+    """What the CNC held on one axis at start-up and what the envelope adopted from it."""
+
+    axis: str
+    held_um: float           # the raw value the CNC holds
+    compensation_on: bool    # the CNC applied it (False: it held the value with compensation off)
+    adopted_um: float        # what counts as applied now (clamped; 0 when compensation was off)
+    flags: int               # LIMIT_ABSOLUTE (clamped / not finite), LIMIT_DISABLED (was off)
+
+    def describe(self) -> str:
+        state = "on" if self.compensation_on else "off"
+        return (f"{self.axis}: held {self.held_um:.3f} um (compensation {state}), adopted "
+                f"{self.adopted_um:.3f} um [{flag_names(self.flags)}]")
+
+
 class SafetyEnvelope:
     """Stateful per-axis envelope; drive it with :meth:`step`, feed read-back with :meth:`confirm`."""
 
@@ -115,14 +131,42 @@ class SafetyEnvelope:
     def set_enabled(self, enabled: bool) -> None:
         self.enabled = bool(enabled)
 
-    def adopt_held(self, held_um: Mapping[str, float]) -> None:
-        """Start from offsets the CNC already holds (a restarted bridge): they count as
-        applied and commanded, so the rate limit applies to every move away from them."""
-        for a, v in held_um.items():
-            v = float(v)
-            if math.isfinite(v):
-                self._applied[a] = v
-                self._commanded.setdefault(a, v)
+    def reconfigure(self, config: EnvelopeConfig) -> None:
+        """Apply new limits from the next step on (a runtime parameter change). The config
+        validated itself on construction; the applied offsets stay, and the next step moves
+        them into the new envelope under the (new) rate limit."""
+        if not isinstance(config, EnvelopeConfig):
+            raise TypeError(f"expected an EnvelopeConfig, got {type(config).__name__}")
+        self.config = config
+
+    def adopt_held(self, held_um: Mapping[str, float],
+                   compensation_on: Mapping[str, bool] | None = None) -> list[HeldAdoption]:
+        """Start from offsets the CNC already holds (a restarted bridge).
+
+        Only what fits the envelope is adopted: a held value beyond the axis' absolute
+        limit is clamped to it (LIMIT_ABSOLUTE), a non-finite one counts as 0, and an axis
+        whose compensation was switched off on the CNC (``compensation_on[axis]`` False)
+        holds nothing in effect, so it counts as 0 and the ramp starts from 0 (switching
+        compensation on with the raw value would move the machine by it in one step). The
+        adopted values count as applied and commanded, so the rate limit applies to every
+        move away from them. Returns one :class:`HeldAdoption` per axis for the audit.
+        """
+        out = []
+        for a, v in sorted(held_um.items()):
+            raw = float(v)
+            on = True if compensation_on is None else bool(compensation_on.get(a, True))
+            flags, value = LIMIT_NONE, raw
+            if not on:
+                value, flags = 0.0, LIMIT_DISABLED
+            elif not math.isfinite(raw):
+                value, flags = 0.0, LIMIT_ABSOLUTE
+            limit = self.config.limit_for(a)
+            if abs(value) > limit:
+                value, flags = math.copysign(limit, value), flags | LIMIT_ABSOLUTE
+            self._applied[a] = value
+            self._commanded[a] = value
+            out.append(HeldAdoption(a, raw, on, value, flags))
+        return out
 
     def add_axes(self, axes) -> None:
         for a in axes:

@@ -193,3 +193,46 @@ def test_envelope_invariants_hold_for_any_sequence(steps):
             assert abs(d.commanded_um) > cfg.abs_limit_um
         env.confirm("X", d.applied_um if confirmed else None)
         prev = env.applied["X"]
+
+
+@pytest.mark.parametrize("held, on, adopted, flags", [
+    (5000.0, True, 30.0, se.LIMIT_ABSOLUTE),            # 5 mm held: clamped to the limit
+    (1e9, True, 30.0, se.LIMIT_ABSOLUTE),               # absurd: clamped
+    (-5000.0, False, 0.0, se.LIMIT_DISABLED),           # held with compensation off: counts as 0
+    (math.inf, True, 0.0, se.LIMIT_ABSOLUTE),           # not finite: counts as 0
+    (12.0, True, 12.0, se.LIMIT_NONE),                  # within the envelope: kept
+])
+def test_held_offsets_are_adopted_only_within_the_envelope(held, on, adopted, flags):
+    env = SafetyEnvelope(EnvelopeConfig(abs_limit_um=30.0, max_rate_um_per_s=0.5, max_step_s=10.0))
+    [a] = env.adopt_held({"X": held}, {"X": on})
+    assert (a.held_um, a.adopted_um, a.flags) == (held, adopted, flags)
+    assert env.applied["X"] == adopted
+    assert f"held {held:.3f}" in a.describe() and f"adopted {adopted:.3f}" in a.describe()
+    # the first steps move at most the rate limit away from the adopted value
+    run(env, 0.0, {"X": -30.0}, fresh=True)
+    out = run(env, 1.0, {"X": -30.0}, fresh=True)
+    assert out["X"].applied_um == pytest.approx(adopted - 0.5)
+
+
+def test_start_with_5mm_held_and_compensation_off_never_jumps():
+    """Issue 23: the CNC held X = -5 mm with compensation off; every write after start-up stays
+    within rate * dt of zero."""
+    env = SafetyEnvelope(EnvelopeConfig(abs_limit_um=30.0, max_rate_um_per_s=0.5, max_step_s=10.0))
+    env.adopt_held({"X": -5000.0}, {"X": False})
+    prev = 0.0
+    for k in range(0, 200):
+        out = run(env, float(k), {"X": -20.0}, fresh=True)
+        assert abs(out["X"].applied_um - prev) <= 0.5 + 1e-12
+        assert abs(out["X"].applied_um) <= 30.0
+        prev = out["X"].applied_um
+    assert prev == pytest.approx(-20.0)
+
+
+def test_a_limit_changed_at_runtime_applies_to_the_next_step():
+    env = SafetyEnvelope(EnvelopeConfig(abs_limit_um=30.0, max_rate_um_per_s=100.0, max_step_s=10.0))
+    run(env, 0.0, {"X": 0.0}, fresh=True)
+    env.reconfigure(EnvelopeConfig(abs_limit_um=1.0, max_rate_um_per_s=100.0, max_step_s=10.0))
+    out = run(env, 1.0, {"X": 20.0}, fresh=True)
+    assert out["X"].applied_um == 1.0 and out["X"].flags & se.LIMIT_ABSOLUTE
+    with pytest.raises(EnvelopeConfigError, match="abs_limit_um"):
+        EnvelopeConfig(abs_limit_um=-1.0)
