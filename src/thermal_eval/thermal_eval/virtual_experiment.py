@@ -24,8 +24,11 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from talc_model.adaptive_model import AdaptiveModel
+from talc_model.closed_loop import ClosedLoop, HeldCompensation, ProbeFailed
+from thermal_comp_common import metrics
 
 
 class VirtualExperimentError(ValueError):
@@ -76,7 +79,6 @@ def component_metrics(true: np.ndarray, compensation: np.ndarray) -> dict[str, f
     """RMS / P2P of the uncompensated and compensated error and their reductions (AGP thesis
     Eqs 4.22-4.27, on the residual) and P99 of |residual| (TALC thesis 4.30), from
     ``thermal_comp_common.metrics`` (E = true error, E_hat = applied compensation)."""
-    from thermal_comp_common import metrics
     ok = np.isfinite(true) & np.isfinite(compensation)
     if not ok.any():
         return {}
@@ -166,38 +168,36 @@ def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayCo
     pred = {c: np.full(n, np.nan) for c in names}
     std = {c: np.full(n, np.nan) for c in names}
     phase: list[str] = []
-    probe_times: list[float] = []
     rng = np.random.default_rng(seed)
+    row = {"k": 0}
+
+    def probe(tk: float, applied: Mapping[str, float]) -> dict[str, float]:
+        """The residual at row k (true - applied), with noise and resolution."""
+        measured = {}
+        for c in probed:
+            m = true[c][row["k"]] - applied.get(c, 0.0)
+            if noise[c] > 0:
+                m += rng.normal(0.0, noise[c])
+            if probe_resolution_um > 0:
+                m = round(m / probe_resolution_um) * probe_resolution_um
+            measured[c] = m
+        if not all(math.isfinite(v) for v in measured.values()):
+            raise ProbeFailed("true error not recorded at this instant")
+        return measured
+
+    loop = ClosedLoop(model, HeldCompensation(names), probe=probe)
     steps = range(n)
     if progress:
-        from tqdm import tqdm
         steps = tqdm(steps, desc=f"replay {getattr(model, 'kind', '?')}", unit="step", leave=False)
     for k in steps:
         tk = float(t[k])
-        model.update_inputs(tk, {s: float(v[k]) for s, v in sens.items()},
-                            {s: float(v[k]) for s, v in inps.items()})
-        values, stds = model.predict(tk)
-        applied = {}
+        row["k"] = k
+        step = loop.step(tk, {s: float(v[k]) for s, v in sens.items()}, {s: float(v[k]) for s, v in inps.items()})
         for c in names:
-            v = values.get(c, math.nan)
-            pred[c][k] = v
-            std[c][k] = stds.get(c, math.nan)
-            applied[c] = v if math.isfinite(v) else 0.0
-        if model.probe_due(tk):
-            measured = {}
-            for c in probed:
-                m = true[c][k] - applied.get(c, 0.0)
-                if noise[c] > 0:
-                    m += rng.normal(0.0, noise[c])
-                if probe_resolution_um > 0:
-                    m = round(m / probe_resolution_um) * probe_resolution_um
-                measured[c] = m
-            if all(math.isfinite(v) for v in measured.values()):
-                model.add_measurement(tk, measured, {c: applied.get(c, 0.0) for c in probed})
-            else:
-                model.add_failed_measurement(tk, "true error not recorded at this instant")
-            probe_times.append(tk)
+            pred[c][k] = step.values.get(c, math.nan)
+            std[c][k] = step.stds.get(c, math.nan)
         phase.append(model.status(tk).phase)
+    probe_times = loop.probe_times_s
     compensation = {c: np.where(np.isfinite(pred[c]), pred[c], 0.0) for c in names}
     residual = {c: true[c] - compensation[c] for c in names}
     status = model.status(float(t[-1])).as_dict()
