@@ -88,6 +88,12 @@ class DiagnosticsPublisher:
         if old is None or old.level != lv or old.message != str(message):
             self.publish()
 
+    def update_values(self, name: str, **values: Any) -> None:
+        """Change values of status ``name`` (sent with the next periodic publication)."""
+        s = self._statuses.get(name)
+        if s is not None:
+            s.values.update({k: _text(v) for k, v in values.items()})
+
     def level(self, name: str) -> bytes | None:
         """The current level of ``name`` (None when never set)."""
         s = self._statuses.get(name)

@@ -192,7 +192,9 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     installed; SIGINT and SIGTERM set a flag that the spin loop checks every ``poll_s``
     (a blocking ``spin()`` would not return on a signal with the multi-threaded executor).
     Returns a process exit code: 0 on a clean shutdown, 2 when the node's parameters are
-    invalid (message printed, naming the parameter), 1 when the node's own cleanup failed.
+    invalid (message printed, naming the parameter), 1 when the node's own cleanup failed,
+    or the node's own ``exit_code`` attribute when it is set (a node that stopped itself on a
+    fault it reported, e.g. machine_sim's lock-step deadline: 3).
     """
     if args is None:
         args = sys.argv
@@ -237,4 +239,4 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
         executor.shutdown()
         if context.ok():
             context.try_shutdown()
-    return code
+    return code or int(getattr(node, "exit_code", 0) or 0)

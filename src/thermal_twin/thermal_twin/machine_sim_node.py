@@ -6,6 +6,12 @@ Every step it publishes /clock, ``machine_state``, ``twin/sensor_readings`` and 
   ``processed_until >= t_k`` (docs/architecture.md); it starts once all of them publish on
   ``sim_sync`` and re-sends the current instant if no acknowledgement arrives within
   ``resend_after_s`` wall seconds (a subscriber that matched late);
+  nothing waits forever: when a participant has not joined, or not acknowledged the current
+  instant, within ``lockstep_deadline_s`` wall seconds -- or acknowledges an instant the graph
+  has not reached (its state is from another run) -- it is named, with the instant, on the
+  log and on ``/diagnostics``, and ``on_late`` decides: ``stop`` the graph with one error
+  (exit code 3), ``drop`` the participant and go on without it, or ``wait`` and report again
+  after every further deadline (docs/reliability.md);
 - free-running otherwise, at ``real_time_factor`` (0 = as fast as possible).
 It keeps the offsets applied by the CNC (``offsets``) and answers ``twin/touch_probe``: the
 twin idles for the request's ``duration_s`` (programme paused, hall goes on), then
@@ -24,6 +30,7 @@ from rclpy.clock import Clock as RclClock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
+from thermal_comp_common.diagnostics import ERROR, DiagnosticsPublisher
 from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC, TOPIC_TWIN_SENSORS,
                                        Param, declare_parameters, s_to_stamp, stamp_to_s)
@@ -52,6 +59,11 @@ PARAMS = [
           0.0, 1.0e6),
     Param("resend_after_s", 2.0, "lock-step: re-send the current instant after this many wall s without "
           "all acknowledgements", 0.1, 600.0),
+    Param("lockstep_deadline_s", 120.0, "lock-step: wall s to wait for a participant to join or to "
+          "acknowledge an instant before it is reported late (and on_late applies)", 0.1, 86400.0),
+    Param("on_late", "stop", "lock-step: what a late or inconsistent participant causes: stop the graph "
+          "(exit code 3), drop it from the lock-step and go on, or wait and report again",
+          choices=("stop", "drop", "wait")),
     Param("probe_noise", True, "touch probe repeatability scatter (False: ideal probe, readout still quantised)"),
     Param("shutdown_when_done", False, "stop the node when the scenario has ended"),
     Param("state_path", "", "checkpoint file: written atomically before every published instant and "
@@ -76,6 +88,9 @@ class MachineSimNode(Node):
         self.observers = [n for n in (p["wait_for_subscribers"] or []) if n]
         self.publish_truth = p["publish_ground_truth"]
         self.resend_after_s = p["resend_after_s"]
+        self.deadline_s = p["lockstep_deadline_s"]
+        self.on_late = p["on_late"]
+        self.exit_code = 0
         self.shutdown_when_done = p["shutdown_when_done"]
         self.probe_rng = np.random.default_rng([p["seed"], 7]) if p["probe_noise"] else None
         self.units = {e: s.unit for e, s in self.machine.errors.items()}
@@ -85,6 +100,8 @@ class MachineSimNode(Node):
         self.acks: dict[str, float] = {}
         self.started = False
         self.last_publish_wall = 0.0
+        self.wait_since = time.monotonic()   # wall time the current wait (start, instant) began
+        self.ahead: dict[str, float] = {}    # participant -> an acknowledged instant ahead of the graph
         self.published_t = -math.inf
 
         self.pub_clock = self.create_publisher(Clock, "/clock", SENSOR_QOS)
@@ -94,6 +111,9 @@ class MachineSimNode(Node):
         self.create_subscription(AxisOffsets, TOPIC_OFFSETS, self._on_offsets, EVENT_QOS)
         self.create_subscription(SimSync, TOPIC_SIM_SYNC, self._on_sync, EVENT_QOS)
         self.create_service(TouchProbe, SERVICE_TOUCH_PROBE, self._on_touch_probe)
+        self.diag = DiagnosticsPublisher(self, hardware_id=f"{self.machine.name}/{p['scenario']}")
+        self.diag.set("lock-step", "OK", "lock-step with " + ", ".join(self.participants)
+                      if self.participants else "free-running", instant_s=self.runner.t_s)
 
         # the owner of simulated time paces itself on the steady clock (with use_sim_time a
         # ROS-time timer would wait for the /clock this node has yet to publish)
@@ -137,8 +157,9 @@ class MachineSimNode(Node):
                                 uncertainties=[0.0] * len(values))
             msg.header.stamp = stamp
             self.pub_truth.publish(msg)
-        self.last_publish_wall = time.monotonic()
+        self.last_publish_wall = self.wait_since = time.monotonic()
         self.published_t = r.t_s
+        self.diag.update_values("lock-step", instant_s=r.t_s)
         self._last_published = (stamp, state, temps)
 
     def _republish(self) -> None:
@@ -156,6 +177,7 @@ class MachineSimNode(Node):
             return False
         self.timer.cancel()
         self.get_logger().info(f"scenario finished at t = {self.runner.t_s:.0f} s")
+        self.diag.set("lock-step", "OK", "scenario finished", instant_s=self.runner.t_s)
         if self.shutdown_when_done:
             self.context.try_shutdown()
         return True
@@ -197,20 +219,72 @@ class MachineSimNode(Node):
             if self._participants_present() and self._observers_present():
                 self.started = True
                 self._publish_instant()
+            elif time.monotonic() - self.wait_since > self.deadline_s:
+                self._late(self._absent(), "has not joined the lock-step (no publisher on sim_sync)"
+                           " or subscribed to errors/ground_truth")
             return
-        if self._all_acked():
+        if self.ahead:
+            self._late(sorted(self.ahead), "acknowledged " + ", ".join(
+                f"t = {t:.0f} s" for _, t in sorted(self.ahead.items())) + ", ahead of the graph "
+                "(its state is from another run?)")
+        elif self._all_acked():
             self._advance_lockstep()
+        elif time.monotonic() - self.wait_since > self.deadline_s:
+            self._late(self._unacked(), "has not acknowledged it")
         elif time.monotonic() - self.last_publish_wall > self.resend_after_s and not self.runner.done:
             self._republish()
+
+    def _absent(self) -> list[str]:
+        pubs = {i.node_name for i in self.get_publishers_info_by_topic(self.resolve_topic_name(TOPIC_SIM_SYNC))}
+        subs = {i.node_name for i in
+                self.get_subscriptions_info_by_topic(self.resolve_topic_name(TOPIC_ERRORS_TRUE))}
+        return ([n for n in self.participants if n not in pubs]
+                + [n for n in self.observers if n not in subs])
+
+    def _unacked(self) -> list[str]:
+        return [n for n in self.participants if self.acks.get(n, -math.inf) < self.published_t - 1e-6]
+
+    def _late(self, names: list[str], what: str) -> None:
+        """Report late or inconsistent participants by name, with the instant; apply ``on_late``."""
+        t = self.published_t if self.started else self.runner.t_s
+        waited = time.monotonic() - self.wait_since
+        text = (f"lock-step: {', '.join(names)} {what} for instant t = {t:.0f} s "
+                f"(waited {waited:.1f} s, lockstep_deadline_s = {self.deadline_s:g}, on_late = {self.on_late})")
+        values = dict(instant_s=t, late=",".join(names), waited_s=round(waited, 1))
+        if self.on_late == "stop":
+            self.get_logger().error(text + ": stopping the graph")
+            self.diag.set("lock-step", "ERROR", text, **values)
+            self.exit_code = 3
+            self.timer.cancel()
+            self.context.try_shutdown()
+            return
+        if self.on_late == "drop":
+            self.get_logger().error(text + ": dropped from the lock-step, the graph goes on without it")
+            self.diag.set("lock-step", "WARN", f"dropped {', '.join(names)} (late at t = {t:.0f} s)",
+                          **values)
+            self.participants = [n for n in self.participants if n not in names]
+            self.observers = [n for n in self.observers if n not in names]
+            for n in names:
+                self.ahead.pop(n, None)
+        else:
+            self.get_logger().error(text + ": still waiting")
+            self.diag.set("lock-step", "ERROR", text, **values)
+        self.wait_since = time.monotonic()
 
     def _on_sync(self, msg: SimSync) -> None:
         t = stamp_to_s(msg.processed_until)
         if msg.node_name in self.participants:
+            if self.started and t > self.published_t + 1e-6:
+                self.ahead[msg.node_name] = t     # reported (by name) on the next tick
+                return
             self.acks[msg.node_name] = max(t, self.acks.get(msg.node_name, -math.inf))
-        if self.started and self.participants and self._all_acked():
+        if self.started and self.participants and not self.ahead and self._all_acked():
             self._advance_lockstep()
 
     def _advance_lockstep(self) -> None:
+        if self.diag.level("lock-step") == ERROR:    # a late participant came back (on_late = wait)
+            self.get_logger().warning(f"lock-step: every participant acknowledged t = {self.published_t:.0f} s")
+            self.diag.set("lock-step", "OK", "lock-step with " + ", ".join(self.participants))
         if self._finish_if_done():
             return
         self.runner.step()
