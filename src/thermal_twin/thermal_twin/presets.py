@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import pathlib
 
+from thermal_twin.machine_spec import MachineSpecError
+
 PRESET_DIR = pathlib.Path(__file__).with_name("presets")
 
 
@@ -12,15 +14,12 @@ def preset_names() -> list[str]:
 
 
 def preset_path(name: str) -> pathlib.Path:
-    """Path of a preset by name (``swiss-lathe`` or ``swiss_lathe``), or a clear error."""
+    """Path of a preset by name (``swiss-lathe`` or ``swiss_lathe``), or a clear error.
+
+    Load it with ``machine_schema.load_machine(name)``, which accepts preset names.
+    """
     p = PRESET_DIR / f"{name.replace('-', '_')}.yaml"
     if not p.is_file():
-        from thermal_twin.machine_schema import MachineSpecError
         raise MachineSpecError(f"machine {name!r}: not a preset and not a file "
                                f"(presets: {', '.join(preset_names())})")
     return p
-
-
-def load_preset(name: str):
-    from thermal_twin.machine_schema import load_machine
-    return load_machine(preset_path(name))
