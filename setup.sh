@@ -88,6 +88,22 @@ if ! stamp_ok peers "$h"; then
   stamp_set peers "$h"
 fi
 
+STEP="install colcon into .venv/colcon (requirements/colcon.txt, off the venv's import path)"
+h=$(hash_of "$ROOT/requirements/colcon.txt")
+if ! stamp_ok colcon "$h" || ! [ -x "$VENV/bin/colcon" ]; then
+  say "installing colcon"
+  rm -rf "$VENV/colcon"
+  "${PIP[@]}" --no-deps --target "$VENV/colcon" -r "$ROOT/requirements/colcon.txt"
+  cat > "$VENV/bin/colcon" <<EOF
+#!/usr/bin/env bash
+# colcon from requirements/colcon.txt, run by the venv's Python (so built nodes use it too).
+export PYTHONPATH="$VENV/colcon\${PYTHONPATH:+:\$PYTHONPATH}"
+exec "$PY" -c 'import sys; sys.argv[0] = "colcon"; from colcon_core.command import main; sys.exit(main())' "\$@"
+EOF
+  chmod +x "$VENV/bin/colcon"
+  stamp_set colcon "$h"
+fi
+
 # ---------------------------------------------------------------------------------------
 STEP="repair the build-farm paths in the wheels' cmake export files"
 if ! stamp_ok cmake-paths "$(hash_of "$STAMPS/ros" "$STAMPS/python")"; then

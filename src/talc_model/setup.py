@@ -1,4 +1,6 @@
 """ament_python package talc_model (also installs editable into the repo's venv via setup.sh)."""
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "talc_model"
@@ -11,6 +13,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config", sorted(glob(f"{PACKAGE}/config/*.yaml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=False,

@@ -1,4 +1,6 @@
 """ament_python package thermal_comp (also installs editable into the repo's venv via setup.sh)."""
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "thermal_comp"
@@ -11,6 +13,9 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", sorted(glob("launch/*.launch.py"))),
+        # the example cell files live at the repository top (config/cells/)
+        (f"share/{PACKAGE}/config/cells", sorted(glob("../../config/cells/*.yaml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=False,

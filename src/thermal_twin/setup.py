@@ -1,4 +1,6 @@
 """ament_python package thermal_twin (also installs editable into the repo's venv via setup.sh)."""
+from glob import glob
+
 from setuptools import find_packages, setup
 
 PACKAGE = "thermal_twin"
@@ -11,6 +13,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/config/presets", sorted(glob(f"{PACKAGE}/presets/*.yaml"))),
     ],
     install_requires=["setuptools"],
     zip_safe=False,
