@@ -1,42 +1,31 @@
-"""``talc_model`` node: an adaptive thermal-error model (TALC or AGP) in the loop.
+"""``talc_model`` node: an adaptive thermal-error model (TALC, AGP or CD) in the loop.
 
 Run: ``python -m talc_model.talc_model_node --ros-args -p model_kind:=talc
--p model_config:=talc.yaml -p state_path:=/var/lib/thermal-comp/talc.json``
+-p model_config:=talc.yaml -p state_path:=nmv5000/model.json``
 
-Wiring (the model itself is the pure core behind :class:`adaptive_model.AdaptiveModel`):
+The loop itself is :class:`talc_model.closed_loop.ClosedLoop` (ROS-free); this node wires it:
+``temperatures`` (non-OK sensors -> NaN: excluded and held, listed in ModelStatus), ``machine_state``
+(flattened inputs) and ``offsets`` (what the bridge applied: :mod:`talc_model.applied_compensation`)
+in; ``errors/predicted``, ``errors/measured``, ``model_status``, ``/diagnostics`` and the lock-step
+``SimSync`` ack out. When the model asks for a probe, a ``ProbeCycle`` goal starts and the ack of
+t_k is withheld until its result is in (or its wall-clock deadline passed: cancelled, failed).
+Failed, rejected, aborted, cancelled or timed-out cycles are counted and never learned from.
 
-- ``temperatures`` (TemperatureArray) at t_k: every sensor whose status is not OK is passed
-  to the model as NaN, i.e. **excluded and held**: the model keeps its last good value for
-  that input (TALC) and the sensor is listed in ``ModelStatus.excluded_sensor_ids``. Then
-  the node predicts for t_k and publishes ``errors/predicted`` (with uncertainties) and
-  ``model_status``; if ``probe_due(t_k)``, it starts a ``ProbeCycle`` goal and withholds its
-  lock-step ``SimSync`` ack for t_k until the result is in; otherwise it acks t_k at once.
-- ``machine_state`` (MachineState): flattened to numeric inputs (``<spindle>_rpm``,
-  ``<rotary>_axis_rpm``, ``<axis>_pos``, ``<drive>_power_w``, ``coolant_on``,
-  ``coolant_temperature_degc``, ``door_open``, ``machine_busy_probing``).
-- ``offsets`` (AxisOffsets): whether compensation is active at the CNC. **Applied
-  compensation in component space**: the models work on error components (E_X0C ..),
-  while the bridge turns them into axis offsets. The node keeps the last *predicted*
-  component values it published as the applied compensation, provided the bridge reports
-  ``compensation_enabled``; with no ``offsets`` message yet, or compensation disabled, the
-  applied compensation is zero (parameter ``applied_compensation``: ``offsets`` | ``predicted``
-  | ``none``). The probe measures true error minus applied compensation in component space
-  when the twin applies the same transform, so total error = measured + applied holds.
-  Clamping or rate limiting in the bridge makes this approximate; such limits are logged.
-- A successful probing result is published on ``errors/measured`` and learned from; failed,
-  rejected, aborted, cancelled or timed-out cycles are counted and never learned from.
-- Persistence: the model state is saved atomically (``state_path``) after every probing
-  cycle, every ``save_period_s`` of model time and at shutdown; at start an existing state
-  is resumed (no new calibration phase), else ``pretrained_path`` or a fresh model.
+Persistence: the state is saved atomically after every probing cycle, every ``save_period_s`` of
+model time and at shutdown, and resumed at start. **A resumed state saved at a model time after
+the graph's first instant** (another run, e.g. a cell started twice with the same state_path) is
+refused with one error naming the file and both times, moved aside (``*.refused-t<s>.json``,
+nothing deleted), and the node starts fresh (``pretrained_path`` or a new model, calibration phase)
+so the lock-step goes on; it never retries the refused state.
 """
 from __future__ import annotations
-
-from thermal_comp_common.machine_inputs import machine_state_inputs
 
 import math
 import pathlib
 import time
 
+import yaml
+from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Time
 from rclpy.action import ActionClient
 from rclpy.clock import Clock, ClockType
@@ -44,17 +33,23 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
+from thermal_comp_common.diagnostics import DiagnosticsPublisher
+from thermal_comp_common.machine_inputs import machine_state_inputs
 from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
-                                       TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
-                                       TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
-                                       TOPIC_SIM_SYNC, TOPIC_TEMPERATURES, Param,
-                                       declare_parameters, run_node, s_to_stamp, stamp_to_s)
+                                              TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
+                                              TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
+                                              TOPIC_SIM_SYNC, TOPIC_TEMPERATURES, Param,
+                                              declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import (AxisOffsets, MachineState, ModelStatus, SimSync,
                                    TemperatureArray, ThermalErrors)
 
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
+from talc_model.applied_compensation import MODES, BridgeCompensation
+from talc_model.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
 from talc_model.model_persistence import load_model, load_pretrained, save_model
+from talc_model.probing import Action, ProbeOutcome, ProbeState, ProbingStateMachine
+from talc_model.state_files import move_aside, resolve_state_path, saved_time_s
 
 SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 PHASES = {"calibration": ModelStatus.PHASE_CALIBRATION, "compensation": ModelStatus.PHASE_COMPENSATION,
@@ -63,7 +58,8 @@ PHASES = {"calibration": ModelStatus.PHASE_CALIBRATION, "compensation": ModelSta
 PARAMS = [
     Param("model_kind", "talc", "adaptive model", choices=("talc", "agp", "cd")),
     Param("model_config", "", "YAML file with the model's configuration (empty = defaults)"),
-    Param("state_path", "", "JSON file for the model state (resumed at start; empty = no persistence)"),
+    Param("state_path", "", "JSON file for the model state (resumed at start; empty = no persistence); "
+          "a relative path lives under $XDG_STATE_HOME/thermal-comp (default ~/.local/state/thermal-comp)"),
     Param("pretrained_path", "", "state of a trained model to start from when state_path has none"),
     Param("save_period_s", 3600.0, "save the state at least this often (model time), s", 1.0, 1e7),
     Param("artefact", "sphere", "probing artefact", choices=("sphere", "guide_bush")),
@@ -76,14 +72,12 @@ PARAMS = [
     Param("action_server_wait_s", 10.0, "wall-clock wait for the probe_cycle action server, s", 0.0, 3600.0),
     Param("offsets_wait_s", 2.0, "wall-clock wait for the bridge's offsets answering t_k before a "
           "probe starts (only once offsets have been seen), s", 0.0, 600.0),
-    Param("applied_compensation", "offsets", "how the applied compensation is known",
-          choices=("offsets", "predicted", "none")),
+    Param("applied_compensation", "offsets", "how the applied compensation is known", choices=MODES),
     Param("lockstep_participant", False, "publish SimSync for t_k after the prediction for t_k"),
 ]
 
 
 def _load_yaml(path: str) -> dict:
-    import yaml
     p = pathlib.Path(path)
     if not p.is_file():
         raise ValueError(f"parameter 'model_config': {path!r} is not a file")
@@ -102,18 +96,17 @@ class TalcModelNode(Node):
         p = declare_parameters(self, PARAMS)
         self.p = p
         self.kind = p["model_kind"]
-        config = _load_yaml(p["model_config"]) if p["model_config"] else {}
-        self.state_path = pathlib.Path(p["state_path"]) if p["state_path"] else None
+        self.config = _load_yaml(p["model_config"]) if p["model_config"] else {}
+        self.state_path = resolve_state_path(p["state_path"])
+        resumed = None
         if self.state_path is not None and self.state_path.is_file():
-            self.model = load_model(self.state_path, expected_kind=self.kind)
+            model = load_model(self.state_path, expected_kind=self.kind)
             how = f"resumed from {self.state_path}"
-        elif p["pretrained_path"]:
-            self.model = load_pretrained(p["pretrained_path"], config, expected_kind=self.kind)
-            how = f"pre-trained from {p['pretrained_path']}"
+            saved = saved_time_s(self.state_path, model)
+            resumed = ResumedState(str(self.state_path), saved) if saved is not None else None
         else:
-            self.model = make_model(self.kind, config)
-            how = "new model"
-        cfg = getattr(self.model, "config", None)
+            model, how = self._fresh_model()
+        cfg = getattr(model, "config", None)
         self.angular = set(getattr(cfg, "angular_components", ANGULAR_COMPONENTS))
         self.wall = Clock(clock_type=ClockType.STEADY_TIME)
 
@@ -122,93 +115,110 @@ class TalcModelNode(Node):
         self.status_pub = self.create_publisher(ModelStatus, TOPIC_MODEL_STATUS, LATCHED_QOS)
         self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, SIM_SYNC_QOS)
                          if p["lockstep_participant"] else None)
+        self.diag = DiagnosticsPublisher(self, hardware_id=f"{self.kind} model")
         self.probe_client = ActionClient(self, ProbeCycle, ACTION_PROBE_CYCLE)
         self.create_subscription(TemperatureArray, TOPIC_TEMPERATURES, self._on_temperatures, SENSOR_QOS)
         self.create_subscription(MachineState, TOPIC_MACHINE_STATE, self._on_machine_state, SENSOR_QOS)
         self.create_subscription(AxisOffsets, TOPIC_OFFSETS, self._on_offsets, EVENT_QOS)
         self.create_timer(0.2, self._on_wall_timer, clock=self.wall)
 
+        self.sink = BridgeCompensation(model.component_names, p["applied_compensation"],
+                                       publish=self._publish_prediction)
+        self.loop = ClosedLoop(model, self.sink, live=True, resumed=resumed,
+                               probing=ProbingStateMachine(p["offsets_wait_s"], p["probe_result_wait_s"]))
         self.machine_state: dict[str, float] = {}
         self.excluded: list[str] = []
-        self.last_predicted: dict[str, float] = {}
         self.last_pred_msg: ThermalErrors | None = None
-        self.offsets_seen = False
-        self.applied_offsets: dict[str, float] = {}
-        self.offsets_stamp_s = -math.inf
-        self.compensation_enabled = False
-        self.t_last = -math.inf
         self.last_save_t = -math.inf
-        # probing: one cycle at a time
-        self.probe_t: float | None = None          # t_k of the cycle being prepared / running
-        self.probe_applied: dict[str, float] = {}
         self.probe_goal_handle = None
-        self.probe_stage = ""                       # "wait_offsets" | "wait_accept" | "running"
-        self.probe_deadline = math.inf
         self.ack_pending_t: float | None = None
-        self.probes_started = 0
-        self.get_logger().info(f"{self.kind} model: {how}; components "
-                               f"{', '.join(self.model.component_names)}")
+        self.diag.set("state", "OK", how)
+        self.get_logger().info(f"{self.kind} model: {how}; components {', '.join(model.component_names)}")
+
+    @property
+    def model(self):
+        return self.loop.model
+
+    def _fresh_model(self):
+        if self.p["pretrained_path"]:
+            return (load_pretrained(self.p["pretrained_path"], self.config, expected_kind=self.kind),
+                    f"pre-trained from {self.p['pretrained_path']}")
+        return make_model(self.kind, self.config), "new model"
 
     # ------------------------------------------------------------------ inputs
     def _on_machine_state(self, msg: MachineState) -> None:
         self.machine_state = machine_state_inputs(msg)
+        self.sink.b_pos = self.machine_state.get("B_pos", 0.0)
 
     def _on_offsets(self, msg: AxisOffsets) -> None:
-        self.offsets_seen = True
-        self.offsets_stamp_s = max(self.offsets_stamp_s, stamp_to_s(msg.header.stamp))
-        self.compensation_enabled = bool(msg.compensation_enabled)
-        if len(msg.axis_names) == len(msg.applied_offsets_um):
-            self.applied_offsets = {a: float(v) for a, v in zip(msg.axis_names, msg.applied_offsets_um)
-                                    if math.isfinite(v)}
+        ok = len(msg.axis_names) == len(msg.applied_offsets_um)
+        self.sink.on_offsets(stamp_to_s(msg.header.stamp), msg.compensation_enabled,
+                             dict(zip(msg.axis_names, msg.applied_offsets_um)) if ok else None)
         limited = [a for a, f in zip(msg.axis_names, msg.limits_hit)
                    if f & (AxisOffsets.LIMIT_ABSOLUTE | AxisOffsets.LIMIT_RATE)]
         if limited:
             self.get_logger().warning(f"bridge limited the offsets of {limited}: the applied compensation "
                                       f"differs from the prediction", throttle_duration_sec=60.0)
-        if self.probe_stage == "wait_offsets" and self.offsets_stamp_s >= self.probe_t:
+        if self.loop.offsets_arrived(self.sink.stamp_s, self._wall_s()) is Action.SEND_GOAL:
             self._send_goal()
 
-    def _on_temperatures(self, msg: TemperatureArray) -> None:
-        t = stamp_to_s(msg.header.stamp)
-        if t < self.t_last:
-            self.get_logger().warning(f"temperatures stamped {t:.3f} s before the last ({self.t_last:.3f} s): "
-                                      f"ignored", throttle_duration_sec=10.0)
-            return
-        if t == self.t_last and self.last_pred_msg is not None:
-            # machine_sim re-sent this instant (an acknowledgement was missing, e.g. a node
-            # restarted): the model has learned from it already, so the same prediction goes
-            # out again unchanged and the instant is acknowledged again; never a second update
-            self.pred_pub.publish(self.last_pred_msg)
-            self._ack(t)
-            return
+    def _temperatures(self, msg: TemperatureArray, t: float) -> dict[str, float] | None:
         n = len(msg.sensor_ids)
         if len(msg.temperatures_degc) != n or len(msg.status) != n:
             self.get_logger().error(f"temperatures at {t:.3f} s: {n} sensor_ids, {len(msg.temperatures_degc)} "
                                     f"values, {len(msg.status)} status entries: ignored")
-            return
+            return None
         temps, excluded = {}, []
         for sid, v, st in zip(msg.sensor_ids, msg.temperatures_degc, msg.status):
-            if st == TemperatureArray.STATUS_OK and math.isfinite(v):
-                temps[sid] = float(v)
-            else:
-                temps[sid] = math.nan
+            ok = st == TemperatureArray.STATUS_OK and math.isfinite(v)
+            temps[sid] = float(v) if ok else math.nan
+            if not ok:
                 excluded.append(sid)
         self.excluded = excluded
-        self.t_last = t
+        return temps
+
+    def _step(self, t: float, temps: dict[str, float]):
+        args = (t, temps, self.machine_state, self._wall_s(), self.sink.must_wait_for(t))
         try:
-            self.model.update_inputs(t, temps, self.machine_state)
-            values, stds = self.model.predict(t)
-        except ValueError as exc:
-            self.get_logger().error(f"model input at {t:.3f} s rejected: {exc}")
-            self._ack(t)
+            return self.loop.step(*args)
+        except ResumedStateMismatch as exc:
+            self._refuse_state(exc)
+            return self.loop.step(*args)
+
+    def _on_temperatures(self, msg: TemperatureArray) -> None:
+        t = stamp_to_s(msg.header.stamp)
+        temps = self._temperatures(msg, t)
+        if temps is None:
             return
-        self._publish_prediction(t, values, stds)
-        if self.probe_t is None and self.model.probe_due(t):
-            self._start_probe(t)
-        self._publish_status(t)
-        if t - self.last_save_t >= self.p["save_period_s"]:
-            self._save(t)
+        step = self._step(t, temps)
+        if step.kind is StepKind.LATE:
+            self.get_logger().warning(f"temperatures stamped {t:.3f} s before the last ({self.loop.t_last:.3f} s): "
+                                      f"ignored", throttle_duration_sec=10.0)
+            return
+        if step.kind is StepKind.REPEAT:
+            # machine_sim re-sent this instant (an acknowledgement was missing, e.g. a node
+            # restarted): the same prediction goes out again, never a second update
+            self.pred_pub.publish(self.last_pred_msg)
+        elif step.kind is StepKind.REJECTED:
+            self.get_logger().error(f"model input at {t:.3f} s rejected: {step.error}")
+        else:
+            if step.action is Action.SEND_GOAL:
+                self._send_goal()
+            self._publish_status(t)
+            if t - self.last_save_t >= self.p["save_period_s"]:
+                self._save(t)
         self._ack(t)
+
+    def _refuse_state(self, exc: ResumedStateMismatch) -> None:
+        """The documented choice: refuse, keep the file aside, start fresh (never retry it)."""
+        aside = move_aside(pathlib.Path(exc.state_path), exc.saved_time_s) \
+            if pathlib.Path(exc.state_path).is_file() else None
+        model, how = self._fresh_model()
+        self.loop.replace_model(model)
+        what = f"{exc}; moved aside to {aside}; starting with a {how}"
+        self.get_logger().error(what)
+        self.diag.set("state", "WARN", what, state_path=exc.state_path, saved_time_s=exc.saved_time_s,
+                      graph_time_s=exc.graph_time_s)
 
     # ------------------------------------------------------------------ outputs
     def _errors_msg(self, t: float, source: int, values: dict, stds: dict) -> ThermalErrors:
@@ -219,10 +229,9 @@ class TalcModelNode(Node):
             units=[ThermalErrors.UNIT_UM_PER_M if c in self.angular else ThermalErrors.UNIT_UM for c in names],
             uncertainties=[float(stds.get(c, math.nan)) for c in names])
 
-    def _publish_prediction(self, t: float, values: dict, stds: dict) -> None:
+    def _publish_prediction(self, t: float, values, stds) -> None:
         self.last_pred_msg = self._errors_msg(t, ThermalErrors.SOURCE_PREDICTED, values, stds)
         self.pred_pub.publish(self.last_pred_msg)
-        self.last_predicted = dict(values)
 
     def _publish_status(self, t: float) -> None:
         st = self.model.status(t)
@@ -235,58 +244,29 @@ class TalcModelNode(Node):
             training_samples=st.training_samples, q_prod_pct=float(st.q_prod_pct),
             next_probing_due=s_to_stamp(due) if math.isfinite(due) and due >= 0 else Time(),
             max_uncertainty=float(st.max_uncertainty), excluded_sensor_ids=excluded, message=st.message))
+        self.diag.set("model", "WARN" if st.phase == "no_good" else "OK", f"phase {st.phase}",
+                      model_time_s=t, q_prod_pct=round(float(st.q_prod_pct), 3),
+                      probing_cycles=st.probing_cycles, failed_probing_cycles=st.failed_probing_cycles,
+                      excluded_sensors=",".join(excluded))
 
     def _ack(self, t: float) -> None:
         """Acknowledge t to machine_sim, unless a probing cycle holds the clock."""
         if self.sync_pub is None:
             return
-        if self.probe_t is not None:
+        if self.loop.probing.busy:
             self.ack_pending_t = t if self.ack_pending_t is None else max(self.ack_pending_t, t)
             return
         stamp = s_to_stamp(t)
         self.sync_pub.publish(SimSync(header=Header(stamp=stamp), node_name=self.get_name(),
                                       processed_until=stamp))
 
-    # ------------------------------------------------------------------ probing
-    def _applied_compensation(self) -> dict[str, float]:
-        """The compensation the probe will see as applied, per model component.
-
-        ``offsets`` mode uses what the CNC really holds (read back by the bridge): with the
-        bridge in kinematic mode the offsets are the components themselves; with X/Y/Z axis
-        offsets, a probing cycle sees them as a translation of the table frame only
-        (``cnc_bridge.error_transform.applied_offsets_in_component_space``): adding back the
-        whole prediction would count never-applied angular compensation as learned error.
-        ``predicted`` assumes the last prediction was applied in full."""
-        mode = self.p["applied_compensation"]
-        names = self.model.component_names
-        if mode == "none" or (mode == "offsets" and not (self.offsets_seen and self.compensation_enabled)):
-            return {c: 0.0 for c in names}
-        if mode == "offsets" and self.applied_offsets:
-            if any(c in self.applied_offsets for c in names):
-                return {c: self.applied_offsets.get(c, 0.0) for c in names}
-            if any(a in self.applied_offsets for a in ("X", "Y", "Z")):
-                from cnc_bridge.error_transform import applied_offsets_in_component_space
-                comp = applied_offsets_in_component_space(self.applied_offsets,
-                                                          self.machine_state.get("B_pos", 0.0))
-                return {c: comp.get(c, 0.0) for c in names}
-        return {c: (v if math.isfinite(v) else 0.0) for c, v in self.last_predicted.items()}
-
-    def _start_probe(self, t: float) -> None:
-        self.probe_t = t
-        self.probes_started += 1
-        if self.p["applied_compensation"] == "offsets" and self.offsets_seen and self.offsets_stamp_s < t:
-            # let the bridge apply the prediction for t first, so that the probe sees it
-            self.probe_stage = "wait_offsets"
-            self.probe_deadline = self._wall_s() + self.p["offsets_wait_s"]
-            return
-        self._send_goal()
-
+    # ------------------------------------------------------------------ probing (ProbeCycle action)
     def _send_goal(self) -> None:
-        t = self.probe_t
-        self.probe_applied = self._applied_compensation()
+        t = self.loop.probing.t_s
+        self.loop.goal_sent()
         if not self.probe_client.server_is_ready() and \
                 not self.probe_client.wait_for_server(timeout_sec=self.p["action_server_wait_s"]):
-            self._probe_failed("no probe_cycle action server")
+            self._finish(self.loop.probe_failed(t, "no probe_cycle action server"))
             return
         goal = ProbeCycle.Goal()
         goal.artefact = ProbeCycle.Goal.ARTEFACT_GUIDE_BUSH if self.p["artefact"] == "guide_bush" \
@@ -295,78 +275,68 @@ class TalcModelNode(Node):
         goal.points_per_indexing = int(self.p["points_per_indexing"])
         goal.timeout_s = float(self.p["probe_timeout_s"])
         goal.tool_position = self.p["tool_position"]
-        self.probe_stage = "wait_accept"
-        self.probe_deadline = self._wall_s() + self.p["probe_result_wait_s"]
         future = self.probe_client.send_goal_async(goal)
         future.add_done_callback(lambda f, t=t: self._on_goal_response(f, t))
 
     def _on_goal_response(self, future, t: float) -> None:
-        if self.probe_t != t:
-            return  # timed out meanwhile
         handle = future.result()
         if handle is None or not handle.accepted:
-            self._probe_failed("probing goal rejected")
+            self._finish(self.loop.probe_failed(t, "probing goal rejected"))
             return
-        self.probe_goal_handle = handle
-        self.probe_stage = "running"
-        handle.get_result_async().add_done_callback(lambda f, t=t: self._on_result(f, t))
+        if self.loop.accepted(t):       # False: timed out meanwhile
+            self.probe_goal_handle = handle
+            handle.get_result_async().add_done_callback(lambda f, t=t: self._on_result(f, t))
 
     def _on_result(self, future, t: float) -> None:
-        if self.probe_t != t:
+        if not (self.loop.probing.busy and self.loop.probing.t_s == t):
             return  # timed out meanwhile: never learned from
         wrapped = future.result()
-        res = wrapped.result
-        status = wrapped.status
-        from action_msgs.msg import GoalStatus
+        res, status = wrapped.result, wrapped.status
         if status != GoalStatus.STATUS_SUCCEEDED or not res.success:
-            self._probe_failed(res.message or f"probing cycle ended with status {status}")
+            self._finish(self.loop.probe_failed(t, res.message or f"probing cycle ended with status {status}"))
             return
         e = res.errors
-        if not (len(e.component_names) == len(e.values)):
-            self._probe_failed(f"result has {len(e.component_names)} component names and {len(e.values)} values")
+        if len(e.component_names) != len(e.values):
+            self._finish(self.loop.probe_failed(
+                t, f"result has {len(e.component_names)} component names and {len(e.values)} values"))
             return
-        measured = dict(zip(e.component_names, e.values))
-        try:
-            self.model.add_measurement(t, measured, self.probe_applied)
-        except ValueError as exc:
-            self._probe_failed(f"result not usable: {exc}")
+        outcome = self.loop.probe_result(t, dict(zip(e.component_names, e.values)))
+        if outcome is not None and outcome.success:
+            self.meas_pub.publish(ThermalErrors(
+                header=Header(stamp=s_to_stamp(t)), source=ThermalErrors.SOURCE_MEASURED,
+                model_kind=e.model_kind or "probe", component_names=list(e.component_names),
+                values=list(e.values), units=list(e.units), uncertainties=list(e.uncertainties)))
+        self._finish(outcome, res.message)
+
+    def _finish(self, outcome: ProbeOutcome | None, message: str = "") -> None:
+        """A cycle ended (None: stale event, nothing to do): save, report, release the ack."""
+        if outcome is None:
             return
-        out = ThermalErrors(header=Header(stamp=s_to_stamp(t)), source=ThermalErrors.SOURCE_MEASURED,
-                            model_kind=e.model_kind or "probe", component_names=list(e.component_names),
-                            values=list(e.values), units=list(e.units), uncertainties=list(e.uncertainties))
-        self.meas_pub.publish(out)
-        self._probe_done(t, f"probing at {t:.0f} s: {res.message}")
-
-    def _probe_failed(self, reason: str) -> None:
-        t = self.probe_t
-        self.get_logger().warning(f"probing cycle at {t:.0f} s failed (not learned from): {reason}")
-        self.model.add_failed_measurement(t, reason)
-        self._probe_done(t, reason)
-
-    def _probe_done(self, t: float, what: str) -> None:
-        self.probe_t = None
+        t = outcome.t_s
+        if outcome.success:
+            self.diag.set("probing", "OK", f"probing at {t:.0f} s: {message}")
+        else:
+            self.get_logger().warning(f"probing cycle at {t:.0f} s failed (not learned from): {outcome.reason}")
+            self.diag.set("probing", "WARN", f"probing at {t:.0f} s failed: {outcome.reason}")
         self.probe_goal_handle = None
-        self.probe_stage = ""
-        self.probe_deadline = math.inf
         self._save(t)
-        t_now = max(t, self.t_last)
-        self._publish_status(t_now)
+        self._publish_status(max(t, self.loop.t_last))
         pending, self.ack_pending_t = self.ack_pending_t, None
         if pending is not None:
             self._ack(pending)
 
     def _on_wall_timer(self) -> None:
-        if self.probe_t is None or self._wall_s() < self.probe_deadline:
-            return
-        if self.probe_stage == "wait_offsets":
-            self.get_logger().warning(f"no offsets for t={self.probe_t:.0f} s within "
-                                      f"{self.p['offsets_wait_s']} s: probing with the last ones")
+        waited_offsets = self.loop.probing.state is ProbeState.WAIT_OFFSETS
+        action, outcome = self.loop.tick(self._wall_s())
+        if action is Action.SEND_GOAL:
+            if waited_offsets:
+                self.get_logger().warning(f"no offsets for t={self.loop.probing.t_s:.0f} s within "
+                                          f"{self.p['offsets_wait_s']} s: probing with the last ones")
             self._send_goal()
-            return
-        handle = self.probe_goal_handle
-        if handle is not None:
-            handle.cancel_goal_async()
-        self._probe_failed(f"no probing result within {self.p['probe_result_wait_s']} s (cancelled)")
+        elif action is Action.CANCEL_GOAL:
+            if self.probe_goal_handle is not None:
+                self.probe_goal_handle.cancel_goal_async()
+            self._finish(outcome)
 
     def _wall_s(self) -> float:
         return self.wall.now().nanoseconds * 1e-9
@@ -382,8 +352,8 @@ class TalcModelNode(Node):
             self.get_logger().error(f"could not save the model state to {self.state_path}: {exc}")
 
     def close(self) -> None:
-        if self.state_path is not None and math.isfinite(self.t_last):
-            self._save(self.t_last)
+        if self.state_path is not None and math.isfinite(self.loop.t_last):
+            self._save(self.loop.t_last)
 
 
 def main(args=None) -> int:
