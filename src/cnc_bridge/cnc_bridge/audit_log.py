@@ -3,11 +3,14 @@
 One CSV line per axis per write, flushed and fsync'ed before the call returns, so that a
 crash loses nothing already written and the file always says what the machine was told:
 
-    time_s,wall_time_utc,axis,commanded_um,applied_um,confirmed,limits
+    time_s,wall_time_utc,axis,commanded_um,applied_um,confirmed,limits,note
 
 ``time_s`` is the ROS/simulated time of the write, ``wall_time_utc`` the host clock,
 ``commanded_um`` the model's command, ``applied_um`` what the CNC read back (empty if the
 write was not confirmed), ``limits`` the LIMIT_* flags as names (``absolute|rate``).
+Events that are not writes (start-up adoption of held offsets, lifecycle transitions,
+runtime limit changes) are lines with ``confirmed`` 0, empty numbers and the text in
+``note`` (a write's ``note`` is empty), so the file tells the whole story in order.
 The file is opened in append mode and never truncated; a header is written only to an
 empty file.
 """
@@ -23,7 +26,8 @@ from typing import Iterable
 
 from cnc_bridge.safety_envelope import flag_names
 
-HEADER = ("time_s", "wall_time_utc", "axis", "commanded_um", "applied_um", "confirmed", "limits")
+HEADER = ("time_s", "wall_time_utc", "axis", "commanded_um", "applied_um", "confirmed", "limits",
+          "note")
 
 
 def _num(v: float | None) -> str:
@@ -51,9 +55,14 @@ class AuditLog:
         """Log one write: ``entries`` = (axis, commanded_um, applied_um or None, flags)."""
         wall = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
         rows = [(f"{time_s:.6f}", wall, axis, _num(cmd), _num(app),
-                 "1" if app is not None and math.isfinite(app) else "0", flag_names(flags))
+                 "1" if app is not None and math.isfinite(app) else "0", flag_names(flags), "")
                 for axis, cmd, app, flags in entries]
         self._write_rows(rows)
+
+    def log_event(self, time_s: float, axis: str, note: str, flags: int = 0) -> None:
+        """Log an event that wrote nothing (``axis`` may be empty: the whole bridge)."""
+        wall = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+        self._write_rows([(f"{time_s:.6f}", wall, axis, "", "", "0", flag_names(flags), note)])
 
     def close(self) -> None:
         if not self._f.closed:

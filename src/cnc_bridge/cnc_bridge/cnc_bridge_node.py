@@ -1,21 +1,31 @@
 """The ``cnc_bridge`` node: predicted errors -> bounded, rate-limited offsets on the machine.
 
-Thin ROS shell around :mod:`error_transform`, :mod:`safety_envelope`, :mod:`audit_log` and a
-:mod:`cnc_backend` (``twin`` or ``opcua``). Run: ``python -m cnc_bridge.cnc_bridge_node``.
+A managed (lifecycle) node, thin ROS shell around :mod:`error_transform`,
+:mod:`safety_envelope`, :mod:`audit_log` and an :mod:`offset_backend` (``twin`` or ``opcua``).
+Run: ``python -m cnc_bridge.cnc_bridge_node`` (then ``configure`` and ``activate``; the
+launcher drives them, ``autostart:=true`` does it without a manager).
 
-* subscribes ``errors/predicted`` (ThermalErrors, EVENT_QOS) and ``machine_state``
-  (MachineState, SENSOR_QOS: axis positions X, Y, Z [mm], B [deg] for eq. 6.3-6.5; with the
-  ``opcua`` backend the CNC's own position nodes are used for axes machine_state lacks);
-* every prediction: transform at the current positions, one envelope step at the
-  prediction's stamp, write + read-back, one audit line per axis, publish ``offsets``
-  (AxisOffsets) stamped with the prediction's stamp, then, with ``lockstep``, SimSync
-  ``processed_until`` = that stamp (docs/architecture.md);
-* between predictions the envelope keeps stepping, so rate-limited moves complete and the
-  watchdog can act: without lock-step on a timer (``update_period_s``, node clock); with
-  lock-step on ``machine_state`` instants once the last prediction is older than
-  ``watchdog_timeout_s`` (deterministic in simulated time);
-* ``enable`` may be changed at run time (``ros2 param set`` equivalent): disabling ramps
-  the offsets to zero at ``disable_ramp_um_per_s``.
+* **configure** connects (opcua: within ``connect_timeout_s``, the server's certificate
+  checked against the trust list), reads what the CNC holds and adopts it into the envelope
+  only within its limits (clamped; 0 where compensation was off), one audit line per axis
+  saying what was held and what was adopted. Configure never writes; a failed configure
+  releases the connection and leaves the node unconfigured.
+* **activate** starts writing: every prediction is transformed at the current positions,
+  one envelope step at the prediction's stamp, write + read-back, one audit line per axis,
+  ``offsets`` (AxisOffsets) published with the prediction's stamp, then, with ``lockstep``,
+  SimSync ``processed_until`` = that stamp. Between predictions the envelope keeps stepping
+  (timer, or machine_state instants in lock-step once the watchdog is due).
+* **deactivate** switches compensation off: the offsets ramp to zero at
+  ``disable_ramp_um_per_s`` (the envelope keeps stepping and writing only that ramp until
+  every axis is at zero), predictions are no longer followed.
+* **cleanup / shutdown** release the connection without writing: the CNC keeps what it was
+  last told (no jump); the audit says what it holds.
+* Parameters: the envelope's limits and ``enable`` apply at run time (validated, audited,
+  in effect from the next step); every other parameter is read-only
+  (:mod:`cnc_bridge.bridge_params`). Credentials come from :mod:`cnc_bridge.credentials`;
+  a password, user or private key given as a parameter is refused.
+While unconfigured the node does not subscribe; while inactive it still answers the
+lock-step (SimSync) so that a simulation is never held by a bridge that was switched off.
 Bad predictions (missing component, wrong unit, NaN) are logged naming the component and
 skipped; nothing already applied changes, and the watchdog takes over if they persist.
 """
@@ -23,75 +33,33 @@ from __future__ import annotations
 
 import math
 
-from rclpy.node import Node
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from std_msgs.msg import Header
 
 from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
-                                       TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC, Param,
+                                       TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC,
                                        declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
 
 from cnc_bridge.audit_log import AuditLog
-from cnc_bridge.cnc_backend import TwinBackend
-from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, CONVENTION_RIGID, CONVENTIONS,
-                              DEFAULT_SPHERE_RADIUS_MM, FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
-                              TransformInputError, offsets_from_errors)
-from cnc_bridge.safety_envelope import LIMIT_WRITE_FAILED, EnvelopeConfig, SafetyEnvelope, flag_names
+from cnc_bridge.bridge_params import PARAMS, RUNTIME, changed_envelope, envelope_config
+from cnc_bridge.credentials import SECRET_NAMES, CredentialsError, load_credentials
+from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, HtmGeometry,
+                                        LatheToolOffsets, TransformInputError, offsets_from_errors)
+from cnc_bridge.offset_backend import TwinBackend
+from cnc_bridge.safety_envelope import (LIMIT_WRITE_FAILED, EnvelopeConfigError, SafetyEnvelope,
+                                        flag_names)
 
-PARAMS = [
-    Param("backend", "twin", "where offsets go: twin = published for machine_sim; opcua = a CNC",
-          choices=("twin", "opcua")),
-    Param("endpoint", "opc.tcp://127.0.0.1:4840/thermal-comp/cnc", "opcua: server endpoint URL"),
-    Param("node_map_file", "", "opcua: YAML node-id map (empty = SINUMERIK-like default layout)"),
-    Param("offset_axes", ["X", "Y", "Z"], "opcua default map: axes with compensation nodes"),
-    Param("lathe_tools_file", "", "lathe: YAML {tls_component, tools: {T01_X: {intercept_um, gain}}}"),
-    Param("sphere_radius_mm", DEFAULT_SPHERE_RADIUS_MM, "d/2 of eq. 6.3-6.5 (E_R0T reference radius), mm",
-          lo=1.0, hi=5000.0),
-    Param("htm_convention", CONVENTION_RIGID, "eq. 6.3-6.5 as rigid-body HTM consistent with the "
-          "probe cycle (eq. 5.10 signs) or exactly as printed", choices=CONVENTIONS),
-    Param("htm_origin_mm", [0.0, 0.0, 0.0], "machine X, Y, Z at B = 0 of the point the errors are "
-          "defined at (C axis in the probing sphere's centre plane), mm"),
-    Param("b_pivot_xz_mm", [0.0, 0.0], "X, Z of the B (swivel) axis line, mm"),
-    Param("positions_required", False, "true: no offsets until X, Y, Z positions are known; false: "
-          "axes nobody reports are taken at the HTM origin (position terms vanish), logged once"),
-    Param("enable", True, "compensation enabled (false ramps the offsets to zero)"),
-    Param("abs_limit_um", 30.0, "per-axis absolute offset limit, um", lo=0.0, hi=1000.0),
-    Param("compensation_mode", "axis_offsets",
-          "axis_offsets: X/Y/Z offsets at the current axis positions (eq. 6.3-6.5, SINUMERIK "
-          "SD43900-like); kinematic: the seven location errors are written as parameters of the "
-          "CNC's kinematic model, which applies them at every position (angular errors included); "
-          "the 'axes' of AxisOffsets are then the component names, in um or um/m",
-          choices=("axis_offsets", "kinematic")),
-    Param("abs_limit_um_per_m", 50.0, "kinematic mode: absolute limit of the angular parameters "
-          "E_A0C E_B0C E_C0C, um/m (the linear ones use abs_limit_um)", lo=0.0, hi=10000.0),
-    Param("max_rate_um_per_s", 0.5, "maximum offset change per second (cf. MD32760), um/s",
-          lo=1e-6, hi=1000.0),
-    Param("max_step_s", 600.0, "longest time step one update may use for the rate limit, s "
-          "(covers a lock-step simulation step; in real time the timer steps every update_period_s)",
-          lo=1e-3, hi=3600.0),
-    Param("watchdog_timeout_s", 900.0, "no fresh prediction for this long: hold, s", lo=1e-3, hi=1e6),
-    Param("watchdog_hold_s", 300.0, "watchdog: hold this long before ramping to zero, s", lo=0.0, hi=1e6),
-    Param("watchdog_ramp_um_per_s", 0.05, "watchdog: ramp to zero at this rate (0 = hold forever), um/s",
-          lo=0.0, hi=1000.0),
-    Param("disable_ramp_um_per_s", 0.5, "ramp rate to zero when disabled, um/s", lo=1e-6, hi=1000.0),
-    Param("update_period_s", 1.0, "without lock-step: envelope update period between predictions, s",
-          lo=1e-3, hi=3600.0),
-    Param("lockstep", False, "publish SimSync after the offsets answering each prediction"),
-    Param("audit_log_path", "", "append-only CSV of every write (empty = no audit log)"),
-    Param("connect_timeout_s", 10.0, "opcua: wait this long for the first connection at start, s",
-          lo=0.0, hi=600.0),
-    Param("request_timeout_s", 2.0, "opcua: deadline of one write/read request, s", lo=0.01, hi=60.0),
-    Param("user", "", "opcua: user name (empty = anonymous)"),
-    Param("password", "", "opcua: password of user"),
-    Param("certificate", "", "opcua: client certificate for Basic256Sha256 Sign&Encrypt"),
-    Param("private_key", "", "opcua: private key of the client certificate"),
-    Param("server_certificate", "", "opcua: expected server certificate (empty = from the endpoint)"),
-    Param("security_required", False, "opcua: refuse any connection without Sign&Encrypt"),
-]
+#: the launcher drives configure/activate/deactivate of a node module that says this
+LIFECYCLE_NODE = True
+
+SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
 
-def _make_backend(node: Node, p: dict):
+def _make_backend(node, p: dict):
+    """The backend for parameters ``p``; opcua: connected within connect_timeout_s or raise."""
     if p["backend"] == "twin":
         return TwinBackend()
     from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map, load_node_map
@@ -102,51 +70,79 @@ def _make_backend(node: Node, p: dict):
         if p["compensation_mode"] == "kinematic" and axes == ("X", "Y", "Z"):
             axes = FIVE_AXIS_COMPONENTS   # one CNC parameter per location error
         node_map, scale = default_node_map(axes), 0.001
+    creds = load_credentials(p["credentials_file"] or None)
     backend = OpcUaBackend(OpcUaConfig(
         endpoint=p["endpoint"], node_map=node_map, offset_units_per_um=scale,
-        user=p["user"] or None, password=p["password"] if p["user"] else None,
-        certificate=p["certificate"] or None, private_key=p["private_key"] or None,
+        user=creds.user, password=creds.password,
+        certificate=p["certificate"] or None, private_key=creds.private_key,
         server_certificate=p["server_certificate"] or None,
+        server_trust=(p["server_trust"],) if p["server_trust"] else (),
         security_required=p["security_required"], timeout_s=p["request_timeout_s"]))
-    if p["connect_timeout_s"] > 0 and not backend.wait_connected(p["connect_timeout_s"]):
-        node.get_logger().warning(
-            f"not connected to {p['endpoint']} yet ({backend.last_error}); writes fail and are "
-            f"flagged until the connection is up")
+    if not backend.wait_connected(p["connect_timeout_s"]):
+        error = backend.last_error or "no answer"
+        backend.close()
+        raise ConnectionError(f"not connected to {p['endpoint']} within "
+                              f"{p['connect_timeout_s']} s: {error}")
     return backend
 
 
-class CncBridgeNode(Node):
+class CncBridgeNode(LifecycleNode):
     def __init__(self, context=None):
         super().__init__("cnc_bridge", context=context)
-        p = declare_parameters(self, PARAMS)
-        self._p = p
-        self.kinematic = p["compensation_mode"] == "kinematic"
-        angular_limits = {c: p["abs_limit_um_per_m"] for c in ANGULAR_COMPONENTS} if self.kinematic else {}
-        self.envelope = SafetyEnvelope(EnvelopeConfig(
-            abs_limit_um=p["abs_limit_um"], axis_abs_limits_um=angular_limits,
-            max_rate_um_per_s=p["max_rate_um_per_s"],
-            max_step_s=p["max_step_s"], watchdog_timeout_s=p["watchdog_timeout_s"],
-            watchdog_hold_s=p["watchdog_hold_s"], watchdog_ramp_um_per_s=p["watchdog_ramp_um_per_s"],
-            disable_ramp_um_per_s=p["disable_ramp_um_per_s"]), enabled=p["enable"])
-        self.lathe = None
-        if p["lathe_tools_file"]:
-            import yaml
-            try:
-                with open(p["lathe_tools_file"]) as f:
-                    self.lathe = LatheToolOffsets.from_mapping(yaml.safe_load(f))
-            except (OSError, yaml.YAMLError) as exc:
-                raise ValueError(f"parameter 'lathe_tools_file': {exc}") from exc
-        if len(p["htm_origin_mm"]) != 3 or len(p["b_pivot_xz_mm"]) != 2:
+        secrets = sorted(n for n in self._parameter_overrides if n in SECRET_NAMES)
+        if secrets:
+            raise ValueError(
+                f"parameter '{secrets[0]}': credentials are never parameters (anyone on the ROS "
+                f"domain can read them, ps shows the command line); use credentials_file "
+                f"(mode 600) or the THERMAL_COMP_OPCUA_* environment")
+        self._p = declare_parameters(self, PARAMS)
+        self.kinematic = self._p["compensation_mode"] == "kinematic"
+        envelope_config(self._p, self.kinematic)     # bad limits: fail at start, naming the field
+        if len(self._p["htm_origin_mm"]) != 3 or len(self._p["b_pivot_xz_mm"]) != 2:
             raise ValueError(f"parameters 'htm_origin_mm' (3 values) / 'b_pivot_xz_mm' (2 values): "
-                             f"got {list(p['htm_origin_mm'])} / {list(p['b_pivot_xz_mm'])}")
-        self.htm = HtmGeometry(tuple(p["htm_origin_mm"]), tuple(p["b_pivot_xz_mm"]))
-        self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
-        self.backend = _make_backend(self, p)
-        held = self.backend.held_offsets() if hasattr(self.backend, "held_offsets") else {}
-        if any(abs(v) > 0 for v in held.values()):
-            self.envelope.adopt_held(held)
-            self.get_logger().info("continuing from the offsets the CNC holds: " +
-                                   ", ".join(f"{a}={v:.3f}" for a, v in sorted(held.items())))
+                             f"got {list(self._p['htm_origin_mm'])} / {list(self._p['b_pivot_xz_mm'])}")
+        self.htm = HtmGeometry(tuple(self._p["htm_origin_mm"]), tuple(self._p["b_pivot_xz_mm"]))
+        self.envelope: SafetyEnvelope | None = None
+        self.backend = None
+        self.audit: AuditLog | None = None
+        self.lathe = None
+        self.adopted = []                 # HeldAdoption per axis from the last configure
+        self._active = False              # writes follow the predictions
+        self._ramping_down = False        # deactivated, offsets still on their way to zero
+        self._entities = []               # publishers, subscriptions, timer of a configured node
+        self.offsets_pub = self.sync_pub = None
+        self.add_on_set_parameters_callback(self._check_params)
+        self.add_post_set_parameters_callback(self._on_params_set)
+        if self._p["autostart"]:
+            if self.trigger_configure() != SUCCESS:
+                raise ValueError(f"autostart: configure failed ({self._configure_error})")
+            if self.trigger_activate() != SUCCESS:
+                raise ValueError("autostart: activate failed (see the log)")
+
+    # ------------------------------------------------------------------ lifecycle
+    _configure_error = ""
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        p = self._p
+        try:
+            self.envelope = SafetyEnvelope(envelope_config(p, self.kinematic), enabled=False)
+            self.lathe = self._load_lathe(p["lathe_tools_file"])
+            self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
+            self.backend = _make_backend(self, p)
+        except (ValueError, OSError, ConnectionError) as exc:
+            self._configure_error = str(exc)
+            self.get_logger().error(f"configure failed, nothing written: {exc}")
+            self._release()
+            return FAILURE
+        held = self.backend.held_state() if hasattr(self.backend, "held_state") else {}
+        self.adopted = self.envelope.adopt_held({a: v for a, (v, _) in held.items()},
+                                                {a: on for a, (_, on) in held.items()})
+        if hasattr(self.backend, "adopt"):
+            self.backend.adopt({a.axis: a.adopted_um for a in self.adopted})
+        for a in self.adopted:
+            text = "start-up: " + a.describe()
+            (self.get_logger().warning if a.flags else self.get_logger().info)(text)
+            self._audit_event(a.axis, text, a.flags)
         self._positions: dict[str, float] = {}
         self._errors: dict[str, float] | None = None
         self._last_update_t: float | None = None
@@ -154,23 +150,114 @@ class CncBridgeNode(Node):
         self.offsets_pub = self.create_publisher(AxisOffsets, TOPIC_OFFSETS, EVENT_QOS)
         self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, EVENT_QOS)
                          if p["lockstep"] else None)
-        self.create_subscription(MachineState, TOPIC_MACHINE_STATE, self._on_state, SENSOR_QOS)
-        self.create_subscription(ThermalErrors, TOPIC_ERRORS_PREDICTED, self._on_prediction, EVENT_QOS)
+        self._entities = [self.offsets_pub, self.sync_pub,
+                          self.create_subscription(MachineState, TOPIC_MACHINE_STATE, self._on_state,
+                                                   SENSOR_QOS),
+                          self.create_subscription(ThermalErrors, TOPIC_ERRORS_PREDICTED,
+                                                   self._on_prediction, EVENT_QOS)]
         if not p["lockstep"]:
-            self.create_timer(p["update_period_s"], self._on_timer)
-        self.add_post_set_parameters_callback(self._on_params_set)
+            self._entities.append(self.create_timer(p["update_period_s"], self._on_timer))
         self.get_logger().info(
-            f"cnc_bridge: backend {p['backend']}, limit {p['abs_limit_um']} um, rate "
-            f"{p['max_rate_um_per_s']} um/s, watchdog {p['watchdog_timeout_s']} s, "
-            f"{'enabled' if p['enable'] else 'DISABLED'}")
+            f"configured: backend {p['backend']}, limit {p['abs_limit_um']} um, rate "
+            f"{p['max_rate_um_per_s']} um/s, watchdog {p['watchdog_timeout_s']} s; not writing "
+            f"until activated")
+        return SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self.envelope.set_enabled(bool(self.get_parameter("enable").value))
+        self._active, self._ramping_down = True, False
+        self._audit_event("", f"activate: compensation {'enabled' if self.envelope.enabled else 'DISABLED'}")
+        self.get_logger().info(f"active: writing offsets from "
+                               f"{self._fmt(self.envelope.applied)} (rate-limited)")
+        return SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = False
+        self.envelope.set_enabled(False)
+        self._ramping_down = any(abs(v) > 0 for v in self.envelope.applied.values())
+        text = (f"deactivate: compensation off, offsets ramp to zero at "
+                f"{self.envelope.config.disable_ramp_um_per_s} um/s from {self._fmt(self.envelope.applied)}")
+        self._audit_event("", text)
+        self.get_logger().info(text)
+        return SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release("cleanup")
+        return SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release("shutdown")
+        return SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._release("error")
+        return SUCCESS
+
+    def _release(self, why: str = "") -> None:
+        """Drop the connection and the ROS entities without writing (the CNC keeps its offsets)."""
+        self._active = self._ramping_down = False
+        if why and self.envelope is not None:
+            held = self._fmt(self.envelope.applied)
+            self._audit_event("", f"{why}: released without writing; the CNC keeps {held}")
+            self.get_logger().info(f"{why}: the CNC keeps {held}")
+        for e in self._entities:
+            if e is not None:
+                self.destroy_timer(e) if hasattr(e, "timer_period_ns") else (
+                    self.destroy_publisher(e) if hasattr(e, "publish") else self.destroy_subscription(e))
+        self._entities, self.offsets_pub, self.sync_pub = [], None, None
+        if self.backend is not None:
+            self.backend.close()
+            self.backend = None
+        if self.audit is not None:
+            self.audit.close()
+            self.audit = None
+
+    @staticmethod
+    def _load_lathe(path: str):
+        if not path:
+            return None
+        import yaml
+        try:
+            with open(path, encoding="utf-8") as f:
+                return LatheToolOffsets.from_mapping(yaml.safe_load(f))
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise ValueError(f"parameter 'lathe_tools_file': {exc}") from exc
+
+    @staticmethod
+    def _fmt(values: dict[str, float]) -> str:
+        return ", ".join(f"{a}={v:.3f} um" for a, v in sorted(values.items())) or "nothing"
+
+    def _audit_event(self, axis: str, text: str, flags: int = 0) -> None:
+        if self.audit is not None:
+            self.audit.log_event(self.get_clock().now().nanoseconds * 1e-9, axis, text, flags)
+
+    # ------------------------------------------------------------------ parameters
+    def _check_params(self, params: list[Parameter]) -> SetParametersResult:
+        changes = {prm.name: prm.value for prm in params if prm.name in RUNTIME}
+        if self.envelope is not None and changes:
+            try:
+                changed_envelope(self.envelope.config, changes, self.kinematic)
+            except (EnvelopeConfigError, TypeError, ValueError) as exc:
+                return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _on_params_set(self, params: list[Parameter]) -> None:
+        changes = {prm.name: prm.value for prm in params if prm.name in RUNTIME}
+        for name, value in changes.items():
+            old = self._p.get(name)
+            self._p[name] = value
+            text = f"parameter {name}: {old} -> {value} (applied from the next step)"
+            self.get_logger().warning(text)
+            self._audit_event("", text)
+        if self.envelope is None:
+            return               # unconfigured: configure reads the new values
+        new = changed_envelope(self.envelope.config, changes, self.kinematic)
+        if new is not None:
+            self.envelope.reconfigure(new)
+        if "enable" in changes and self._active:
+            self.envelope.set_enabled(bool(changes["enable"]))
 
     # ------------------------------------------------------------------ inputs
-    def _on_params_set(self, params: list[Parameter]) -> None:
-        for prm in params:
-            if prm.name == "enable":
-                self.envelope.set_enabled(bool(prm.value))
-                self.get_logger().info(f"compensation {'enabled' if prm.value else 'disabled'}")
-
     def _on_state(self, msg: MachineState) -> None:
         if len(msg.axis_names) != len(msg.axis_positions):
             self.get_logger().error(
@@ -180,7 +267,7 @@ class CncBridgeNode(Node):
         self._positions = dict(zip(msg.axis_names, msg.axis_positions))
         t = stamp_to_s(msg.header.stamp)
         fresh_t = self.envelope.last_fresh_t
-        if (self._p["lockstep"] and fresh_t is not None
+        if (self._writing and self._p["lockstep"] and fresh_t is not None
                 and t - fresh_t > self._p["watchdog_timeout_s"]):
             self._update(t, msg.header.stamp, fresh=False)
 
@@ -194,13 +281,21 @@ class CncBridgeNode(Node):
             # answer t_k so that a lock-step simulation does not stall on a bad message
             self.get_logger().error(f"errors/predicted at t={t:.3f}: {exc}; prediction skipped")
             fresh = False
-        self._update(t, msg.header.stamp, fresh=fresh)
+        if self._writing:
+            self._update(t, msg.header.stamp, fresh=fresh)
         if self.sync_pub is not None:
             self.sync_pub.publish(SimSync(header=Header(stamp=msg.header.stamp),
                                           node_name=self.get_name(),
                                           processed_until=msg.header.stamp))
 
+    @property
+    def _writing(self) -> bool:
+        """Active, or deactivated with offsets still ramping to zero."""
+        return self._active or self._ramping_down
+
     def _on_timer(self) -> None:
+        if not self._writing:
+            return
         t = self.get_clock().now().nanoseconds * 1e-9
         if self._last_update_t is not None and t - self._last_update_t < self._p["update_period_s"]:
             return
@@ -292,12 +387,15 @@ class CncBridgeNode(Node):
         if self.audit is not None:
             self.audit.log_write(t, entries)
         self.offsets_pub.publish(msg)
+        if self._ramping_down and all(v == 0.0 for v in self.envelope.applied.values()):
+            self._ramping_down = False
+            self._audit_event("", "deactivated: every offset is at zero; writes stopped")
+            self.get_logger().info("deactivated: every offset is at zero; writes stopped")
         self.get_logger().debug(" ".join(f"{e[0]}={e[2]} [{flag_names(e[3])}]" for e in entries))
 
     def close(self) -> None:
-        self.backend.close()
-        if self.audit is not None:
-            self.audit.close()
+        """Process exit (run_node): release without writing, like shutdown."""
+        self._release("exit" if self.backend is not None else "")
 
 
 def main(args=None) -> int:

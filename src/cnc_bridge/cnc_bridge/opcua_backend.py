@@ -5,8 +5,14 @@
   SINUMERIK's temperature compensation and matches :mod:`cnc_bridge.cnc_emulator`:
   SD43900 offset [mm], SD43910 slope, SD43920 reference position [mm], MD32750 enable.
   The bridge computes position-dependent terms itself (eq. 6.3-6.5 at the current
-  position), so on every (re)connection it writes slope 0, reference position 0 and enable
-  1 once; every update then writes only the offsets.
+  position), so it writes slope 0, reference position 0 and enable 1 once before its first
+  offset write and again on every reconnection after that; every update then writes only
+  the offsets.
+* **Connecting never writes**: the first connection only reads what the CNC holds
+  (:meth:`OpcUaBackend.held_state`: offset and whether compensation is on), so a bridge
+  that is configured but not active (lifecycle) never moves the machine. The node adopts
+  the held values into its envelope (clamped) and hands the adopted values back
+  (:meth:`OpcUaBackend.adopt`), which are what a re-apply writes.
 * **Read-back**: every write is followed by a read of the same nodes; an axis counts as
   applied only if the value read equals the value written. The backend returns the
   read-back in um, or None for an axis whose write was not confirmed.
@@ -16,7 +22,9 @@
   compensation reset gets back what it held). Writes asked for while disconnected fail
   at once (they are never queued and replayed later, so none is applied twice or late).
 * **Security**: user name/password and Basic256Sha256 Sign&Encrypt with certificates;
-  ``security_required`` refuses to connect without it.
+  ``security_required`` refuses to connect without it, and then needs a user and a trust
+  list of server certificates (:mod:`cnc_bridge.trust_list`) or one pinned certificate:
+  a server whose certificate is not listed is refused before any session.
 * The asyncio client runs in a dedicated thread with its own event loop; the public
   methods are synchronous, with deadlines, so a ROS node stays single-threaded.
 """
@@ -35,6 +43,7 @@ from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from cnc_bridge.loop_thread import LoopThread
+from cnc_bridge.trust_list import TrustList
 
 log = logging.getLogger("cnc_bridge.opcua")
 
@@ -119,6 +128,7 @@ class OpcUaConfig:
     certificate: str | None = None            # client certificate (DER/PEM)
     private_key: str | None = None            # its private key (PEM)
     server_certificate: str | None = None     # pin the server's certificate (optional)
+    server_trust: tuple[str, ...] = ()        # trust list: folder(s) / files of server certificates
     security_required: bool = False
     application_uri: str = "urn:thermal-comp:cnc-bridge"
     timeout_s: float = 2.0                    # per request
@@ -138,6 +148,12 @@ class OpcUaConfig:
                 "Basic256Sha256 Sign&Encrypt; refusing an insecure connection")
         if (self.user is None) != (self.password is None):
             raise OpcUaConfigError("user and password must be given together")
+        if self.security_required and self.user is None:
+            raise OpcUaConfigError("security_required: a user and password are needed "
+                                   "(credentials file or environment); refusing an anonymous session")
+        if self.security_required and not (self.server_trust or self.server_certificate):
+            raise OpcUaConfigError("security_required: a trust list of server certificates "
+                                   "(server_trust) or a pinned server_certificate is needed")
         for name in ("timeout_s", "check_period_s", "reconnect_min_s", "reconnect_max_s",
                      "offset_units_per_um"):
             v = getattr(self, name)
@@ -177,6 +193,10 @@ class OpcUaBackend:
         self._lost: asyncio.Event | None = None
         self._lock: asyncio.Lock | None = None
         self._closing = False
+        self._armed = False                   # set by the first write: from then on re-apply
+        self._held: dict[str, tuple[float, bool]] = {}
+        self._trust = TrustList.from_paths(config.server_trust, "server trust list") \
+            if config.server_trust else None
         self._io = LoopThread("opcua-client")
         self._loop = self._io.loop
         self._supervisor = self._io.submit(self._supervise())
@@ -221,6 +241,8 @@ class OpcUaBackend:
         cfg = self.config
         client = Client(cfg.endpoint, timeout=cfg.timeout_s)
         client.application_uri = cfg.application_uri
+        if self._trust is not None:
+            client.certificate_validator = self._trust
         if cfg.user is not None:
             client.set_user(cfg.user)
             client.set_password(cfg.password)
@@ -235,9 +257,10 @@ class OpcUaBackend:
                     ua.MessageSecurityMode.SignAndEncrypt:
                 raise OpcUaConfigError("security_required but the channel is not Sign&Encrypt")
             await self._subscribe_positions(client)
-            if not self._confirmed_um:
-                await self._adopt_held_offsets(client)
-            await self._reapply(client)
+            if not self._armed:
+                await self._read_held(client)     # connecting never writes
+            else:
+                await self._reapply(client)
         except BaseException:
             await client.disconnect()
             raise
@@ -250,26 +273,43 @@ class OpcUaBackend:
         sub = await client.create_subscription(100, _PositionHandler(self, by_node))
         await sub.subscribe_data_change([client.get_node(n) for n in by_node])
 
-    async def _adopt_held_offsets(self, client: Client) -> None:
-        """First connection of this bridge process: take the offsets the CNC holds now as
-        confirmed, so that a restarted bridge starts its envelope (rate limit) from them
-        instead of writing 0 over them in one jump."""
+    async def _read_held(self, client: Client) -> None:
+        """Before this bridge's first write: what the CNC holds (offset, compensation on/off).
+        The held offsets also count as confirmed until :meth:`adopt` replaces them."""
         scale = self.config.offset_units_per_um
         axes = [a for a in self._offset_axes if self.config.node_map[a].offset]
         if not axes:
             return
         got = await client.read_values([client.get_node(self.config.node_map[a].offset) for a in axes])
+        enables = {}
+        with_enable = [a for a in axes if self.config.node_map[a].enable]
+        if with_enable:
+            vals = await client.read_values(
+                [client.get_node(self.config.node_map[a].enable) for a in with_enable])
+            enables = dict(zip(with_enable, vals))
         for a, v in zip(axes, got):
             try:
                 um = float(v) / scale
             except (TypeError, ValueError):
-                continue
+                um = math.nan
+            on = True if a not in enables else _as_int(enables[a]) != 0
+            self._held[a] = (um, on)
             if math.isfinite(um):
-                self._confirmed_um[a] = um
+                self._confirmed_um[a] = um if on else 0.0
+
+    def held_state(self) -> dict[str, tuple[float, bool]]:
+        """What the CNC held at this bridge's first connection: axis -> (offset um, compensation on)."""
+        return dict(self._held)
 
     def held_offsets(self) -> dict[str, float]:
-        """Offsets the CNC confirmed holding (um), including those found at the first connection."""
+        """Offsets the CNC confirmed holding (um) in effect (0 where compensation was off)."""
         return dict(self._confirmed_um)
+
+    def adopt(self, adopted_um: Mapping[str, float]) -> None:
+        """The envelope's adopted values become what a (re-)apply writes (clamped held offsets)."""
+        for a, v in adopted_um.items():
+            if a in self._offset_axes and math.isfinite(float(v)):
+                self._confirmed_um[a] = float(v)
 
     async def _reapply(self, client: Client) -> None:
         """After a (re)connection: slope 0, reference 0, enable 1, last confirmed offsets."""
@@ -298,6 +338,15 @@ class OpcUaBackend:
             if client is None or not self._connected.is_set():
                 return {a: None for a in offsets_um}
             axes = list(offsets_um)
+            if not self._armed:
+                # the first write of this bridge: offsets (the adopted ones) before enable 1
+                try:
+                    await asyncio.wait_for(self._reapply(client), self.config.timeout_s * 2)
+                except (Exception, asyncio.TimeoutError) as exc:
+                    self.last_error = f"first write (slope 0, reference 0, enable 1) failed: {exc!r}"
+                    log.warning("%s", self.last_error)
+                    return {a: None for a in axes}
+                self._armed = True
             nodes = [client.get_node(self.config.node_map[a].offset) for a in axes]
             values = [float(offsets_um[a]) * scale for a in axes]
             try:
@@ -367,6 +416,13 @@ class OpcUaBackend:
             await self._disconnect()
             await asyncio.sleep(backoff)
             backoff = min(backoff * 2.0, cfg.reconnect_max_s)
+
+
+def _as_int(v) -> int:
+    try:
+        return int(v)
+    except (TypeError, ValueError):
+        return 1      # unreadable: assume compensation on (the held value is then clamped)
 
 
 def _equal(want, got, tol: float) -> bool:

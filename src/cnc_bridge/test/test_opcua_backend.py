@@ -149,7 +149,8 @@ def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
     client_cert, client_key = make_certificate(tmp_path, "bridge", "urn:thermal-comp:cnc-bridge",
                                                server=False)
     emu = CncEmulatorThread(EmulatorConfig(port=port, certificate=server_cert, private_key=server_key,
-                                           security="required", user="cnc", password="pw")).start()
+                                           security="required", user="cnc", password="pw",
+                                           client_trust=(client_cert,))).start()
     try:
         plain = backend(port, user="cnc", password="pw")
         try:
@@ -166,7 +167,7 @@ def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
             asyncio.run(_session_over_unsecured_channel(endpoint(port), "cnc", "pw"))
         assert offset_writes(emu, "X") == []
         secure = backend(port, user="cnc", password="pw", certificate=client_cert,
-                         private_key=client_key, security_required=True)
+                         private_key=client_key, security_required=True, server_trust=(server_cert,))
         try:
             assert secure.wait_connected(15), secure.last_error
             assert secure.write_offsets({"Z": -3.0}) == {"Z": pytest.approx(-3.0)}
@@ -236,8 +237,8 @@ def test_a_restarted_bridge_continues_from_the_offsets_the_cnc_holds(emulator, p
     try:
         assert second.wait_connected(10), second.last_error
         assert second.held_offsets()["Z"] == pytest.approx(8.0)
-        assert emulator.applied_um()["Z"] == pytest.approx(8.0), "the re-apply must keep the held offset"
-        assert all(v == pytest.approx(0.008) for v in offset_writes(emulator, "Z")[n_writes:])
+        assert emulator.applied_um()["Z"] == pytest.approx(8.0)
+        assert offset_writes(emulator, "Z")[n_writes:] == [], "connecting never writes"
         env = SafetyEnvelope(EnvelopeConfig(max_rate_um_per_s=0.5, max_step_s=10.0))
         env.adopt_held(second.held_offsets())
         env.step(0.0, {"X": 0.0, "Y": 0.0, "Z": 0.0}, fresh=True)

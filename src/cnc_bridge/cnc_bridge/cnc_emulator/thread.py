@@ -1,0 +1,69 @@
+"""The CNC emulator in its own thread and event loop, driven from synchronous code (tests, demo)."""
+from __future__ import annotations
+
+from typing import Callable, Mapping
+
+from cnc_bridge.cnc_emulator.probe import ProbeMove
+from cnc_bridge.cnc_emulator.server import CncEmulator, EmulatorConfig, EmulatorState
+from cnc_bridge.loop_thread import LoopThread
+
+
+class CncEmulatorThread:
+    """:class:`CncEmulator` in its own thread and event loop, driven from synchronous code.
+
+    ``restart(keep_state=False)`` emulates a CNC whose compensation was reset to zero.
+    """
+
+    def __init__(self, config: EmulatorConfig, probe_move: ProbeMove | None = None,
+                 on_compensation: Callable[[dict[str, float]], None] | None = None):
+        self.config = config
+        self._probe_move = probe_move
+        self._on_comp = on_compensation
+        self._io = LoopThread("cnc-emulator")
+        self.emulator: CncEmulator | None = None
+        self.write_log: list[tuple[str, float]] = []   # accumulated over restarts
+
+    def _run(self, coro, timeout: float = 20.0):
+        return self._io.run(coro, timeout)
+
+    def start(self, state: EmulatorState | None = None) -> "CncEmulatorThread":
+        self.emulator = CncEmulator(self.config, self._probe_move, self._on_comp, state)
+        self.emulator.write_log = self.write_log
+        self._run(self.emulator.start())
+        return self
+
+    def stop(self) -> None:
+        if self.emulator is not None:
+            self._run(self.emulator.stop())
+
+    def restart(self, keep_state: bool = True) -> None:
+        state = self.emulator.state if keep_state else None
+        self.stop()
+        self.start(state)
+
+    def close(self) -> None:
+        self.stop()
+        self._io.stop()
+
+    def applied_um(self) -> dict[str, float]:
+        return self._run(_call(self.emulator.applied_um))
+
+    def set_position(self, axis: str, value: float) -> None:
+        self._run(self.emulator.set_position(axis, value))
+
+    def set_positions(self, positions: Mapping[str, float]) -> None:
+        """Move several axes in one hop to the emulator's loop."""
+        async def move():
+            for axis, value in positions.items():
+                await self.emulator.set_position(axis, value)
+        self._run(move())
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+async def _call(fn):
+    return fn()
