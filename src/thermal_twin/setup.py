@@ -25,6 +25,7 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
+            "calibrate = thermal_twin.calibrate_cli:main",
             "diagnose = thermal_twin.diagnose_cli:main",
             "sim = thermal_twin.sim_cli:main",
         ],

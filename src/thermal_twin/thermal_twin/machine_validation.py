@@ -12,12 +12,13 @@ import math
 import re
 from typing import Any, Mapping
 
+from thermal_twin.calibration_bounds import check_section
 from thermal_twin.machine_spec import (ERROR_UNITS, INPUT_KINDS, SCHEMA_VERSION, UNITS, BoundarySpec,
                                        ErrorSpec, InputSpec, LinkSpec, Machine, MachineSpecError,
                                        NodeSpec, SensorSpec, SourceSpec)
 
 TOP_KEYS = {"schema_version", "name", "description", "units", "inputs", "boundaries",
-            "initial_state", "nodes", "links", "sources", "sensors", "errors"}
+            "initial_state", "nodes", "links", "sources", "sensors", "errors", "calibration"}
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
@@ -96,6 +97,8 @@ def validate_machine(raw: dict) -> Machine:
         if ispec.from_sensor is not None and ispec.from_sensor not in sensors:
             raise _fail(f"inputs.{iname}.from_sensor", ispec.from_sensor, "is not a sensor")
     errors, spec["errors"] = _errors(_mapping(raw.get("errors"), "errors", required=False), nodes)
+    if raw.get("calibration") is not None:   # which parameters `calibrate` may move (checked there)
+        spec["calibration"] = check_section(_mapping(raw["calibration"], "calibration"), spec)
     return Machine(name, description, inputs, boundaries, nodes, links, sources, sensors, errors,
                    init, spec)
 

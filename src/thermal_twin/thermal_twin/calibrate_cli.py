@@ -1,0 +1,89 @@
+"""Calibrate a twin on a recording: ``thermal-comp calibrate --twin M --recording REC --out DIR``.
+
+Fits the twin's existing parameters (ranges from the machine's ``calibration`` section or
+``--bounds``) on the training window, scores the held-out rest, and writes
+``DIR/twin_calibrated.yaml``, ``DIR/report.md``, ``DIR/report.json`` and PNG plots.
+"""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+import numpy as np
+import yaml
+
+from thermal_twin.calibrate_report import write_report
+from thermal_twin.calibration import CalibrationError, calibrate
+from thermal_twin.calibration_bounds import CalibrationSpecError
+from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
+from thermal_comp_common.bag_recording import load_recording
+from thermal_comp_common.recording_csv import RecordingError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="thermal-comp calibrate", description=__doc__.split("\n\n")[0])
+    p.add_argument("--twin", required=True, help="machine YAML file or preset name (e.g. spindle-stand)")
+    p.add_argument("--recording", required=True, help="recording CSV or rosbag2 MCAP bag")
+    p.add_argument("--out", required=True, help="output directory (must be new or empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
+    p.add_argument("--bounds", help="YAML file with a calibration section (kinds, parameters); "
+                                    "replaces the machine's own")
+    p.add_argument("--holdout-fraction", type=float, default=1 / 3,
+                   help="last fraction of the recording kept out of the fit (default 1/3)")
+    p.add_argument("--max-nfev", type=int, default=20,
+                   help="at most this many optimiser iterations (default 20)")
+    p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
+    p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    return p
+
+
+def empty_columns(rec) -> list[str]:
+    """Columns of the recording without a single finite value."""
+    return [c for c, v in rec.columns.items() if not np.isfinite(np.asarray(v, dtype=float)).any()]
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    out = pathlib.Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+        print(f"thermal-comp calibrate: --out: {out} exists and is not empty (use --force)", file=sys.stderr)
+        return 2
+    try:
+        machine = load_machine(args.twin)
+        section = None
+        if args.bounds:
+            raw = yaml.safe_load(pathlib.Path(args.bounds).read_text())
+            section = (raw or {}).get("calibration", raw)
+        rec = load_recording(pathlib.Path(args.recording), args.temperatures_topic, args.errors_topic)
+        notes = list(rec.warnings)
+        empty = empty_columns(rec)
+        if empty:
+            notes.append(f"columns without any value (not used): {', '.join(empty)}")
+        say = None if args.quiet else (lambda s: print(s, file=sys.stderr))
+        r = calibrate(machine, rec, holdout_fraction=args.holdout_fraction, section=section,
+                      max_nfev=args.max_nfev, progress=say)
+    except (MachineSpecError, CalibrationSpecError, RecordingError, CalibrationError, ValueError, OSError) as exc:
+        print(f"thermal-comp calibrate: {exc}", file=sys.stderr)
+        return 1
+    out.mkdir(parents=True, exist_ok=True)
+    save_machine(r.spec, out / "twin_calibrated.yaml")
+    paths = write_report(r, out, machine.source_path or machine.name, rec.source, notes)
+    rate = r.simulated_h / max(r.wall_s, 1e-9)
+    print(f"calibrated {len(r.estimates)} parameters on {len(r.channels)} channels in {r.wall_s:.1f} s "
+          f"({r.n_evals} twin evaluations, {rate:.0f} simulated h/s); cost {r.cost_before:.4g} -> "
+          f"{r.cost_after:.4g} ({r.status})")
+    for c, v in r.channel_table().items():
+        print(f"  {c:10s} held-out RMSE {v['holdout_rmse_before']:.4g} -> {v['holdout_rmse_after']:.4g}")
+    unid = [e.param.name for e in r.estimates if any(f.startswith("not identified") for f in e.flags)]
+    print(f"not identified by this recording: {len(unid)} of {len(r.estimates)}; "
+          f"correlated pairs: {len(r.correlated)}")
+    for n in notes:
+        print(f"note: {n}")
+    print("report: " + ", ".join(str(p) for p in [out / "twin_calibrated.yaml", *paths.values()]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

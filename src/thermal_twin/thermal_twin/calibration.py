@@ -1,0 +1,273 @@
+"""Calibrate a twin's existing parameters on a recording (``thermal-comp calibrate``).
+
+Conductances, capacities, source powers, thermo-elastic gains, sensor biases and constant
+boundary temperatures move within the ranges of :mod:`calibration_bounds`, jointly, to
+minimise the noise-weighted residual of every temperature and displacement channel the
+twin shares with the recording on the training window (the first ``1 - holdout_fraction``);
+the held-out rest is only scored. ``scipy.optimize.least_squares`` (trf, bounded) with a
+Jacobian that is exact for the linear parameters (biases, gains: from the node
+temperatures) and a forward difference of the exact twin for the others. Intervals come
+from the Jacobian at the optimum, inflated by the residual's integrated autocorrelation
+time (see docs/calibrate.md).
+"""
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from thermal_twin.calibration_bounds import Param, free_parameters, set_values
+from thermal_twin.inputs_timeline import timeline_from_recording
+from thermal_twin.machine_schema import Machine, load_machine
+from thermal_twin.mismatch_fit import FitProblem, effective_samples
+from thermal_twin.mismatch_twin_eval import node_states, outputs_from_states
+from thermal_comp_common.recording_csv import Recording
+from thermal_comp_common.metrics import rmse
+
+LINEAR_KINDS = ("bias", "gain")
+CORR_LIMIT = 0.95
+FD_STEP = 1e-4             # forward-difference step in theta (relative 1e-4 for log parameters)
+
+
+class CalibrationError(ValueError):
+    """Twin and recording cannot be calibrated; the message names the cause."""
+
+
+@dataclass
+class Estimate:
+    param: Param
+    value: float
+    ci95: tuple[float, float]
+    flags: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        p = self.param
+        return {"name": p.name, "kind": p.kind, "unit": p.unit, "start": p.value0, "value": self.value,
+                "ci95": list(self.ci95), "bounds": [p.lo, p.hi],
+                "change_pct": (100.0 * (self.value / p.value0 - 1.0) if p.value0 else None),
+                "flags": list(self.flags)}
+
+
+@dataclass
+class CalibrationResult:
+    spec: dict                         # calibrated machine description
+    estimates: list[Estimate]
+    correlated: list[tuple[str, str, float]]
+    channels: list[str]
+    time_s: np.ndarray
+    measured: dict[str, np.ndarray]
+    before: dict[str, np.ndarray]
+    after: dict[str, np.ndarray]
+    n_train: int
+    cost_before: float
+    cost_after: float
+    n_evals: int
+    wall_s: float
+    simulated_h: float
+    status: str
+    tau: float                         # residual autocorrelation time used for the intervals
+    fixed: list[str] = field(default_factory=list)   # parameters left out, with the reason
+
+    def channel_table(self) -> dict[str, dict]:
+        k = self.n_train
+        out = {}
+        for c in self.channels:
+            m, b, a = self.measured[c], self.before[c], self.after[c]
+            out[c] = {"train_rmse_before": rmse(m[:k], b[:k]), "train_rmse_after": rmse(m[:k], a[:k]),
+                      "holdout_rmse_before": rmse(m[k:], b[k:]), "holdout_rmse_after": rmse(m[k:], a[k:])}
+        return out
+
+
+class _Model:
+    """The twin as a function of theta: outputs on the shared channels and the exact
+    derivatives of the linear parameters."""
+
+    def __init__(self, spec: dict, params: list[Param], rec: Recording, channels: list[str]):
+        self.spec0, self.params, self.rec, self.channels = spec, params, rec, channels
+        self.n_evals = 0
+        self.sim_steps = 0
+
+    def spec(self, theta: np.ndarray) -> dict:
+        return set_values(copy.deepcopy(self.spec0), self.params,
+                          [p.value(t) for p, t in zip(self.params, theta)])
+
+    def run(self, theta: np.ndarray, stop: int | None = None):
+        m = load_machine(self.spec(theta))
+        vals = timeline_from_recording(m, self.rec).resolved(m)
+        net, t, X, tb = node_states(m, self.rec.time_s, vals, stop)
+        out = outputs_from_states(m, net, t, X, tb)
+        self.n_evals += 1
+        self.sim_steps += len(t)
+        return np.stack([out[c] for c in self.channels]), net, X
+
+
+def _pick_channels(machine, rec: Recording) -> tuple[list[str], list[str]]:
+    """Shared channels with data, and the shared or twin columns that are all NaN."""
+    cols = [machine.sensors[s].column for s in machine.sensors] + list(machine.errors)
+    chans, empty = [], []
+    for c in cols:
+        if c not in rec.columns:
+            continue
+        if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8:
+            chans.append(c)
+        else:
+            empty.append(c)
+    return chans, empty
+
+
+def _relevant(params: list[Param], machine, channels: list[str]) -> tuple[list[Param], list[str]]:
+    """Drop biases of sensors and gains of channels the recording does not have."""
+    keep, fixed = [], []
+    for p in params:
+        if p.kind == "bias" and machine.sensors[p.path[1]].column not in channels:
+            fixed.append(f"{p.name}: sensor not in the recording")
+        elif p.kind == "gain" and p.path[1] not in channels:
+            fixed.append(f"{p.name}: channel not in the recording")
+        else:
+            keep.append(p)
+    return keep, fixed
+
+
+def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
+              section: Mapping | None = None, max_nfev: int = 30,
+              progress: Callable[[str], None] | None = None) -> CalibrationResult:
+    """Fit the free parameters of ``twin`` (path, preset, mapping or Machine) to
+    ``recording``; ``section`` overrides the machine's own ``calibration`` section."""
+    if not 0.05 <= holdout_fraction <= 0.8:
+        raise CalibrationError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
+    machine = twin if isinstance(twin, Machine) else load_machine(twin)
+    spec0 = machine.to_dict()
+    if section is None:
+        section = spec0.get("calibration")
+    channels, _ = _pick_channels(machine, recording)
+    if not channels:
+        raise CalibrationError(f"recording {recording.source}: no channel shared with twin '{machine.name}' "
+                               f"with at least 8 values")
+    params, fixed = _relevant(free_parameters(spec0, section), machine, channels)
+    if not params:
+        raise CalibrationError("no free parameter: the calibration section fixes everything")
+    n = len(recording)
+    n_train = int(round(n * (1.0 - holdout_fraction)))
+    if n_train < 30:
+        raise CalibrationError(f"recording {recording.source}: {n_train} training rows, need at least 30")
+    t_start = time.perf_counter()
+    res = {c: machine.sensors[s].resolution for s in machine.sensors
+           for c in [machine.sensors[s].column]}
+    fp = FitProblem(recording, channels, n_train, resolution=res)
+    model = _Model(spec0, params, recording, channels)
+    w = np.array([1.0 / fp.sigma[c] for c in channels])
+    sl = slice(0, n_train, fp.stride)
+    valid = fp._valid[:, sl]
+    lin = [i for i, p in enumerate(params) if p.kind in LINEAR_KINDS]
+    nonlin = [i for i, p in enumerate(params) if p.kind not in LINEAR_KINDS]
+    chan_idx = {c: j for j, c in enumerate(channels)}
+    node_idx = {nm: i for i, nm in enumerate(machine.nodes)}
+    cache: dict = {}
+
+    def resid(theta):
+        key = theta.tobytes()
+        if key not in cache:
+            y, _, X = model.run(theta, n_train)
+            cache.clear()
+            cache[key] = (fp.train_residual(y).ravel(), X)
+        return cache[key][0]
+
+    def jac(theta):
+        r0 = resid(theta)
+        X = cache[theta.tobytes()][1][sl]
+        J = np.zeros((r0.size, len(params)))
+        ns = valid.shape[1]
+        for i in lin:
+            p = params[i]
+            d = np.zeros((len(channels), ns))
+            if p.kind == "bias":
+                j = chan_idx[machine.sensors[p.path[1]].column]
+                d[j] = -w[j]
+            else:
+                j = chan_idx[p.path[1]]
+                k = node_idx[p.path[3]]
+                d[j] = -w[j] * (X[:, k] - X[0, k])
+            J[:, i] = np.where(valid, d, 0.0).ravel()
+        for i in nonlin:
+            th = theta.copy()
+            lo, hi = params[i].theta_bounds
+            h = FD_STEP if th[i] + FD_STEP <= hi else -FD_STEP
+            th[i] += h
+            y, _, _ = model.run(th, n_train)
+            J[:, i] = (fp.train_residual(y).ravel() - r0) / h
+        if progress is not None:
+            progress(f"jacobian {len(params)} parameters, cost {0.5 * float(r0 @ r0):.4g}")
+        return J
+
+    theta0 = np.zeros(len(params))
+    lb = np.array([p.theta_bounds[0] for p in params])
+    ub = np.array([p.theta_bounds[1] for p in params])
+    r_start = resid(theta0)
+    sol = least_squares(resid, theta0, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac",
+                        max_nfev=max_nfev)
+    theta = sol.x
+    r = resid(theta)
+    J = jac(theta)
+    estimates, correlated, tau = _intervals(params, theta, r, J, len(channels), lb, ub)
+    y_before, _, _ = model.run(theta0)
+    y_after, _, _ = model.run(theta)
+    meas = {c: np.asarray(recording.columns[c], dtype=float) for c in channels}
+    spec1 = model.spec(theta)
+    wall = time.perf_counter() - t_start
+    dur_h = float(recording.time_s[-1] - recording.time_s[0]) / 3600.0
+    sim_h = model.sim_steps / max(n - 1, 1) * dur_h
+    return CalibrationResult(
+        spec=spec1, estimates=estimates, correlated=correlated, channels=channels,
+        time_s=recording.time_s, measured=meas,
+        before={c: y_before[j] for j, c in enumerate(channels)},
+        after={c: y_after[j] for j, c in enumerate(channels)}, n_train=n_train,
+        cost_before=0.5 * float(r_start @ r_start), cost_after=0.5 * float(r @ r),
+        n_evals=model.n_evals, wall_s=wall, simulated_h=sim_h, status=sol.message, tau=tau,
+        fixed=fixed)
+
+
+def _intervals(params, theta, r, J, n_channels, lb, ub):
+    """95 % intervals from the Jacobian: cov = s^2 tau (J^T J)^+ with s^2 = SSR/(m - p) and
+    tau = m / n_eff the residual's integrated autocorrelation time (a thermal residual is
+    far from white, so the plain formula would be tau times too confident)."""
+    m, p = J.shape
+    rr = r.reshape(n_channels, -1)
+    tau = max(1.0, r.size / effective_samples(rr))
+    s2 = float(r @ r) / max(m - p, 1)
+    JtJ = J.T @ J
+    cov = s2 * tau * np.linalg.pinv(JtJ, rcond=1e-12, hermitian=True)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    # a direction the data do not see (zero singular value) gets an infinite interval
+    null = np.diag(JtJ) <= 1e-18 * max(float(np.max(np.diag(JtJ))), 1e-300)
+    sd[null] = np.inf
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    estimates = []
+    for i, prm in enumerate(params):
+        a, b = theta[i] - 1.96 * sd[i], theta[i] + 1.96 * sd[i]
+        flags = []
+        if a <= lb[i] and b >= ub[i]:
+            flags.append("not identified (95 % interval spans its bounds)")
+        if abs(theta[i] - lb[i]) <= 1e-6 * max(1.0, abs(lb[i])) or abs(theta[i] - ub[i]) <= 1e-6 * max(1.0, abs(ub[i])):
+            flags.append("at bound")
+        lo = prm.value(max(a, -50.0) if prm.log else a) if math.isfinite(a) else -math.inf
+        hi = prm.value(min(b, 50.0) if prm.log else b) if math.isfinite(b) else math.inf
+        if prm.log and not math.isfinite(a):
+            lo = 0.0
+        estimates.append(Estimate(prm, prm.value(theta[i]), (lo, hi), flags))
+    correlated = []
+    for i in range(len(params)):
+        for j in range(i + 1, len(params)):
+            c = corr[i, j]
+            if np.isfinite(c) and abs(c) > CORR_LIMIT:
+                correlated.append((params[i].name, params[j].name, float(c)))
+                for k in (i, j):
+                    if "correlated" not in estimates[k].flags:
+                        estimates[k].flags.append("correlated")
+    correlated.sort(key=lambda x: -abs(x[2]))
+    return estimates, correlated, tau
