@@ -7,7 +7,7 @@ Backends:
 
 * ``twin``: :mod:`probe_cycle.twin_backend`, the machine_sim node's ``twin/touch_probe``
   service (ROS);
-* ``cnc``: :mod:`probe_cycle.cnc_backend`, the probing programme on a CNC through OPC UA;
+* ``cnc``: :mod:`probe_cycle.cnc_probe_backend`, the probing programme on a CNC through OPC UA;
 * :class:`ArtefactModelBackend` (here): the physical forward model of
   :mod:`thermal_twin.artefact_geometry`, in-process, for given errors and offsets. Tests,
   benchmarks and the test-side TouchProbe provider use it.

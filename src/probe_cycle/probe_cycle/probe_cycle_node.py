@@ -119,7 +119,7 @@ class ProbeCycleNode(Node):
         if p["backend"] == "twin":
             from probe_cycle.twin_backend import TwinProbeBackend
             return TwinProbeBackend(self, p["touch_timeout_s"], p["service_wait_s"])
-        from probe_cycle.cnc_backend import CncProbeBackend, CncProbeNodes
+        from probe_cycle.cnc_probe_backend import CncProbeBackend, CncProbeNodes
         user = p["cnc_user"] or None
         return CncProbeBackend(
             p["cnc_endpoint"], CncProbeNodes(p["cnc_probe_object"], p["cnc_probe_method"]),

@@ -19,7 +19,7 @@ from cnc_bridge.cnc_emulator import (CncEmulatorThread, EmulatorConfig,  # noqa:
                                      artefact_probe, compensation_node_id, free_tcp_port)
 from thermal_twin.artefact_geometry import (ARTEFACT_GUIDE_BUSH, SPHERE_COMPONENTS,  # noqa: E402
                                             DEFAULT_GEOMETRY)
-from probe_cycle.cnc_backend import CncProbeBackend, CncProbeNodes  # noqa: E402
+from probe_cycle.cnc_probe_backend import CncProbeBackend, CncProbeNodes  # noqa: E402
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine  # noqa: E402
 
 # the emulator reads positions at 1 um: a centre from 5 quantised touches is within a
