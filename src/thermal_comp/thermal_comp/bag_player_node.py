@@ -172,14 +172,14 @@ class BagPlayerNode(Node):
             r.damage = self.contents.damage
             self._wait_for_subscribers()
             msgs = [m for m in self.contents.messages if m.topic in self._pubs]
-            start = msgs[0].log_time_ns if msgs else 0
+            start = msgs[0].stamp_ns if msgs else 0
             wall0 = time.monotonic()
             fast = self.p["as_fast_as_possible"]
             rate = self.p["rate"]
             bar = None
             if self.p["progress"] and msgs:
                 from tqdm import tqdm
-                bar = tqdm(total=round((msgs[-1].log_time_ns - start) / 3.6e12, 3), unit="sim h",
+                bar = tqdm(total=round((msgs[-1].stamp_ns - start) / 3.6e12, 3), unit="sim h",
                            desc="play", leave=False, file=sys.stderr)
             for t_ns, group in instants(msgs):
                 if self._stop.is_set():

@@ -3,7 +3,20 @@
 Subscribes at start-up to every topic it is given, with the type known up front (no
 discovery wait, nothing early is lost), as raw (serialized) subscriptions, and writes the
 bytes untouched. A steady-clock timer closes the open chunk every ``flush_period_s`` so a
-crash loses at most that chunk. Run: ``python -m thermal_comp.bag_recorder_node --ros-args
+crash loses at most that chunk.
+
+Bag log time is the receive time on the node's clock (simulated time with use_sim_time), as
+``ros2 bag record`` writes it; the header stamp stays in the message, and readers key instants
+by it (``BagMessage.stamp_ns``). ``timestamps:=header`` keeps the old header-stamp log time.
+
+As a lock-step participant (``lockstep_participant``) the recorder loses nothing across a crash
+and restart: it acknowledges instant t_k on ``sim_sync`` only once it has written a message
+stamped t_k on every one of ``ack_topics`` and fsynced the file, so machine_sim cannot run
+ahead of a dead recorder; the restarted recorder gets the unacknowledged instant when
+machine_sim re-sends it. (Buffering in the publishers and replaying was the alternative; it
+needs a second copy of every stream and a replay protocol, where lock-step reuses the
+handshake every other node already speaks.) Its health (messages written, last instant
+acknowledged) is on ``/diagnostics``. Run: ``python -m thermal_comp.bag_recorder_node --ros-args
 -p output:=BAG`` or ``thermal-comp record BAG``.
 """
 from __future__ import annotations
@@ -17,6 +30,7 @@ from rclpy.qos import QoSProfile
 
 from thermal_comp_common import node_runtime as rt
 from thermal_comp_common.bag_writer import BagWriter, TopicInfo, qos_dict, stamp_from_cdr
+from thermal_comp_common.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.msg_definitions import first_field_type, normalize_type
 
 #: The topics recorded when none are given: relative name -> (type, QoS the publisher offers).
@@ -97,13 +111,18 @@ class BagRecorderNode(Node):
                      "a crash loses at most this much", lo=0.05, hi=3600.0),
             rt.Param("chunk_bytes", 262144, "close a chunk when it holds this many bytes",
                      lo=1024, hi=64 * 2**20),
-            rt.Param("timestamps", "header", "message time in the bag: the message's own "
-                     "header stamp, or the receive time on the node's clock",
+            rt.Param("timestamps", "receive", "log time in the bag: the receive time on the "
+                     "node's clock (as rosbag2 writes it), or the message's own header stamp",
                      choices=("header", "receive")),
             rt.Param("compression", "zstd", "chunk compression", choices=("zstd", "lz4", "none")),
             rt.Param("on_existing", "continue", "when 'output' exists (a restart after a crash): "
                      "continue in a new bag 'output.2', 'output.3', ... and leave the old one as it "
                      "is, or fail", choices=("continue", "fail")),
+            rt.Param("lockstep_participant", False, "acknowledge instant t_k on sim_sync once a message "
+                     "stamped t_k of every ack_topics topic is written and fsynced"),
+            rt.Param("ack_topics", ["machine_state", "twin/sensor_readings"], "lock-step: topics "
+                     "whose message for t_k must be written before t_k is acknowledged (topics "
+                     "machine_sim re-sends; ones not recorded are ignored)"),
         ])
         if not p["output"]:
             raise ValueError("parameter 'output': a bag folder path is required")
@@ -132,8 +151,23 @@ class BagRecorderNode(Node):
         self.writer = BagWriter(p["output"], infos, chunk_bytes=p["chunk_bytes"],
                                 compression=p["compression"],
                                 custom_data={"recorded_by": "thermal_comp.bag_recorder_node"})
-        self._flush_timer = self.create_timer(p["flush_period_s"], self.writer.flush,
+        self._flush_timer = self.create_timer(p["flush_period_s"], self._periodic,
                                               clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._ack_topics = set()
+        self._pending: dict[int, set[str]] = {}
+        self.acked_ns: int | None = None
+        self._sync_pub = None
+        if p["lockstep_participant"]:
+            from thermal_comp_msgs.msg import SimSync
+            wanted = {self.resolve_topic_name(t) for t in p["ack_topics"] if t.strip()}
+            self._ack_topics = {topic for _, topic, stamped in self._subs if topic in wanted and stamped}
+            if not self._ack_topics:
+                raise ValueError(f"parameter 'ack_topics': none of {list(p['ack_topics'])} is a "
+                                 "recorded topic with a stamp")
+            self._SimSync = SimSync
+            self._sync_pub = self.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
+        self.diag = DiagnosticsPublisher(self, hardware_id=str(p["output"]))
+        self.diag.set("recorder", "OK", f"recording into {p['output']}", messages=0)
         self.get_logger().info(f"recording {len(infos)} topics into {p['output']}: "
                                + ", ".join(i.name for i in infos))
 
@@ -141,9 +175,33 @@ class BagRecorderNode(Node):
         def on_message(data: bytes) -> None:
             _, topic, stamped = self._subs[index]
             now = self.get_clock().now().nanoseconds
-            t = stamp_from_cdr(data) if (self._use_header and stamped) else None
+            stamp = stamp_from_cdr(data) if stamped else None
+            t = stamp if self._use_header else None
             self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
+            if stamp is not None and topic in self._ack_topics:
+                self._written(topic, stamp)
         return on_message
+
+    def _written(self, topic: str, stamp_ns: int) -> None:
+        """Acknowledge t_k once every ack topic has a written message stamped t_k (fsynced first)."""
+        seen = self._pending.setdefault(stamp_ns, set())
+        seen.add(topic)
+        if seen != self._ack_topics:
+            return
+        self.writer.sync()
+        for k in [k for k in self._pending if k <= stamp_ns]:
+            del self._pending[k]
+        self.acked_ns = stamp_ns if self.acked_ns is None else max(self.acked_ns, stamp_ns)
+        from builtin_interfaces.msg import Time
+        self._sync_pub.publish(self._SimSync(node_name=self.get_name(), processed_until=Time(
+            sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)))
+
+    def _periodic(self) -> None:
+        self.writer.flush()
+        values = {"messages": self.writer.message_count}
+        if self.acked_ns is not None:
+            values["acknowledged_until_s"] = self.acked_ns / 1e9
+        self.diag.update_values("recorder", **values)
 
     def drain_activity(self) -> int:
         """Messages written so far: after a stop signal the node runtime spins on while this

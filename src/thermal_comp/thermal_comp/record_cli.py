@@ -1,8 +1,10 @@
-"""Record topics into a rosbag2 MCAP bag (metadata.yaml + zstd-chunked .mcap) until Ctrl-C."""
+"""Record topics into a rosbag2 MCAP bag (metadata.yaml + zstd-chunked .mcap) until Ctrl-C;
+or repair a bag cut by kill -9 (--repair) so that every standard reader opens it."""
 from __future__ import annotations
 
 import argparse
 import pathlib
+import shutil
 import sys
 
 from thermal_comp import bag_recorder_node
@@ -15,8 +17,16 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=f"Known topics (relative names take the namespace, see --ros-args): {known}. "
                "Other topics need their type: NAME:pkg/msg/Type. Stop with Ctrl-C or SIGTERM; "
                "the bag is closed cleanly. A killed recorder leaves a bag that "
-               "'thermal-comp play' replays up to the last flushed chunk.")
-    ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist)")
+               "'thermal-comp play' replays up to the last flushed chunk and that "
+               "'thermal-comp record --repair OUT' turns into a complete one. Exit codes: 0 recorded "
+               "(or repaired, or intact), 2 bad arguments, OUT exists (without --force) or is no bag "
+               "(--repair), 1 recording error.")
+    ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist, see --force)")
+    ap.add_argument("--force", action="store_true",
+                    help="replace an existing bag folder OUT (only a bag or an empty folder)")
+    ap.add_argument("--repair", action="store_true",
+                    help="do not record: rewrite the bag OUT cut by kill -9 into a complete one "
+                         "(the damaged original is kept as OUT.damaged)")
     ap.add_argument("topics", nargs="*", metavar="TOPIC",
                     help="topics to record (default: every thermal-comp topic except sim_sync)")
     ap.add_argument("--flush-period", type=float, default=1.0, metavar="S",
@@ -34,9 +44,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    if pathlib.Path(args.out).exists():
-        print(f"thermal-comp record: OUT {args.out!r} exists already; not overwriting", file=sys.stderr)
-        return 2
+    if args.repair:
+        return _repair(args.out)
+    out = pathlib.Path(args.out)
+    if out.exists():
+        if not args.force:
+            print(f"thermal-comp record: OUT {args.out!r} exists already; not overwriting "
+                  "(--force replaces it)", file=sys.stderr)
+            return 2
+        if not _is_bag_or_empty(out):
+            print(f"thermal-comp record: OUT {args.out!r} is neither a bag nor an empty folder; "
+                  "not replacing it even with --force", file=sys.stderr)
+            return 2
+        shutil.rmtree(out)
     for t in args.topics:
         try:
             bag_recorder_node.parse_topic_arg(t)
@@ -50,6 +70,29 @@ def main(argv: list[str] | None = None) -> int:
            "-p", f"timestamps:={args.timestamps}", "-p", f"compression:={args.compression}",
            "-p", f"use_sim_time:={'true' if args.use_sim_time else 'false'}"] + list(args.ros_args)
     return bag_recorder_node.main(ros)
+
+
+def _is_bag_or_empty(path: pathlib.Path) -> bool:
+    if not path.is_dir():
+        return False
+    names = {p.name for p in path.iterdir()}
+    return not names or all(n == "metadata.yaml" or n.endswith((".mcap", ".tmp")) for n in names)
+
+
+def _repair(out: str) -> int:
+    from thermal_comp_common.bag_reader import BagReadError
+    from thermal_comp_common.bag_repair import repair_bag
+    try:
+        r = repair_bag(out)
+    except (BagReadError, FileExistsError, OSError) as exc:
+        print(f"thermal-comp record --repair: {exc}", file=sys.stderr)
+        return 2
+    if r.damage is None:
+        print(f"{r.path}: intact ({r.messages} messages); nothing to repair")
+    else:
+        print(f"{r.path}: repaired, {r.messages} messages kept (was: {r.damage}); "
+              f"the damaged original is kept as {r.kept_as}")
+    return 0
 
 
 if __name__ == "__main__":

@@ -83,7 +83,7 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
                 undecodable.add(m.topic)
                 print(f"warning: {m.topic}: cannot decode {m.type}: {exc}", file=sys.stderr)
             continue
-        logger.log(m.topic, full, msg, m.log_time_ns)
+        logger.log(m.topic, full, msg, m.stamp_ns)
         n += 1
     return n, contents.damage
 

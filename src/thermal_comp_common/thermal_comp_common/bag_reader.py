@@ -8,7 +8,10 @@ time of the last good message, why); everything before it is kept. Nothing raise
 damaged MCAP body; a missing file or a malformed ``metadata.yaml`` raises
 :class:`BagReadError` naming the path and key.
 
-:func:`instants` groups the messages by time (stable, in recorded order within one instant),
+:func:`instants` groups the messages by their own stamp (:attr:`BagMessage.stamp_ns`, the
+header stamp when the type starts with one, else the log time), stable, in recorded order
+within one instant. The log time is the receive time in bags ``ros2 bag record`` and our
+recorder write, so it is not the instant a message belongs to.
 the unit the player publishes before it advances ``/clock``; :func:`wall_delay_s` is the
 pacing rule of real-time replay. No rclpy here; the node is :mod:`thermal_comp.bag_player_node`.
 """
@@ -24,7 +27,7 @@ from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from thermal_comp_common.bag_writer import METADATA_FILE
+from thermal_comp_common.bag_writer import METADATA_FILE, stamp_from_cdr
 
 
 class BagReadError(ValueError):
@@ -37,8 +40,29 @@ class BagMessage:
 
     topic: str
     type: str            # 'pkg/msg/Type'
-    log_time_ns: int
+    log_time_ns: int     # receive time (rosbag2), or the stamp in bags of older recorders
     data: bytes
+    stamp_ns: int = -1   # the message's header stamp; its log time when it has none
+
+    def __post_init__(self) -> None:
+        if self.stamp_ns < 0:
+            object.__setattr__(self, "stamp_ns", self.log_time_ns)
+
+
+_STAMP_TYPES = {"std_msgs/Header", "Header", "std_msgs/msg/Header", "builtin_interfaces/Time",
+                "builtin_interfaces/msg/Time", "time"}
+
+
+def schema_starts_with_stamp(schema_text: str) -> bool:
+    """True when the first field of a ros2msg schema is a Header or a Time."""
+    for line in schema_text.splitlines():
+        line = line.split("#", 1)[0].strip()
+        if not line or line.startswith("="):
+            continue
+        if "=" in line:
+            continue   # a constant: TYPE NAME = VALUE
+        return line.split()[0] in _STAMP_TYPES
+    return False
 
 
 @dataclass
@@ -63,11 +87,11 @@ class BagContents:
 
     @property
     def start_ns(self) -> int | None:
-        return self.messages[0].log_time_ns if self.messages else None
+        return self.messages[0].stamp_ns if self.messages else None
 
     @property
     def end_ns(self) -> int | None:
-        return self.messages[-1].log_time_ns if self.messages else None
+        return self.messages[-1].stamp_ns if self.messages else None
 
     def duration_s(self) -> float:
         return 0.0 if not self.messages else (self.end_ns - self.start_ns) * 1e-9
@@ -116,6 +140,7 @@ def _read_mcap(path: pathlib.Path, contents: BagContents) -> None:
     """Append the messages of one MCAP file to ``contents``; stop at the first damage."""
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
+    stamped: dict[int, bool] = {}
     size = path.stat().st_size
     good_offset = 0
     last_t: int | None = None
@@ -139,7 +164,11 @@ def _read_mcap(path: pathlib.Path, contents: BagContents) -> None:
                 schema = schemas.get(ch.schema_id)
                 if schema is None:
                     raise ValueError(f"channel {ch.topic!r}: unknown schema id {ch.schema_id}")
-                contents.messages.append(BagMessage(ch.topic, schema.name, rec.log_time, rec.data))
+                if schema.id not in stamped:
+                    stamped[schema.id] = schema_starts_with_stamp(schema.data.decode(errors="replace"))
+                stamp = stamp_from_cdr(rec.data) if stamped[schema.id] else None
+                contents.messages.append(BagMessage(ch.topic, schema.name, rec.log_time, rec.data,
+                                                    -1 if stamp is None else stamp))
                 last_t = rec.log_time
                 if ch.topic not in contents.topics:
                     contents.topics[ch.topic] = TopicSpec(ch.topic, schema.name)
@@ -178,7 +207,7 @@ def _read_mcap(path: pathlib.Path, contents: BagContents) -> None:
 
 
 def read_bag(path: str | os.PathLike) -> BagContents:
-    """Read a bag folder or an ``.mcap`` file; messages sorted stably by log time."""
+    """Read a bag folder or an ``.mcap`` file; messages sorted stably by their stamp."""
     path = pathlib.Path(path)
     if path.is_dir():
         if (path / METADATA_FILE).is_file():
@@ -202,20 +231,20 @@ def read_bag(path: str | os.PathLike) -> BagContents:
         _read_mcap(m, contents)
         if contents.damage:
             break
-    contents.messages.sort(key=lambda msg: msg.log_time_ns)   # stable: recorded order kept
+    contents.messages.sort(key=lambda msg: msg.stamp_ns)   # stable: recorded order kept
     return contents
 
 
 def instants(messages: list[BagMessage]) -> Iterator[tuple[int, list[BagMessage]]]:
-    """(time_ns, messages of that time) in time order; input must be sorted by time."""
+    """(stamp_ns, messages of that stamp) in order; input must be sorted by stamp."""
     group: list[BagMessage] = []
     for m in messages:
-        if group and m.log_time_ns != group[0].log_time_ns:
-            yield group[0].log_time_ns, group
+        if group and m.stamp_ns != group[0].stamp_ns:
+            yield group[0].stamp_ns, group
             group = []
         group.append(m)
     if group:
-        yield group[0].log_time_ns, group
+        yield group[0].stamp_ns, group
 
 
 def wall_delay_s(t_ns: int, start_ns: int, rate: float) -> float:

@@ -49,7 +49,7 @@ def bag_to_recording(contents: BagContents, temperatures_topic: str = "temperatu
     for m in contents.messages:
         if m.topic == e_topic:
             msg = store.deserialize_cdr(m.data, m.type)
-            errors_at[m.log_time_ns] = {
+            errors_at[m.stamp_ns] = {
                 (c if c.startswith("E_") else f"{c}_um"): float(v)
                 for c, v in zip(msg.component_names, msg.values)}
     for m in contents.messages:
@@ -60,8 +60,8 @@ def bag_to_recording(contents: BagContents, temperatures_topic: str = "temperatu
             row = {f"{sid}_c": (float(v) if int(st) == 0 else math.nan)
                    for sid, v, st in zip(msg.sensor_ids, msg.temperatures_degc, msg.status)}
             row.update(state)
-            row.update(errors_at.get(m.log_time_ns, {}))
-            t = m.log_time_ns / 1e9
+            row.update(errors_at.get(m.stamp_ns, {}))
+            t = m.stamp_ns / 1e9
             if rows and rows[-1][0] == t:   # an instant re-sent by machine_sim: one row per instant
                 rows[-1] = (t, row)
             else:
