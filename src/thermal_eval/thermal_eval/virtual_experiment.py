@@ -118,6 +118,58 @@ def _noise_per_component(probe_noise_um, probed: Sequence[str]) -> dict[str, flo
     return {c: float(v) for c, v in noise.items()}
 
 
+
+def _check_columns(recording, columns: ReplayColumns, names: Sequence[str], probed: Sequence[str]) -> None:
+    for c in names:
+        if c not in columns.errors:
+            raise VirtualExperimentError(f"model component {c!r} has no error column in the recording "
+                                         f"(error columns: {sorted(columns.errors.values())})")
+    for mapping in (columns.sensors, columns.inputs, columns.errors):
+        for key, col in mapping.items():
+            if col not in recording.columns:
+                raise VirtualExperimentError(f"column {col!r} (for {key!r}) is not in the recording")
+    for c in probed:
+        if c not in columns.errors:
+            raise VirtualExperimentError(f"probed component {c!r} has no error column in the recording")
+
+
+def _true_errors(recording, columns: ReplayColumns, components: Sequence[str], rows: slice,
+                 relative: bool) -> dict[str, np.ndarray]:
+    """The recorded errors of ``components`` over ``rows`` (relative to the first finite one)."""
+    true = {}
+    for c in components:
+        e = np.asarray(recording.columns[columns.errors[c]][rows], dtype=float)
+        if relative:
+            first = e[np.isfinite(e)]
+            e = e - (first[0] if first.size else 0.0)
+        true[c] = e
+    return true
+
+
+class ReplayProbe:
+    """The replay's probe: the residual at row ``row`` (true - applied) of the probed
+    components, plus Gaussian noise (fixed seed), quantised to the resolution."""
+
+    def __init__(self, true: Mapping[str, np.ndarray], probed: Sequence[str], noise: Mapping[str, float],
+                 resolution_um: float, seed: int):
+        self.true, self.probed, self.noise, self.resolution_um = true, list(probed), noise, resolution_um
+        self.rng = np.random.default_rng(seed)
+        self.row = 0
+
+    def __call__(self, t_s: float, applied: Mapping[str, float]) -> dict[str, float]:
+        measured = {}
+        for c in self.probed:
+            m = self.true[c][self.row] - applied.get(c, 0.0)
+            if self.noise[c] > 0:
+                m += self.rng.normal(0.0, self.noise[c])
+            if self.resolution_um > 0:
+                m = round(m / self.resolution_um) * self.resolution_um
+            measured[c] = m
+        if not all(math.isfinite(v) for v in measured.values()):
+            raise ProbeFailed("true error not recorded at this instant")
+        return measured
+
+
 def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayColumns | None = None,
                            probed_components: Sequence[str] | None = None,
                            probe_noise_um: float | Mapping[str, float] = 0.0,
@@ -137,61 +189,29 @@ def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayCo
     """
     columns = columns or ReplayColumns.from_recording(recording)
     names = list(model.component_names)
-    for c in names:
-        if c not in columns.errors:
-            raise VirtualExperimentError(f"model component {c!r} has no error column in the recording "
-                                         f"(error columns: {sorted(columns.errors.values())})")
-    for mapping in (columns.sensors, columns.inputs, columns.errors):
-        for key, col in mapping.items():
-            if col not in recording.columns:
-                raise VirtualExperimentError(f"column {col!r} (for {key!r}) is not in the recording")
     probed = list(probed_components) if probed_components is not None else names
-    for c in probed:
-        if c not in columns.errors:
-            raise VirtualExperimentError(f"probed component {c!r} has no error column in the recording")
+    _check_columns(recording, columns, names, probed)
     noise = _noise_per_component(probe_noise_um, probed)
     stop = len(recording) if stop is None else min(stop, len(recording))
     if not 0 <= start < stop:
         raise VirtualExperimentError(f"start/stop: empty range {start}..{stop} of {len(recording)} rows")
     t = recording.time_s[start:stop]
     n = t.size
-    all_errors = sorted(set(names) | set(probed))
-    true = {}
-    for c in all_errors:
-        e = np.asarray(recording.columns[columns.errors[c]][start:stop], dtype=float)
-        if relative_errors:
-            first = e[np.isfinite(e)]
-            e = e - (first[0] if first.size else 0.0)
-        true[c] = e
-    sens = {s: np.asarray(recording.columns[col][start:stop], dtype=float) for s, col in columns.sensors.items()}
-    inps = {s: np.asarray(recording.columns[col][start:stop], dtype=float) for s, col in columns.inputs.items()}
+    rows = slice(start, stop)
+    true = _true_errors(recording, columns, sorted(set(names) | set(probed)), rows, relative_errors)
+    sens = {s: np.asarray(recording.columns[col][rows], dtype=float) for s, col in columns.sensors.items()}
+    inps = {s: np.asarray(recording.columns[col][rows], dtype=float) for s, col in columns.inputs.items()}
     pred = {c: np.full(n, np.nan) for c in names}
     std = {c: np.full(n, np.nan) for c in names}
     phase: list[str] = []
-    rng = np.random.default_rng(seed)
-    row = {"k": 0}
-
-    def probe(tk: float, applied: Mapping[str, float]) -> dict[str, float]:
-        """The residual at row k (true - applied), with noise and resolution."""
-        measured = {}
-        for c in probed:
-            m = true[c][row["k"]] - applied.get(c, 0.0)
-            if noise[c] > 0:
-                m += rng.normal(0.0, noise[c])
-            if probe_resolution_um > 0:
-                m = round(m / probe_resolution_um) * probe_resolution_um
-            measured[c] = m
-        if not all(math.isfinite(v) for v in measured.values()):
-            raise ProbeFailed("true error not recorded at this instant")
-        return measured
-
+    probe = ReplayProbe(true, probed, noise, probe_resolution_um, seed)
     loop = ClosedLoop(model, HeldCompensation(names), probe=probe)
     steps = range(n)
     if progress:
         steps = tqdm(steps, desc=f"replay {getattr(model, 'kind', '?')}", unit="step", leave=False)
     for k in steps:
         tk = float(t[k])
-        row["k"] = k
+        probe.row = k
         step = loop.step(tk, {s: float(v[k]) for s, v in sens.items()}, {s: float(v[k]) for s, v in inps.items()})
         for c in names:
             pred[c][k] = step.values.get(c, math.nan)
