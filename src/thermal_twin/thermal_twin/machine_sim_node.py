@@ -179,6 +179,11 @@ class MachineSimNode(Node):
         self.get_logger().info(f"scenario finished at t = {self.runner.t_s:.0f} s")
         self.diag.set("lock-step", "OK", "scenario finished", instant_s=self.runner.t_s)
         if self.shutdown_when_done:
+            # a reader on another host may not hold the last instants yet: shutting down drops
+            # what its reliable writers still owe; wait for the acknowledgements (bounded, 5 s each)
+            from rclpy.duration import Duration
+            for pub in (self.pub_clock, self.pub_state, self.pub_sensors, self.pub_truth):
+                pub.wait_for_all_acked(Duration(seconds=5.0))
             self.context.try_shutdown()
         return True
 

@@ -1,0 +1,208 @@
+"""A cell across two hosts: two network namespaces joined by a veth pair stand in for an edge PC
+beside the machine and a recording/monitoring PC; ROS 2's own DDS discovery joins them.
+
+Host A (10.231.0.1) runs the cell (machine_sim + temperature publisher in lock-step) with
+``thermal-comp launch``; host B (10.231.0.2) runs ``thermal-comp nodes``, ``thermal-comp echo``
+and ``thermal-comp record``. Discovery is the ordinary SUBNET range (multicast on the link), the
+same ROS_DOMAIN_ID on both sides. Fast DDS's shared-memory transport is switched off
+(``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``): both namespaces share one kernel and one /dev/shm, so
+without it the data could bypass the veth link, which two real hosts never can. The bytes counted
+on B's end of the link prove the data crossed it. See docs/distributed.md.
+"""
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+
+import pytest
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+HOURS, STEP_S = 2.0, 300.0
+INSTANTS_NS = [round(k * STEP_S * 1e9) for k in range(int(HOURS * 3600 / STEP_S) + 1)]     # 25 instants
+TOPICS = ("machine_state", "twin/sensor_readings", "temperatures", "errors/ground_truth")
+ADDR_A, ADDR_B = "10.231.0.1", "10.231.0.2"
+
+CELL = """\
+cell: mh
+domain_id: {domain_id}
+use_sim_time: true
+nodes:
+  - name: machine_sim
+    module: thermal_twin.machine_sim_node
+    parameters: {{machine: nmv5000, scenario: load-case-A, seed: 0, hours: {hours}, step_s: {step},
+                 lockstep_participants: [sensors], shutdown_when_done: true,
+                 wait_for_subscribers: [recorder], lockstep_deadline_s: 60.0}}
+  - name: sensors
+    module: thermal_sensors.temperature_publisher_node
+    parameters: {{source: twin, sensor_config: nmv5000, lockstep_participant: true}}
+"""
+
+#: Run on host A: wait (with a deadline) until host B's echo subscribes to machine_state, so the
+#: echo is matched before the first instant is published (a graph condition, not a sleep).
+WAIT_FOR_ECHO = textwrap.dedent("""
+    import sys, time, rclpy
+    rclpy.init()
+    node = rclpy.create_node("mh_probe", namespace="/mh", start_parameter_services=False)
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        subs = node.get_subscriptions_info_by_topic("/mh/machine_state")
+        if any(s.node_name.startswith("thermal_comp_inspect_") for s in subs):
+            sys.exit(0)
+        rclpy.spin_once(node, timeout_sec=0.1)
+    sys.exit(1)
+""")
+
+
+def _ip(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=30)
+
+
+class TwoHosts:
+    """Two network namespaces ``a`` and ``b`` joined by a veth pair, addresses 10.231.0.1/.2."""
+
+    def __init__(self):
+        tag = f"tc{os.getpid()}"
+        self.a, self.b = f"{tag}a", f"{tag}b"
+        self.veth_a, self.veth_b = f"{tag}va", f"{tag}vb"
+        self.created: list[str] = []
+
+    def create(self) -> str | None:
+        """Set the pair up; None, or why namespaces cannot be created here."""
+        if os.geteuid() != 0:
+            return "network namespaces need root (ip netns add)"
+        if shutil.which("ip") is None:
+            return "the 'ip' command (iproute2) is not installed"
+        for ns in (self.a, self.b):
+            r = _ip("netns", "add", ns)
+            if r.returncode != 0:
+                return f"ip netns add {ns} failed: {r.stderr.strip()}"
+            self.created.append(ns)
+        steps = [("link", "add", self.veth_a, "type", "veth", "peer", "name", self.veth_b),
+                 ("link", "set", self.veth_a, "netns", self.a), ("link", "set", self.veth_b, "netns", self.b),
+                 ("-n", self.a, "addr", "add", f"{ADDR_A}/24", "dev", self.veth_a),
+                 ("-n", self.b, "addr", "add", f"{ADDR_B}/24", "dev", self.veth_b),
+                 ("-n", self.a, "link", "set", "lo", "up"), ("-n", self.b, "link", "set", "lo", "up"),
+                 ("-n", self.a, "link", "set", self.veth_a, "up"), ("-n", self.b, "link", "set", self.veth_b, "up")]
+        for step in steps:
+            r = _ip(*step)
+            if r.returncode != 0:
+                return f"ip {' '.join(step)} failed: {r.stderr.strip()}"
+        return None
+
+    def rx_bytes_b(self) -> int:
+        r = subprocess.run(["ip", "netns", "exec", self.b, "cat", f"/sys/class/net/{self.veth_b}/statistics/rx_bytes"],
+                           capture_output=True, text=True, timeout=30, check=True)
+        return int(r.stdout)
+
+    def delete(self) -> None:
+        for ns in self.created:           # deleting a namespace deletes its end of the veth pair too
+            _ip("netns", "delete", ns)
+
+
+class Proc:
+    """A process in a namespace, its output collected line by line."""
+
+    def __init__(self, ns: str, env: dict, *argv: str):
+        self.p = subprocess.Popen(["ip", "netns", "exec", ns, *argv], env=env, stdout=subprocess.PIPE,
+                                  stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        self.lines: list[str] = []
+        self._cv = threading.Condition()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self):
+        for line in self.p.stdout:
+            with self._cv:
+                self.lines.append(line.rstrip("\n"))
+                self._cv.notify_all()
+
+    def wait_for(self, text: str, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            while not any(text in line for line in self.lines):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise AssertionError(f"never printed {text!r}:\n" + "\n".join(self.lines[-40:]))
+                self._cv.wait(left)
+
+    def stop(self, sig=signal.SIGINT, timeout: float = 20.0) -> int:
+        if self.p.poll() is None:
+            os.killpg(self.p.pid, sig)
+            try:
+                self.p.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.p.pid, signal.SIGKILL)
+                self.p.wait()
+        self._reader.join(timeout=5)
+        return self.p.returncode
+
+    def output(self) -> str:
+        with self._cv:
+            return "\n".join(self.lines)
+
+
+def _run(ns: str, env: dict, *argv: str, timeout: float = 90.0) -> subprocess.CompletedProcess:
+    return subprocess.run(["ip", "netns", "exec", ns, *argv], env=env, capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_domain_id):
+    from thermal_comp_common.bag_reader import read_bag
+    hosts = TwoHosts()
+    procs: list[Proc] = []
+    try:
+        why = hosts.create()
+        if why is not None:
+            pytest.skip(f"cannot build two hosts from network namespaces: {why}")
+        env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",
+                   FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1")
+        env.pop("ROS_STATIC_PEERS", None)
+        cli = [sys.executable, "-m", "thermal_comp.cli"]
+        cell = tmp_path / "cell.yaml"
+        cell.write_text(CELL.format(domain_id=ros_domain_id, hours=HOURS, step=STEP_S))
+
+        launch = Proc(hosts.a, env, *cli, "launch", str(cell), "--run-dir", str(tmp_path / "run"), "--no-restart")
+        procs.append(launch)
+        # host B sees host A's nodes by discovery alone
+        nodes = _run(hosts.b, env, *cli, "nodes", "--expect", "/mh/machine_sim", "--expect", "/mh/sensors",
+                     "--wait", "60")
+        assert nodes.returncode == 0, nodes.stdout + nodes.stderr
+        echo = Proc(hosts.b, env, *cli, "echo", "/mh/machine_state", "-n", str(len(INSTANTS_NS)),
+                    "--reliable", "--wait", "60")
+        procs.append(echo)
+        matched = _run(hosts.a, env, sys.executable, "-c", WAIT_FOR_ECHO)
+        assert matched.returncode == 0, "host A never saw host B's echo subscribe: " + matched.stderr
+        rx_before = hosts.rx_bytes_b()
+        bag = tmp_path / "bag"
+        recorder = Proc(hosts.b, env, *cli, "record", str(bag), "--ros-args", "-r", "__ns:=/mh",
+                        "-r", "__node:=recorder")
+        procs.append(recorder)
+
+        launch.wait_for("mh/machine_sim exited with code 0", timeout=120.0)
+        assert echo.p.wait(timeout=60) == 0, echo.output()
+        assert launch.stop(signal.SIGTERM) == 0, launch.output()
+        assert recorder.stop(signal.SIGINT) == 0, recorder.output()
+        rx = hosts.rx_bytes_b() - rx_before
+
+        contents = read_bag(bag)
+        assert contents.damage is None, contents.damage
+        stamps = {rel: sorted(m.stamp_ns for m in contents.messages if m.topic == f"/mh/{rel}") for rel in TOPICS}
+        missing = {rel: [t / 1e9 for t in sorted(set(INSTANTS_NS) - set(s))] for rel, s in stamps.items()}
+        assert all(not m for m in missing.values()), f"instants (s) missing in host B's bag: {missing}"
+        assert all(s == INSTANTS_NS for s in stamps.values()), "duplicated instants in host B's bag"
+        payload = sum(len(m.data) for m in contents.messages)
+        assert rx > payload, f"only {rx} bytes crossed the link for {payload} bytes of messages"
+        # the echo on host B printed every instant of machine_state too
+        assert echo.output().count("---") == len(INSTANTS_NS)
+    finally:
+        for p in reversed(procs):
+            p.stop(signal.SIGKILL, timeout=5)
+        hosts.delete()
