@@ -77,51 +77,68 @@ def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: 
 
         for _ in range(steps_before):
             step(False)
-        if fault in ("server_restart", "server_reset"):
-            emu.restart(keep_state=fault == "server_restart")
-        elif fault == "stalled":
-            emu.stop()
-        elif fault == "rejected_write":
-            _set_writable(emu, node_map["X"].offset, False)
-        elif fault == "bridge_restart":
+        _begin_fault(fault, emu, node_map["X"].offset)
+        if fault == "bridge_restart":
             backend.close()
             backend = make_backend()
             backend.wait_connected(10.0)
             env = SafetyEnvelope(env_cfg)
         for _ in range(steps_during):
             step(True)
-        if fault == "stalled":
-            emu.start(emu.emulator.state)
-        elif fault == "rejected_write":
-            _set_writable(emu, node_map["X"].offset, True)
-        if fault in ("server_restart", "server_reset", "stalled", "rejected_write"):
-            backend.wait_connected(10.0)
+        _end_fault(fault, emu, node_map["X"].offset, backend)
         for _ in range(steps_after):
             step(False)
-        deadline = time.monotonic() + 10.0
-        while time.monotonic() < deadline and fault != "wrong_credentials":
-            if backend.connected:
-                break
-            time.sleep(0.05)
-        applied = emu.applied_um()
-        violations = []
-        for a in axes:
-            violations += step_violations(written_offsets_um(emu.write_log, a), max_rate_um_per_s * dt_s,
-                                          env_cfg.abs_limit_um, a)
-        if fault == "wrong_credentials":
-            survived = not backend.connected and all(abs(v) < 1e-9 for v in applied.values())
-            detail = f"refused: {backend.last_error}"
-        else:
-            survived = backend.connected and all(abs(applied[a] - env.applied[a]) < 1e-6 for a in axes)
-            detail = f"CNC holds {', '.join(f'{a}={applied[a]:.3f}' for a in axes)} um"
-        if fault != "wrong_credentials" and failed == 0 and fault != "bridge_restart":
-            survived = False
-            detail += "; the fault was not seen (no write failed during it)"
-        return LinkFaultResult(fault, bool(survived), failed, violations, detail)
+        return _verdict(fault, backend, emu, env, axes, failed, max_rate_um_per_s * dt_s)
     finally:
         if backend is not None:
             backend.close()
         emu.close()
+
+
+
+def _begin_fault(fault: str, emu, x_offset_node: str) -> None:
+    """What happens to the CNC's server when the fault window opens."""
+    if fault in ("server_restart", "server_reset"):
+        emu.restart(keep_state=fault == "server_restart")
+    elif fault == "stalled":
+        emu.stop()
+    elif fault == "rejected_write":
+        _set_writable(emu, x_offset_node, False)
+
+
+def _end_fault(fault: str, emu, x_offset_node: str, backend) -> None:
+    """The server back to normal when the fault window closes; the backend reconnects."""
+    if fault == "stalled":
+        emu.start(emu.emulator.state)
+    elif fault == "rejected_write":
+        _set_writable(emu, x_offset_node, True)
+    if fault in ("server_restart", "server_reset", "stalled", "rejected_write"):
+        backend.wait_connected(10.0)
+
+
+def _verdict(fault: str, backend, emu, env, axes, failed: int, max_step_um: float) -> LinkFaultResult:
+    """Did the link survive: the CNC holds what the envelope applied (or, for wrong
+    credentials, nothing was written), no write broke the envelope, the fault was seen."""
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline and fault != "wrong_credentials":
+        if backend.connected:
+            break
+        time.sleep(0.05)
+    applied = emu.applied_um()
+    violations = []
+    for a in axes:
+        violations += step_violations(written_offsets_um(emu.write_log, a), max_step_um,
+                                      env.config.abs_limit_um, a)
+    if fault == "wrong_credentials":
+        survived = not backend.connected and all(abs(v) < 1e-9 for v in applied.values())
+        detail = f"refused: {backend.last_error}"
+    else:
+        survived = backend.connected and all(abs(applied[a] - env.applied[a]) < 1e-6 for a in axes)
+        detail = f"CNC holds {', '.join(f'{a}={applied[a]:.3f}' for a in axes)} um"
+    if fault != "wrong_credentials" and failed == 0 and fault != "bridge_restart":
+        survived = False
+        detail += "; the fault was not seen (no write failed during it)"
+    return LinkFaultResult(fault, bool(survived), failed, violations, detail)
 
 
 def _set_writable(emu, node_id: str, writable: bool) -> None:
