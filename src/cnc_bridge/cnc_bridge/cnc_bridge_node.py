@@ -141,7 +141,10 @@ class CncBridgeNode(LifecycleNode):
             self.backend.adopt({a.axis: a.adopted_um for a in self.adopted})
         for a in self.adopted:
             text = "start-up: " + a.describe()
-            (self.get_logger().warning if a.flags else self.get_logger().info)(text)
+            if a.flags:      # rclpy: one severity per call site
+                self.get_logger().warning(text)
+            else:
+                self.get_logger().info(text)
             self._audit_event(a.axis, text, a.flags)
         self._positions: dict[str, float] = {}
         self._errors: dict[str, float] | None = None

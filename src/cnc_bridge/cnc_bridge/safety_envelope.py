@@ -156,8 +156,8 @@ class SafetyEnvelope:
             raw = float(v)
             on = True if compensation_on is None else bool(compensation_on.get(a, True))
             flags, value = LIMIT_NONE, raw
-            if not on:
-                value, flags = 0.0, LIMIT_DISABLED
+            if not on:     # flagged only when something was held: that value is dropped
+                value, flags = 0.0, (LIMIT_DISABLED if raw != 0.0 else LIMIT_NONE)
             elif not math.isfinite(raw):
                 value, flags = 0.0, LIMIT_ABSOLUTE
             limit = self.config.limit_for(a)

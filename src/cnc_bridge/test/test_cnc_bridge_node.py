@@ -18,11 +18,12 @@ logging.getLogger("asyncua").setLevel(logging.ERROR)
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
 
-def spawn_bridge(namespace: str, *params: str) -> subprocess.Popen:
+def spawn_bridge(namespace: str, *params: str, autostart: bool = True,
+                 env: dict | None = None) -> subprocess.Popen:
     args = [sys.executable, "-m", "cnc_bridge.cnc_bridge_node", "--ros-args", "-r", f"__ns:={namespace}"]
-    for p in params:
+    for p in list(params) + ([f"autostart:={str(autostart).lower()}"]):
         args += ["-p", p]
-    return subprocess.Popen(args, env=dict(os.environ), stdout=subprocess.PIPE,
+    return subprocess.Popen(args, env={**os.environ, **(env or {})}, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
 
 
@@ -103,16 +104,31 @@ class Cell:
                         timeout_s, f"offsets for t={t}")
         return next(o for o in self.offsets if abs(stamp_to_s(o.header.stamp) - t) < 1e-9)
 
-    def set_enable(self, node_path: str, value: bool):
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+    def set_param(self, node_path: str, name: str, value):
+        """Set one parameter through the node's service; returns the SetParametersResult."""
         from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
         cli = self.node.create_client(SetParameters, f"{node_path}/set_parameters")
         self.spin_until(cli.service_is_ready, 15, "the parameter service")
-        fut = cli.call_async(SetParameters.Request(parameters=[Parameter(
-            name="enable", value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value))]))
+        fut = cli.call_async(SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()]))
         self.spin_until(fut.done, 15, "set_parameters")
-        assert fut.result().results[0].successful
         self.node.destroy_client(cli)
+        return fut.result().results[0]
+
+    def set_enable(self, node_path: str, value: bool):
+        assert self.set_param(node_path, "enable", value).successful
+
+    def transition(self, node_path: str, name: str) -> bool:
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState
+        cli = self.node.create_client(ChangeState, f"{node_path}/change_state")
+        self.spin_until(cli.service_is_ready, 15, "the lifecycle service")
+        req = ChangeState.Request()
+        req.transition.id = getattr(Transition, f"TRANSITION_{name.upper()}")
+        fut = cli.call_async(req)
+        self.spin_until(fut.done, 30, f"transition {name}")
+        self.node.destroy_client(cli)
+        return fut.result().success
 
     def close(self):
         self.node.destroy_node()
@@ -159,7 +175,7 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
         msg = cell.offsets[-1]
         z = msg.axis_names.index("Z")
         assert msg.applied_offsets_um[z] == pytest.approx(5.0) and msg.limits_hit[z] == 4
-        rows = read_audit_log(audit)
+        rows = [r for r in read_audit_log(audit) if not r["note"]]      # the writes
         assert len(rows) == 8 * 3 and {r["axis"] for r in rows} == {"X", "Y", "Z"}
     finally:
         cell.close()
@@ -172,9 +188,10 @@ def test_opcua_backend_against_the_emulator(tmp_path, ros_domain_id):
     emu = CncEmulatorThread(EmulatorConfig(port=port, user="cnc", password="pw")).start()
     emu.set_position("B", 90.0)                        # the bridge reads B from the CNC
     proc = spawn_bridge("/bridge_opcua", "backend:=opcua",
-                        f"endpoint:=opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}", "user:=cnc",
-                        "password:=pw", "lockstep:=true", "max_rate_um_per_s:=1.0",
-                        "abs_limit_um:=50.0", f"audit_log_path:={tmp_path / 'audit.csv'}")
+                        f"endpoint:=opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}", "lockstep:=true",
+                        "max_rate_um_per_s:=1.0", "abs_limit_um:=50.0",
+                        f"audit_log_path:={tmp_path / 'audit.csv'}",
+                        env={"THERMAL_COMP_OPCUA_USER": "cnc", "THERMAL_COMP_OPCUA_PASSWORD": "pw"})
     cell = Cell("/bridge_opcua")
     try:
         cell.wait_matched()
@@ -217,6 +234,9 @@ def test_emulator_command_line(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--security", "required"],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "--certificate" in bad.stderr
+    plain = subprocess.run([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--password", "pw"],
+                           capture_output=True, text=True, timeout=60)
+    assert plain.returncode == 2, "a password on the command line is not an option"
 
 
 def test_emulator_fed_by_the_twin_answers_probe_moves_from_ground_truth(ros_domain_id):
@@ -277,3 +297,71 @@ def test_emulator_fed_by_the_twin_answers_probe_moves_from_ground_truth(ros_doma
     finally:
         cell.close()
         stop(proc)
+
+
+def test_credentials_as_parameters_are_refused(ros_domain_id):
+    proc = spawn_bridge("/bridge_secret", "backend:=opcua", "password:=s3cret")
+    out = stop(proc) if proc.wait(timeout=60) is None else proc.stdout.read()
+    assert proc.returncode == 2
+    assert "parameter 'password'" in out and "credentials_file" in out and "s3cret" not in out
+
+
+def test_managed_bridge_never_writes_before_activate_and_honours_runtime_limits(tmp_path, ros_domain_id):
+    """Issue 23 end to end: the CNC holds X = -5 mm with compensation off. Configure connects
+    and reads, writes nothing; activate writes from zero, rate-limited (no 5 mm step); a limit
+    set at run time applies to the next write; a read-only parameter is refused; deactivate
+    ramps to zero."""
+    from cnc_bridge.cnc_emulator import EmulatorState, compensation_node_id
+    port = free_tcp_port()
+    state = EmulatorState(compensation={"X": {"SD43900": -5.0, "SD43910": 0.0, "SD43920": 0.0,
+                                              "MD32750": 0}})
+    emu = CncEmulatorThread(EmulatorConfig(port=port, offset_limit_mm=10.0))
+    emu.start(state)
+    audit = tmp_path / "audit.csv"
+    proc = spawn_bridge("/bridge_managed", "backend:=opcua",
+                        f"endpoint:=opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}", "lockstep:=true",
+                        "max_rate_um_per_s:=1.0", "abs_limit_um:=30.0", "max_step_s:=10.0",
+                        "disable_ramp_um_per_s:=1.0", f"audit_log_path:={audit}", autostart=False)
+    cell = Cell("/bridge_managed")
+    node = "/bridge_managed/cnc_bridge"
+    try:
+        assert cell.transition(node, "configure")
+        cell.wait_matched()
+        assert emu.write_log == [], "configure never writes"
+        notes = [r["note"] for r in read_audit_log(audit) if r["note"]]
+        assert any("X: held -5000.000 um (compensation off), adopted 0.000 um" in n for n in notes)
+        cell.state(0.0, X=0.0, Y=0.0, Z=0.0)
+        cell.predict(0.0, E_X0C=20.0)
+        cell.spin_until(lambda: len(cell.syncs) >= 1, 15, "SimSync while inactive")
+        assert emu.write_log == [] and cell.offsets == [], "inactive: nothing written"
+        assert cell.transition(node, "activate")
+        xs = []
+        for k in range(1, 4):
+            t = 10.0 * k
+            cell.state(t, X=0.0, Y=0.0, Z=0.0)
+            cell.predict(t, E_X0C=20.0)
+            msg = cell.answer_for(t)
+            xs.append(dict(zip(msg.axis_names, msg.applied_offsets_um))["X"])
+        assert xs == pytest.approx([0.0, 10.0, 20.0])         # from zero, 1 um/s, never -5 mm
+        assert all(abs(v) <= 30e-3 + 1e-12 for n, v in emu.write_log
+                   if n == compensation_node_id("X", "SD43900"))
+        assert cell.set_param(node, "abs_limit_um", 1.0).successful
+        refused = cell.set_param(node, "endpoint", "opc.tcp://10.0.0.1:4840/x")
+        assert not refused.successful and "read-only" in refused.reason.lower()
+        cell.predict(40.0, E_X0C=20.0)
+        msg = cell.answer_for(40.0)
+        x = msg.axis_names.index("X")
+        assert msg.commanded_offsets_um[x] == pytest.approx(20.0)
+        assert msg.limits_hit[x] & 1, "the new absolute limit is applied and flagged"
+        assert msg.applied_offsets_um[x] == pytest.approx(10.0)   # moving to 1 um at 1 um/s
+        assert cell.transition(node, "deactivate")
+        cell.predict(50.0, E_X0C=20.0)
+        msg = cell.answer_for(50.0)
+        assert not msg.compensation_enabled
+        assert msg.applied_offsets_um[msg.axis_names.index("X")] == pytest.approx(0.0)
+        notes = [r["note"] for r in read_audit_log(audit) if r["note"]]
+        assert any("abs_limit_um: 30.0 -> 1.0" in n for n in notes)
+    finally:
+        cell.close()
+        stop(proc)
+        emu.close()
