@@ -36,6 +36,7 @@ setup(
             "model = thermal_eval.bench_model:run",
             "models = thermal_eval.bench_sweep:run",
             "probe = thermal_eval.bench_probe:run",
+            "scale = thermal_eval.bench_scale:run",
             "sensors = thermal_eval.bench_sensors:run",
             "twin = thermal_eval.bench_twin:run",
         ],
