@@ -7,8 +7,9 @@ A cell file is YAML::
     use_sim_time: true          # default for every node (optional, default false)
     restart:                    # default restart policy for crashed nodes (optional)
       enabled: true             #   restart a node that exits with an error or a signal
-      max_restarts: 5           #   then give up on it
+      max_restarts: 5           #   then give up on it (0..100)
       backoff_s: 1.0            #   wait before a restart, doubled on each further crash
+                                #   (0.1..3600 s when enabled: no restart loop without a pause)
     env: {KEY: value}           # extra environment of the cell's processes (optional)
     nodes:                      # (required, at least one)
       - name: sensors           # node name, unique in the cell (required)
@@ -19,9 +20,13 @@ A cell file is YAML::
         restart: false          # per-node override: bool or a mapping like the cell's (optional)
         args: []                # extra command-line arguments before --ros-args (optional)
         env: {KEY: value}       # extra environment of this node (optional)
+        lifecycle: true         # a managed node: the launcher drives configure + activate after
+                                # start, deactivate before a clean stop (optional; default: the
+                                # node module declares LIFECYCLE_NODE = True)
+        lifecycle_timeout_s: 30 # deadline of each transition (optional, 1..600)
 
 Any mistake raises :class:`CellConfigError` with one line naming the file, the key path and
-the bad value.
+the bad value (also for a file that is not UTF-8 text).
 """
 from __future__ import annotations
 
@@ -37,8 +42,12 @@ NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 MODULE_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
 MAX_DOMAIN_ID = 232
 _CELL_KEYS = {"cell", "domain_id", "use_sim_time", "restart", "env", "nodes"}
-_NODE_KEYS = {"name", "package", "executable", "module", "parameters", "restart", "args", "env"}
+_NODE_KEYS = {"name", "package", "executable", "module", "parameters", "restart", "args", "env",
+              "lifecycle", "lifecycle_timeout_s"}
 _RESTART_KEYS = {"enabled", "max_restarts", "backoff_s"}
+MAX_RESTARTS = 100
+MIN_BACKOFF_S = 0.1
+LIFECYCLE_MARK = re.compile(r"^LIFECYCLE_NODE\s*=\s*True\b", re.M)
 
 
 class CellConfigError(ValueError):
@@ -62,6 +71,8 @@ class NodeSpec:
     env: dict[str, str] = field(default_factory=dict)
     package: str | None = None
     executable: str | None = None
+    lifecycle: bool = False
+    lifecycle_timeout_s: float = 30.0
 
 
 @dataclass
@@ -96,11 +107,13 @@ def _restart(src: str, path: str, value: Any, default: RestartPolicy) -> Restart
     if not isinstance(enabled, bool):
         _fail(src, f"{path}.enabled", f"expected true or false, got {enabled!r}")
     mr = value.get("max_restarts", default.max_restarts)
-    if not isinstance(mr, int) or isinstance(mr, bool) or mr < 0:
-        _fail(src, f"{path}.max_restarts", f"expected an integer >= 0, got {mr!r}")
+    if not isinstance(mr, int) or isinstance(mr, bool) or not 0 <= mr <= MAX_RESTARTS:
+        _fail(src, f"{path}.max_restarts", f"expected an integer in [0, {MAX_RESTARTS}], got {mr!r}")
     bo = value.get("backoff_s", default.backoff_s)
-    if not isinstance(bo, (int, float)) or isinstance(bo, bool) or not (0 <= bo <= 3600):
-        _fail(src, f"{path}.backoff_s", f"expected seconds in [0, 3600], got {bo!r}")
+    lo = MIN_BACKOFF_S if enabled else 0.0
+    if not isinstance(bo, (int, float)) or isinstance(bo, bool) or not (lo <= bo <= 3600):
+        _fail(src, f"{path}.backoff_s", f"expected seconds in [{lo:g}, 3600]"
+              f"{' (a restart loop needs a pause)' if enabled else ''}, got {bo!r}")
     return RestartPolicy(enabled, mr, float(bo))
 
 
@@ -126,6 +139,33 @@ def console_script_module(package: str, executable: str) -> str | None:
                 ep.dist.name.replace("-", "_") == package.replace("-", "_"):
             return ep.value.split(":")[0]
     return None
+
+
+def module_is_lifecycle(module: str) -> bool:
+    """True when the node module declares ``LIFECYCLE_NODE = True`` (read, not imported)."""
+    import importlib.util
+    try:
+        spec = importlib.util.find_spec(module)
+    except (ImportError, ValueError):
+        return False
+    if spec is None or not spec.origin or not spec.origin.endswith(".py"):
+        return False
+    try:
+        return bool(LIFECYCLE_MARK.search(pathlib.Path(spec.origin).read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _lifecycle(src: str, p: str, n: Mapping, module: str, resolve: bool) -> tuple[bool, float]:
+    lc = n.get("lifecycle")
+    if lc is not None and not isinstance(lc, bool):
+        _fail(src, f"{p}.lifecycle", f"expected true or false, got {lc!r}")
+    if lc is None:
+        lc = resolve and module_is_lifecycle(module)
+    to = n.get("lifecycle_timeout_s", 30.0)
+    if not isinstance(to, (int, float)) or isinstance(to, bool) or not 1 <= to <= 600:
+        _fail(src, f"{p}.lifecycle_timeout_s", f"expected seconds in [1, 600], got {to!r}")
+    return lc, float(to)
 
 
 def _check_parameters(src: str, path: str, params: Any) -> dict[str, Any]:
@@ -211,8 +251,9 @@ def parse_cell(data: Any, source: str = "<cell>", resolve: bool = True) -> CellC
         args = n.get("args", [])
         if not isinstance(args, list) or not all(isinstance(a, str) for a in args):
             _fail(src, f"{p}.args", f"expected a list of strings, got {args!r}")
+        lifecycle, lifecycle_timeout_s = _lifecycle(src, p, n, module, resolve)
         nodes.append(NodeSpec(
-            name=name, module=module,
+            name=name, module=module, lifecycle=lifecycle, lifecycle_timeout_s=lifecycle_timeout_s,
             parameters=_check_parameters(src, f"{p}.parameters", n.get("parameters")),
             restart=_restart(src, f"{p}.restart", n.get("restart"), default_restart),
             args=list(args), env=_env(src, f"{p}.env", n.get("env")),
@@ -224,9 +265,14 @@ def load_cell(path: str | pathlib.Path, resolve: bool = True) -> CellConfig:
     """Read and validate a cell file."""
     path = pathlib.Path(path)
     try:
-        text = path.read_text()
+        text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         raise CellConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise CellConfigError(f"{path}: not a UTF-8 text file (byte {exc.object[exc.start]:#04x} "
+                              f"at offset {exc.start}); a cell file is YAML text") from None
+    if "\x00" in text:
+        raise CellConfigError(f"{path}: a binary file (NUL bytes); a cell file is YAML text")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:

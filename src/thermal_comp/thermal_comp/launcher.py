@@ -5,8 +5,14 @@
 cell file (written to a ROS 2 parameters file) and the cell's ROS_DOMAIN_ID. Output lines are
 prefixed with ``[cell/node]`` and also kept in a log file per node. A node that crashes is
 restarted when its restart policy says so (with exponential back-off, up to a maximum).
-Ctrl-C or SIGTERM stops every process: SIGINT first, SIGKILL after the grace time, so no
-process is left behind; children also receive SIGTERM if the launcher itself dies.
+Managed (lifecycle) nodes (cell key ``lifecycle``, or a module that declares
+``LIFECYCLE_NODE = True``) are driven through configure and activate after every start and
+through deactivate before a clean stop (:mod:`thermal_comp.lifecycle_driver`, in the
+cell's environment, each transition with the node's deadline); a transition that fails or
+hangs is one error line naming the node, the node is stopped and not restarted, and
+``run`` exits 1. Ctrl-C or SIGTERM stops every process: SIGINT first, SIGKILL after the
+grace time, so no process is left behind; children also receive SIGTERM if the launcher
+itself dies.
 """
 from __future__ import annotations
 
@@ -49,7 +55,14 @@ class ManagedProcess:
     next_start: float | None = None      # monotonic time of a pending restart
     exit_codes: list[int] = field(default_factory=list)
     gave_up: bool = False
+    lifecycle: str = ""                  # "", "activating", "active", "failed"
+    lifecycle_error: str = ""
     _reader: threading.Thread | None = None
+    _driver: threading.Thread | None = None
+
+    @property
+    def full_name(self) -> str:
+        return f"{self.cell.namespace}/{self.node.name}"
 
     @property
     def label(self) -> str:
@@ -127,6 +140,66 @@ class Launcher:
                                       name=f"log-{mp.label}")
         mp._reader.start()
         self._emit("launch", f"started {mp.label} (pid {mp.popen.pid}): python -m {mp.node.module}")
+        if mp.node.lifecycle:
+            mp.lifecycle = "activating"
+            mp._driver = threading.Thread(target=self._bring_up, args=(mp, mp.popen), daemon=True,
+                                          name=f"lifecycle-{mp.label}")
+            mp._driver.start()
+
+    # ---------------------------------------------------------------------------------- lifecycle
+    def _transition(self, mp: ManagedProcess, transitions: list[str]) -> str:
+        """Run the lifecycle driver for ``mp``; return "" on success, else the error line."""
+        timeout = mp.node.lifecycle_timeout_s
+        argv = [sys.executable, "-m", "thermal_comp.lifecycle_driver", "--timeout", f"{timeout:g}",
+                mp.full_name, *transitions]
+        try:   # the driver has its own deadlines; this one covers a driver that hangs itself
+            done = subprocess.run(argv, env=mp.env, capture_output=True, text=True,
+                                  timeout=timeout * (len(transitions) + 1) + 30.0,
+                                  stdin=subprocess.DEVNULL)
+        except subprocess.TimeoutExpired:
+            return f"{mp.label}: lifecycle {' '.join(transitions)} hung (no answer within the deadline)"
+        if done.returncode != 0:
+            lines = (done.stderr.strip() or done.stdout.strip() or f"exit code {done.returncode}").splitlines()
+            return f"{mp.label}: {lines[-1]}"
+        return ""
+
+    def _bring_up(self, mp: ManagedProcess, popen: subprocess.Popen) -> None:
+        error = self._transition(mp, ["configure", "activate"])
+        if popen is not mp.popen or self._stopping.is_set():
+            return            # restarted or stopping meanwhile: this attempt no longer matters
+        if not error:
+            mp.lifecycle = "active"
+            self._emit("launch", f"{mp.label}: configured and active")
+            return
+        mp.lifecycle, mp.lifecycle_error, mp.gave_up = "failed", error, True
+        self._emit("launch", f"ERROR {error}; stopping {mp.label} (no restart)")
+        try:
+            os.killpg(popen.pid, signal.SIGINT)
+        except ProcessLookupError:
+            pass
+
+    def _bring_down(self) -> None:
+        """Deactivate every active managed node (in parallel, each with its deadline)."""
+        active = [mp for mp in self.processes if mp.lifecycle == "active" and mp.running()]
+        errors: dict[str, str] = {}
+
+        def one(mp):
+            errors[mp.label] = self._transition(mp, ["deactivate"])
+        threads = [threading.Thread(target=one, args=(mp,), daemon=True) for mp in active]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for mp in active:
+            if errors.get(mp.label):
+                self._emit("launch", f"ERROR {errors[mp.label]}")
+            else:
+                mp.lifecycle = "inactive"
+                self._emit("launch", f"{mp.label}: deactivated")
+
+    @property
+    def lifecycle_failures(self) -> list[str]:
+        return [mp.lifecycle_error for mp in self.processes if mp.lifecycle == "failed"]
 
     def start(self) -> None:
         for mp in self.processes:
@@ -149,7 +222,7 @@ class Launcher:
                 mp.exit_codes.append(code)
                 how = f"signal {-code}" if code < 0 else f"code {code}"
                 policy = mp.node.restart
-                if self._stopping.is_set():
+                if self._stopping.is_set() or mp.lifecycle == "failed":
                     pass
                 elif code != 0 and policy.enabled and mp.restarts < policy.max_restarts:
                     delay = policy.backoff_s * (2 ** mp.restarts)
@@ -160,6 +233,8 @@ class Launcher:
                     mp.gave_up = code != 0 and policy.enabled
                     self._emit("launch", f"{mp.label} exited with {how}" +
                                ("; restart limit reached" if mp.gave_up else ""))
+                if mp.lifecycle != "failed":
+                    mp.lifecycle = "" if mp.node.lifecycle else mp.lifecycle
             if mp.next_start is not None and not self._stopping.is_set():
                 alive = True
                 if now >= mp.next_start:
@@ -168,7 +243,11 @@ class Launcher:
         return alive
 
     def stop(self) -> None:
-        """Stop every process: SIGINT, then SIGKILL after the grace time (whole process groups)."""
+        """Stop every process: managed nodes are deactivated first, then SIGINT, then SIGKILL
+        after the grace time (whole process groups)."""
+        if not self._brought_down:
+            self._brought_down = True
+            self._bring_down()
         self._stopping.set()
         for mp in self.processes:
             mp.next_start = None
@@ -207,12 +286,15 @@ class Launcher:
                 self._stopping.wait(poll_s)
         finally:
             self.stop()
+        if self.lifecycle_failures:
+            return 1
         if self._stop_requested:
             return 0
         crashed = [mp for mp in self.processes if mp.exit_codes and mp.exit_codes[-1] != 0]
         return 1 if crashed else 0
 
     _stop_requested = False
+    _brought_down = False
 
     def request_stop(self) -> None:
         """Ask :meth:`run` to stop every process (safe from a signal handler)."""
