@@ -15,7 +15,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob(f"{PACKAGE}/config/*.yaml"))),
     ],
-    install_requires=["setuptools"],
+    install_requires=["setuptools", "numpy", "pyyaml", "scikit-learn", "scipy", "threadpoolctl"],
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

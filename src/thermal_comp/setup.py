@@ -17,7 +17,9 @@ setup(
         # the example cell files live at the repository top (config/cells/)
         (f"share/{PACKAGE}/config/cells", sorted(glob("../../config/cells/*.yaml"))),
     ],
-    install_requires=["setuptools"],
+    install_requires=[
+        "setuptools", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich", "tqdm",
+    ],
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

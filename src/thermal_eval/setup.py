@@ -12,7 +12,10 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
-    install_requires=["setuptools"],
+    install_requires=[
+        "setuptools", "asyncua", "distributed", "matplotlib", "numpy", "psutil", "pyyaml", "rich",
+        "scikit-learn", "scipy", "statsmodels", "sysidentpy", "threadpoolctl", "tqdm",
+    ],
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

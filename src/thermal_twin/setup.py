@@ -15,7 +15,10 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config/presets", sorted(glob(f"{PACKAGE}/presets/*.yaml"))),
     ],
-    install_requires=["setuptools"],
+    install_requires=[
+        "setuptools", "matplotlib", "numpy", "pyyaml", "rerun-sdk", "scipy", "statsmodels",
+        "tqdm",
+    ],
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",
