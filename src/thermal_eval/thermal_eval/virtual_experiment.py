@@ -1,21 +1,11 @@
 """Virtual experiment: replay a recording through an adaptive model, as the theses do offline.
 
-The Blaser thesis §6.3 and the AGP thesis (Ch. 5-6, "offline replay") evaluate a model by
-replaying a recorded load case: at every step the model sees the inputs (temperatures,
-machine state), publishes a prediction which is applied as compensation, and receives a
-probing measurement only when its own logic asks for one (``probe_due``). What the probe sees
-is the *residual* error after compensation (true error - applied compensation, plus optional
-probe noise and resolution); the model rebuilds the total error itself.
-
-A recording cannot pause for probing, so probing time is not inserted into the time line;
-it is charged in Q_prod (probe_duration_s per cycle, counted by the model's status).
-
-Column mapping (recording CSV format of ``thermal_comp_common.recording_csv``): sensor columns
-``<id>_c`` give sensor id ``<id>``; error columns ``E_*`` keep their name and ``<name>_um``
-become component ``<name>``; every other column is a machine-state input. Errors are taken
-relative to the first row by default (thesis convention: e = 0 at t = 0).
-
-No rclpy here: used by ``thermal-comp replay``, the benchmarks and the bag regression tests.
+The recording's inputs drive :class:`talc_model.closed_loop.ClosedLoop`; each prediction is
+applied as compensation and a probe, when the model asks, sees the residual (true - applied,
+plus optional noise and resolution). A recording cannot pause, so probing time is charged in
+Q_prod only. Columns: ``<id>_c`` -> sensor ``<id>``, ``E_*`` / ``<name>_um`` -> error
+components (relative to the first row by default), the rest -> machine-state inputs.
+See docs/talc.md for the thesis background (Blaser §6.3, AGP thesis Ch. 5-6).
 """
 from __future__ import annotations
 
@@ -231,6 +221,7 @@ def run_virtual_experiment(recording, model: AdaptiveModel, *, columns: ReplayCo
 def plot_virtual_experiment(result: VirtualExperimentResult, path, title: str = "",
                             sigma_max: float | None = None) -> None:
     """PNG of true error, compensation, residual and predictive std per component (Agg)."""
+    # imported here: the Agg backend must be chosen before pyplot loads, and replays need no plots
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
