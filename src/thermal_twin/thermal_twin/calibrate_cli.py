@@ -13,8 +13,9 @@ import sys
 import numpy as np
 import yaml
 
-from thermal_twin.calibrate_report import write_report
-from thermal_twin.calibration import CalibrationError, calibrate
+from thermal_twin.calibrate_report import plot_input_estimate, write_report
+from thermal_twin.calibration import CalibrationError, calibrate, pick_channels
+from thermal_twin.input_estimation import InputEstimationError, fill_missing_inputs, missing_inputs
 from thermal_twin.calibration_bounds import CalibrationSpecError
 from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
 from thermal_comp_common.bag_recording import load_recording
@@ -33,6 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="last fraction of the recording kept out of the fit (default 1/3)")
     p.add_argument("--max-nfev", type=int, default=20,
                    help="at most this many optimiser iterations (default 20)")
+    p.add_argument("--block-min", type=float, default=30.0,
+                   help="block length of an input estimated from the temperatures (min, default 30)")
     p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -62,14 +65,23 @@ def main(argv: list[str] | None = None) -> int:
         if empty:
             notes.append(f"columns without any value (not used): {', '.join(empty)}")
         say = None if args.quiet else (lambda s: print(s, file=sys.stderr))
+        estimates = []
+        if missing_inputs(machine, rec):
+            chans, _ = pick_channels(machine, rec)
+            rec, estimates, found = fill_missing_inputs(machine, rec, chans, block_s=args.block_min * 60.0)
+            notes = found + notes
         r = calibrate(machine, rec, holdout_fraction=args.holdout_fraction, section=section,
                       max_nfev=args.max_nfev, progress=say)
-    except (MachineSpecError, CalibrationSpecError, RecordingError, CalibrationError, ValueError, OSError) as exc:
+    except (MachineSpecError, CalibrationSpecError, RecordingError, CalibrationError, InputEstimationError, ValueError, OSError) as exc:
         print(f"thermal-comp calibrate: {exc}", file=sys.stderr)
         return 1
     out.mkdir(parents=True, exist_ok=True)
     save_machine(r.spec, out / "twin_calibrated.yaml")
-    paths = write_report(r, out, machine.source_path or machine.name, rec.source, notes)
+    paths = write_report(r, out, machine.source_path or machine.name, rec.source, notes,
+                         input_estimates=[e.as_dict() for e in estimates])
+    for e in estimates:
+        paths[f"input_{e.input}"] = out / f"input_estimate_{e.input}.png"
+        plot_input_estimate(e, rec.time_s, paths[f"input_{e.input}"])
     rate = r.simulated_h / max(r.wall_s, 1e-9)
     print(f"calibrated {len(r.estimates)} parameters on {len(r.channels)} channels in {r.wall_s:.1f} s "
           f"({r.n_evals} twin evaluations, {rate:.0f} simulated h/s); cost {r.cost_before:.4g} -> "

@@ -11,7 +11,8 @@ import numpy as np
 from thermal_twin.calibration import CalibrationResult
 
 
-def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str]) -> dict:
+def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str],
+                input_estimates: list[dict] | None = None) -> dict:
     return {
         "twin": twin, "recording": recording,
         "split": {"train_end_s": float(r.time_s[r.n_train - 1]), "holdout_start_s": float(r.time_s[r.n_train]),
@@ -26,6 +27,7 @@ def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str
                 "simulated_h_per_s": r.simulated_h / max(r.wall_s, 1e-9),
                 "residual_autocorrelation_time_samples": r.tau},
         "calibrated_twin": "twin_calibrated.yaml",
+        "input_estimates": input_estimates or [],
         "notes": notes,
     }
 
@@ -137,8 +139,8 @@ def plot_parameters(r: CalibrationResult, path: pathlib.Path) -> None:
 
 
 def write_report(r: CalibrationResult, out: pathlib.Path, twin: str, recording: str,
-                 notes: list[str]) -> dict[str, pathlib.Path]:
-    rep = report_dict(r, twin, recording, notes)
+                 notes: list[str], input_estimates: list[dict] | None = None) -> dict[str, pathlib.Path]:
+    rep = report_dict(r, twin, recording, notes, input_estimates)
     paths = {"json": out / "report.json"}
     paths["json"].write_text(json.dumps(rep, indent=1, default=lambda o: float(o) if np.isscalar(o) else str(o)))
     paths["md"] = write_markdown(rep, out)
@@ -147,3 +149,23 @@ def write_report(r: CalibrationResult, out: pathlib.Path, twin: str, recording: 
     paths["parameters"] = out / "parameters.png"
     plot_parameters(r, paths["parameters"])
     return paths
+
+
+def plot_input_estimate(est, time_s: np.ndarray, path: pathlib.Path, true_power: np.ndarray | None = None) -> None:
+    """The estimated heat profile with its 95 % band (and the true heat when known)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    e = est.block_edges_s / 3600.0
+    fig, ax = plt.subplots(figsize=(10, 3.2))
+    ax.fill_between(np.repeat(e, 2)[1:-1], np.repeat(est.power_ci95_w[:, 0], 2), np.repeat(est.power_ci95_w[:, 1], 2),
+                    color="tab:blue", alpha=0.25, label="95 % band")
+    ax.step(e[:-1], est.power_w, where="post", color="tab:blue", label="estimated heat")
+    if true_power is not None:
+        ax.plot(time_s / 3600.0, true_power, "k", lw=0.7, label="heat of the real input")
+    ax.set_xlabel("time [h]")
+    ax.set_ylabel(f"heat of the {est.input} sources [W]")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)

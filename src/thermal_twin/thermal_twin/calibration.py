@@ -106,7 +106,7 @@ class _Model:
         return np.stack([out[c] for c in self.channels]), net, X
 
 
-def _pick_channels(machine, rec: Recording) -> tuple[list[str], list[str]]:
+def pick_channels(machine, rec: Recording) -> tuple[list[str], list[str]]:
     """Shared channels with data, and the shared or twin columns that are all NaN."""
     cols = [machine.sensors[s].column for s in machine.sensors] + list(machine.errors)
     chans, empty = [], []
@@ -144,7 +144,7 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
     spec0 = machine.to_dict()
     if section is None:
         section = spec0.get("calibration")
-    channels, _ = _pick_channels(machine, recording)
+    channels, _ = pick_channels(machine, recording)
     if not channels:
         raise CalibrationError(f"recording {recording.source}: no channel shared with twin '{machine.name}' "
                                f"with at least 8 values")

@@ -1,0 +1,201 @@
+"""Estimate an input the recording lacks (spindle speed, a switch) from the temperatures.
+
+When the twin's sources are driven by an input the recording does not have, the twin
+would run with the input's default (usually 0: no heat). Instead the total heat P(t) of
+those sources is estimated as a piecewise-constant profile (blocks of ``block_s``) by a
+regularised linear inverse: the twin is linear in its source powers, so every block's
+1 W pulse is simulated once (one twin run per block) and the channels' misfit is
+``y - y_base = sum_b G_b p_b + offsets``. Each channel is scaled by its misfit's spread,
+``p >= 0``, and a first-difference (Tikhonov) penalty lam ||D p||^2 is chosen by blocked
+cross-validation over contiguous time chunks (thermal residuals are autocorrelated, so
+chunks, not single rows, are left out). The heat is split over the sources in the ratio of
+their powers at half the input's range; the input equivalent to P(t) is
+found by inverting sum c_i u^n_i. Details and limits: docs/calibrate.md.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import lsq_linear
+
+from thermal_twin.inputs_timeline import timeline_from_recording
+from thermal_twin.machine_schema import Machine, load_machine
+from thermal_twin.mismatch_fit import effective_samples
+from thermal_twin.mismatch_twin_eval import expected_outputs
+from thermal_comp_common.recording_csv import Recording
+
+HEAT_INPUT = "estimated_heat_w"      # auxiliary input of the twin during the estimation
+LAMBDAS = np.logspace(-4, 4, 17)     # relative to trace(A'A)/trace(D'D)
+
+
+class InputEstimationError(ValueError):
+    """The input cannot be estimated (no source driven by it, no channel); names the cause."""
+
+
+@dataclass
+class InputEstimate:
+    input: str
+    sources: dict[str, float]           # source name -> share of the heat
+    block_edges_s: np.ndarray           # len(blocks) + 1
+    power_w: np.ndarray                 # heat per block [W]
+    power_ci95_w: np.ndarray            # (blocks, 2)
+    equivalent_input: np.ndarray        # per block, in the input's unit
+    lam: float
+    cv_curve: list[tuple[float, float]]  # (lambda, cross-validated SSE)
+    channels: list[str]
+    tau: float
+
+    def input_series(self, time_s: np.ndarray) -> np.ndarray:
+        """The equivalent input at every instant (block value)."""
+        k = np.clip(np.searchsorted(self.block_edges_s, time_s, side="right") - 1, 0, len(self.power_w) - 1)
+        return self.equivalent_input[k]
+
+    def as_dict(self) -> dict:
+        return {"input": self.input, "sources": self.sources, "block_s": float(np.diff(self.block_edges_s)[0]),
+                "lambda": self.lam, "channels": self.channels,
+                "mean_power_w": float(np.mean(self.power_w)), "max_power_w": float(np.max(self.power_w)),
+                "profile": [{"start_s": float(a), "power_w": float(p), "ci95_w": [float(lo), float(hi)],
+                             "equivalent_input": float(u)}
+                            for a, p, (lo, hi), u in zip(self.block_edges_s[:-1], self.power_w,
+                                                         self.power_ci95_w, self.equivalent_input)],
+                "cv_curve": [{"lambda": l, "cv_sse": s} for l, s in self.cv_curve]}
+
+
+def missing_inputs(machine: Machine, rec: Recording) -> list[str]:
+    """Machine inputs that drive a source and that the recording cannot supply."""
+    driving = {s.input for s in machine.sources.values() if s.input}
+    return [n for n, s in machine.inputs.items() if n in driving and n not in rec.columns
+            and not (s.from_sensor and f"{s.from_sensor}_c" in rec.columns)]
+
+
+def _heat_spec(machine: Machine, name: str) -> tuple[dict, dict, dict[str, float]]:
+    """(spec without the input's sources, spec with them driven by the auxiliary heat
+    input, shares); shares are the sources' powers at half the input's range."""
+    spec = machine.to_dict()
+    srcs = {k: s for k, s in machine.sources.items() if s.input == name}
+    u_ref = 0.5 * machine.inputs[name].max
+    p_ref = {k: s.coefficient * u_ref ** s.exponent for k, s in srcs.items()}
+    total = sum(p_ref.values())
+    if total <= 0:
+        raise InputEstimationError(f"input '{name}': its sources give no heat at {u_ref:g}")
+    share = {k: v / total for k, v in p_ref.items()}
+    base = copy.deepcopy(spec)
+    for k in srcs:
+        del base["sources"][k]
+    pulse = copy.deepcopy(base)
+    pulse["inputs"][HEAT_INPUT] = {"kind": "machine", "unit": "W", "default": 0.0, "min": 0.0, "max": 1e12}
+    for k, s in srcs.items():
+        pulse["sources"][f"est_{k}"] = {"node": s.node, "input": HEAT_INPUT, "coefficient": share[k], "exponent": 1.0}
+    return base, pulse, share
+
+
+def _outputs(spec: dict, rec: Recording, channels: list[str], extra: dict | None = None) -> np.ndarray:
+    m = load_machine(spec)
+    tl = timeline_from_recording(m, rec)
+    vals = tl.resolved(m) if not extra else {**tl.resolved(m), **extra}
+    out = expected_outputs(m, rec.time_s, vals)
+    return np.stack([out[c] for c in channels])
+
+
+def estimate_input(machine: Machine, rec: Recording, name: str, channels: list[str],
+                   block_s: float = 1800.0, folds: int = 5, stride: int = 0) -> InputEstimate:
+    """Estimate the heat of the sources driven by ``name`` from ``channels`` of ``rec``."""
+    if not any(s.input == name for s in machine.sources.values()):
+        raise InputEstimationError(f"input '{name}': no source of twin '{machine.name}' is driven by it")
+    base, pulse, share = _heat_spec(machine, name)
+    t = rec.time_s
+    edges = np.arange(t[0], t[-1] + block_s, block_s)
+    nb = len(edges) - 1
+    y_meas = np.stack([np.asarray(rec.columns[c], dtype=float) for c in channels])
+    y_base = _outputs(base, rec, channels)
+    stride = stride or max(1, len(t) // 2000)
+    rows = np.arange(0, len(t), stride)
+    miss = (y_meas - y_base)[:, rows]
+    valid = np.isfinite(miss)
+    scale = np.array([np.nanstd(m) if np.nanstd(m) > 0 else 1.0 for m in miss])
+    nc = len(channels)
+    # design: one column per block (1 W pulse), then one offset per channel
+    A = np.zeros((nc, len(rows), nb + nc))
+    for b in range(nb):
+        u = ((t >= edges[b]) & (t < edges[b + 1])).astype(float)
+        A[:, :, b] = _outputs(pulse, rec, channels, {HEAT_INPUT: u})[:, rows] - y_base[:, rows]
+    for c in range(nc):
+        A[c, :, nb + c] = 1.0
+    A /= scale[:, None, None]
+    yv = np.where(valid, miss, 0.0) / scale[:, None]
+    A = np.where(valid[:, :, None], A, 0.0)
+    D = np.zeros((nb - 1, nb + nc))
+    D[np.arange(nb - 1), np.arange(nb - 1)] = -1.0
+    D[np.arange(nb - 1), np.arange(1, nb)] = 1.0
+    # folds of interleaved chunks one block long: a left-out chunk's heat is still seen by
+    # the rows after it (thermal memory), as it would be at a new time
+    chunk = (np.searchsorted(edges, t[rows], side="right") - 1) % folds
+    AtA = np.einsum("cri,crj->ij", A, A)
+    Aty = np.einsum("cri,cr->i", A, yv)
+    DtD = D.T @ D
+    ref = np.trace(AtA[:nb, :nb]) / max(np.trace(DtD), 1e-300)
+    curve = []
+    for lam in LAMBDAS * ref:
+        sse = 0.0
+        for f in range(folds):
+            sel = chunk == f
+            Af, yf = A[:, sel, :], yv[:, sel]
+            M = AtA - np.einsum("cri,crj->ij", Af, Af) + lam * DtD + 1e-12 * np.eye(nb + nc)
+            p = np.linalg.solve(M, Aty - np.einsum("cri,cr->i", Af, yf))
+            sse += float(np.sum((yf - Af @ p) ** 2))
+        curve.append((float(lam), sse))
+    lam = min(curve, key=lambda x: x[1])[0]
+    # constrained solve p >= 0 on the small equivalent system [chol(A'A); sqrt(lam) D]
+    M = AtA + 1e-12 * np.eye(nb + nc)
+    R = np.linalg.cholesky(M).T
+    z = np.linalg.solve(R.T, Aty)
+    lb = np.concatenate([np.zeros(nb), np.full(nc, -np.inf)])
+    sol = lsq_linear(np.vstack([R, np.sqrt(lam) * D]), np.concatenate([z, np.zeros(nb - 1)]),
+                     bounds=(lb, np.full(nb + nc, np.inf)))
+    p = sol.x
+    r = yv - A @ p
+    tau = max(1.0, r.size / effective_samples(r))
+    s2 = float(np.sum(r ** 2)) / max(r.size - nb - nc, 1)
+    Hinv = np.linalg.inv(AtA + lam * DtD + 1e-12 * np.eye(nb + nc))
+    cov = s2 * tau * Hinv @ AtA @ Hinv
+    sd = np.sqrt(np.clip(np.diag(cov)[:nb], 0, None))
+    power = p[:nb]
+    ci = np.column_stack([np.maximum(power - 1.96 * sd, 0.0), power + 1.96 * sd])
+    return InputEstimate(name, share, edges, power, ci, equivalent_input(machine, name, power),
+                         float(lam), curve, list(channels), float(tau))
+
+
+def source_power(machine: Machine, name: str, u: np.ndarray) -> np.ndarray:
+    """Total heat of the sources driven by input ``name`` at input values ``u``."""
+    u = np.abs(np.asarray(u, dtype=float))
+    return sum(s.coefficient * u ** s.exponent for s in machine.sources.values() if s.input == name)
+
+
+def equivalent_input(machine: Machine, name: str, power: np.ndarray) -> np.ndarray:
+    """The input value whose sources give ``power`` (monotone inversion on a fine grid),
+    clipped to the input's declared range."""
+    spec = machine.inputs[name]
+    grid = np.linspace(max(spec.min, 0.0), spec.max, 4001)
+    pg = source_power(machine, name, grid)
+    return np.interp(power, pg, grid)
+
+
+def fill_missing_inputs(machine: Machine, rec: Recording, channels: list[str],
+                        block_s: float = 1800.0) -> tuple[Recording, list[InputEstimate], list[str]]:
+    """The recording with every missing source-driving input replaced by its estimate
+    (the equivalent input of the estimated heat), the estimates and one finding each."""
+    cols = dict(rec.columns)
+    ests, notes = [], []
+    for name in missing_inputs(machine, rec):
+        e = estimate_input(machine, rec, name, channels, block_s=block_s)
+        cols[name] = e.input_series(rec.time_s)
+        ests.append(e)
+        srcs = ", ".join(f"{k} {100 * v:.0f} %" for k, v in e.sources.items())
+        notes.append(f"input '{name}' is not in the recording: estimated from the temperatures as a heat "
+                     f"input of {np.mean(e.power_w):.0f} W on average (max {np.max(e.power_w):.0f} W, "
+                     f"{block_s / 60:.0f}-min blocks, split {srcs}), i.e. {name} of "
+                     f"{np.mean(e.equivalent_input):.0f} {machine.inputs[name].unit} on average; "
+                     f"profile and 95 % band in input_estimate_{name}.png")
+    return Recording(rec.time_s, cols, source=rec.source, warnings=list(rec.warnings)), ests, notes
