@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from thermal_comp_common.bag_writer import BagWriteError
+from thermal_comp_common.bag_writer import BagWriteError, remove_bag_folder
 from thermal_comp_common.csv_to_bag import CsvImportError, recording_to_bag
 from thermal_comp_common.recording_csv import RecordingError, read_recording_csv
 
@@ -24,9 +24,13 @@ def build_parser() -> argparse.ArgumentParser:
                "<name>_um -> ThermalErrors components; machine inputs -> MachineState as machine_sim "
                "names them (<a>_speed_rpm rotary axis A, other *_rpm spindles, *_w drive powers, "
                "coolant_on/oil_on, coolant_temp_degc/oil_temp_degc, door_open). Example: "
-               "thermal-comp import-csv ../shared/data/fl_thermal/fl_thermal.csv out/fl --errors measured --every 4")
+               "thermal-comp import-csv ../shared/data/fl_thermal/fl_thermal.csv out/fl --errors measured --every 4. "
+               "Exit codes: 0 imported, 2 bad arguments, unreadable CSV (one line naming file, line "
+               "and column) or OUT exists (without --force).")
     ap.add_argument("csv", metavar="CSV", help="recording CSV file")
-    ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist)")
+    ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist, see --force)")
+    ap.add_argument("--force", action="store_true",
+                    help="replace an existing bag folder OUT (only a bag or an empty folder)")
     ap.add_argument("--errors", choices=("ground_truth", "measured"), default="ground_truth",
                     help="publish the error columns as the twin's ground truth (default) or as "
                          "measured errors (SOURCE_MEASURED on errors/measured)")
@@ -51,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
     bar = None
     try:
+        if args.force:
+            remove_bag_folder(args.out)
         rec = read_recording_csv(args.csv)
         if not args.no_progress:
             from tqdm import tqdm

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import pathlib
-import shutil
 import sys
 
 from thermal_comp import bag_recorder_node
+from thermal_comp_common.bag_writer import BagWriteError, remove_bag_folder
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,11 +52,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"thermal-comp record: OUT {args.out!r} exists already; not overwriting "
                   "(--force replaces it)", file=sys.stderr)
             return 2
-        if not _is_bag_or_empty(out):
-            print(f"thermal-comp record: OUT {args.out!r} is neither a bag nor an empty folder; "
-                  "not replacing it even with --force", file=sys.stderr)
+        try:
+            remove_bag_folder(out)
+        except BagWriteError as exc:
+            print(f"thermal-comp record: {exc}", file=sys.stderr)
             return 2
-        shutil.rmtree(out)
     for t in args.topics:
         try:
             bag_recorder_node.parse_topic_arg(t)
@@ -70,13 +70,6 @@ def main(argv: list[str] | None = None) -> int:
            "-p", f"timestamps:={args.timestamps}", "-p", f"compression:={args.compression}",
            "-p", f"use_sim_time:={'true' if args.use_sim_time else 'false'}"] + list(args.ros_args)
     return bag_recorder_node.main(ros)
-
-
-def _is_bag_or_empty(path: pathlib.Path) -> bool:
-    if not path.is_dir():
-        return False
-    names = {p.name for p in path.iterdir()}
-    return not names or all(n == "metadata.yaml" or n.endswith((".mcap", ".tmp")) for n in names)
 
 
 def _repair(out: str) -> int:

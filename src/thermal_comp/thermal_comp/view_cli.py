@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import pathlib
 import signal
 import sys
 import threading
@@ -18,9 +19,12 @@ def build_parser() -> argparse.ArgumentParser:
                "Examples: 'thermal-comp view bags/fl_thermal_2h --rrd out/fl.rrd', "
                "'thermal-comp view --serve-web'. Sensor layout: --layout FILE with "
                "sensors: {ID: {position_mm: [x, y, z]}} or a twin preset name; without it the "
-               "preset whose sensor ids match is used, else a schematic ring.")
+               "preset whose sensor ids match is used, else a schematic ring. Exit codes: 0 shown "
+               "(or written), 3 the bag is damaged (shown up to the damage, which is reported), 2 bad "
+               "arguments, unreadable bag or an existing --rrd file (without --force).")
     ap.add_argument("bag", nargs="?", metavar="BAG", help="bag folder or .mcap file (default: live topics)")
-    ap.add_argument("--rrd", metavar="OUT", help="write an .rrd recording to OUT")
+    ap.add_argument("--rrd", metavar="OUT", help="write an .rrd recording to OUT (must not exist, see --force)")
+    ap.add_argument("--force", action="store_true", help="replace an existing --rrd file")
     ap.add_argument("--spawn", action="store_true", help="spawn the native rerun viewer (default "
                     "when neither --rrd nor --serve-web is given)")
     ap.add_argument("--serve-web", action="store_true",
@@ -96,6 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         layout = resolve_layout(args.layout) if args.layout else None
     except LayoutError as exc:
         print(f"thermal-comp view: {exc}", file=sys.stderr)
+        return 2
+    if args.rrd and pathlib.Path(args.rrd).exists() and not args.force:
+        print(f"thermal-comp view: --rrd {args.rrd!r} exists already; not overwriting "
+              "(--force replaces it)", file=sys.stderr)
         return 2
     spawn = args.spawn or not (args.rrd or args.serve_web)
     contents = None

@@ -110,7 +110,9 @@ def read_metadata(folder: pathlib.Path) -> tuple[list[str], dict[str, TopicSpec]
     """(relative MCAP file paths, topics) from a bag folder's metadata.yaml."""
     where = str(folder / METADATA_FILE)
     try:
-        data = yaml.safe_load((folder / METADATA_FILE).read_text())
+        data = yaml.safe_load((folder / METADATA_FILE).read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise BagReadError(f"{where}: not UTF-8 text (byte {exc.start}); not a bag's metadata") from None
     except yaml.YAMLError as exc:
         raise BagReadError(f"{where}: not valid YAML: {exc}") from None
     info = _key(data, ["rosbag2_bagfile_information"], where)
@@ -206,6 +208,16 @@ def _read_mcap(path: pathlib.Path, contents: BagContents) -> None:
                            f"{len(contents.messages)} messages kept")
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _starts_like_mcap(path: pathlib.Path) -> bool:
+    """The file begins with the MCAP magic, or with a prefix of it (a file cut very early)."""
+    with open(path, "rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+    return MCAP_MAGIC.startswith(head)
+
+
 def read_bag(path: str | os.PathLike) -> BagContents:
     """Read a bag folder or an ``.mcap`` file; messages sorted stably by their stamp."""
     path = pathlib.Path(path)
@@ -230,6 +242,8 @@ def read_bag(path: str | os.PathLike) -> BagContents:
             break
         _read_mcap(m, contents)
         if contents.damage:
+            if not contents.messages and not _starts_like_mcap(m):
+                raise BagReadError(f"{m}: not an MCAP file (no MCAP magic at its start)")
             break
     contents.messages.sort(key=lambda msg: msg.stamp_ns)   # stable: recorded order kept
     return contents

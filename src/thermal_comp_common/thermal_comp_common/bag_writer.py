@@ -101,6 +101,20 @@ def _library() -> str:
         return "thermal_comp"
 
 
+def remove_bag_folder(path: str | os.PathLike) -> None:
+    """Delete an existing output bag folder (``--force``): only a bag (``metadata.yaml``,
+    ``.mcap`` files) or an empty folder, never anything else (BagWriteError naming it)."""
+    import shutil
+    path = pathlib.Path(path)
+    if not path.exists():
+        return
+    names = {p.name for p in path.iterdir()} if path.is_dir() else None
+    if names is None or not all(n == METADATA_FILE or n.endswith((".mcap", ".tmp")) for n in names):
+        raise BagWriteError(f"output {str(path)!r} is neither a bag nor an empty folder; "
+                            "not replacing it, even with --force")
+    shutil.rmtree(path)
+
+
 class BagWriter:
     """Writes one rosbag2 MCAP bag folder. Use as a context manager or call :meth:`close`."""
 

@@ -3,7 +3,8 @@
 Per CSV row at time ``t`` (stamp = ``start_s + t``, simulated time):
 
 - ``TemperatureArray`` on ``temperatures`` (or another topic): every ``<id>_c`` column is
-  sensor ``<id>``; NaN -> status FAILED, else OK.
+  sensor ``<id>``; a failed reading (NaN or +-inf in the CSV) -> NaN with status FAILED, as
+  the message contract says, else OK.
 - ``ThermalErrors`` on ``errors/ground_truth`` (SOURCE_GROUND_TRUTH, the twin's CSV) or
   ``errors/measured`` (SOURCE_MEASURED): every error column, ``E_*`` keeping its name and
   ``<name>_um`` becoming ``<name>``; ``E_A0C E_B0C E_C0C`` in um/m, the rest in um;
@@ -144,6 +145,7 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
             if sensors:
                 row = sens_mat[k].astype(np.float64)
                 status = np.where(np.isfinite(row), STATUS_OK, STATUS_FAILED).astype(np.uint8)
+                row[status == STATUS_FAILED] = np.nan     # the contract: a failed reading is NaN
                 msg = TemperatureArray(header=header, sensor_ids=names, temperatures_degc=row, status=status)
                 bag.write(_topic(namespace, temperatures_topic), t_ns, store.serialize_cdr(msg, T_TEMPS))
             if errors:

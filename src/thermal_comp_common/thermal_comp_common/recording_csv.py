@@ -16,6 +16,7 @@ last line is reported and the rows before it are kept (``strict=False``, the def
 from __future__ import annotations
 
 import csv
+import io
 import math
 import pathlib
 from dataclasses import dataclass, field
@@ -89,12 +90,23 @@ def read_recording_csv(path: str | pathlib.Path, strict: bool = False) -> Record
     path = pathlib.Path(path)
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
-    with path.open(newline="") as f:
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = path.read_bytes()[:exc.start].count(b"\n") + 1
+        raise RecordingError(f"{path}: line {line}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x}); "
+                             "not a recording CSV") from None
+    if "\x00" in text:
+        raise RecordingError(f"{path}: line {text[:text.index(chr(0))].count(chr(10)) + 1}: a NUL byte; "
+                             "a binary file, not a recording CSV")
+    with io.StringIO(text, newline="") as f:
         reader = csv.reader(f)
         try:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
             raise RecordingError(f"{path}: empty file, expected a header starting with '{TIME_COLUMN}'")
+        except csv.Error as exc:
+            raise RecordingError(f"{path}: line 1: {exc}") from None
         if not header or header[0] != TIME_COLUMN:
             raise RecordingError(f"{path}: line 1: first column must be '{TIME_COLUMN}', got {header[:1]}")
         dupes = {h for h in header if header.count(h) > 1}
@@ -104,7 +116,10 @@ def read_recording_csv(path: str | pathlib.Path, strict: bool = False) -> Record
             raise RecordingError(f"{path}: line 1: empty column name at position {header.index('') + 1}")
         rows: list[list[float]] = []
         warnings: list[str] = []
-        lines = list(reader)
+        try:
+            lines = list(reader)
+        except csv.Error as exc:
+            raise RecordingError(f"{path}: line {reader.line_num}: {exc}") from None
     for i, cells in enumerate(lines):
         lineno = i + 2
         if not cells:
