@@ -17,7 +17,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 def make_certificate(folder: pathlib.Path, name: str, application_uri: str,
                      server: bool) -> tuple[str, str]:
-    """Write ``name.der`` (certificate) and ``name.pem`` (key); return their paths."""
+    """Write ``name.der`` (certificate) and ``name.pem`` (key, mode 600); return their paths."""
     key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name),
                          x509.NameAttribute(NameOID.ORGANIZATION_NAME, "thermal-comp tests")])
@@ -41,6 +41,8 @@ def make_certificate(folder: pathlib.Path, name: str, application_uri: str,
     folder.mkdir(parents=True, exist_ok=True)
     cert_path, key_path = folder / f"{name}.der", folder / f"{name}.pem"
     cert_path.write_bytes(cert.public_bytes(serialization.Encoding.DER))
+    key_path.touch(mode=0o600)            # readable by its owner only, before it holds the key
+    key_path.chmod(0o600)
     key_path.write_bytes(key.private_bytes(serialization.Encoding.PEM,
                                            serialization.PrivateFormat.TraditionalOpenSSL,
                                            serialization.NoEncryption()))

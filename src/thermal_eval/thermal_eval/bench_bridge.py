@@ -81,7 +81,7 @@ def _measure_node(n: int) -> np.ndarray:
     node_proc = subprocess.Popen(
         [sys.executable, "-m", "cnc_bridge.cnc_bridge_node", "--ros-args", "-r", f"__ns:={ns}",
          "-p", "backend:=opcua", "-p", f"endpoint:=opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}",
-         "-p", "lockstep:=true", "-p", "max_rate_um_per_s:=5.0"],
+         "-p", "lockstep:=true", "-p", "max_rate_um_per_s:=5.0", "-p", "autostart:=true"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
@@ -149,12 +149,15 @@ def run(args) -> dict:
                                              "urn:thermal-comp:cnc-emulator:server", server=True)
         cli_cert, cli_key = make_certificate(pathlib.Path(certs), "bridge",
                                              "urn:thermal-comp:cnc-bridge", server=False)
+        creds = pathlib.Path(certs) / "emulator_credentials.yaml"   # never on the command line
+        creds.touch(mode=0o600)
+        creds.write_text(f"user: cnc\npassword: pw\nprivate_key: {srv_key}\n")
         cases = {
             "none": ([], {}),
-            "sign_encrypt": (["--certificate", srv_cert, "--private-key", srv_key,
-                              "--security", "required", "--user", "cnc", "--password", "pw"],
+            "sign_encrypt": (["--certificate", srv_cert, "--credentials-file", str(creds),
+                              "--client-trust", cli_cert, "--security", "required"],
                              dict(certificate=cli_cert, private_key=cli_key, security_required=True,
-                                  user="cnc", password="pw")),
+                                  user="cnc", password="pw", server_trust=(srv_cert,))),
         }
         for label, (emu_args, client_kw) in cases.items():
             port = free_tcp_port()
