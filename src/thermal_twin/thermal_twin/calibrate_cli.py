@@ -18,7 +18,7 @@ from thermal_twin.calibration import CalibrationError, calibrate, pick_channels
 from thermal_twin.input_estimation import InputEstimationError, fill_missing_inputs, missing_inputs
 from thermal_twin.calibration_bounds import CalibrationSpecError
 from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
-from thermal_comp_common.bag_recording import load_recording
+from thermal_twin.column_mapping import MappingError, name_mismatches, parse_mapping, read_real_recording
 from thermal_comp_common.recording_csv import RecordingError
 
 
@@ -36,6 +36,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="at most this many optimiser iterations (default 20)")
     p.add_argument("--block-min", type=float, default=30.0,
                    help="block length of an input estimated from the temperatures (min, default 30)")
+    p.add_argument("--map", action="append", default=[], metavar="OLD=NEW|NAME*FACTOR",
+                   help="rename a recording column to the twin's name, or scale one (e.g. ch3_um*-1 "
+                        "flips its sign); repeatable")
+    p.add_argument("--map-file", help="YAML column mapping {columns: {old: new}, scale: {name: factor}}")
     p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -59,8 +63,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.bounds:
             raw = yaml.safe_load(pathlib.Path(args.bounds).read_text())
             section = (raw or {}).get("calibration", raw)
-        rec = load_recording(pathlib.Path(args.recording), args.temperatures_topic, args.errors_topic)
-        notes = list(rec.warnings)
+        rec = read_real_recording(args.recording, parse_mapping(args.map_file, args.map),
+                                  args.temperatures_topic, args.errors_topic)
+        notes = list(rec.warnings) + name_mismatches(machine, rec)
         empty = empty_columns(rec)
         if empty:
             notes.append(f"columns without any value (not used): {', '.join(empty)}")
@@ -72,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
             notes = found + notes
         r = calibrate(machine, rec, holdout_fraction=args.holdout_fraction, section=section,
                       max_nfev=args.max_nfev, progress=say)
-    except (MachineSpecError, CalibrationSpecError, RecordingError, CalibrationError, InputEstimationError, ValueError, OSError) as exc:
+    except (MachineSpecError, MappingError, CalibrationSpecError, RecordingError, CalibrationError, InputEstimationError, ValueError, OSError) as exc:
         print(f"thermal-comp calibrate: {exc}", file=sys.stderr)
         return 1
     out.mkdir(parents=True, exist_ok=True)

@@ -17,7 +17,7 @@ from thermal_twin.machine_schema import MachineSpecError, load_machine, save_mac
 from thermal_twin.mismatch_diagnosis import DiagnosisError, diagnose
 from thermal_twin.mismatch_effects import EFFECTS
 from thermal_twin.mismatch_report import write_report
-from thermal_comp_common.bag_recording import load_recording
+from thermal_twin.column_mapping import MappingError, name_mismatches, parse_mapping, read_real_recording
 from thermal_comp_common.recording_csv import RecordingError
 
 
@@ -27,6 +27,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--recording", required=True,
                    help="recording CSV in the twin's CSV format (time_s, inputs, <sensor>_c, error "
                         "channels), or a rosbag2 MCAP bag (folder or .mcap file)")
+    p.add_argument("--map", action="append", default=[], metavar="OLD=NEW|NAME*FACTOR",
+                   help="rename a recording column to the twin's name, or scale one (e.g. ch3_um*-1 "
+                        "flips its sign); repeatable")
+    p.add_argument("--map-file", help="YAML column mapping {columns: {old: new}, scale: {name: factor}}")
     p.add_argument("--temperatures-topic", default="temperatures",
                    help="bag only: TemperatureArray topic of the sensor readings (default temperatures)")
     p.add_argument("--errors-topic", default="errors/ground_truth",
@@ -65,13 +69,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         machine = load_machine(args.twin)
-        rec = load_recording(rec_path, args.temperatures_topic, args.errors_topic)
+        rec = read_real_recording(rec_path, parse_mapping(args.map_file, args.map),
+                                  args.temperatures_topic, args.errors_topic)
+        rec.warnings += name_mismatches(machine, rec)
         for w in rec.warnings:
             print(f"warning: {w}", file=sys.stderr)
         d = diagnose(machine, rec, holdout_fraction=args.holdout_fraction, max_effects=args.max_effects,
                      min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
                      effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet)
-    except (MachineSpecError, RecordingError, DiagnosisError, ValueError, OSError) as exc:
+    except (MachineSpecError, MappingError, RecordingError, DiagnosisError, ValueError, OSError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
         return 1
     out = pathlib.Path(args.out)
