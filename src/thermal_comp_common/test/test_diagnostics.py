@@ -68,3 +68,33 @@ def test_publishes_on_change_and_periodically(ros_context):
         ex.shutdown()
         node.destroy_node()
         listener.destroy_node()
+
+
+def test_python_logging_reaches_rosout(ros_context):
+    import logging
+
+    from rcl_interfaces.msg import Log
+
+    from thermal_comp_common.node_runtime import install_rosout_handler
+    node = rclpy.create_node("logging_under_test", context=ros_context)
+    listener = rclpy.create_node("rosout_listener", context=ros_context)
+    got: list = []
+    listener.create_subscription(Log, "/rosout", got.append, 100)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    ex.add_node(listener)
+    handler = install_rosout_handler(node)
+    try:
+        assert _spin_until(ex, lambda: node.count_subscribers("/rosout") >= 1)
+        logging.getLogger("asyncua.client").warning("link to %s lost", "opc.tcp://cnc:4840")
+        logging.getLogger("pymodbus").debug("not forwarded below INFO")
+        assert _spin_until(ex, lambda: any("link to" in m.msg for m in got))
+        m = next(m for m in got if "link to" in m.msg)
+        assert m.name == "logging_under_test" and m.level == Log.WARN
+        assert m.msg == "[asyncua.client] link to opc.tcp://cnc:4840 lost"
+        assert not any("not forwarded" in m.msg for m in got)
+    finally:
+        logging.getLogger().removeHandler(handler)
+        ex.shutdown()
+        node.destroy_node()
+        listener.destroy_node()

@@ -13,6 +13,7 @@ This module imports rclpy; pure cores must not import it.
 """
 from __future__ import annotations
 
+import logging
 import math
 import signal
 import sys
@@ -158,6 +159,40 @@ def s_to_stamp(t_s: float):
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+class RosoutHandler(logging.Handler):
+    """Forward Python ``logging`` records (backends: OPC UA, Modbus, models) to a node's rclpy
+    logger, so they reach ``/rosout`` and the viewer. :func:`run_node` installs one on the root
+    logger for the node's lifetime."""
+
+    def __init__(self, node: Node, level: int = logging.INFO):
+        super().__init__(level)
+        self._logger = node.get_logger()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = f"[{record.name}] {self.format(record)}"
+            if record.levelno >= logging.ERROR:
+                self._logger.error(text)
+            elif record.levelno >= logging.WARNING:
+                self._logger.warning(text)
+            elif record.levelno >= logging.INFO:
+                self._logger.info(text)
+            else:
+                self._logger.debug(text)
+        except Exception:   # logging must never take the node down
+            self.handleError(record)
+
+
+def install_rosout_handler(node: Node, level: int = logging.INFO) -> RosoutHandler:
+    """Attach a :class:`RosoutHandler` to the root logger (and let INFO records through)."""
+    handler = RosoutHandler(node, level)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    if root.level > level or root.level == logging.NOTSET:
+        root.setLevel(level)
+    return handler
+
+
 #: After a stop signal a node with ``drain_activity`` keeps spinning while its counter still
 #: moves: until it stood still this long (s) ...
 DRAIN_QUIET_S = 0.3
@@ -209,6 +244,7 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
 
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     node = None
+    handler = None
     code = 0
     try:
         try:
@@ -217,6 +253,7 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
             # one line naming the parameter; rclpy's own range check raises its exceptions
             print(f"{getattr(node_factory, '__name__', 'node')}: {exc}", file=sys.stderr, flush=True)
             return 2
+        handler = install_rosout_handler(node)
         executor.add_node(node)
         while context.ok() and not stop.is_set():
             executor.spin_once(timeout_sec=poll_s)
@@ -226,6 +263,8 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+        if handler is not None:
+            logging.getLogger().removeHandler(handler)
         if node is not None:
             close = getattr(node, "close", None)
             if callable(close):
