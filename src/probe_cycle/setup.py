@@ -13,6 +13,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
     install_requires=["setuptools", "asyncua", "numpy", "rich", "scipy"],
+    extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

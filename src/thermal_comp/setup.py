@@ -20,6 +20,7 @@ setup(
     install_requires=[
         "setuptools", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich", "tqdm",
     ],
+    extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

@@ -16,6 +16,7 @@ setup(
         "setuptools", "distributed", "mcap", "numpy", "pytest", "pyyaml", "rosbags",
         "threadpoolctl",
     ],
+    extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

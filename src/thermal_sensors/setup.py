@@ -16,6 +16,7 @@ setup(
         (f"share/{PACKAGE}/config", sorted(glob(f"{PACKAGE}/config/*.yaml"))),
     ],
     install_requires=["setuptools", "numpy", "pymodbus", "pyyaml", "tqdm"],
+    extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

@@ -19,6 +19,7 @@ setup(
         "setuptools", "matplotlib", "numpy", "pyyaml", "rerun-sdk", "scipy", "statsmodels",
         "tqdm",
     ],
+    extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",
     maintainer_email="thermal-comp@example.org",

@@ -29,7 +29,17 @@ def _shared_dir(config) -> pathlib.Path:
     return root.parent / "shared"
 
 
+MARKERS = {
+    "slow": "end-to-end tests over several processes (run apart with -m slow; CI runs them)",
+    "ros": "tests that start ROS 2 nodes (unique ROS_DOMAIN_ID per test session)",
+}
+
+
 def pytest_configure(config):
+    # Registered here too, so `colcon test` (pytest in a package folder, possibly outside this
+    # repository's pyproject.toml) accepts the marks under --strict-markers.
+    for name, text in MARKERS.items():
+        config.addinivalue_line("markers", f"{name}: {text}")
     from thermal_comp_common.domain_ids import claim_domain_id
     os.environ[SHARED_ENV] = str(_shared_dir(config))
     did = claim_domain_id()
