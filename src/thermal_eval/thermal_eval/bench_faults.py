@@ -223,7 +223,7 @@ def load_figures(out: pathlib.Path, cells: int, hours: float, wall_timeout_s: fl
         c = read_bag(bag)
         stamps: dict[str, set[int]] = {}
         for m in c.messages:
-            stamps.setdefault(m.topic.split("/", 2)[-1], set()).add(m.log_time_ns)
+            stamps.setdefault(m.topic.split("/", 2)[-1], set()).add(m.stamp_ns)
         truth = stamps.get("errors/ground_truth", set())
         instants += len(truth)
         for topic in ("temperatures", "errors/predicted", "offsets"):
@@ -271,6 +271,9 @@ def run(args) -> dict[str, Any]:
     r, f = process_rows(out / "graph", 6.0 if quick else 10.0)
     rows += r
     figures["processes"] = f
+    from thermal_comp_common.domain_ids import claim_domain_id
+    from thermal_eval import hang_and_file_faults
+    rows += hang_and_file_faults.rows(out / "hang_and_files", claim_domain_id())
     print_table(rows)
     figures["table"] = rows
     figures["load"] = load_figures(out / "load", 2 if quick else 20, 4.0 if quick else 24.0,

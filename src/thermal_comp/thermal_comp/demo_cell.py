@@ -1,0 +1,105 @@
+"""The demo's machine cell: what each built-in machine runs and the cell document of its graph.
+
+The document has the format of ``thermal-comp launch`` cell files, so the demo runs the same
+nodes, parameters and restart policy a real cell would (fault injection reuses it).
+"""
+from __future__ import annotations
+
+import pathlib
+from dataclasses import dataclass
+from typing import Any
+
+import talc_model
+from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
+from thermal_twin.scenarios import SCENARIOS, make_timeline
+
+#: What each built-in machine runs.
+MACHINES: dict[str, dict[str, Any]] = {
+    "nmv5000": {"scenario": "talc-178h-dry", "model_kind": "talc", "artefact": "sphere",
+                "sensor_config": "nmv5000", "step_s": 300.0, "compensation_mode": "kinematic",
+                "model_config": "talc_nmv5000.yaml",
+                "offset_axes": list(FIVE_AXIS_COMPONENTS)},
+    "swiss-lathe": {"scenario": "lathe-random-speed", "model_kind": "agp", "artefact": "guide_bush",
+                    "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB",
+                    "offset_axes": ["GB_X"]},
+}
+
+
+class DemoError(RuntimeError):
+    """The demo could not run; the message says which part failed."""
+
+
+@dataclass
+class DemoConfig:
+    machine: str = "nmv5000"
+    scenario: str | None = None
+    hours: float | None = None
+    seed: int = 0
+    step_s: float | None = None
+    out_dir: pathlib.Path = pathlib.Path("demo_out")
+    view: str = "auto"                 # auto | live | rrd | none
+    cnc: str = "opcua"                 # opcua | twin
+    progress: bool = True
+    wall_timeout_s: float = 3600.0
+    #: restart policy of every node (cell-file ``restart`` mapping); None = no restarts
+    restart: dict[str, Any] | None = None
+
+
+def scenario_hours(machine: str, scenario: str, hours: float | None) -> float:
+    make_timeline(machine, scenario, hours=hours or None, step_s=3600.0)  # validates the pair
+    return float(hours) if hours else float(SCENARIOS[scenario].hours)
+
+
+def _model_parameters(cfg: DemoConfig, out: pathlib.Path) -> dict[str, Any]:
+    m = MACHINES[cfg.machine]
+    params: dict[str, Any] = {"model_kind": m["model_kind"], "state_path": str(out / "model_state.json"),
+                              "lockstep_participant": True, "artefact": m["artefact"]}
+    if m.get("tool_position"):
+        params["tool_position"] = m["tool_position"]
+    if m.get("model_config"):   # shipped with talc_model: the thesis's parameter set for this machine
+        params["model_config"] = str(pathlib.Path(talc_model.__file__).with_name("config") / m["model_config"])
+    return params
+
+
+def _bridge_parameters(cfg: DemoConfig, out: pathlib.Path, endpoint: str | None) -> dict[str, Any]:
+    m = MACHINES[cfg.machine]
+    bridge: dict[str, Any] = {"lockstep": True, "audit_log_path": str(out / "cnc_audit.log"),
+                              "backend": cfg.cnc}
+    if m.get("offset_axes"):
+        bridge["offset_axes"] = m["offset_axes"]
+    if m.get("compensation_mode"):
+        bridge["compensation_mode"] = m["compensation_mode"]
+    if endpoint:
+        bridge["endpoint"] = endpoint
+    return bridge
+
+
+def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view: bool) -> dict:
+    """The cell document of the demo graph (the same format as `thermal-comp launch`)."""
+    m = MACHINES[cfg.machine]
+    out = cfg.out_dir.resolve()
+    step = cfg.step_s or m["step_s"]
+    participants = ["sensors", "model", "bridge"]
+    nodes = [
+        {"name": "machine_sim", "module": "thermal_twin.machine_sim_node",
+         "parameters": {"machine": cfg.machine, "scenario": cfg.scenario, "seed": cfg.seed,
+                        "hours": float(cfg.hours or 0.0), "step_s": float(step),
+                        "lockstep_participants": participants, "shutdown_when_done": True,
+                        # the recorder is no lock-step participant; the first instant waits for it
+                        "wait_for_subscribers": ["recorder"],
+                        "state_path": str(out / "twin_state.pkl")}},
+        {"name": "sensors", "module": "thermal_sensors.temperature_publisher_node",
+         "parameters": {"source": "twin", "sensor_config": m["sensor_config"], "lockstep_participant": True}},
+        {"name": "probe_cycle", "module": "probe_cycle.probe_cycle_node", "parameters": {"backend": "twin"}},
+        {"name": "model", "module": "talc_model.talc_model_node", "parameters": _model_parameters(cfg, out)},
+        {"name": "bridge", "module": "cnc_bridge.cnc_bridge_node",
+         "parameters": _bridge_parameters(cfg, out, endpoint)},
+        {"name": "recorder", "module": "thermal_comp.bag_recorder_node",
+         "parameters": {"output": str(out / "bag")}},
+    ]
+    if live_view:
+        nodes.append({"name": "viewer", "module": "thermal_comp.rerun_view_node", "parameters": {}})
+    cell = {"cell": "demo", "domain_id": domain_id, "use_sim_time": True, "nodes": nodes}
+    if cfg.restart is not None:
+        cell["restart"] = dict(cfg.restart)
+    return cell

@@ -1,0 +1,201 @@
+"""Run the demo graph: the CNC emulator, the launcher with every node of the demo cell, and a
+monitor, supervised until the twin's scenario ends; ``bench graph`` measures that run."""
+from __future__ import annotations
+
+import os
+import pathlib
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import psutil
+from tqdm import tqdm
+
+from thermal_comp.cell_config import parse_cell
+from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
+from thermal_comp.demo_monitor import DemoMonitor
+from thermal_comp.launcher import Launcher
+from thermal_comp_common.domain_ids import claim_domain_id
+
+
+@dataclass
+class RunRecord:
+    """What the demo's monitor saw while the graph ran (wall-time figures for the benchmark)."""
+
+    sim_end_s: float = 0.0
+    wall_s: float = 0.0
+    latencies_s: list[float] = field(default_factory=list)
+    peak_rss_mb: dict[str, float] = field(default_factory=dict)
+    node_exit_codes: dict[str, list[int]] = field(default_factory=dict)
+    restarts: dict[str, int] = field(default_factory=dict)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_port(port: int, proc: subprocess.Popen, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise DemoError(f"CNC emulator exited with code {proc.returncode} before listening on port {port}")
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+                return
+        except OSError:
+            time.sleep(0.1)
+    raise DemoError(f"CNC emulator not listening on 127.0.0.1:{port} after {timeout_s:.0f} s")
+
+
+def _rss_tree_mb(pid: int) -> float:
+    try:
+        p = psutil.Process(pid)
+        procs = [p] + p.children(recursive=True)
+        return sum(q.memory_info().rss for q in procs if q.is_running()) / 2**20
+    except psutil.Error:
+        return 0.0
+
+
+def _fresh_out_dir(cfg: DemoConfig) -> pathlib.Path:
+    """The output folder without the files of a previous run."""
+    out = cfg.out_dir.resolve()
+    if (out / "bag").exists():
+        shutil.rmtree(out / "bag")
+    for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl"):
+        (out / stale).unlink(missing_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _start_emulator(cfg: DemoConfig, log_dir: pathlib.Path) -> tuple[subprocess.Popen, str]:
+    """The OPC UA CNC emulator as a separate process, listening; (process, endpoint)."""
+    port = _free_port()
+    endpoint = f"opc.tcp://127.0.0.1:{port}/thermal-comp/cnc"
+    emu_log = open(log_dir / "cnc_emulator.log", "w")
+    axes = MACHINES[cfg.machine].get("offset_axes")
+    emulator = subprocess.Popen([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--port", str(port)]
+                                + (["--compensation-axes", ",".join(axes)] if axes else []),
+                                stdout=emu_log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        _wait_port(port, emulator, 60.0)
+    except DemoError:
+        _stop_emulator(emulator)
+        raise
+    return emulator, endpoint
+
+
+def _stop_emulator(emulator: subprocess.Popen) -> None:
+    emulator.terminate()
+    try:
+        emulator.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        emulator.kill()
+
+
+def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
+    """Run the demo graph until the twin's scenario ends; return what was observed.
+
+    ``on_poll(launcher, sim_s)``, if given, is called on every supervision poll (about 4 Hz)
+    with the launcher and the simulated time seen so far (fault injection uses it)."""
+    out = _fresh_out_dir(cfg)
+    total_h = scenario_hours(cfg.machine, cfg.scenario, cfg.hours)
+    domain_id = claim_domain_id()
+    os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.setdefault("ROS_LOG_DIR", str(out / "logs" / "ros"))
+    live_view = cfg.view == "live" or (cfg.view == "auto" and bool(os.environ.get("DISPLAY")))
+    log_dir = out / "logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    emulator, endpoint = _start_emulator(cfg, log_dir) if cfg.cnc == "opcua" else (None, None)
+
+    cell = parse_cell(build_cell(cfg, domain_id, endpoint, live_view), source="demo cell")
+    print(f"demo graph: namespace /{cell.cell}, ROS_DOMAIN_ID {domain_id} (inspect with: thermal-comp topics "
+          f"--domain-id {domain_id}); node logs: {log_dir / 'nodes.log'}", flush=True)
+    node_log = open(log_dir / "nodes.log", "w")
+    launcher = Launcher([cell], run_dir=log_dir / "run", output=node_log, grace_s=10.0)
+    record = RunRecord()
+    monitor = None
+    bar = None
+    t_start = time.perf_counter()
+    try:
+        launcher.start()
+        monitor = DemoMonitor("/" + cell.cell)
+        if cfg.progress:
+            bar = tqdm(total=round(total_h, 2), unit="sim h", desc=f"{cfg.machine} {cfg.scenario}",
+                       bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim h [{elapsed}<{remaining}]")
+        _supervise(cfg, launcher, monitor, bar, record, total_h, log_dir, on_poll)
+        record.wall_s = time.perf_counter() - t_start
+        record.sim_end_s = monitor.sim_s
+    finally:
+        if bar is not None:
+            bar.close()
+        launcher.request_stop()
+        launcher.stop()
+        if monitor is not None:
+            record.latencies_s = list(monitor.latencies)
+            monitor.close()
+        if emulator is not None:
+            _stop_emulator(emulator)
+        node_log.close()
+    record.node_exit_codes = {mp.node.name: mp.exit_codes for mp in launcher.processes}
+    record.restarts = {mp.node.name: mp.restarts for mp in launcher.processes}
+    return record
+
+
+def _supervise(cfg: DemoConfig, launcher: Launcher, monitor: DemoMonitor, bar, record: RunRecord,
+               total_h: float, log_dir: pathlib.Path, on_poll) -> None:
+    """Poll the launcher (about 4 Hz) until machine_sim ends its scenario; raise DemoError if it
+    fails, a node crashes for good, or the wall-time limit passes."""
+    sim_proc = next(mp for mp in launcher.processes if mp.node.name == "machine_sim")
+    deadline = time.monotonic() + cfg.wall_timeout_s
+    while True:
+        launcher.poll()
+        for mp in launcher.processes:
+            if mp.pid:
+                record.peak_rss_mb[mp.node.name] = max(record.peak_rss_mb.get(mp.node.name, 0.0),
+                                                       _rss_tree_mb(mp.pid))
+        if on_poll is not None:
+            on_poll(launcher, monitor.sim_s)
+        if bar is not None:
+            bar.n = round(min(monitor.sim_s / 3600.0, total_h), 2)
+            bar.refresh()
+        if sim_proc.popen.poll() is not None:
+            launcher.poll()    # handle the exit first: a crash may be due for a restart
+        if sim_proc.popen.poll() is not None and sim_proc.next_start is None:
+            if sim_proc.popen.returncode != 0:
+                raise DemoError(f"machine_sim exited with code {sim_proc.popen.returncode}; "
+                                f"see {log_dir / 'nodes.log'}")
+            return
+        crashed = [mp.label for mp in launcher.processes if mp.gave_up or
+                   (mp.popen and mp.popen.poll() not in (None, 0) and not mp.node.restart.enabled)]
+        if crashed:
+            raise DemoError(f"node(s) {crashed} crashed; see {log_dir / 'nodes.log'}")
+        if time.monotonic() > deadline:
+            raise DemoError(f"the graph did not finish within {cfg.wall_timeout_s:.0f} s wall time "
+                            f"(reached {monitor.sim_s / 3600:.1f} of {total_h:.1f} sim h)")
+        time.sleep(0.25)
+
+
+def bench_graph(args) -> dict[str, Any]:
+    """Whole-graph closed-loop speed (x real time), temperature->offsets latency, peak memory per node."""
+    hours = 12.0 if getattr(args, "quick", False) else None
+    out = pathlib.Path(getattr(args, "out_dir", "bench_out")) / "graph"
+    cfg = DemoConfig(out_dir=out, hours=hours, view="rrd", progress=True)
+    cfg.scenario = MACHINES[cfg.machine]["scenario"]
+    record = run_graph(cfg)
+    lat = np.array(record.latencies_s) * 1e3
+    return {
+        "scenario": f"{cfg.machine}/{cfg.scenario}", "simulated_h": round(record.sim_end_s / 3600.0, 2),
+        "wall_s": round(record.wall_s, 1), "times_real_time": round(record.sim_end_s / record.wall_s, 1),
+        "latency_temperature_to_offsets_ms": {"p50": round(float(np.percentile(lat, 50)), 2) if lat.size else None,
+                                              "p99": round(float(np.percentile(lat, 99)), 2) if lat.size else None,
+                                              "samples": int(lat.size)},
+        "peak_rss_mb": {k: round(v, 1) for k, v in record.peak_rss_mb.items()},
+    }
