@@ -29,7 +29,8 @@ from typing import Any, Mapping
 import numpy as np
 
 from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION, ModelStatusData, register_model
-from talc_model.characteristic_diagram import CharacteristicDiagram, forward_selection, load_case_update
+from talc_model.cd_input_selection import forward_selection
+from talc_model.characteristic_diagram import CharacteristicDiagram, load_case_update
 from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 

@@ -1,29 +1,11 @@
-"""Characteristic diagrams (CD): smoothed grid regression, load-case update, input selection.
+"""Characteristic diagrams (CD): smoothed grid regression and the load-case update.
 
-Spec: ``shared/spec/characteristic-diagrams.md`` (Priber's smoothed grid regression as used by
-Naumann, Ihlenfeldt, Putz et al.). The papers describe the CD only in words; this module
-implements the reconstruction of the digest (§1.2), with every choice a parameter:
-
-* **Grid:** equidistant knots per input over the training range (or given ``bounds``),
-  ``n_intervals[d]`` intervals, tensor-product piecewise multilinear ("hat") kernels, so one
-  evaluation touches only 2^D vertices.
-* **Fit:** weighted least squares on the data equations plus smoothing equations (second
-  differences of the vertex coefficients along every input) and a tiny ridge that pins the
-  null space of the smoothing operator. The smoothing weight ``smoothing`` is dimensionless:
-  the data term is the weighted *mean* squared error and the smoothing term the mean squared
-  second derivative in inputs scaled to [0, 1] (choice of ours; the papers give no values).
-  ``smoothing[d] = 0`` removes the smoothing equations of a discrete input [003 §3].
-* **Outside the grid:** inputs are clamped to the grid (constant extrapolation) and counted in
-  :attr:`CharacteristicDiagram.out_of_range_count` (the papers stress that extrapolation is poor).
-* **Load-case update** (:func:`load_case_update`, [002 §3.2]): an additive update CD fitted to
-  the base model's residuals on the new load case, with the original data's residuals as
-  anchors and the weight-decay loop w_new = 10 -> *0.7 until RMSE_new_i > 2 RMSE_ref.
-* **Input selection** [003 §4]: forward heuristic (:func:`forward_selection`) and the stability
-  index (:func:`stability_index`, :func:`stability_selection`).
-* **Update from measurements** (:func:`measurement_update`, [002 §3.2] production case): per
-  sample a temporary geometric CD through the base model's support-point values and the
-  measured points (weights 1 : 10), then one temperature-input update CD per support point.
-
+:class:`CharacteristicDiagram` is Priber's smoothed grid regression as used by Naumann,
+Ihlenfeldt, Putz et al. (spec ``shared/spec/characteristic-diagrams.md``): tensor-product
+multilinear kernels on an equidistant grid, weighted least squares plus second-difference
+smoothing, inputs clamped to the grid. :func:`load_case_update` fits an additive update CD to a
+new load case. Input selection: :mod:`talc_model.cd_input_selection`; the update from
+measurements: :mod:`talc_model.cd_measurement_update`. Every reconstruction choice: docs/agp_cd.md.
 No rclpy here; pure numpy/scipy.
 """
 from __future__ import annotations
@@ -36,7 +18,6 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.spatial.distance import pdist
 from thermal_comp_common.metrics import rmse
 
 
@@ -44,7 +25,7 @@ class CharacteristicDiagramError(ValueError):
     """Bad input to a characteristic diagram; the message names the argument and value."""
 
 
-def _as_2d(u, name: str) -> np.ndarray:
+def as_2d(u, name: str) -> np.ndarray:
     a = np.asarray(u, dtype=float)
     if a.ndim == 1:
         a = a[:, None]
@@ -126,7 +107,7 @@ class CharacteristicDiagram:
 
     def basis_matrix(self, u, count_out_of_range: bool = False) -> sp.csr_matrix:
         """Sparse K x N matrix of the kernel values Phi_v(u_k) (<= 2^D non-zeros per row)."""
-        u = _as_2d(u, "u")
+        u = as_2d(u, "u")
         if u.shape[1] != self.n_inputs:
             raise CharacteristicDiagramError(f"u: {u.shape[1]} inputs, diagram has {self.n_inputs}")
         idx, tau = self._cells(u, count_out_of_range)
@@ -147,7 +128,7 @@ class CharacteristicDiagram:
     # ---------------------------------------------------------------- fitting
     def fit(self, u, y, weights=None) -> "CharacteristicDiagram":
         """Fit the vertex coefficients by weighted, smoothed least squares (R3-R6 of the digest)."""
-        u = _as_2d(u, "u")
+        u = as_2d(u, "u")
         y = np.asarray(y, dtype=float).ravel()
         if y.shape[0] != u.shape[0]:
             raise CharacteristicDiagramError(f"y: {y.shape[0]} values for {u.shape[0]} samples")
@@ -201,7 +182,7 @@ class CharacteristicDiagram:
         """Evaluate the diagram; inputs outside the grid are clamped (and counted)."""
         if self.coef_ is None:
             raise CharacteristicDiagramError("characteristic diagram is not fitted")
-        u = _as_2d(u, "u")
+        u = as_2d(u, "u")
         bad = ~np.all(np.isfinite(u), axis=1)
         out = np.full(u.shape[0], np.nan)
         if (~bad).any():
@@ -304,7 +285,7 @@ def load_case_update(base_predict: Callable[[np.ndarray], np.ndarray], u_orig, y
     is returned with ``accepted=False``; at most ``max_iterations`` iterations.
     """
     make_cd = make_cd or CharacteristicDiagram
-    u_orig, u_new = _as_2d(u_orig, "u_orig"), _as_2d(u_new, "u_new")
+    u_orig, u_new = as_2d(u_orig, "u_orig"), as_2d(u_new, "u_new")
     if u_orig.shape[1] != u_new.shape[1]:
         raise CharacteristicDiagramError(f"u_new: {u_new.shape[1]} inputs, u_orig has {u_orig.shape[1]}")
     if not 0 < decay < 1:
@@ -343,243 +324,3 @@ def load_case_update(base_predict: Callable[[np.ndarray], np.ndarray], u_orig, y
                               rmse(reference.predict(u_orig), r_orig), False, iterations)
     cd, w_acc, e_new, e_orig = accepted
     return LoadCaseUpdate(cd, w_acc, rmse_ref, e_new, e_orig, True, iterations)
-
-
-# ---------------------------------------------------------------------------------------
-# Input-variable selection [003 §4]
-
-@dataclass
-class SelectionStep:
-    subset: tuple[int, ...]
-    score: float
-
-
-def _holdout_split(k: int, test_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    perm = rng.permutation(k)
-    n_test = max(1, int(round(test_fraction * k)))
-    return perm[n_test:], perm[:n_test]
-
-
-def forward_selection(m, y, *, max_inputs: int = 4, make_cd: Callable[[], CharacteristicDiagram] | None = None,
-                      test_fraction: float = 0.2, seed: int = 0,
-                      min_relative_gain: float = 0.0) -> list[SelectionStep]:
-    """Sequential forward heuristic (variant 1 of [003 §4]).
-
-    At each size L every free candidate is added to the previous best subset, a CD with the
-    same settings is fitted and scored; the best becomes S_L. The paper leaves the norm and
-    "tested using training data" open; we score by the RMSE on a fixed random hold-out part
-    of the data (``test_fraction``, ``seed``), which penalises over-fitting grids. Stops early
-    when the best score improves by less than ``min_relative_gain``.
-    Returns the best subset (column indices) and its score for each size.
-    """
-    m = _as_2d(m, "m")
-    y = np.asarray(y, dtype=float).ravel()
-    if y.shape[0] != m.shape[0]:
-        raise CharacteristicDiagramError(f"y: {y.shape[0]} values for {m.shape[0]} samples")
-    make_cd = make_cd or (lambda: CharacteristicDiagram(n_intervals=4, smoothing=1e-4))
-    train, test = _holdout_split(m.shape[0], test_fraction, seed)
-    chosen: list[int] = []
-    steps: list[SelectionStep] = []
-    for _ in range(min(max_inputs, m.shape[1])):
-        best: SelectionStep | None = None
-        for p in range(m.shape[1]):
-            if p in chosen:
-                continue
-            cols = chosen + [p]
-            cd = make_cd().fit(m[np.ix_(train, cols)], y[train])
-            score = rmse(cd.predict(m[np.ix_(test, cols)]), y[test])
-            if best is None or score < best.score:
-                best = SelectionStep(tuple(cols), score)
-        assert best is not None
-        if steps and not best.score < steps[-1].score * (1.0 - min_relative_gain):
-            break
-        steps.append(best)
-        chosen = list(best.subset)
-    return steps
-
-
-class StabilityIndex:
-    """The stability analysis of [003 §4 (d)] over a candidate matrix M (K x P) and output y.
-
-    Columns are normalised to [0, 1]; for every pair of samples (a, b) the per-variable input
-    distance |m_a - m_b| and the output distance |y_a - y_b| are kept (pairs in chunks of the
-    ``scipy.spatial.distance.pdist`` order). For a subset S:
-
-    * ``variant="printed"`` (eq. 3 as printed): i^S = sum (1 - prod_{p in S} |dm_p|) |dy|;
-    * ``variant="closeness"`` (default): i^S = sum prod_{p in S} (1 - |dm_p|) |dy|, i.e. a pair
-      counts as close only when it is close in *every* selected input - what the paper's prose
-      says the product should describe. Both are lower-is-better and comparable only between
-      subsets of the same size (the benchmark measures how often each finds the true inputs).
-
-    ``max_samples`` subsamples the rows (fixed seed) to bound the K^2/2 pair memory.
-    """
-
-    def __init__(self, m, y, *, variant: str = "closeness", max_samples: int = 400, seed: int = 0):
-        if variant not in ("closeness", "printed"):
-            raise CharacteristicDiagramError(f"variant: must be 'closeness' or 'printed', got {variant!r}")
-        m = _as_2d(m, "m")
-        y = np.asarray(y, dtype=float).ravel()
-        if y.shape[0] != m.shape[0]:
-            raise CharacteristicDiagramError(f"y: {y.shape[0]} values for {m.shape[0]} samples")
-        ok = np.all(np.isfinite(m), axis=1) & np.isfinite(y)
-        m, y = m[ok], y[ok]
-        if m.shape[0] < 3:
-            raise CharacteristicDiagramError(f"m: stability analysis needs >= 3 finite samples, got {m.shape[0]}")
-        if m.shape[0] > max_samples:
-            keep = np.sort(np.random.default_rng(seed).choice(m.shape[0], max_samples, replace=False))
-            m, y = m[keep], y[keep]
-        span = m.max(axis=0) - m.min(axis=0)
-        mn = (m - m.min(axis=0)) / np.where(span > 0, span, 1.0)
-        self.variant = variant
-        self.n_candidates = m.shape[1]
-        self.dy = pdist(y[:, None], "cityblock").astype(np.float32)
-        dm = np.stack([pdist(mn[:, [p]], "cityblock") for p in range(m.shape[1])]).astype(np.float32)
-        # factor per variable whose product over S gives the pair weight
-        self.factor = dm if variant == "printed" else (1.0 - dm)
-
-    def index(self, subset: Sequence[int]) -> float:
-        prod = np.prod(self.factor[list(subset)], axis=0)
-        weight = (1.0 - prod) if self.variant == "printed" else prod
-        return float(weight @ self.dy)
-
-    def best_of_size(self, size: int, candidates: Sequence[Sequence[int]] | None = None) -> SelectionStep:
-        subsets = candidates if candidates is not None else itertools.combinations(range(self.n_candidates), size)
-        best: SelectionStep | None = None
-        for s in subsets:
-            score = self.index(s)
-            if best is None or score < best.score:
-                best = SelectionStep(tuple(sorted(s)), score)
-        if best is None:
-            raise CharacteristicDiagramError(f"size: no candidate subset of size {size}")
-        return best
-
-
-def stability_index(m, y, subset: Sequence[int], variant: str = "closeness") -> float:
-    """The instability index i^S of one subset (lower = more suitable); see :class:`StabilityIndex`."""
-    return StabilityIndex(m, y, variant=variant).index(subset)
-
-
-def stability_selection(m, y, *, max_inputs: int = 4, exhaustive_up_to: int = 3, variant: str = "closeness",
-                        max_samples: int = 400, seed: int = 0) -> list[SelectionStep]:
-    """Best subset per size by the stability index, searched as in [003 §5]: all combinations
-    up to ``exhaustive_up_to`` inputs, then from the previous optimum remove one variable and
-    add two (the removed one may come back: the paper does not forbid it). The index is
-    comparable only within one size; choose the size by CD test error."""
-    si = StabilityIndex(m, y, variant=variant, max_samples=max_samples, seed=seed)
-    p = si.n_candidates
-    steps: list[SelectionStep] = []
-    for size in range(1, min(max_inputs, p) + 1):
-        if size <= exhaustive_up_to or not steps:
-            steps.append(si.best_of_size(size))
-            continue
-        prev = steps[-1].subset
-        cands = set()
-        for drop in prev:
-            kept = [v for v in prev if v != drop]
-            free = [v for v in range(p) if v not in kept]
-            for pair in itertools.combinations(free, 2):
-                cands.add(tuple(sorted(kept + list(pair))))
-        steps.append(si.best_of_size(size, sorted(cands)))
-    return steps
-
-
-# ---------------------------------------------------------------------------------------
-# Load-case update from measurement data [002 §3.2, digest §2.3]
-
-@dataclass
-class MeasurementUpdate:
-    """Update CDs per support point (temperature inputs) from measured relative displacements.
-
-    ``predict(temperatures)`` gives the additive correction of every support point, shape
-    (samples, support points); the base model's support-point values plus this are the updated
-    ones, which the usual geometric interpolation then carries to the TCP.
-    """
-
-    inputs: list[int]                          # temperature columns the update CDs use
-    cds: list[CharacteristicDiagram]           # one per support point
-    adjusted: np.ndarray                       # (samples, support points) after step C
-    rmse_before: float                         # base model vs measurements at the measured points
-    rmse_after: float                          # updated model vs measurements (training data)
-
-    def predict(self, temperatures) -> np.ndarray:
-        t = _as_2d(temperatures, "temperatures")[:, self.inputs]
-        return np.column_stack([cd.predict(t) for cd in self.cds])
-
-
-def geometric_diagram(support_xyz, support_values, measured_xyz, measured_values, *,
-                      w_support: float = 1.0, w_measured: float = 10.0, n_intervals: int = 2,
-                      smoothing: float = 1e-3) -> CharacteristicDiagram:
-    """Step B of [002 §3.2]: a temporary 3-D CD g(X, Y, Z) through the predicted support-point
-    values (weight ``w_support``) and the measured displacements (weight ``w_measured``; 10:1 in
-    the paper's Fig. 3 example). The grid spans the support points (the workspace)."""
-    sp = _as_2d(support_xyz, "support_xyz")
-    mp = _as_2d(measured_xyz, "measured_xyz")
-    if sp.shape[1] != mp.shape[1]:
-        raise CharacteristicDiagramError(f"measured_xyz: {mp.shape[1]} coordinates, support_xyz has {sp.shape[1]}")
-    u = np.vstack([sp, mp])
-    y = np.concatenate([np.ravel(support_values), np.ravel(measured_values)])
-    w = np.concatenate([np.full(sp.shape[0], float(w_support)), np.full(mp.shape[0], float(w_measured))])
-    both = np.vstack([sp, mp])
-    cd = CharacteristicDiagram(n_intervals=n_intervals, smoothing=smoothing,
-                               bounds=(both.min(axis=0), both.max(axis=0)))
-    return cd.fit(u, y, w)
-
-
-def measurement_update(temperatures, base_support, support_xyz, measured_xyz, measured, *,
-                       inputs: Sequence[int] | None = None, w_support: float = 1.0, w_measured: float = 10.0,
-                       geometric_intervals: int = 2, geometric_smoothing: float = 1e-3,
-                       make_cd: Callable[[], CharacteristicDiagram] | None = None,
-                       augment_noise_k: float = 0.0, augment_copies: int = 0, seed: int = 0) -> MeasurementUpdate:
-    """The measurement-based load-case update of [002 §3.2] for one displacement component.
-
-    ``temperatures`` (K samples x P sensors); ``base_support`` (K x J) the base model's relative
-    errors at the J support points for each sample (step A); ``measured`` (K x M) the relative
-    displacements measured at ``measured_xyz`` (M x 3) - with active compensation, add the
-    applied compensation back first (digest gap 4). Step B/C: per sample a geometric CD through
-    support predictions and measurements gives adjusted support values; step D: per support
-    point an update CD on the temperatures ``inputs`` (default all; choose them with
-    :func:`forward_selection` / :func:`stability_selection`) fitted to adjusted - predicted.
-    ``augment_copies`` noisy copies of the temperatures (std ``augment_noise_k``) make the
-    update robust to run-to-run scatter, as the paper suggests (±1 K in its repeat runs).
-    """
-    temps = _as_2d(temperatures, "temperatures")
-    base = _as_2d(base_support, "base_support")
-    meas = _as_2d(measured, "measured")
-    sp, mp = _as_2d(support_xyz, "support_xyz"), _as_2d(measured_xyz, "measured_xyz")
-    k = temps.shape[0]
-    if base.shape != (k, sp.shape[0]):
-        raise CharacteristicDiagramError(f"base_support: shape {base.shape}, expected ({k}, {sp.shape[0]})")
-    if meas.shape != (k, mp.shape[0]):
-        raise CharacteristicDiagramError(f"measured: shape {meas.shape}, expected ({k}, {mp.shape[0]})")
-    cols = list(range(temps.shape[1])) if inputs is None else list(inputs)
-    make_cd = make_cd or (lambda: CharacteristicDiagram(n_intervals=2, smoothing=1e-3))
-    adjusted = np.empty_like(base)
-    for i in range(k):
-        g = geometric_diagram(sp, base[i], mp, meas[i], w_support=w_support, w_measured=w_measured,
-                              n_intervals=geometric_intervals, smoothing=geometric_smoothing)
-        adjusted[i] = g.predict(sp)
-    delta = adjusted - base
-    t_fit, d_fit = temps[:, cols], delta
-    if augment_copies > 0 and augment_noise_k > 0:
-        rng = np.random.default_rng(seed)
-        t_fit = np.vstack([t_fit] + [t_fit + rng.normal(0, augment_noise_k, t_fit.shape)
-                                     for _ in range(augment_copies)])
-        d_fit = np.vstack([d_fit] * (augment_copies + 1))
-    cds = [make_cd().fit(t_fit, d_fit[:, j]) for j in range(sp.shape[0])]
-    update = MeasurementUpdate(cols, cds, adjusted, math.nan, math.nan)
-    # quality at the measured points: the support values carried to the measured points by a
-    # geometric CD through the support points only (multilinear on a 3x3x3 lattice; the papers
-    # interpolate quadratically), base vs updated
-    err_b, err_a = [], []
-    corr = update.predict(temps)
-    for i in range(k):
-        gb = geometric_diagram(sp, base[i], mp[:0], meas[i][:0], n_intervals=geometric_intervals,
-                               smoothing=geometric_smoothing)
-        ga = geometric_diagram(sp, base[i] + corr[i], mp[:0], meas[i][:0], n_intervals=geometric_intervals,
-                               smoothing=geometric_smoothing)
-        err_b.append(gb.predict(mp) - meas[i])
-        err_a.append(ga.predict(mp) - meas[i])
-    update.rmse_before = rmse(np.concatenate(err_b), 0.0)
-    update.rmse_after = rmse(np.concatenate(err_a), 0.0)
-    return update

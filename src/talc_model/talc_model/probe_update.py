@@ -1,31 +1,13 @@
 """Probe-driven state update of a calibrated open-loop model: sparse probes, no-good phases, Q_prod.
 
-After its calibration phase an adaptive model predicts the thermal error open loop from the
-temperatures and probes now and then (FL_THERMAL, issue 10: every 2 h, 95 s per probing).
-The probe measures the error exactly (FL_THERMAL's displacement noise is ~0.05 um), so what
-remains between probes is *model* error. That error has two parts with different physics:
-
-- a slow part b(t) (a heat flow the model misses, a drifting reference) that persists for
-  hours and decays as the structure settles back to what the model knows: an
-  Ornstein-Uhlenbeck state with time constant ``bias_time_constant_s``;
-- a fast part (transients after spindle-speed steps, the 5-min grid of an ARX model) that a
-  single probe catches at a random phase and that is gone 15 min later.
-
-So the residual measured by a probe, r_k = e_k - e_hat_k, is the slow state plus a fast
-"measurement" error of variance ``noise_ratio`` x var(b), and the best estimate of b between
-probes is a scalar Kalman filter: at a probe b += K (r - b), K = P / (P + noise_ratio); between
-probes b decays by exp(-dt / tau) and P relaxes to 1 (P in units of var(b)). ``noise_ratio``
--> 0 and a long ``tau`` give the plain "hold the last probe's offset" (TALC's state update
-for an integrating error); a large ``noise_ratio`` trusts the open-loop model.
-
-Schedule (TALC, Blaser thesis §6.2): one probing every ``probe_interval_s`` counted from the end
-of the previous cycle (interval + ``probe_duration_s``), the first one interval after the last
-calibration measurement. If the residual a probe sees (what is left on the part) exceeds the
-action-control limit ``acl_um``, a no-good phase follows: ``ng_measurements`` probes every
-``ng_interval_s``, during which a new exceedance is ignored. A recording cannot pause, so
-probing time is charged in Q_prod (Eq. 6.1) instead of being inserted into the time line.
-
-No rclpy here.
+After its calibration phase a model predicts the thermal error open loop and probes now and
+then; between probes the slow part of its error is carried by a :class:`SlowErrorFilter`
+(:mod:`talc_model.slow_error_filter`). :func:`run_probe_updates` replays a recording on TALC's
+schedule (Blaser thesis §6.2): one probing every ``probe_interval_s`` counted from the end of
+the previous cycle, a no-good phase of ``ng_measurements`` probes every ``ng_interval_s``
+after a residual beyond the action-control limit. A recording cannot pause, so probing time
+is charged in Q_prod (Eq. 6.1) instead of being inserted into the time line.
+Background and figures: docs/fl_thermal.md. No rclpy here.
 """
 from __future__ import annotations
 
@@ -34,9 +16,12 @@ from dataclasses import asdict, dataclass, field
 from typing import Sequence
 
 import numpy as np
+from thermal_comp_common.metrics import q_prod
+
+from talc_model.slow_error_filter import SlowErrorError, SlowErrorFilter
 
 
-class ProbeUpdateError(ValueError):
+class ProbeUpdateError(SlowErrorError):
     """Bad input to the probe update; the message names the argument and value."""
 
 
@@ -64,22 +49,6 @@ class ProbeSchedule:
 
     def as_dict(self) -> dict:
         return asdict(self)
-
-
-@dataclass(frozen=True)
-class SlowErrorFilter:
-    """The scalar Kalman filter of one channel's slow model error (module docstring)."""
-
-    bias_time_constant_s: float = 4 * 3600.0   # Ornstein-Uhlenbeck time constant of the slow error
-    noise_ratio: float = 1.0                    # fast model-error variance / slow-error variance
-
-    def __post_init__(self) -> None:
-        v = self.bias_time_constant_s
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ProbeUpdateError(f"bias_time_constant_s: {v!r} must be a finite number > 0")
-        v = self.noise_ratio
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise ProbeUpdateError(f"noise_ratio: {v!r} must be a finite number >= 0")
 
 
 @dataclass
@@ -178,7 +147,6 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
 
 def q_prod_pct(n_probings: int, duration_s: float, probe_duration_s: float) -> float:
     """Eq. 6.1 via :func:`thermal_comp_common.metrics.q_prod`: 100 (1 - N t_M / t_total)."""
-    from thermal_comp_common.metrics import q_prod
     if not duration_s > 0:
         raise ProbeUpdateError(f"duration_s: {duration_s!r} must be > 0")
     return q_prod(int(n_probings), float(duration_s), float(probe_duration_s))

@@ -34,6 +34,17 @@ import time
 from typing import Any
 
 import numpy as np
+from talc_model.agp import AdaptiveGaussianProcess, AgpConfig, StaticGaussianProcess
+from talc_model.cd_model import CharacteristicDiagramModel
+from talc_model.cd_input_selection import StabilityIndex, forward_selection
+from talc_model.characteristic_diagram import CharacteristicDiagram, load_case_update
+from talc_model.gaussian_process import ArdGaussianProcess
+from talc_model.offset_model import OffsetModel
+from thermal_comp_common.metrics import p99, p99_group, rms_reduction, rmse
+from thermal_twin.scenarios import make_timeline
+from thermal_twin.simulate import simulate
+
+from thermal_eval.virtual_experiment import plot_virtual_experiment, run_virtual_experiment
 
 LATHE_EXPECTED_MAX_ERROR_UM = 40.0
 TLS_NOISE_UM = 0.3
@@ -47,8 +58,6 @@ CD_CASES = ("load-case-B", "load-case-C", "load-case-D")
 
 
 def _recording(machine: str, scenario: str, hours: float | None = None, seed: int = 0):
-    from thermal_twin.scenarios import make_timeline
-    from thermal_twin.simulate import simulate
     return simulate(machine, make_timeline(machine, scenario, hours=hours, seed=seed), seed=seed).to_recording()
 
 
@@ -63,8 +72,6 @@ def _round(v: float, nd: int = 3) -> float:
 
 
 def agp_cases(quick: bool, out_dir: pathlib.Path | None, progress) -> dict[str, Any]:
-    from talc_model.agp import AdaptiveGaussianProcess, StaticGaussianProcess
-    from thermal_eval.virtual_experiment import plot_virtual_experiment, run_virtual_experiment
     out: dict[str, Any] = {}
     for case in AGP_CASES:
         # --quick: the long cases shortened to 24 h (door openings is an 8 h case anyway)
@@ -99,9 +106,6 @@ def agp_cases(quick: bool, out_dir: pathlib.Path | None, progress) -> dict[str, 
 
 def agp_multi_tcp(quick: bool, progress) -> dict[str, Any]:
     """Offset models from the random-speed training test, applied to the test-piece run."""
-    from talc_model.agp import AdaptiveGaussianProcess, OffsetModel
-    from thermal_comp_common.metrics import rms_reduction
-    from thermal_eval.virtual_experiment import run_virtual_experiment
     train = _recording("swiss_lathe", "lathe-random-speed", hours=24.0 if quick else None)
     temps = {c[:-2]: train.columns[c] for c in train.names("sensor")}
     tool_sensors = ["t_tls", "t_t114", "t_t111"]
@@ -135,7 +139,6 @@ def gp_refit_speed(quick: bool, progress) -> dict[str, Any]:
     scikit-learn cold fit on all N; both log marginal likelihoods are on all N points."""
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
-    from talc_model.agp import AgpConfig, ArdGaussianProcess
     n = 500 if quick else 2000
     rec = _recording("swiss_lathe", "lathe-random-speed")
     sensors = rec.names("sensor")
@@ -177,8 +180,6 @@ def _cd_inputs(rec, stride: int) -> tuple[np.ndarray, list[str]]:
 
 
 def cd_load_cases(quick: bool, progress) -> dict[str, Any]:
-    from talc_model.characteristic_diagram import CharacteristicDiagram, forward_selection, load_case_update, rmse
-    from thermal_comp_common.metrics import p99, p99_group
     stride = 10                               # 10 min between samples (60 s recordings)
     hours = 48.0 if quick else None
     train = _recording("nmv5000", CD_TRAIN_CASE, hours=hours)
@@ -227,9 +228,6 @@ def cd_load_cases(quick: bool, progress) -> dict[str, Any]:
 def cd_model_cases(quick: bool, progress) -> dict[str, Any]:
     """The adaptive CD model (kind "cd", default configuration) replayed on load-case-A..D:
     P99_lin (um) and Q_prod as the TALC figures are reported (virtual experiment)."""
-    from talc_model.cd_model import CharacteristicDiagramModel
-    from thermal_comp_common.metrics import p99, p99_group
-    from thermal_eval.virtual_experiment import run_virtual_experiment
     out: dict[str, Any] = {}
     for case in (CD_TRAIN_CASE,) + CD_CASES:
         rec = _recording("nmv5000", case, hours=48.0 if quick else None)
@@ -249,7 +247,6 @@ def cd_model_cases(quick: bool, progress) -> dict[str, Any]:
 def stability_variants(quick: bool, progress) -> dict[str, Any]:
     """Hit rate of the true pair (v0, v1) among all pairs of 8 candidates, y = sin(3 v0) + v1^2
     + noise, K = 100 (the digest's check, measured here)."""
-    from talc_model.characteristic_diagram import StabilityIndex
     seeds = range(10 if quick else 20)
     hits = {"closeness": 0, "printed": 0}
     for s in seeds:

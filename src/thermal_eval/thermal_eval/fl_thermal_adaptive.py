@@ -4,7 +4,7 @@
 TALC's ARX calibrated on the training rows 0..6668 (the authors' protocol; Q_prod charges one
 probing per 5-min grid sample of them), then one probing of the five channels every 2 h and
 no-good phases, each probing updating the model's state
-(:mod:`thermal_eval.fl_thermal_calibrated_talc`, :mod:`thermal_eval.fl_thermal_probe_update`; the
+(:mod:`thermal_eval.fl_thermal_calibrated_talc`, :mod:`talc_model.probe_update` / :mod:`talc_model.slow_error_filter`; the
 rule that picks every hyper-parameter on the training rows is stated there). The action-control
 limit is the user's tolerance: ``talc`` uses 1 um (the issue's target), ``talc_acl5`` the
 thesis's 5 um; ``*_spindle*`` add the spindle speed (known to the CNC) as an ARX input and
@@ -12,7 +12,7 @@ thesis's 5 um; ``*_spindle*`` add the spindle speed (known to the CNC) as an ARX
 no-good phase); both are reported separately.
 
 ``talc_own_cp``, ``agp`` and ``agp_load_probing`` (plus dense probing after every
-spindle-speed change, :mod:`thermal_eval.fl_thermal_load_probing`; reported separately) replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
+spindle-speed change, :mod:`talc_model.load_driven_probing`; reported separately) replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
 and see a displacement only when their own schedule probes: TALC in its calibration phase
 (every 5 min + 95 s), then every 2 h (``post_cp_interval_h = 2``) and in its no-good phases
 (12 probes every 10 min); the AGP in its calibration phase (every 6 min, >= 4 h), then every
@@ -40,6 +40,10 @@ import time
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from talc_model.adaptive_model import make_model
+from talc_model.load_driven_probing import LoadDrivenProbing
+from talc_model.probe_update import ProbeSchedule
+from talc_model.sensor_selection import sensor_medoids
 
 from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits, mae
 
@@ -48,30 +52,6 @@ PROBE_INTERVAL_S = 7200.0
 PROBE_DURATION_S = 95.0
 #: Numbers of sensor groups tried for TALC's inputs (one medoid sensor per group).
 TALC_GROUP_CANDIDATES = (2, 3, 4, 6, 8, 10, 12)
-
-
-def sensor_medoids(temperatures: np.ndarray, n_groups: int, names: Sequence[str] = SENSORS,
-                   seed: int = 0) -> list[str]:
-    """One representative sensor per k-means group of the z-scored temperature series.
-
-    The medoid is the member closest to its group centre; returned in sensor order.
-    """
-    from sklearn.cluster import KMeans
-    from threadpoolctl import threadpool_limits
-    T = np.asarray(temperatures, dtype=float)
-    if T.ndim != 2 or T.shape[1] != len(names):
-        raise FlThermalError(f"temperatures: shape {T.shape} does not match {len(names)} sensor names")
-    if not 1 <= n_groups <= T.shape[1]:
-        raise FlThermalError(f"n_groups: {n_groups!r} must be in 1..{T.shape[1]}")
-    sd = T.std(axis=0)
-    z = ((T - T.mean(axis=0)) / np.where(sd > 1e-12, sd, 1.0)).T     # sensors x time
-    with threadpool_limits(1):
-        km = KMeans(n_clusters=n_groups, n_init=10, random_state=seed).fit(z)
-    picks = []
-    for g in range(n_groups):
-        idx = np.flatnonzero(km.labels_ == g)
-        picks.append(int(idx[np.argmin(np.sum((z[idx] - km.cluster_centers_[g]) ** 2, axis=1))]))
-    return [names[i] for i in sorted(picks)]
 
 
 def _columns():
@@ -90,14 +70,13 @@ def select_talc_inputs(data: FlThermalData, splits: Splits, candidates: Sequence
                        ) -> tuple[list[str], dict[str, float]]:
     """TALC inputs chosen on the training rows only (see the module docstring)."""
     from tqdm import tqdm
-    from talc_model.adaptive_model import make_model
     from thermal_eval.virtual_experiment import run_virtual_experiment
     n = splits.n_train
     train_T = data.temperatures[:n]
     scores: dict[str, float] = {}
     best: tuple[float, list[str]] = (math.inf, [])
     for k in tqdm(list(candidates), desc="TALC inputs (training rows)", disable=not show_progress, leave=False):
-        inputs = sensor_medoids(train_T, int(k))
+        inputs = sensor_medoids(train_T, int(k), SENSORS)
         cfg = {**talc_config(inputs), **dict(overrides or {})}
         res = run_virtual_experiment(data.recording, make_model("talc", cfg), columns=_columns(),
                                      probed_components=list(CHANNELS), stop=n, compute_metrics=False)
@@ -129,7 +108,6 @@ def run_calibrated_talc_variants(data: FlThermalData, splits: Splits, *, variant
     from tqdm import tqdm
     from thermal_eval.fl_thermal_calibrated_talc import (GROUP_CANDIDATES, calibrated_talc_figures,
                                                        run_calibrated_talc)
-    from thermal_eval.fl_thermal_probe_update import ProbeSchedule
     names = list(variants) if variants is not None else list(CALIBRATED_TALC_VARIANTS)
     unknown = sorted(set(names) - set(CALIBRATED_TALC_VARIANTS))
     if unknown:
@@ -173,19 +151,17 @@ def adaptive_configs(data: FlThermalData, splits: Splits, talc_inputs: Sequence[
 
 
 #: replayed models whose schedule also probes densely after every spindle-speed change
-#: (:class:`thermal_eval.fl_thermal_load_probing.LoadDrivenProbing`, same phase as TALC's NG phase)
+#: (:class:`talc_model.load_driven_probing.LoadDrivenProbing`, same phase as TALC's NG phase)
 LOAD_PROBING_REPLAYS = ("agp_load_probing",)
 
 
 def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tuple[str, dict]],
                  show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]], dict[str, list[int]]]:
     """Replay the whole recording through each adaptive model; MAE of the compensation per split."""
-    from talc_model.adaptive_model import make_model
     from thermal_eval.virtual_experiment import run_virtual_experiment
     figures: dict[str, Any] = {}
     predictions: dict[str, dict[str, np.ndarray]] = {}
     probe_rows: dict[str, list[int]] = {}
-    from thermal_eval.fl_thermal_load_probing import LoadDrivenProbing
     for name, (kind, cfg) in configs.items():
         model = make_model(kind, cfg)
         if name in LOAD_PROBING_REPLAYS:

@@ -26,7 +26,7 @@ is (one probing per 5-min grid sample; those samples are the GP's calibration po
   measurement re-optimises when it is off the GP mean by more than ``control_tolerance_um``
   (e_tol = 1 um, the issue's target; not tuned) and otherwise conditions on the point with the
   hyperparameters kept. Then the slow-error Kalman filter of
-  :mod:`thermal_eval.fl_thermal_probe_update` takes the residual left after that update
+  :mod:`talc_model.probe_update` / :mod:`talc_model.slow_error_filter` takes the residual left after that update
   (measured - new GP mean): it carries what the GP cannot (a drifting reference, a heat flow
   the inputs miss) between probes and decays with its time constant tau.
 - **Between probes** (:func:`uncertainty_weighted_hold`): the compensation blends the GP's (with
@@ -61,9 +61,14 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from talc_model.agp import ArdGaussianProcess, sensor_groups
+from talc_model.gaussian_process import ArdGaussianProcess
+from talc_model.lagged_temperature_model import lagged_features
+from talc_model.probe_update import q_prod_pct
+from talc_model.sensor_selection import fast_sensor, sensor_groups, sensor_medoids
+from talc_model.slow_error_filter import SlowErrorFilter, slow_error_compensation
+from talc_model.uncertainty_weighted_hold import measured_hold_rate, uncertainty_weighted_hold
+from threadpoolctl import threadpool_limits
 from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
-from thermal_eval.fl_thermal_probe_update import SlowErrorFilter, q_prod_pct
 
 #: Low-pass time constant sets of the GP inputs (s): none (the thesis's static map), the
 #: spindle-nose / bearing scale, and the bearing plus structure scales.
@@ -73,14 +78,9 @@ SIGMA_MAX_RATIOS = (0.05, 0.10, 0.15)
 #: Slow-error filter grid (as the calibrated TALC's).
 BIAS_TAU_GRID_S = (1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 86400.0)
 NOISE_RATIO_GRID = (0.0, 0.3, 1.0, 3.0)
-#: Lag over which the displacement's random-walk rate is measured on the calibration rows (s):
-#: the sigma_max probes' rate limit, the shortest gap between two measurements.
-HOLD_RATE_LAG_S = 600.0
 FOLD_STARTS = (0.6, 0.7, 0.8)
 #: Calibration points: one per 5-min grid sample of the calibration rows (charged in Q_prod).
 CALIBRATION_STEP_S = 300.0
-#: Low-pass time constant that separates fast parts for :func:`fast_sensor` (s): the spindle-nose scale.
-FAST_SENSOR_TAU_S = 1800.0
 
 
 @dataclass(frozen=True)
@@ -124,29 +124,6 @@ class AgpTrajectory:
         return sum(r == "sigma_max" for r in self.probe_reasons)
 
 
-def fast_sensor(time_s: np.ndarray, temperatures: np.ndarray, displacements: np.ndarray,
-                tau_s: float = FAST_SENSOR_TAU_S) -> str:
-    """The sensor whose fast part best follows the displacements' fast parts on the given
-    (calibration) rows: largest mean |correlation| over the channels between x - LP(x), with LP
-    a causal first-order low-pass of time constant ``tau_s``, of temperature and displacement.
-    On FL_THERMAL it is t4 in every walk-forward fold and for tau 10-60 min (the spindle-near
-    sensor; ch3/ch4's 30-min wiggles follow it by ~2 min)."""
-    from talc_model.lagged_temperature_model import exponential_filter
-    t = np.asarray(time_s, dtype=float)
-    T = np.asarray(temperatures, dtype=float)
-    D = np.asarray(displacements, dtype=float)
-    D = D[:, None] if D.ndim == 1 else D
-    if T.ndim != 2 or T.shape[1] != len(SENSORS) or T.shape[0] != t.size or D.shape[0] != t.size or t.size < 3:
-        raise FlThermalError(f"temperatures {T.shape} / displacements {D.shape}: need N x {len(SENSORS)} and "
-                             f"N x channels for the {t.size} rows of time_s (N >= 3)")
-    fT = T - exponential_filter(t, T, float(tau_s))
-    fD = D - exponential_filter(t, D, float(tau_s))
-    fT, fD = fT - fT.mean(axis=0), fD - fD.mean(axis=0)
-    norm = np.sqrt(np.outer((fT ** 2).sum(axis=0), (fD ** 2).sum(axis=0)))
-    corr = np.abs(fT.T @ fD) / np.where(norm > 0, norm, np.inf)
-    return SENSORS[int(np.argmax(corr.mean(axis=1)))]
-
-
 def agp_input_sensors(temperatures: np.ndarray, seed: int = 0, time_s: np.ndarray | None = None,
                       displacements: np.ndarray | None = None) -> list[str]:
     """One medoid per unique sensor group (WCSS elbow, thesis §5.1) of the given rows, plus (given
@@ -155,11 +132,10 @@ def agp_input_sensors(temperatures: np.ndarray, seed: int = 0, time_s: np.ndarra
     swings away, which lead the displacement's. Walk-forward inside FL_THERMAL's training rows
     (60/70/80 % folds, selected GP settings): mean MAE 2.47 um with the medoids alone, 1.59 with
     the fast sensor added."""
-    from thermal_eval.fl_thermal_adaptive import sensor_medoids
     groups = sensor_groups(temperatures, seed=seed)
-    sensors = sensor_medoids(temperatures, groups.n_groups, seed=seed)
+    sensors = sensor_medoids(temperatures, groups.n_groups, SENSORS, seed=seed)
     if time_s is not None and displacements is not None:
-        fast = fast_sensor(time_s, temperatures, displacements)
+        fast = fast_sensor(time_s, temperatures, displacements, SENSORS)
         if fast not in sensors:
             sensors.append(fast)
     return sensors
@@ -167,7 +143,6 @@ def agp_input_sensors(temperatures: np.ndarray, seed: int = 0, time_s: np.ndarra
 
 def agp_features(data: FlThermalData, sensors: Sequence[str], taus_s: Sequence[float]) -> np.ndarray:
     """GP inputs for every row, causal: medoid temperatures (change from row 0) and low-pass copies."""
-    from talc_model.lagged_temperature_model import lagged_features
     unknown = [s for s in sensors if s not in SENSORS]
     if unknown or not sensors:
         raise FlThermalError(f"sensors: {list(sensors)!r} must be a non-empty subset of {list(SENSORS)}")
@@ -196,7 +171,6 @@ def _new_gp(max_err: float, seed: int) -> ArdGaussianProcess:
 def fit_calibration_gps(X: np.ndarray, Y: np.ndarray, rows: np.ndarray, max_err: float,
                         seed: int = 0) -> list[ArdGaussianProcess]:
     """One ARD GP per channel on the calibration points (hyperparameters optimised)."""
-    from threadpoolctl import threadpool_limits
     with threadpool_limits(1):
         return [_new_gp(max_err, seed).fit(X[rows], Y[rows, j], warm_start=False) for j in range(Y.shape[1])]
 
@@ -208,7 +182,6 @@ def replay_agp(time_s: np.ndarray, X: np.ndarray, Y: np.ndarray, start: int, sto
 
     ``Y`` is read only at ``cal_rows`` and at the probe rows the schedule picks.
     """
-    from threadpoolctl import threadpool_limits
     t = np.asarray(time_s, dtype=float)
     n, m = Y.shape
     if not 1 <= start < stop <= n:
@@ -260,90 +233,6 @@ def replay_agp(time_s: np.ndarray, X: np.ndarray, Y: np.ndarray, start: int, sto
             post.append(np.array([float(g.predict(X[k:k + 1])[0][0]) for g in gps]))
     return AgpTrajectory(mean, std, probes, reasons, np.array(post).reshape(len(post), m), sigma_max_um, refits,
                          int(cal_rows[-1]))
-
-
-def slow_error_compensation(time_s: np.ndarray, y: np.ndarray, gp_mean: np.ndarray, probe_rows: Sequence[int],
-                            post_probe_mean: np.ndarray, start: int, stop: int, flt: SlowErrorFilter) -> np.ndarray:
-    """One channel's compensation GP mean + slow error b on rows [start, stop) (NaN elsewhere).
-
-    b starts at 0 with variance 0 (the GP was just fitted on the calibration points); at a probe
-    row the residual y - (GP mean after the probe's update) feeds the scalar Kalman filter of
-    :mod:`thermal_eval.fl_thermal_probe_update`, effective from the next row (the probe row itself
-    was compensated before its probe); between probes b decays with exp(-dt / tau).
-    """
-    t = np.asarray(time_s, dtype=float)
-    comp = np.full(t.size, np.nan)
-    b, var, t_b = 0.0, 0.0, float(t[start - 1])
-    bounds = list(probe_rows) + [stop - 1]
-    lo = start
-    for i, hi in enumerate(bounds):
-        rows = np.arange(lo, hi + 1)
-        a = np.exp(-(t[rows] - t_b) / flt.bias_time_constant_s)
-        comp[rows] = gp_mean[rows] + b * a
-        if i == len(probe_rows):
-            break
-        a_k = a[-1]
-        b, var = b * a_k, var * a_k * a_k + (1.0 - a_k * a_k)
-        denom = var + flt.noise_ratio
-        gain = var / denom if denom > 0 else 1.0
-        b, var, t_b = b + gain * (y[hi] - post_probe_mean[i] - b), var * (1.0 - gain), float(t[hi])
-        lo = hi + 1
-    # rows after the probe row are compensated with the updated b; the GP mean after a probe
-    # is already in gp_mean (replay_agp re-predicts from the next row)
-    return comp
-
-
-def uncertainty_weighted_hold(time_s: np.ndarray, y: np.ndarray, compensation: np.ndarray, gp_std: np.ndarray,
-                              measured_rows: Sequence[int], start: int, stop: int, hold_rate: float) -> np.ndarray:
-    """Blend the model's compensation with the last measured displacement by their uncertainties.
-
-    Between two measurements the displacement is known at the last one, y_p, and drifts away from
-    it like a random walk with variance ``hold_rate`` (um^2/h) x the time since; the GP's own
-    predictive variance ``gp_std``^2 says how far to trust its compensation c. The estimate is
-    y_p + w (c - y_p), w = q dt / (q dt + std^2): the GP where it knows the state (small std),
-    the last measurement right after it and where the state is unseen (large std; the GP mean
-    swings there). ``hold_rate`` = inf returns c unchanged, 0 holds the last measurement.
-    ``measured_rows``: the last calibration probing (< start) and the probe rows; a probe row
-    itself was compensated before its probe. Rows outside [start, stop) are NaN.
-    """
-    if not (isinstance(hold_rate, (int, float)) and not math.isnan(hold_rate) and hold_rate >= 0):
-        raise FlThermalError(f"hold_rate: {hold_rate!r} must be a number >= 0 (inf = the model alone)")
-    c = np.asarray(compensation, dtype=float)
-    if math.isinf(hold_rate):
-        return c.copy()
-    t = np.asarray(time_s, dtype=float)
-    out = np.full(t.size, np.nan)
-    measured = [int(r) for r in measured_rows]
-    if not measured or measured[0] >= start:
-        raise FlThermalError(f"measured_rows: {measured[:3]!r}... must start with a row before {start}")
-    bounds = [r for r in measured[1:] if start <= r < stop] + [stop - 1]
-    lo = start
-    for p, hi in zip(measured, bounds):
-        rows = np.arange(lo, hi + 1)
-        qdt = hold_rate * (t[rows] - t[p]) / 3600.0
-        s2 = np.asarray(gp_std, dtype=float)[rows] ** 2
-        w = np.where(qdt + s2 > 0, qdt / np.where(qdt + s2 > 0, qdt + s2, 1.0), 1.0)
-        out[rows] = y[p] + w * (c[rows] - y[p])
-        lo = hi + 1
-    return out
-
-
-def measured_hold_rate(time_s: np.ndarray, y: np.ndarray, n_calibration: int, lag_s: float = HOLD_RATE_LAG_S) -> float:
-    """The displacement's random-walk rate (um^2/h) on rows < ``n_calibration``: the mean squared
-    change over ``lag_s``, divided by ``lag_s``. It is the variance a held measurement gains per
-    hour, measured, not tuned (FL_THERMAL training rows, 10 min: 8 / 7 / 35 / 32 / 16 um^2/h)."""
-    t = np.asarray(time_s, dtype=float)[:n_calibration]
-    v = np.asarray(y, dtype=float)[:n_calibration]
-    if t.size < 3:
-        raise FlThermalError(f"n_calibration: {n_calibration} rows cannot give a hold rate")
-    lag = max(1, int(round(lag_s / float(np.median(np.diff(t))))))
-    if lag >= t.size:
-        raise FlThermalError(f"lag_s: {lag_s!r} s is longer than the {t.size} calibration rows")
-    d = v[lag:] - v[:-lag]
-    d = d[np.isfinite(d)]
-    if d.size == 0:
-        raise FlThermalError("y: no finite displacement change on the calibration rows")
-    return float(np.mean(d * d) / (float(np.median(t[lag:] - t[:-lag])) / 3600.0))
 
 
 def best_filter(time_s, y, trajectories: Sequence[tuple[int, int, AgpTrajectory]], channel_index: int,

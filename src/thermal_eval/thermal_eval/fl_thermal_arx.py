@@ -5,7 +5,7 @@ Per channel a MISO ARX model (:mod:`talc_model.arx`) on the thesis's 5-min grid
 sensors. Everything is chosen on the training rows only:
 
 - input sets: one medoid sensor per k-means group of the training-row temperatures
-  (:func:`fl_thermal_adaptive.sensor_medoids`), for each k in ``GROUP_CANDIDATES``;
+  (:func:`talc_model.sensor_selection.sensor_medoids`), for each k in ``GROUP_CANDIDATES``;
 - orders (n_a in ``NA_RANGE``, n_b in ``NB_RANGE``) by MDL on a chronological 60/40 split of
   the training grid (:func:`order_selection.select_orders`, simulation-mode validation);
 - per channel the k whose chosen model has the lowest simulation-mode RMS on that 40 %.
@@ -32,7 +32,8 @@ from typing import Sequence
 
 import numpy as np
 
-from thermal_eval.fl_thermal_adaptive import TALC_GROUP_CANDIDATES, sensor_medoids
+from talc_model.sensor_selection import sensor_medoids
+from thermal_eval.fl_thermal_adaptive import TALC_GROUP_CANDIDATES
 from thermal_eval.fl_thermal_data import SENSORS, FlThermalData, FlThermalError, Splits
 
 GRID_STEP_S = 300.0                       # the TALC model grid (5 min = 20 rows of 15 s)
@@ -100,7 +101,7 @@ def arx_open_loop_channel(data: FlThermalData, splits: Splits, channel: str,
     if n_train_grid < 20:
         raise FlThermalError(f"rows: {splits.n_train} training rows give {n_train_grid} grid samples, need >= 20")
     y = data.displacement_um[channel][grid]
-    sets = input_sets or {k: sensor_medoids(data.temperatures[:splits.n_train], int(k)) for k in group_candidates}
+    sets = input_sets or {k: sensor_medoids(data.temperatures[:splits.n_train], int(k), SENSORS) for k in group_candidates}
     best = None
     scores: dict[str, float] = {}
     for k, names in sets.items():

@@ -54,13 +54,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from talc_model.sensor_selection import sensor_medoids
 from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA_GRID, LaggedTemperatureModel,
                                                  default_tau_grid, walk_forward_select)
 from thermal_eval.fl_thermal_adaptive import (adaptive_configs, run_adaptive, run_calibrated_talc_variants,
-                                            select_talc_inputs, sensor_medoids)
+                                            select_talc_inputs)
 from thermal_eval.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
 from thermal_eval.fl_thermal_arx import arx_open_loop_channel
-from thermal_eval.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, load_fl_thermal, mae
+from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, load_fl_thermal, mae
 
 #: MAE (um) on the test rows, from the authors' README (shared/data/fl_thermal/README.md).
 PUBLISHED_MAE_UM: dict[str, dict[str, float]] = {
@@ -134,7 +135,7 @@ def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_g
                     "walk_forward_mae_um": round(r.walk_forward_mae_um, 3),
                     "walk_forward_fold_mae_um": [round(v, 3) for v in r.fold_mae_um],
                     "taus_s": list(r.taus_s), "alpha": r.alpha}
-    input_sets = {k: sensor_medoids(data.temperatures[:splits.n_train], int(k)) for k in arx_groups}
+    input_sets = {k: sensor_medoids(data.temperatures[:splits.n_train], int(k), SENSORS) for k in arx_groups}
     for name, with_spindle in ARX_MODELS.items():
         figures[name], predictions[name] = {}, {}
         for ch in tqdm(CHANNELS, desc=f"open loop: {name}", disable=not show_progress, leave=False):

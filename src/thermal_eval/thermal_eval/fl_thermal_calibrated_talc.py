@@ -7,7 +7,7 @@ a real calibration phase would probe at every 5-min grid sample of those 27.8 h,
 charges exactly those probings). After calibration the ARX runs in simulation mode on the
 temperatures (read between its grid samples with the current inputs, ``subgrid``, or held,
 ``grid_hold``), and every probing updates the model's state through the slow-error Kalman filter
-of :mod:`thermal_eval.fl_thermal_probe_update`: its noise ratio r lets a probe count less than
+of :mod:`talc_model.probe_update` / :mod:`talc_model.slow_error_filter`: its noise ratio r lets a probe count less than
 fully when fast transients dominate what one probe catches, r = 0 is TALC's "measurement
 replaces prediction" (on FL_THERMAL the walk-forward chose r = 0 on every channel), and the
 estimated offset decays with the time constant tau. A residual beyond the action-control
@@ -35,9 +35,11 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from talc_model.probe_update import ProbeSchedule, q_prod_pct, run_probe_updates
+from talc_model.sensor_selection import sensor_medoids
+from talc_model.slow_error_filter import SlowErrorFilter
 from thermal_eval.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
-from thermal_eval.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
-from thermal_eval.fl_thermal_probe_update import ProbeSchedule, SlowErrorFilter, q_prod_pct, run_probe_updates
+from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
 
 #: Slow-error time constants tried (s): 30 min (spindle nose) ... 24 h (a drifting reference).
 BIAS_TAU_GRID_S = (1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 86400.0)
@@ -84,12 +86,11 @@ def calibrated_arx(data: FlThermalData, n_calibration: int, channel: str, group_
     ({evaluation mode: prediction for every row, NaN before n_calibration}, input names).
     Modes (:data:`EVALUATIONS`): "grid_hold" holds each 5-min grid value, "subgrid" evaluates
     between grid samples (:func:`fl_thermal_arx.subgrid_prediction`)."""
-    from thermal_eval.fl_thermal_adaptive import sensor_medoids
     from thermal_eval.fl_thermal_arx import arx_open_loop_channel
     key = (channel, int(n_calibration), bool(with_spindle), tuple(group_candidates))
     if cache is not None and key in cache:
         return cache[key]
-    sets = {k: sensor_medoids(data.temperatures[:n_calibration], int(k)) for k in group_candidates}
+    sets = {k: sensor_medoids(data.temperatures[:n_calibration], int(k), SENSORS) for k in group_candidates}
     splits = Splits(n_calibration, n_calibration + 1, len(data))
     r = arx_open_loop_channel(data, splits, channel, input_sets=sets, with_spindle=with_spindle)
     out = ({"grid_hold": r.prediction, "subgrid": r.prediction_subgrid}, list(r.inputs))

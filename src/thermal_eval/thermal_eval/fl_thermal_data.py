@@ -8,7 +8,6 @@ validation (8892-11114). No rclpy here.
 """
 from __future__ import annotations
 
-import math
 import os
 import pathlib
 from dataclasses import dataclass

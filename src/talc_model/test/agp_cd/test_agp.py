@@ -9,8 +9,10 @@ import pytest
 
 from agp_cd_synthetic import lathe_recording
 from talc_model.adaptive_model import AdaptiveModel, make_model, model_from_state
-from talc_model.agp import (AdaptiveGaussianProcess, AgpConfigError, ArdGaussianProcess, OffsetModel,
-                            StaticGaussianProcess, calibration_points_needed, sensor_groups)
+from talc_model.agp import AdaptiveGaussianProcess, AgpConfigError, StaticGaussianProcess
+from talc_model.gaussian_process import ArdGaussianProcess
+from talc_model.offset_model import OffsetModel
+from talc_model.sensor_selection import SensorSelectionError, calibration_points_needed, sensor_groups
 from thermal_eval.virtual_experiment import run_virtual_experiment
 
 
@@ -72,9 +74,9 @@ def test_kmeans_groups_of_correlated_sensors_set_the_calibration_length(n_groups
 
 
 def test_sensor_groups_rejects_bad_shapes():
-    with pytest.raises(AgpConfigError, match="sensor series"):
+    with pytest.raises(SensorSelectionError, match="sensor series"):
         sensor_groups(np.zeros(10))
-    with pytest.raises(AgpConfigError, match=">= 3 complete rows"):
+    with pytest.raises(SensorSelectionError, match=">= 3 complete rows"):
         sensor_groups(np.full((5, 2), np.nan))
 
 

@@ -6,10 +6,11 @@ import json
 import numpy as np
 import pytest
 
+from talc_model.cd_input_selection import StabilityIndex, forward_selection, stability_selection
+from talc_model.cd_measurement_update import measurement_update
 from talc_model.characteristic_diagram import (CharacteristicDiagram, CharacteristicDiagramError,
-                                               StabilityIndex, fit_with_grid_refinement, forward_selection,
-                                               load_case_update, rmse, second_difference_operator,
-                                               stability_selection)
+                                               fit_with_grid_refinement, load_case_update, second_difference_operator)
+from thermal_comp_common.metrics import rmse
 
 
 def smooth(u):
@@ -150,7 +151,6 @@ def test_stability_index_picks_the_truly_relevant_inputs(seed):
 
 
 def test_measurement_update_moves_support_points_towards_the_measured_field():
-    from talc_model.characteristic_diagram import measurement_update
     rng = np.random.default_rng(5)
     grid = np.array([[x, y, z] for x in (0.0, 400.0, 800.0) for y in (0.0, 325.0, 650.0)
                      for z in (0.0, 275.0, 550.0)])                      # 27 support points

@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from thermal_eval.fl_thermal_probe_update import (ProbeSchedule, ProbeUpdateError, SlowErrorFilter, q_prod_pct,
-                                                run_probe_updates)
+from talc_model.probe_update import ProbeSchedule, ProbeUpdateError, q_prod_pct, run_probe_updates
+from talc_model.slow_error_filter import SlowErrorError, SlowErrorFilter
 
 DT = 15.0
 
@@ -100,9 +100,9 @@ def test_bad_input_is_named():
         ProbeSchedule(acl_um=0)
     with pytest.raises(ProbeUpdateError, match="ng_measurements: 2.5"):
         ProbeSchedule(ng_measurements=2.5)
-    with pytest.raises(ProbeUpdateError, match="noise_ratio: -1"):
+    with pytest.raises(SlowErrorError, match="noise_ratio: -1"):
         SlowErrorFilter(noise_ratio=-1)
-    with pytest.raises(ProbeUpdateError, match="bias_time_constant_s: inf"):
+    with pytest.raises(SlowErrorError, match="bias_time_constant_s: inf"):
         SlowErrorFilter(bias_time_constant_s=math.inf)
 
 

@@ -6,7 +6,7 @@ import pytest
 
 from talc_model.arx import ArxModel, ArxOrders
 from talc_model.order_selection import _select_orders_reference, select_orders
-from talc_model.talc import TalcConfig
+from talc_model.talc_config import TalcConfig
 
 
 def _plant(seed=0, n=900):

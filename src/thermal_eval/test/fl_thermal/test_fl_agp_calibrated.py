@@ -4,10 +4,12 @@ import copy
 import numpy as np
 import pytest
 
-from thermal_eval.fl_thermal_agp import (AgpSchedule, agp_features, fit_calibration_gps, replay_agp,
-                                       run_agp_calibrated_variant, run_calibrated_agp, slow_error_compensation)
-from thermal_eval.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
-from thermal_eval.fl_thermal_probe_update import SlowErrorFilter
+from talc_model.sensor_selection import SensorSelectionError, fast_sensor
+from talc_model.slow_error_filter import SlowErrorFilter, slow_error_compensation
+from talc_model.uncertainty_weighted_hold import HoldError, measured_hold_rate, uncertainty_weighted_hold
+from thermal_eval.fl_thermal_agp import (AgpSchedule, agp_features, agp_input_sensors, fit_calibration_gps,
+                                       replay_agp, run_agp_calibrated_variant, run_calibrated_agp)
+from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalError, Splits, load_fl_thermal
 
 DT = 15.0
 
@@ -121,8 +123,6 @@ def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_prob
 
 
 def test_the_fast_sensor_is_the_one_whose_fast_part_the_displacements_follow():
-    from thermal_eval.fl_thermal_agp import agp_input_sensors, fast_sensor
-    from thermal_eval.fl_thermal_data import SENSORS
     rng = np.random.default_rng(11)
     n = 3000
     t = np.arange(n) * DT
@@ -132,16 +132,15 @@ def test_the_fast_sensor_is_the_one_whose_fast_part_the_displacements_follow():
     T[:, 6] += 3.0 * np.sin(2 * np.pi * t / 5000.0)          # large but slow swings on t7
     T[:, 3] += 0.5 * wiggle                                  # the wiggle on t4
     D = np.column_stack([2.0 * slow + 1.5 * np.roll(wiggle, 8), -slow - np.roll(wiggle, 8)])
-    assert fast_sensor(t, T, D) == "t4"
+    assert fast_sensor(t, T, D, SENSORS) == "t4"
     sensors = agp_input_sensors(T, time_s=t, displacements=D)
     assert sensors[-1] == "t4" and len(set(sensors)) == len(sensors)
     assert agp_input_sensors(T) == sensors[:-1]               # without displacements: the medoids only
-    with pytest.raises(FlThermalError, match="temperatures"):
-        fast_sensor(t, T[:, :5], D)
+    with pytest.raises(SensorSelectionError, match="temperatures"):
+        fast_sensor(t, T[:, :5], D, SENSORS)
 
 
 def test_the_uncertainty_weighted_hold_trusts_the_gp_where_it_is_sure_and_the_probe_where_not():
-    from thermal_eval.fl_thermal_agp import measured_hold_rate, uncertainty_weighted_hold
     n = 200
     t = np.arange(n) * 60.0
     y = np.zeros(n)
@@ -156,14 +155,14 @@ def test_the_uncertainty_weighted_hold_trusts_the_gp_where_it_is_sure_and_the_pr
     assert np.array_equal(uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, float("inf"))[10:], c[10:])
     held = uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, 0.0)
     assert np.allclose(held[10:101], 1.0) and np.allclose(held[101:], 4.0)
-    with pytest.raises(FlThermalError, match="hold_rate"):
+    with pytest.raises(HoldError, match="hold_rate"):
         uncertainty_weighted_hold(t, y, c, std, [9, 100], 10, n, -1.0)
-    with pytest.raises(FlThermalError, match="measured_rows"):
+    with pytest.raises(HoldError, match="measured_rows"):
         uncertainty_weighted_hold(t, y, c, std, [10, 100], 10, n, 1.0)
     # a random walk with 4 um^2/h is measured as such
     rng = np.random.default_rng(3)
     tt = np.arange(20000) * DT
     walk = np.cumsum(rng.normal(0.0, np.sqrt(4.0 * DT / 3600.0), tt.size))
     assert measured_hold_rate(tt, walk, tt.size) == pytest.approx(4.0, rel=0.1)
-    with pytest.raises(FlThermalError, match="lag_s"):
+    with pytest.raises(HoldError, match="lag_s"):
         measured_hold_rate(tt[:10], walk[:10], 10)

@@ -10,7 +10,7 @@ from thermal_eval.fl_thermal_arx import subgrid_prediction
 from thermal_eval.fl_thermal_calibrated_talc import (calibrated_talc_figures, run_calibrated_talc,
                                                    walk_forward_filter)
 from thermal_eval.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal
-from thermal_eval.fl_thermal_probe_update import ProbeSchedule
+from talc_model.probe_update import ProbeSchedule
 
 STEP = 20            # 5-min grid on 15-s rows
 

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from thermal_eval.fl_thermal_adaptive import sensor_medoids
+from talc_model.sensor_selection import sensor_medoids
 from thermal_eval.fl_thermal_arx import arx_open_loop_channel
 from thermal_eval.fl_thermal_benchmark import open_loop_channel
 from thermal_eval.fl_thermal_benchmark import PUBLISHED_MAE_UM, run_benchmark
