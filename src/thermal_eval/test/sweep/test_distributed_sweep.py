@@ -123,3 +123,16 @@ def test_local_pool_gives_up_after_its_retries(tmp_path):
                   engine=EngineSpec("local", workers=2, retries=0))
     rows, _ = read_results(tmp_path / "r.jsonl", run.fingerprint())
     assert points[1].key() not in {r["key"] for r in rows}        # what finished is kept, the rest is not faked
+
+
+def test_no_scheduler_at_the_address_is_one_clear_error():
+    with pytest.raises(TaskEngineError, match=r"address: no dask scheduler answered at 'tcp://127\.0\.0\.1:9'"):
+        list(map_tasks(_square, 1, [1, 2], EngineSpec("dask", "tcp://127.0.0.1:9", timeout_s=2.0)))
+
+
+def test_projection_model_of_the_scale_bench():
+    from thermal_eval.bench_scale import project_wall_s
+    costs = {"A": 2.0, "B": 3.0}
+    # N (2 + 3) (1 + 0.05) / W + 2 N o_s
+    assert project_wall_s(costs, 0.05, 0.01, 4, per_case=100) == pytest.approx(100 * 5 * 1.05 / 4 + 200 * 0.01)
+    assert project_wall_s(costs, 0.0, 0.0, 1, per_case=2191) == pytest.approx(2191 * 5.0)
