@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from thermal_eval import fault_injection as fi
+from thermal_eval import bridge_attacks, fault_injection as fi
 H = 3600.0
 
 
@@ -267,7 +267,7 @@ def run(args) -> dict[str, Any]:
     r, f = probing_rows(24.0 if quick else 48.0)
     rows += r
     figures["probing"] = f
-    rows += link_rows()
+    rows += link_rows() + bridge_attacks.rows()
     r, f = process_rows(out / "graph", 6.0 if quick else 10.0)
     rows += r
     figures["processes"] = f
