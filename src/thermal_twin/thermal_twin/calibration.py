@@ -137,7 +137,8 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
               section: Mapping | None = None, max_nfev: int = 30,
               progress: Callable[[str], None] | None = None) -> CalibrationResult:
     """Fit the free parameters of ``twin`` (path, preset, mapping or Machine) to
-    ``recording``; ``section`` overrides the machine's own ``calibration`` section."""
+    ``recording``; ``section`` overrides the machine's own ``calibration`` section.
+    (Over 80 lines: the residual and Jacobian closures share one cache of the last twin run.)"""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise CalibrationError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
