@@ -34,7 +34,7 @@ setup(
             "topics = thermal_comp.inspect_cli:topics_main",
             "echo = thermal_comp.inspect_cli:echo_main",
             "nodes = thermal_comp.inspect_cli:nodes_main",
-            "demo = thermal_comp.demo:main",
+            "demo = thermal_comp.demo_cli:main",
             "record = thermal_comp.record_cli:main",
             "play = thermal_comp.play_cli:main",
             "import-csv = thermal_comp.import_csv_cli:main",
@@ -42,7 +42,7 @@ setup(
         ],
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [
-            "graph = thermal_comp.demo:bench_graph",
+            "graph = thermal_comp.demo_graph:bench_graph",
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",

@@ -79,7 +79,7 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
     m = MACHINES[cfg.machine]
     out = cfg.out_dir.resolve()
     step = cfg.step_s or m["step_s"]
-    participants = ["sensors", "model", "bridge"]
+    participants = ["sensors", "model", "bridge", "recorder"]   # the recorder acks what it wrote
     nodes = [
         {"name": "machine_sim", "module": "thermal_twin.machine_sim_node",
          "parameters": {"machine": cfg.machine, "scenario": cfg.scenario, "seed": cfg.seed,
@@ -95,7 +95,7 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
         {"name": "bridge", "module": "cnc_bridge.cnc_bridge_node",
          "parameters": _bridge_parameters(cfg, out, endpoint)},
         {"name": "recorder", "module": "thermal_comp.bag_recorder_node",
-         "parameters": {"output": str(out / "bag")}},
+         "parameters": {"output": str(out / "bag"), "lockstep_participant": True}},
     ]
     if live_view:
         nodes.append({"name": "viewer", "module": "thermal_comp.rerun_view_node", "parameters": {}})

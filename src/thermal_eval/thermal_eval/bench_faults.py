@@ -168,7 +168,7 @@ def load_figures(out: pathlib.Path, cells: int, hours: float, wall_timeout_s: fl
 
     from thermal_comp_common.bag_reader import read_bag
     from thermal_comp.cell_config import parse_cell
-    from thermal_comp.demo import DemoConfig, build_cell
+    from thermal_comp.demo_cell import DemoConfig, build_cell
     from thermal_comp_common.domain_ids import claim_domain_id
     from thermal_comp.launcher import Launcher
 

@@ -18,7 +18,10 @@ import numpy as np
 from rclpy.serialization import deserialize_message
 
 from cnc_bridge.audit_log import read_audit_log
-from thermal_comp.demo import DemoConfig, compensation_in_effect, read_series, run_graph, summarise
+from thermal_comp.demo_cell import DemoConfig
+from thermal_comp.demo_graph import run_graph
+from thermal_comp.demo_series import read_series
+from thermal_comp.demo_summary import compensation_in_effect, summarise
 from thermal_comp_common import metrics
 from thermal_comp_common.bag_reader import read_bag
 from thermal_comp_msgs.msg import ModelStatus
