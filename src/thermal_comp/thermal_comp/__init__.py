@@ -1,1 +1,13 @@
-"""The thermal-comp command: launcher, inspection, record/replay, rerun view, demo and benchmarks."""
+"""The thermal-comp command: launcher of cells, inspection, record/replay, rerun view and the
+demo (a compensated cell end to end on the twin). Cells and the demo need ROS 2 at run time."""
+from thermal_comp_common.public_api import lazy_exports
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, {
+    "cell_config": ["CellConfig", "CellConfigError", "load_cell", "parse_cell"],
+    "launcher": ["Launcher"],
+    "demo_cell": ["DemoConfig", "DemoError", "build_cell"],
+    "demo_graph": ["RunRecord", "run_graph"],
+    "demo_series": ["DemoSeries", "read_series"],
+    "demo_summary": ["compensation_in_effect", "summarise"],
+    "demo_cli": ["run_demo"],
+})

@@ -1,1 +1,17 @@
-"""Temperature publishers: twin, CSV replay and Modbus RTD modules."""
+"""Temperature sources (twin, CSV/bag replay, Modbus RTD modules), their configuration,
+calibration and status; ROS-free (the publisher node lives in
+``thermal_sensors.temperature_publisher_node``). See docs/sensors.md."""
+from thermal_comp_common.public_api import lazy_exports
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, {
+    "sensor_config": ["SensorConfig", "SensorConfigError", "load_sensor_config", "parse_sensor_config",
+                      "resolve_sensor_config"],
+    "temperature_source": ["RawSample", "TemperatureSource"],
+    "twin_source": ["TwinSource"],
+    "replay_source": ["ReplaySource"],
+    "modbus_source": ["ModbusLink", "ModbusSource"],
+    "temperature_frame": ["TemperatureFrame", "TemperatureFrameBuilder"],
+    "sensor_status": ["SensorStatus", "SensorStatusTracker"],
+    "calibration": ["Calibration"],
+    "rtd_emulator": ["RtdEmulator"],
+})
