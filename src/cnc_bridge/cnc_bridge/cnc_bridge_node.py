@@ -150,14 +150,16 @@ class CncBridgeNode(LifecycleNode):
         self._errors: dict[str, float] | None = None
         self._last_update_t: float | None = None
         self._warned_positions = False
-        self.offsets_pub = self.create_publisher(AxisOffsets, TOPIC_OFFSETS, EVENT_QOS)
-        self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, EVENT_QOS)
-                         if p["lockstep"] else None)
-        self._entities = [self.offsets_pub, self.sync_pub,
-                          self.create_subscription(MachineState, TOPIC_MACHINE_STATE, self._on_state,
+        # subscriptions first: the lock-step counts a participant present once its SimSync
+        # publisher appears, and the first prediction must then find the subscription
+        self._entities = [self.create_subscription(MachineState, TOPIC_MACHINE_STATE, self._on_state,
                                                    SENSOR_QOS),
                           self.create_subscription(ThermalErrors, TOPIC_ERRORS_PREDICTED,
                                                    self._on_prediction, EVENT_QOS)]
+        self.offsets_pub = self.create_publisher(AxisOffsets, TOPIC_OFFSETS, EVENT_QOS)
+        self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, EVENT_QOS)
+                         if p["lockstep"] else None)
+        self._entities += [self.offsets_pub, self.sync_pub]
         if not p["lockstep"]:
             self._entities.append(self.create_timer(p["update_period_s"], self._on_timer))
         self.get_logger().info(
