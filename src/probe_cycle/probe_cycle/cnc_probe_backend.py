@@ -1,25 +1,6 @@
-"""CNC backend: runs each probing move on a CNC through OPC UA and reads the skip position.
-
-The same action server then serves a real machine. Every move is one call of an OPC UA
-method on the CNC (a G31-like skip move), with the arguments of
-thermal_comp_msgs/TouchProbe:
-
-    ProbeMove(artefact: UInt32, c_axis_deg: Double, b_axis_deg: Double,
-              start_mm: Double[3], direction: Double[3], max_travel_mm: Double)
-        -> (triggered: Boolean, position_mm: Double[3])
-
-The CNC turns C/B to the index, moves from ``start_mm`` along ``direction`` and answers
-with the axis position latched at the skip. On a FANUC that is ``#5061..#5063`` after
-``G31``; on the emulator it is ``ns=2;s=Probe.ProbeMove``. The node ids are settings
-(:class:`CncProbeNodes`). The default layout is that of :mod:`cnc_bridge.cnc_emulator`:
-
-    object  ns=2;s=Probe
-    method  ns=2;s=Probe.ProbeMove
-
-Time on a real machine is wall time: the trigger stamp comes from ``clock`` (the node
-passes its ROS clock). A move that gets no answer within ``call_timeout_s``, or any OPC UA
-or connection error, raises :class:`~probe_cycle.probe_backend.ProbeBackendError`, and the
-session is dropped. The next move reconnects.
+"""CNC probing backend: runs each probing move on a CNC through OPC UA (one call of a
+G31-like ``ProbeMove`` method) and reads the skip position, so the same action server serves
+a real machine. Method signature, node ids and failure handling: README.md ("CNC backend").
 """
 from __future__ import annotations
 

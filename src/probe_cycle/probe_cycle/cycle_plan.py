@@ -1,23 +1,8 @@
 """Planning of probing cycles: which moves, in what order, and how much time each takes.
 
-Sphere cycle (Blaser 2020, §5.2): C is indexed to 0, 90, 180, 270 and 360 degrees; the last
-index repeats 0 as a repeatability check. At each index the spindle probe touches the
-sphere at several points. The probe is "2.5D" and triggers only on moves in -Z, so every
-touch is a -Z move: one over the pole, the rest on a ring 45 degrees down from the pole
-at equally spaced azimuths. The inclined ring points carry the X/Y information. The
-thesis probes five points per index (top + 4).
-
-Timing: the thesis's cycle takes 95 s including two tool changes (probe in, tool back).
-With the default :class:`SphereTiming` (2 x 10 s tool change, 5 x 5 s indexing, 25 x 2 s
-per touch) the default plan lasts exactly 95 s. Tool-change and indexing time is charged
-to the neighbouring touch, because each touch request carries the simulated time it
-consumes. The split into tool change / indexing / touch is an assumption; only the total
-comes from the thesis.
-
-Guide-bush cycle (AGP thesis §1.5): after parting off, the TLS probe block moves to the
-guide bush and skips against its side face in -X, repeated ``repeats`` times. The speed
-is slow (F <= 10 mm/min, so the skip position does not depend on F). Durations are
-assumptions.
+Sphere cycle (Blaser 2020, §5.2) and guide-bush cycle (AGP thesis §1.5); every move carries
+the simulated time it consumes. The layout of the touches and where the timings come from
+(the thesis's 95 s cycle; the split is an assumption): README.md ("Cycle plans").
 """
 from __future__ import annotations
 

@@ -1,19 +1,9 @@
 """The one interface every probing backend offers: execute one probing move, report the skip.
 
-A backend turns a :class:`~probe_cycle.cycle_plan.TouchMove` into a :class:`TouchReply`.
-The reply says whether the probe triggered, the axis position read at the skip (mm), and
-the instant of the trigger (s, on the clock of the machine: simulated time on the twin).
-Backends:
-
-* ``twin``: :mod:`probe_cycle.twin_backend`, the machine_sim node's ``twin/touch_probe``
-  service (ROS);
-* ``cnc``: :mod:`probe_cycle.cnc_probe_backend`, the probing programme on a CNC through OPC UA;
-* :class:`ArtefactModelBackend` (here): the physical forward model of
-  :mod:`thermal_twin.artefact_geometry`, in-process, for given errors and offsets. Tests,
-  benchmarks and the test-side TouchProbe provider use it.
-
-A backend that cannot execute a move (no connection, no answer in time, refused) raises
-:class:`ProbeBackendError`, and the message says why.
+A backend turns a :class:`~probe_cycle.cycle_plan.TouchMove` into a :class:`TouchReply`
+(triggered, axis position at the skip in mm, trigger instant on the machine's clock), or
+raises :class:`ProbeBackendError` saying why. :class:`ArtefactModelBackend` (here) is the
+in-process forward model; the others are listed in README.md ("Layout").
 """
 from __future__ import annotations
 

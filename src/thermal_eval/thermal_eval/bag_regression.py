@@ -1,25 +1,9 @@
 """Regression replays of bags through the model, compared with golden results stored beside them.
 
-A regression bag folder holds, besides the rosbag2 files:
-
-- ``regression.yaml``: ``model_kind``, ``model_config`` (passed to
-  ``talc_model.adaptive_model.make_model``), ``errors_topic`` (where the true errors are,
-  default ``errors/ground_truth``), optional ``temperatures_topic``, ``probe_noise_um``,
-  ``probe_resolution_um``, ``seed``, ``probed_components``;
-- ``golden.json``: what the model predicted (value and standard uncertainty per component
-  and step), when it decided to probe, its phase per step and the final status.
-
-:func:`replay` turns the bag back into the model's inputs - temperatures by sensor id,
-machine state flattened exactly as the ``talc_model`` node flattens ``MachineState``
-(:func:`machine_state_inputs`), errors by component - and runs
-``thermal_eval.virtual_experiment.run_virtual_experiment``. :func:`compare` lists the
-differences in words ("<component> predicted differs at N of M steps; first at t=T s:
-golden A, now B ..."), so a failing test says what changed. When a change of behaviour is
-intended, re-generate every golden file (or name single bags) with::
-
-    .venv/bin/python -m thermal_eval.bag_regression bags --update
-
-No rclpy here.
+:func:`replay` turns a bag back into the model's inputs and runs the virtual experiment;
+:func:`compare` lists the differences in words, so a failing test says what changed. The
+folder layout (``regression.yaml``, ``golden.json``) and how to re-generate goldens:
+docs/bags.md ("Regression bags"). No rclpy here.
 """
 from __future__ import annotations
 

@@ -1,21 +1,7 @@
 """Benchmark ``bags``: record and replay throughput, in messages and simulated hours per second.
 
-The stream is a synthetic twin-like cell at 60 s steps: per instant one ``MachineState``,
-one ``TemperatureArray`` of 16 sensors and one ``ThermalErrors`` of 7 components (random
-walks, fixed seed) - the message mix and sizes of the 5-axis twin; the figures do not depend
-on the physics. Measured:
-
-- ``write``: serialized messages into a bag (BagWriter: chunking, zstd, index) - the core;
-- ``read``: a bag read back and checked (bag_player.read_bag, CRCs on);
-- ``ros_record``: published over DDS (reliable, in-process participants) and recorded by the
-  recorder node, from the first publish until the last message is in the writer;
-- ``ros_replay``: the player node as fast as possible (acknowledged per instant) to one
-  keep-all subscriber of every topic in the same process, from the first to the last
-  message received (a keep-last subscriber slower than the player can lose messages beyond
-  its queue depth: acknowledgement is DDS delivery, not processing - lock-step participants
-  give flow control).
-
-Simulated hours per second = instants x 60 s / wall time / 3600.
+A synthetic twin-like cell stream (fixed seed) is written, read, recorded over DDS and
+replayed; what each stage measures is in docs/bags.md ("Benchmark").
 """
 from __future__ import annotations
 

@@ -1,19 +1,8 @@
 """One replay (virtual experiment, Blaser thesis §6.3) summarised like the thesis's Table 6.5.
 
-Shared by ``thermal-comp replay`` and ``thermal-comp sweep``; no rclpy.
-
-- Recordings: the twin's CSV (``thermal_comp_common.recording_csv``) or a bag folder / ``.mcap``
-  file (``thermal_comp_common.bag_recording.bag_to_recording``).
-- Model parameters: a YAML mapping (``--config``) and ``key=value`` overrides (``--set``),
-  values parsed as YAML (``inf``, lists, numbers); the model's own config validation names
-  the key of a bad value.
-- Probe noise: thesis Table 5.4, sigma 0.25 um on linear and 1.2 um/m on angular components
-  (k = 1), then quantised to 0.25 um (1 um axis resolution averaged over four positions).
-- Indicators: per component P99 (hazen) and RMS of the residual over the *compensation part*
-  (every step after the calibration phase; the calibration phase itself is charged in
-  Q_prod, and scoring it would reward the long CPs of Table 6.1 twice), P99_lin / P99_ang
-  as the mean of the per-component P99 (spec §2.7 [GAP]), Q_prod from the model's status
-  (Eq. 6.1 with the probe cycle time), probing cycles, no-good phases, parameter updates.
+Shared by ``thermal-comp replay`` and ``thermal-comp sweep``; no rclpy. Loads the recording,
+parses model parameters, sets the probe noise (thesis Table 5.4) and computes the indicators
+over the compensation part; the choices are explained in docs/replay_sweep.md ("Replay").
 """
 from __future__ import annotations
 

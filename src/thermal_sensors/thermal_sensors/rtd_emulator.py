@@ -1,18 +1,8 @@
 """Emulate Pt100/RTD Modbus modules on loopback, serving temperatures from a CSV or the twin.
 
-The emulator serves the modules and register map of a sensor YAML (the same file the
-``modbus`` source reads), so a bench setup or a test talks real Modbus to it:
-``tcp`` modules as Modbus TCP, ``rtu_over_tcp`` and ``rtu`` modules whose
-``serial_port`` is ``socket://HOST:PORT`` as RTU frames over a TCP socket (pyserial's
-socket URL), a real serial device as RTU on that device. Values are encoded exactly as
-the register map says (scale, offset, int16/uint16, fault code for NaN).
-
-Library use (tests)::
-
-    emu = RtdEmulator(config); emu.start()
-    emu.set_temperatures({"ambient": 21.5})
-    emu.set_silent("rtd2", True)     # the module stops answering (requests time out)
-    emu.stop(); emu.start()          # connections drop; clients must reconnect
+It serves the modules and register map of a sensor YAML (the file the ``modbus`` source
+reads), over Modbus TCP, RTU over TCP or a serial device, so a bench set-up or a test talks
+real Modbus to it. Transports and library use: docs/sensors.md ("The RTD emulator").
 """
 from __future__ import annotations
 

@@ -1,24 +1,8 @@
 """Sensor configuration: the ``sensors`` (and optional ``modbus``) section of a cell YAML.
 
-The schema (documented with an example in ``docs/sensors.md``)::
-
-    max_age_s: 60.0            # a reading older than this is FAILED (no fresh read)
-    sensors:                   # published in this order
-      - id: ambient            # id in TemperatureArray.sensor_ids
-        channel: ambient       # name at the source: twin sensor id; CSV column is channel + "_c"
-        range_degc: [-20, 80]  # measuring range; outside -> OUT_OF_RANGE
-        stale_after_s: 600     # value unchanged this long -> STALE (0 = never)
-        stale_tolerance_degc: 0.0
-        calibration: {offset_degc: 0.0, gain: 1.0}   # calibrated = gain * raw + offset
-        modbus: {module: rtd1, address: 0, register: input, type: int16, scale: 0.1,
-                 offset_degc: 0.0, fault_raw: -32768}
-    modbus:
-      modules:
-        - {name: rtd1, transport: tcp, host: 127.0.0.1, port: 502, unit_id: 1,
-           timeout_s: 0.5, poll_period_s: 1.0, reconnect_min_s: 0.5, reconnect_max_s: 30}
-
-The section may also sit under a ``temperature_publisher`` key of a cell file. Every
-validation error is a :class:`SensorConfigError` naming the key path and the bad value.
+The schema, with an example, is in docs/sensors.md ("The sensor YAML"); the section may also
+sit under a ``temperature_publisher`` key. Every validation error is a
+:class:`SensorConfigError` naming the key path and the bad value.
 """
 from __future__ import annotations
 

@@ -1,42 +1,10 @@
-"""Physical forward model of on-machine probing: where a probe really triggers.
+"""Physical forward model of on-machine probing: where a probe really triggers (pure numpy).
 
-Two reference artefacts (pure numpy, no ROS):
-
-* **Precision sphere on the rotary table of a 5-axis machine** (Blaser, ETH 2020, Ch. 5;
-  digest ``shared/spec/talc-blaser-thesis.md`` §3). The sphere sits at radius d/2 = 160 mm
-  from the C axis. C is the workpiece-side axis C' (ISO 10791-1 ``V[w C2' B' b ...]``): a
-  positive C command turns the table clockwise seen from +Z, so the sphere lies at -X at
-  C = 0, +Y at 90, +X at 180 and -Y at 270 degrees. That is the layout for which eq.
-  5.4-5.10 give the errors their thesis signs. The probe is the thesis's "2.5D"
-  touch-trigger probe (Renishaw OMP60): it triggers only on moves in -Z. Its repeatability
-  is 1 um (2 sigma) along the move, and the CNC reads axis positions at 1 um resolution.
-* **Guide bush of a Swiss-type lathe** (AGP thesis §1, digest
-  ``shared/spec/agp-swiss-lathe-thesis.md``). A torque-limit skip (G31 P98) moves the
-  probe block in X against the flat side face of the guide bush. Repeatability is within
-  +-0.5 um, the skip positions fall on discrete levels, and the sub-micrometre overstroke
-  is constant.
-
-How the errors act on the sphere centre. Units: linear errors in um, angular errors in
-um/m (= urad). Each definition is the one that eq. 5.4-5.10 invert exactly:
-
-* ``E_X0C``, ``E_Y0C``: position of the C-axis line, taken in the plane of the sphere
-  centre. Translates the centre in X / Y.
-* ``E_Z0T``: height of the table (the sphere centre) in Z.
-* ``E_R0T``: radial growth of the table at the sphere radius. Moves the centre outwards,
-  away from the C axis.
-* ``E_A0C``: tilt of C about +X (right hand). dz = E_A0C * y.
-* ``E_B0C``: tilt of C about +Y (right hand). dz = -E_B0C * x.
-* ``E_C0C``: zero-position error of C. The table sits at C + E_C0C, which (because of C')
-  turns it by -E_C0C about +Z.
-
-Here x and y are the centre's position relative to the C axis, in metres. The tilts pivot
-about the C-axis point in the sphere-centre plane.
-
-Compensation: the CNC shifts the work origin by the applied offsets, so an axis position
-read at the trigger equals the true contact position minus the offset. A probe measures the
-true error minus the applied compensation.
-
-Bad input raises :class:`ValueError` naming the argument or key and the value.
+Two reference artefacts: the precision sphere on the rotary table of a 5-axis machine and
+the guide bush of a Swiss-type lathe. Their layout, the probes, how each location error
+moves the sphere centre and how compensation enters are described in docs/twin.md
+("Probing artefacts"). Bad input raises :class:`ValueError` naming the argument or key and
+the value.
 """
 from __future__ import annotations
 
