@@ -14,7 +14,7 @@ setup(
     ],
     install_requires=[
         "setuptools", "asyncua", "distributed", "matplotlib", "numpy", "psutil", "pyyaml", "rich",
-        "scikit-learn", "scipy", "statsmodels", "sysidentpy", "threadpoolctl", "tqdm",
+        "rosbags", "scikit-learn", "scipy", "statsmodels", "sysidentpy", "threadpoolctl", "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,

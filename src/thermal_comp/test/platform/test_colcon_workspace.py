@@ -142,3 +142,15 @@ def test_markers_are_registered_by_the_plugin_outside_this_repository(tmp_path):
          "test_marks.py"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert run().returncode == 0
     assert run("-p", "no:thermal_comp_testing").returncode != 0  # without the plugin they are unknown
+
+
+def test_the_editable_venv_install_keeps_its_console_scripts():
+    """setup.cfg moves colcon's scripts to lib/PKG; pip's editable install (setup.sh) still
+    writes them to the venv's bin/, and the launcher still resolves them to modules."""
+    from thermal_comp.cell_config import console_script_module
+    bin_dir = pathlib.Path(sys.executable).parent
+    for pkg in PACKAGES:
+        for exe in console_scripts(pkg):
+            assert os.access(bin_dir / exe, os.X_OK), f"{bin_dir / exe} missing: run ./setup.sh"
+            module = console_script_module(pkg, exe)
+            assert module is not None and module.startswith(f"{pkg}."), (pkg, exe, module)
