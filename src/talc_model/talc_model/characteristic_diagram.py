@@ -18,6 +18,7 @@ from typing import Callable, Sequence
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from sklearn.base import BaseEstimator
 from thermal_comp_common.metrics import rmse
 
 
@@ -63,7 +64,7 @@ def second_difference_operator(shape: Sequence[int], axis: int) -> sp.csr_matrix
 
 
 @dataclass
-class CharacteristicDiagram:
+class CharacteristicDiagram(BaseEstimator):
     """A smoothed-grid-regression characteristic diagram y = f(u), u in R^D.
 
     Parameters
@@ -78,12 +79,12 @@ class CharacteristicDiagram:
     smoothing: float | Sequence[float] = 1e-4
     ridge: float = 1e-9
     bounds: tuple[Sequence[float], Sequence[float]] | None = None
-    # fitted state
-    lower_: np.ndarray | None = field(default=None, repr=False)
-    upper_: np.ndarray | None = field(default=None, repr=False)
-    shape_: tuple[int, ...] | None = field(default=None, repr=False)
-    coef_: np.ndarray | None = field(default=None, repr=False)
-    out_of_range_count: int = 0
+    # fitted state (scikit-learn convention: set by fit, trailing underscore, not a parameter)
+    lower_: np.ndarray | None = field(default=None, init=False, repr=False)
+    upper_: np.ndarray | None = field(default=None, init=False, repr=False)
+    shape_: tuple[int, ...] | None = field(default=None, init=False, repr=False)
+    coef_: np.ndarray | None = field(default=None, init=False, repr=False)
+    out_of_range_count_: int = field(default=0, init=False, repr=False)   # predictions clamped since fit
 
     # ---------------------------------------------------------------- geometry
     @property
@@ -99,7 +100,7 @@ class CharacteristicDiagram:
         s = (u - lo) / (hi - lo) * n
         outside = (s < -1e-9) | (s > n + 1e-9)
         if count_out_of_range:
-            self.out_of_range_count += int(np.any(outside, axis=1).sum())
+            self.out_of_range_count_ += int(np.any(outside, axis=1).sum())
         s = np.clip(s, 0.0, n)
         idx = np.minimum(np.floor(s).astype(int), n - 1)
         tau = s - idx
@@ -126,23 +127,24 @@ class CharacteristicDiagram:
                              shape=(k, n_vertices))
 
     # ---------------------------------------------------------------- fitting
-    def fit(self, u, y, weights=None) -> "CharacteristicDiagram":
-        """Fit the vertex coefficients by weighted, smoothed least squares (R3-R6 of the digest)."""
+    def fit(self, u, y, sample_weight=None) -> "CharacteristicDiagram":
+        """Fit the vertex coefficients by weighted, smoothed least squares (R3-R6 of the digest);
+        ``u``: samples x inputs (scikit-learn's X), ``sample_weight``: data weights (default 1)."""
         u = as_2d(u, "u")
         y = np.asarray(y, dtype=float).ravel()
         if y.shape[0] != u.shape[0]:
             raise CharacteristicDiagramError(f"y: {y.shape[0]} values for {u.shape[0]} samples")
-        w = np.ones_like(y) if weights is None else np.asarray(weights, dtype=float).ravel()
+        w = np.ones_like(y) if sample_weight is None else np.asarray(sample_weight, dtype=float).ravel()
         if w.shape != y.shape:
-            raise CharacteristicDiagramError(f"weights: {w.shape[0]} values for {y.shape[0]} samples")
+            raise CharacteristicDiagramError(f"sample_weight: {w.shape[0]} values for {y.shape[0]} samples")
         if np.any(w < 0) or not np.all(np.isfinite(w)):
-            raise CharacteristicDiagramError("weights: must be finite and >= 0")
+            raise CharacteristicDiagramError("sample_weight: must be finite and >= 0")
         finite = np.all(np.isfinite(u), axis=1) & np.isfinite(y)
         if not finite.any():
             raise CharacteristicDiagramError("u/y: no sample with finite inputs and output")
         u, y, w = u[finite], y[finite], w[finite]
         if w.sum() <= 0:
-            raise CharacteristicDiagramError("weights: all zero")
+            raise CharacteristicDiagramError("sample_weight: all zero")
         dim = u.shape[1]
         n = _per_input(self.n_intervals, dim, "n_intervals").astype(int)
         if np.any(n < 1):
@@ -175,7 +177,7 @@ class CharacteristicDiagram:
             self.coef_ = np.asarray(spla.spsolve(lhs.tocsc(), rhs)).ravel()
         else:
             self.coef_, _ = spla.cg(lhs, rhs, rtol=1e-10, maxiter=20 * n_vertices)
-        self.out_of_range_count = 0
+        self.out_of_range_count_ = 0
         return self
 
     def predict(self, u) -> np.ndarray:
@@ -226,7 +228,7 @@ class CharacteristicDiagram:
 
 
 def fit_with_grid_refinement(u, y, u_val, y_val, *, start_intervals: int = 1, max_intervals: int = 32,
-                             min_relative_gain: float = 0.05, weights=None,
+                             min_relative_gain: float = 0.05, sample_weight=None,
                              smoothing: float | Sequence[float] = 1e-4) -> tuple[CharacteristicDiagram, list[dict]]:
     """[002 §3.2]: start coarse and equidistant, halve the grid elements until the validation
     RMSE improves by less than ``min_relative_gain`` (the paper's "no significant improvement";
@@ -236,7 +238,7 @@ def fit_with_grid_refinement(u, y, u_val, y_val, *, start_intervals: int = 1, ma
     best_err = math.inf
     n = int(start_intervals)
     while n <= max_intervals:
-        cd = CharacteristicDiagram(n_intervals=n, smoothing=smoothing).fit(u, y, weights)
+        cd = CharacteristicDiagram(n_intervals=n, smoothing=smoothing).fit(u, y, sample_weight)
         err = rmse(cd.predict(u_val), y_val)
         history.append({"n_intervals": n, "val_rmse": err})
         if best is not None and not err < best_err * (1.0 - min_relative_gain):

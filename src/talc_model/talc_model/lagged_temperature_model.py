@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 from scipy import signal
+from sklearn.base import BaseEstimator
 
 
 class LaggedModelError(ValueError):
@@ -105,39 +106,41 @@ def lagged_features(time_s: np.ndarray, temperatures: np.ndarray, taus_s: Sequen
     return np.where(np.isfinite(X), X, 0.0)
 
 
-@dataclass
-class LaggedTemperatureModel:
+class LaggedTemperatureModel(BaseEstimator):
     """Ridge regression of one error channel on lagged temperature (and machine-input) features.
 
-    ``exogenous_taus_s`` is used only when exogenous inputs are passed to fit / predict.
+    scikit-learn conventions: the hyper-parameters are the constructor's arguments (checked by
+    ``fit``), ``fit(X, y)`` on a feature matrix returns the model, ``predict(X)``, fitted
+    attributes end in ``_``. ``features(time_s, temperatures, exogenous)`` builds X from a
+    recording (relative to ``reference_``, the first row seen by :meth:`fit_recording`);
+    :meth:`fit_recording` / :meth:`predict_recording` do both steps. ``exogenous_taus_s`` is used
+    only when exogenous inputs are passed.
     """
 
-    taus_s: tuple[float, ...] = (1800.0, 7200.0)
-    alpha: float = 10.0
-    exogenous_taus_s: tuple[float, ...] = ()
-    coef_: np.ndarray | None = field(default=None, repr=False)
-    intercept_: float = 0.0
-    mean_: np.ndarray | None = field(default=None, repr=False)
-    scale_: np.ndarray | None = field(default=None, repr=False)
-    reference_: np.ndarray | None = field(default=None, repr=False)
+    def __init__(self, taus_s: Sequence[float] = (1800.0, 7200.0), alpha: float = 10.0,
+                 exogenous_taus_s: Sequence[float] = ()):
+        self.taus_s = taus_s
+        self.alpha = alpha
+        self.exogenous_taus_s = exogenous_taus_s
 
-    def __post_init__(self) -> None:
-        self.taus_s = tuple(float(t) for t in self.taus_s)
-        self.exogenous_taus_s = tuple(float(t) for t in self.exogenous_taus_s)
+    def _checked_params(self) -> tuple[tuple[float, ...], float, tuple[float, ...]]:
+        taus = tuple(float(t) for t in self.taus_s)
+        exo_taus = tuple(float(t) for t in self.exogenous_taus_s)
         if not (isinstance(self.alpha, (int, float)) and math.isfinite(self.alpha) and self.alpha >= 0):
             raise LaggedModelError(f"alpha: {self.alpha!r} must be a finite number >= 0")
-        for name in ("taus_s", "exogenous_taus_s"):
-            v = getattr(self, name)
+        for name, v in (("taus_s", taus), ("exogenous_taus_s", exo_taus)):
             if any(not (math.isfinite(t) and t >= 0) for t in v):
                 raise LaggedModelError(f"{name}: {v!r} must be finite times >= 0 s")
+        return taus, float(self.alpha), exo_taus
 
     def features(self, time_s: np.ndarray, temperatures: np.ndarray,
                  exogenous: np.ndarray | None = None) -> np.ndarray:
-        return lagged_features(time_s, temperatures, self.taus_s, self.reference_, exogenous,
-                               self.exogenous_taus_s)
+        taus, _, exo_taus = self._checked_params()
+        return lagged_features(time_s, temperatures, taus, getattr(self, "reference_", None), exogenous, exo_taus)
 
-    def fit_features(self, X: np.ndarray, y: np.ndarray) -> "LaggedTemperatureModel":
+    def fit(self, X: np.ndarray, y: np.ndarray) -> "LaggedTemperatureModel":
         """Ridge fit on standardised features (closed-form normal equations, deterministic)."""
+        _, alpha, _ = self._checked_params()
         X = np.asarray(X, dtype=float)
         y = np.asarray(y, dtype=float)
         if X.ndim != 2 or X.shape[0] != y.shape[0]:
@@ -145,7 +148,7 @@ class LaggedTemperatureModel:
         ok = np.isfinite(y)
         if ok.sum() < 2:
             raise LaggedModelError(f"y: only {int(ok.sum())} finite samples, need >= 2 to fit")
-        if self.alpha == 0 and ok.sum() <= X.shape[1]:
+        if alpha == 0 and ok.sum() <= X.shape[1]:
             raise LaggedModelError(f"y: {int(ok.sum())} finite samples for {X.shape[1]} features "
                                    f"without regularisation (alpha = 0)")
         Xo, yo = X[ok], y[ok]
@@ -154,29 +157,31 @@ class LaggedTemperatureModel:
         self.scale_ = np.where(sd > 1e-12, sd, 1.0)
         Z = (Xo - self.mean_) / self.scale_
         ym = float(yo.mean())
-        A = Z.T @ Z + self.alpha * np.eye(Z.shape[1])
-        self.coef_ = np.linalg.lstsq(A, Z.T @ (yo - ym), rcond=None)[0] if self.alpha == 0 \
+        A = Z.T @ Z + alpha * np.eye(Z.shape[1])
+        self.coef_ = np.linalg.lstsq(A, Z.T @ (yo - ym), rcond=None)[0] if alpha == 0 \
             else np.linalg.solve(A, Z.T @ (yo - ym))
         self.intercept_ = ym
         return self
 
-    def fit(self, time_s: np.ndarray, temperatures: np.ndarray, y: np.ndarray,
-            exogenous: np.ndarray | None = None) -> "LaggedTemperatureModel":
+    def fit_recording(self, time_s: np.ndarray, temperatures: np.ndarray, y: np.ndarray,
+                      exogenous: np.ndarray | None = None) -> "LaggedTemperatureModel":
+        """Features of a recording (relative to its first row), then :meth:`fit`."""
         self.reference_ = np.asarray(temperatures, dtype=float)[0].copy()
-        return self.fit_features(self.features(time_s, temperatures, exogenous), y)
+        return self.fit(self.features(time_s, temperatures, exogenous), y)
 
-    def predict_features(self, X: np.ndarray) -> np.ndarray:
-        if self.coef_ is None:
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        coef = getattr(self, "coef_", None)
+        if coef is None:
             raise LaggedModelError("model is not fitted")
         X = np.asarray(X, dtype=float)
-        if X.ndim != 2 or X.shape[1] != self.coef_.size:
-            raise LaggedModelError(f"X has shape {X.shape}, the model has {self.coef_.size} features")
-        return self.intercept_ + ((X - self.mean_) / self.scale_) @ self.coef_
+        if X.ndim != 2 or X.shape[1] != coef.size:
+            raise LaggedModelError(f"X has shape {X.shape}, the model has {coef.size} features")
+        return self.intercept_ + ((X - self.mean_) / self.scale_) @ coef
 
-    def predict(self, time_s: np.ndarray, temperatures: np.ndarray,
-                exogenous: np.ndarray | None = None) -> np.ndarray:
+    def predict_recording(self, time_s: np.ndarray, temperatures: np.ndarray,
+                          exogenous: np.ndarray | None = None) -> np.ndarray:
         """Open-loop prediction; run the features from the start of the recording (causal filters)."""
-        return self.predict_features(self.features(time_s, temperatures, exogenous))
+        return self.predict(self.features(time_s, temperatures, exogenous))
 
 
 def walk_forward_folds(n_train: int, n_folds: int = 4, min_train_fraction: float = 0.5) -> list[tuple[int, int, int]]:
@@ -239,8 +244,8 @@ def walk_forward_select(time_s: np.ndarray, temperatures: np.ndarray, y: np.ndar
         for alpha in alpha_grid:
             errs = []
             for fit_end, v0, v1 in folds:
-                m = LaggedTemperatureModel(taus, float(alpha)).fit_features(X[:fit_end], yy[:fit_end])
-                p = m.predict_features(X[v0:v1])
+                m = LaggedTemperatureModel(taus, float(alpha)).fit(X[:fit_end], yy[:fit_end])
+                p = m.predict(X[v0:v1])
                 ok = np.isfinite(yy[v0:v1])
                 errs.append(float(np.mean(np.abs(p[ok] - yy[v0:v1][ok]))) if ok.any() else math.nan)
             mae = float(np.nanmean(errs))

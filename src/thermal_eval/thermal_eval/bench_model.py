@@ -38,6 +38,12 @@ import numpy as np
 
 from thermal_comp_common import metrics
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS
+from talc_model.arx import ArxOrders, fit_arx, regression_matrix
+from talc_model.blas_threads import single_thread_blas
+from talc_model.order_selection import select_orders
+from talc_model.talc import TalcModel
+from thermal_twin.scenarios import make_timeline
+from thermal_twin.simulate import simulate
 
 TALC_INPUTS = ["ambient", "ws_mwf", "c_coolant_delta"]     # the thesis's three temperatures
 # probe noise (k=1) of the sphere cycle, thesis Table 5.4 (reproduced by probe_cycle):
@@ -54,8 +60,6 @@ def _round(v: float, nd: int = 3) -> float:
 
 
 def _recording(machine: str, scenario: str, hours: float | None = None, seed: int = 0):
-    from thermal_twin.scenarios import make_timeline
-    from thermal_twin.simulate import simulate
     return simulate(machine, make_timeline(machine, scenario, hours=hours, seed=seed), seed=seed).to_recording()
 
 
@@ -92,8 +96,6 @@ def refit_speed(repeats: int = 5) -> dict[str, Any]:
     import statsmodels.api as sm
     from threadpoolctl import threadpool_limits
 
-    from talc_model.arx import ArxOrders, fit_arx, regression_matrix
-    from talc_model.order_selection import select_orders
     u, ys = _refit_problem()
     measured = np.zeros(u.shape[0], bool)
     measured[::24] = True                            # a probe every 2 h
@@ -139,7 +141,6 @@ def sysidentpy_comparison(repeats: int = 3) -> dict[str, Any]:
     from sysidentpy.model_structure_selection import FROLS
     from sysidentpy.parameter_estimation import LeastSquares
 
-    from talc_model.arx import ArxOrders, fit_arx, regression_matrix
     u, ys = _refit_problem()
     orders = ArxOrders(1, (10, 10, 10), nk=1, intercept=True)
 
@@ -155,7 +156,6 @@ def sysidentpy_comparison(repeats: int = 3) -> dict[str, Any]:
             out.append(m)
         return out
 
-    from talc_model.blas_threads import single_thread_blas
     with single_thread_blas(), np.errstate(all="ignore"):
         a, b, t_ours, t_peer = _time_alternately(ours, peer, repeats)
         diff = 0.0
@@ -173,8 +173,6 @@ def sysidentpy_comparison(repeats: int = 3) -> dict[str, Any]:
 # ------------------------------------------------------------------ FE study (thesis §4.2)
 def fe_study() -> dict[str, Any]:
     """Static regression, FIR and ARX on fe-two-source, validated on the swapped loads."""
-    from talc_model.arx import ArxOrders, fit_arx
-    from talc_model.order_selection import select_orders
     train = _recording("fe_three_body", "fe-two-source")
     valid = _recording("fe_three_body", "fe-two-source-swapped")
 
@@ -206,7 +204,6 @@ def fe_study() -> dict[str, Any]:
 def talc_replay(scenario: str, config: dict, hours: float | None, out_dir: pathlib.Path | None,
                 key: str) -> tuple[dict[str, Any], str]:
     """TALC replayed on a twin scenario; returns figures and a Table 6.5-style text."""
-    from talc_model.talc import TalcModel
     from thermal_eval.virtual_experiment import plot_virtual_experiment, probe_noise_by_component, run_virtual_experiment
     rec = _recording("nmv5000", scenario, hours=hours)
     cfg = {"input_names": TALC_INPUTS}

@@ -32,6 +32,8 @@ from typing import Sequence
 
 import numpy as np
 
+from talc_model.arx import RankDeficientError
+from talc_model.order_selection import select_orders
 from talc_model.sensor_selection import sensor_medoids
 from thermal_eval.fl_thermal_adaptive import TALC_GROUP_CANDIDATES
 from thermal_eval.fl_thermal_data import SENSORS, FlThermalData, FlThermalError, Splits
@@ -92,8 +94,6 @@ def arx_open_loop_channel(data: FlThermalData, splits: Splits, channel: str,
 
     ``with_spindle``: the spindle speed (krpm) is one more input of every candidate set.
     """
-    from talc_model.arx import RankDeficientError
-    from talc_model.order_selection import select_orders
     n = len(data)
     step = max(1, int(round(GRID_STEP_S / float(np.median(np.diff(data.time_s))))))
     grid = np.arange(0, n, step)

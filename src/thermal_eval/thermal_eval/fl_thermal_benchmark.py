@@ -100,8 +100,8 @@ def open_loop_channel(data: FlThermalData, splits: Splits, channel: str, *, with
     sel = walk_forward_select(data.time_s, data.temperatures, y, n, tau_grid or default_tau_grid(), alpha_grid,
                               n_folds=n_folds, exogenous=exo, exogenous_taus_s=exo_taus, progress=progress)
     model = LaggedTemperatureModel(sel.taus_s, sel.alpha, exo_taus)
-    model.fit(data.time_s[:n], data.temperatures[:n], y[:n], None if exo is None else exo[:n])
-    pred = model.predict(data.time_s, data.temperatures, exo)
+    model.fit_recording(data.time_s[:n], data.temperatures[:n], y[:n], None if exo is None else exo[:n])
+    pred = model.predict_recording(data.time_s, data.temperatures, exo)
     return OpenLoopChannel(pred, sel.taus_s, sel.alpha, sel.best_mae, sel.fold_mae)
 
 

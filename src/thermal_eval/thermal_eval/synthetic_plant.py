@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal
+from thermal_comp_common.recording_csv import Recording
 
 from talc_model.adaptive_model import FIVE_AXIS_COMPONENTS
 
@@ -47,7 +48,6 @@ class SyntheticPlant:
     def as_recording(self):
         """The run as a ``thermal_comp_common.recording_csv.Recording`` (errors with probe noise
         left out: the replay adds it)."""
-        from thermal_comp_common.recording_csv import Recording
         cols = {f"{k}_c": v for k, v in self.temperatures.items()}
         cols.update(self.machine_state)
         cols.update(self.errors)

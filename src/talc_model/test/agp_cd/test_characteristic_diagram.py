@@ -48,7 +48,7 @@ def test_data_weights_pull_the_fit_towards_heavy_samples():
     u = np.array([[0.0], [0.5], [0.5], [1.0]])
     y = np.array([0.0, 1.0, 0.0, 0.0])
     even = CharacteristicDiagram(n_intervals=2, smoothing=0.0).fit(u, y)
-    heavy = CharacteristicDiagram(n_intervals=2, smoothing=0.0).fit(u, y, weights=[1, 9, 1, 1])
+    heavy = CharacteristicDiagram(n_intervals=2, smoothing=0.0).fit(u, y, sample_weight=[1, 9, 1, 1])
     assert even.predict([[0.5]])[0] == pytest.approx(0.5, abs=1e-6)
     assert heavy.predict([[0.5]])[0] == pytest.approx(0.9, abs=1e-6)
 
@@ -60,7 +60,7 @@ def test_out_of_grid_inputs_are_clamped_and_counted_and_state_round_trips():
     lo, hi = cd.lower_, cd.upper_
     edge = cd.predict([[hi[0], hi[1]]])
     assert cd.predict([[hi[0] + 5, hi[1] + 5]])[0] == pytest.approx(edge[0])
-    assert cd.out_of_range_count == 1
+    assert cd.out_of_range_count_ == 1
     back = CharacteristicDiagram.from_state(json.loads(json.dumps(cd.to_state())))
     ut = rng.uniform(0, 1, (50, 2))
     np.testing.assert_allclose(back.predict(ut), cd.predict(ut))
@@ -71,8 +71,8 @@ def test_bad_input_names_the_argument():
     cd = CharacteristicDiagram()
     with pytest.raises(CharacteristicDiagramError, match="y: 3 values for 4 samples"):
         cd.fit(np.zeros((4, 2)), np.zeros(3))
-    with pytest.raises(CharacteristicDiagramError, match="weights"):
-        cd.fit(np.zeros((4, 1)), np.zeros(4), weights=[1, -1, 1, 1])
+    with pytest.raises(CharacteristicDiagramError, match="sample_weight"):
+        cd.fit(np.zeros((4, 1)), np.zeros(4), sample_weight=[1, -1, 1, 1])
     with pytest.raises(CharacteristicDiagramError, match="n_intervals"):
         CharacteristicDiagram(n_intervals=[2, 3, 4]).fit(np.zeros((4, 2)), np.zeros(4))
     with pytest.raises(CharacteristicDiagramError, match="not fitted"):

@@ -42,11 +42,11 @@ def test_exponential_filter_and_model_reject_bad_input_by_name():
     with pytest.raises(LaggedModelError, match="tau_s"):
         exponential_filter(np.arange(4.0), np.zeros(4), -1.0)
     with pytest.raises(LaggedModelError, match="alpha"):
-        LaggedTemperatureModel((600.0,), alpha=-1.0)
+        LaggedTemperatureModel((600.0,), alpha=-1.0).fit(np.zeros((3, 2)), np.zeros(3))
     with pytest.raises(LaggedModelError, match="taus_s"):
-        LaggedTemperatureModel((math.inf,), alpha=1.0)
+        LaggedTemperatureModel((math.inf,), alpha=1.0).fit_recording(np.arange(3.0), np.zeros((3, 2)), np.zeros(3))
     with pytest.raises(LaggedModelError, match="not fitted"):
-        LaggedTemperatureModel().predict_features(np.zeros((3, 3)))
+        LaggedTemperatureModel().predict(np.zeros((3, 3)))
 
 
 @pytest.mark.parametrize("n_train,n_folds", [(6669, 4), (1000, 3), (240, 2), (101, 5)])
@@ -76,8 +76,8 @@ def _synthetic_plant(n=3000, seed=0):
 def test_lagged_model_recovers_a_known_lagged_system_out_of_sample():
     t, T, y = _synthetic_plant()
     n_train = 2000
-    model = LaggedTemperatureModel((1800.0, 7200.0), alpha=1e-8).fit(t[:n_train], T[:n_train], y[:n_train])
-    pred = model.predict(t, T)
+    model = LaggedTemperatureModel((1800.0, 7200.0), alpha=1e-8).fit_recording(t[:n_train], T[:n_train], y[:n_train])
+    pred = model.predict_recording(t, T)
     assert np.max(np.abs(pred[n_train:] - y[n_train:])) < 1e-4
     # in raw units: w = coef / scale; the generating weights come back
     w = model.coef_ / model.scale_
