@@ -61,10 +61,20 @@ def test_dask_local_cluster_sweep_equals_local_pool_and_resumes(short_csv, tmp_p
     best_dask = json.loads((tmp_path / "dask" / "best.json").read_text())
     assert best_dask["engine"] == "dask LocalCluster of 2"
     assert (best_dask["best"] or {}).get("key") == (best_local["best"] or {}).get("key")
+    # resumed on a running cluster given by its address: nothing recomputed, then one more point
+    from distributed import LocalCluster
     before = (tmp_path / "dask" / "results.jsonl").read_text()
-    assert sweep_main(dask_argv) == 0                                          # resumed: nothing recomputed
-    assert json.loads((tmp_path / "dask" / "best.json").read_text())["computed"] == 0
-    assert (tmp_path / "dask" / "results.jsonl").read_text() == before
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        at = ["--engine", "dask", "--address", cluster.scheduler_address, "--out", str(tmp_path / "dask")]
+        assert sweep_main(argv + at) == 0
+        assert json.loads((tmp_path / "dask" / "best.json").read_text())["computed"] == 0
+        assert (tmp_path / "dask" / "results.jsonl").read_text() == before
+        more = [a if a != "3" else "5" for a in argv]                # --limit 5: the 3 done + 2 new points
+        assert sweep_main(more + at) == 0
+    summary = json.loads((tmp_path / "dask" / "best.json").read_text())
+    assert summary["computed"] == 2 and summary["combinations"] == 5
+    assert summary["engine"].startswith("dask at tcp://")
+    assert (tmp_path / "dask" / "results.jsonl").read_text().startswith(before)
 
 
 # ------------------------------------------------------------------ a worker killed mid-sweep
