@@ -23,7 +23,7 @@ from probe_cycle.cycle_result import (UNIT_UM, UNIT_UM_PER_M, CycleLimits, Cycle
                                       MeasuredErrors, failure)
 from probe_cycle.location_errors import EQUATION_C_ANGLES_DEG, location_errors
 from probe_cycle.probe_backend import TouchReply
-from probe_cycle.sphere_fit import SphereFitError, fit_sphere_centre
+from probe_cycle.sphere_fit import SphereFit, SphereFitError, fit_sphere_centre
 
 UM_PER_MM = 1000.0
 
@@ -35,6 +35,52 @@ def _angle_slot(angle_deg: float) -> int | None:
         if min(abs(a - ref), 360.0 - abs(a - ref)) < 1e-6:
             return k
     return None
+
+
+def _fit_centres(plan: CyclePlan, replies: list[TouchReply], limits: CycleLimits,
+                 common: dict) -> tuple[list[SphereFit], CycleResult | None]:
+    """One sphere fit per C indexing, or the failure of the first that fails or fits badly."""
+    fits = []
+    for g, angle in enumerate(plan.c_angles_deg):
+        idx = [i for i, m in enumerate(plan.moves) if m.group == g]
+        pts = np.array([replies[i].position_mm for i in idx])
+        dirs = np.array([plan.moves[i].direction for i in idx])
+        try:
+            fit = fit_sphere_centre(pts, dirs, plan.contact_radius_mm, limits.point_sigma_um,
+                                    np.asarray(plan.nominal_centres_mm[g]))
+        except SphereFitError as exc:
+            return fits, failure(f"sphere fit at C={angle:g} failed: {exc}", **common)
+        if fit.rms_residual_um > limits.max_fit_residual_rms_um:
+            return fits, failure(f"sphere fit at C={angle:g}: RMS residual "
+                                 f"{fit.rms_residual_um:.2f} um exceeds the limit "
+                                 f"{limits.max_fit_residual_rms_um:g} um",
+                                 fit_residual_rms_um=fit.rms_residual_um, **common)
+        fits.append(fit)
+    return fits, None
+
+
+def _check_repeats(plan: CyclePlan, fits: list[SphereFit], limits: CycleLimits, common: dict
+                   ) -> tuple[dict[int, int], float, CycleResult | None]:
+    """(equation slot k -> first indexing at that angle, largest repeat distance in um or NaN,
+    the failure if a repeated angle's centre moved more than the tolerance)."""
+    first: dict[int, int] = {}
+    repeat = float("nan")
+    for g, angle in enumerate(plan.c_angles_deg):
+        k = _angle_slot(angle)
+        if k is None:
+            continue
+        if k not in first:
+            first[k] = g
+            continue
+        dist = float(np.linalg.norm(fits[g].centre_mm - fits[first[k]].centre_mm)) * UM_PER_MM
+        repeat = dist if not np.isfinite(repeat) else max(repeat, dist)
+        if dist > limits.max_repeat_distance_um:
+            return first, repeat, failure(
+                f"repeatability check failed: the centre at C={angle:g} is {dist:.2f} um "
+                f"from the one at C={plan.c_angles_deg[first[k]]:g} (tolerance "
+                f"{limits.max_repeat_distance_um:g} um)",
+                repeatability_check_um=dist, **common)
+    return first, repeat, None
 
 
 def evaluate_sphere_cycle(plan: CyclePlan, replies: list[TouchReply], limits: CycleLimits,
@@ -52,44 +98,14 @@ def evaluate_sphere_cycle(plan: CyclePlan, replies: list[TouchReply], limits: Cy
         if not reply.triggered:
             return failure(f"missing trigger at {move.stage}", **common), None
 
-    fits = []
-    all_res = []
-    for g, angle in enumerate(plan.c_angles_deg):
-        idx = [i for i, m in enumerate(plan.moves) if m.group == g]
-        pts = np.array([replies[i].position_mm for i in idx])
-        dirs = np.array([plan.moves[i].direction for i in idx])
-        try:
-            fit = fit_sphere_centre(pts, dirs, plan.contact_radius_mm, limits.point_sigma_um,
-                                    np.asarray(plan.nominal_centres_mm[g]))
-        except SphereFitError as exc:
-            return failure(f"sphere fit at C={angle:g} failed: {exc}", **common), None
-        if fit.rms_residual_um > limits.max_fit_residual_rms_um:
-            return failure(f"sphere fit at C={angle:g}: RMS residual "
-                           f"{fit.rms_residual_um:.2f} um exceeds the limit "
-                           f"{limits.max_fit_residual_rms_um:g} um",
-                           fit_residual_rms_um=fit.rms_residual_um, **common), None
-        fits.append(fit)
-        all_res.append(fit.residuals_um)
-    rms = float(np.sqrt(np.mean(np.concatenate(all_res) ** 2)))
+    fits, failed = _fit_centres(plan, replies, limits, common)
+    if failed is not None:
+        return failed, None
+    rms = float(np.sqrt(np.mean(np.concatenate([f.residuals_um for f in fits]) ** 2)))
     common["fit_residual_rms_um"] = rms
-
-    first: dict[int, int] = {}
-    repeat = float("nan")
-    for g, angle in enumerate(plan.c_angles_deg):
-        k = _angle_slot(angle)
-        if k is None:
-            continue
-        if k not in first:
-            first[k] = g
-            continue
-        dist = float(np.linalg.norm(fits[g].centre_mm - fits[first[k]].centre_mm)) * UM_PER_MM
-        repeat = dist if not np.isfinite(repeat) else max(repeat, dist)
-        if dist > limits.max_repeat_distance_um:
-            return failure(
-                f"repeatability check failed: the centre at C={angle:g} is {dist:.2f} um "
-                f"from the one at C={plan.c_angles_deg[first[k]]:g} (tolerance "
-                f"{limits.max_repeat_distance_um:g} um)",
-                repeatability_check_um=dist, **common), None
+    first, repeat, failed = _check_repeats(plan, fits, limits, common)
+    if failed is not None:
+        return failed, None
     common["repeatability_check_um"] = repeat
     missing = [EQUATION_C_ANGLES_DEG[k] for k in range(4) if k not in first]
     if missing:
