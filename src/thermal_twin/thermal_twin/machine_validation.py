@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 from thermal_twin.calibration_bounds import check_section
 from thermal_twin.machine_spec import (ERROR_UNITS, INPUT_KINDS, SCHEMA_VERSION, UNITS, BoundarySpec,
@@ -65,6 +65,16 @@ def _check_name(name: Any, path: str) -> str:
     if not isinstance(name, str) or not _NAME.match(name):
         raise _fail(path, name, "is not a valid name (letters, digits, '_', starting with a letter)")
     return name
+
+
+def _items(section: dict, name: str, allowed: set[str]) -> Iterator[tuple[str, str, dict]]:
+    """(item name, key path, item mapping) of a section whose items are named mappings."""
+    for item, d in section.items():
+        p = f"{name}.{item}"
+        _check_name(item, p)
+        d = _mapping(d, p)
+        _check_keys(d, allowed, p)
+        yield item, p, d
 
 
 def _declared_input(name: Any, inputs: Mapping, path: str) -> None:
@@ -143,11 +153,7 @@ def _inputs(section: dict) -> tuple[dict[str, InputSpec], dict]:
 def _boundaries(section: dict, inputs: dict) -> tuple[dict[str, BoundarySpec], dict]:
     boundaries: dict[str, BoundarySpec] = {}
     spec: dict = {}
-    for bname, d in section.items():
-        p = f"boundaries.{bname}"
-        _check_name(bname, p)
-        d = _mapping(d, p)
-        _check_keys(d, {"temperature"}, p)
+    for bname, p, d in _items(section, "boundaries", {"temperature"}):
         t = d.get("temperature")
         if isinstance(t, str):
             _declared_input(t, inputs, f"{p}.temperature")
@@ -192,11 +198,7 @@ def _initial_state(init: Any, boundaries: dict) -> str | dict:
 def _links(section: dict, nodes: dict, places: set, inputs: dict) -> tuple[dict[str, LinkSpec], dict]:
     links: dict[str, LinkSpec] = {}
     spec: dict = {}
-    for lname, d in section.items():
-        p = f"links.{lname}"
-        _check_name(lname, p)
-        d = _mapping(d, p)
-        _check_keys(d, {"between", "conductance", "varies_with", "note"}, p)
+    for lname, p, d in _items(section, "links", {"between", "conductance", "varies_with", "note"}):
         between = d.get("between")
         if not isinstance(between, (list, tuple)) or len(between) != 2:
             raise _fail(f"{p}.between", between, "must be a list of two node/boundary names")
@@ -235,11 +237,8 @@ def _varies_with(section: dict, path: str, inputs: dict) -> tuple[tuple[tuple[st
 def _sources(section: dict, nodes: dict, inputs: dict) -> tuple[dict[str, SourceSpec], dict]:
     sources: dict[str, SourceSpec] = {}
     spec: dict = {}
-    for sname, d in section.items():
-        p = f"sources.{sname}"
-        _check_name(sname, p)
-        d = _mapping(d, p)
-        _check_keys(d, {"node", "power", "input", "coefficient", "exponent", "periodic", "note"}, p)
+    for sname, p, d in _items(section, "sources",
+                              {"node", "power", "input", "coefficient", "exponent", "periodic", "note"}):
         node = d.get("node")
         if node not in nodes:
             raise _fail(f"{p}.node", node, "is not a node")
@@ -264,11 +263,8 @@ def _sources(section: dict, nodes: dict, inputs: dict) -> tuple[dict[str, Source
 def _sensors(section: dict, places: set) -> tuple[dict[str, SensorSpec], dict]:
     sensors: dict[str, SensorSpec] = {}
     spec: dict = {}
-    for sid, d in section.items():
-        p = f"sensors.{sid}"
-        _check_name(sid, p)
-        d = _mapping(d, p)
-        _check_keys(d, {"of", "noise_std", "resolution", "lag_s", "bias", "gain", "position_mm", "note"}, p)
+    for sid, p, d in _items(section, "sensors",
+                            {"of", "noise_std", "resolution", "lag_s", "bias", "gain", "position_mm", "note"}):
         pos = _position(d.get("position_mm"), f"{p}.position_mm")
         of = d.get("of")
         if isinstance(of, str):
