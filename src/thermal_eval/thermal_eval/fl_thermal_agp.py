@@ -1,55 +1,11 @@
 """AGP on FL_THERMAL calibrated on the training rows: 2-h probes plus sigma_max recalibrations.
 
-The adaptive GP of the Swiss-type-lathe thesis (:mod:`talc_model.agp`, spec §2-5) with the
-training rows 0..n_train-1 as its calibration phase, charged in Q_prod as the calibrated TALC's
-is (one probing per 5-min grid sample; those samples are the GP's calibration points).
-
-- **Inputs** (thesis §5.1 logic for the sensors, dynamics added): one medoid sensor per unique
-  sensor group (k-means elbow of :func:`talc_model.agp.sensor_groups` on the calibration rows'
-  temperatures), plus the :func:`fast_sensor` (the one whose fast part the displacements' fast
-  parts follow on the calibration rows; a medoid stands for its group's slow level and averages
-  the spindle-near sensor's swings away), as changes from row 0, plus first-order low-pass
-  copies of them with time constants ``feature_taus_s``
-  (:func:`talc_model.lagged_temperature_model.lagged_features`).
-  A temperature minus its low-pass copy is a rate: a cooling-down machine at a temperature it
-  once reached while warming up is then a state the calibration did not see, and the GP's
-  predictive std rises there.
-- **Probing after calibration**: a control measurement every 2 h (issue 10, counted from the
-  end of the 95-s cycle) and a recalibration probe whenever the GP's predictive std on any
-  channel exceeds the effective sigma_max (max(sigma_max, 1.5 x fitted noise std), as
-  :meth:`AdaptiveGaussianProcess.effective_sigma_max`), at most one every
-  ``min_sigma_probe_interval_s`` after the end of the previous cycle. sigma_max =
-  ``sigma_max_ratio`` x expected maximum error (the largest |displacement| of the calibration
-  rows, rounded up to 10 um, as the replayed ``agp``).
-- **What a probe does** (thesis Fig. 5.13): the point joins the GP's training set (never
-  forgotten); a sigma_max probe re-optimises the hyperparameters (recalibration), a control
-  measurement re-optimises when it is off the GP mean by more than ``control_tolerance_um``
-  (e_tol = 1 um, the issue's target; not tuned) and otherwise conditions on the point with the
-  hyperparameters kept. Then the slow-error Kalman filter of
-  :mod:`talc_model.probe_update` / :mod:`talc_model.slow_error_filter` takes the residual left after that update
-  (measured - new GP mean): it carries what the GP cannot (a drifting reference, a heat flow
-  the inputs miss) between probes and decays with its time constant tau.
-- **Between probes** (:func:`uncertainty_weighted_hold`): the compensation blends the GP's (with
-  the Kalman state) and the last measured displacement by their variances: the GP's predictive
-  variance against the variance a held measurement gains with time, the displacement's
-  random-walk rate *measured* on the calibration rows (:func:`measured_hold_rate`, 10-min
-  changes). Where the GP knows the state it is followed; right after a probe and in a state it
-  has not seen (large std, its mean swinging back towards the training mean) the measurement is.
-
-The GP's trajectory (mean, std, probe rows) does not depend on the Kalman filter, so the replay
-runs once per (feature time constants, sigma_max ratio) and the filters are scored on it.
-
-**Every hyper-parameter is chosen without rows >= n_train** (walk-forward inside the training
-rows, as :mod:`thermal_eval.fl_thermal_calibrated_talc`): for each fold start k = 60, 70, 80 % of
-the training rows, inputs, GP and expected maximum error come from rows 0..k-1 only and rows
-k..n_train-1 are replayed (hold rate measured on rows 0..k-1). Per channel the Kalman (tau, r)
-with the lowest mean fold MAE is taken. The (feature time constants, sigma_max ratio) pair:
-among the pairs whose walk-forward MAE meets ``target_um`` on every channel, the one with the
-fewest probings; if none does, the lowest channel-mean walk-forward MAE. The sigma_max ratios tried span the thesis's range
-(5-15 %). Kernel bounds are the AGP's defaults (not tuned: the walk-forward budget went to
-the inputs and sigma_max).
-
-No rclpy here.
+The adaptive GP (:mod:`talc_model.agp`) with the training rows as its calibration phase: GP
+inputs are medoid and fast sensors with low-pass copies; it probes every 2 h and whenever its
+predictive std exceeds sigma_max, each probe feeding the GP and the slow-error filter, and
+between probes the uncertainty-weighted hold blends it with the last measurement. Every
+hyper-parameter is chosen by a walk-forward inside the training rows. The full description
+(inputs, probing, what a probe does, the selection): docs/fl_thermal.md. No rclpy here.
 """
 from __future__ import annotations
 

@@ -1,48 +1,10 @@
 """FL_THERMAL benchmark (issue 10 part 1): our models on a real 46 h spindle recording.
 
 ``thermal-comp bench fl-thermal --json OUT [--out-dir DIR] [--quick] [--csv=PATH --rows=N --every=K --no-adaptive
---agp-load-probing --no-agp-calibrated]``
-(suite options in the ``--name=value`` form, so the bench command passes them through)
-
-Protocol (the authors' split, ``shared/data/fl_thermal/README.md``): rows are split
-chronologically into train (first 60 %, rows 0-6668), test (next 20 %, rows 6669-8891) and
-validation (last 20 %, rows 8892-11114). Displacements are taken relative to the first row.
-
-- **Open loop** (:mod:`talc_model.lagged_temperature_model`): ridge regression of each channel
-  on the temperatures and first-order low-pass copies of them. The time constants and the
-  ridge penalty are chosen per channel by walk-forward validation *inside* the training rows
-  (4 expanding folds from 50 % of them, mean MAE); the chosen model is refitted on all
-  training rows and run open loop over the whole recording (temperatures only; no
-  displacement after training). ``lagged_ridge`` uses the 16 temperatures only,
-  ``lagged_ridge_spindle`` adds the spindle speed and its low-pass copies (reported
-  separately, as the issue asks). ``arx_simulation`` (:mod:`thermal_eval.fl_thermal_arx`):
-  TALC's ARX model class on the 5-min grid, inputs and orders chosen on the training rows,
-  simulated from the end of the training rows on temperatures only (``arx_simulation_spindle``:
-  plus the spindle speed, reported separately).
-- **Adaptive** (:mod:`thermal_eval.fl_thermal_adaptive`): one simulated probing of the five
-  channels every 2 h after the calibration phase, plus the probes of no-good phases and
-  recalibrations; Q_prod counts 95 s per probing. ``talc`` (ACL 1 um), ``talc_acl5`` (the
-  thesis's 5 um) and the ``*_spindle`` variants (spindle speed as an input, reported
-  separately): TALC's ARX calibrated on the training rows (Q_prod charges one probing per 5-min
-  grid sample of them), state-updated at every probing by a slow-error Kalman filter, every
-  hyper-parameter chosen by a walk-forward replay inside the training rows
-  (:mod:`thermal_eval.fl_thermal_calibrated_talc`). ``talc_own_cp`` and ``agp``: TALC and the AGP
-  replaying the whole recording from row 0 with their own calibration phase.
-  ``talc_load_probing`` (and ``talc_spindle_load_probing``) also probe densely after every
-  spindle-speed change, reported separately with their own Q_prod. ``agp_calibrated``
-  (:mod:`thermal_eval.fl_thermal_agp`): the AGP calibrated on the training rows like ``talc``, GP
-  inputs = medoid temperatures and low-pass copies, probing every 2 h and whenever its predictive
-  std exceeds sigma_max (at most every 10 min), each probe feeding the GP and the slow-error
-  Kalman filter; its selection is a walk-forward inside the training rows. MAE is the mean
-  |true - compensation| on the test rows (and on the validation rows).
-
-Figures: ``open_loop.<model>.<ch>.mae_um`` (test rows), ``...mae_validation_um``,
-``...walk_forward_mae_um`` (the selection score) and the chosen hyper-parameters;
-``adaptive.<model>.<ch>.mae_um`` / ``mae_validation_um`` and ``adaptive.<model>.q_prod_pct``;
-``published`` (the authors' MAE on the test rows). A rich table puts ours beside the
-published numbers; ``fl_thermal_predictions.png`` (out dir) shows measured vs predicted per
-channel on the test and validation rows, ``fl_thermal_adaptive.png`` measured vs compensation
-of the adaptive models with their probe instants.
+--agp-load-probing --no-agp-calibrated]`` (suite options in the ``--name=value`` form).
+The authors' chronological 60/20/20 split; open-loop models (lagged ridge, ARX simulation) and
+adaptive models (calibrated TALC and AGP, replayed TALC/AGP) scored by MAE on the test and
+validation rows, beside the published numbers. Protocol, models and figure keys: docs/fl_thermal.md.
 """
 from __future__ import annotations
 
