@@ -37,6 +37,7 @@ from scipy.optimize import least_squares
 from thermal_twin.inputs_timeline import timeline_from_recording
 from thermal_twin.machine_schema import MachineSpecError, load_machine
 from thermal_twin.mismatch_effects import Candidate
+from thermal_twin.mismatch_testing import holdout_p_value, holm_reject
 from thermal_twin.mismatch_twin_eval import expected_outputs
 from thermal_comp_common.recording_csv import Recording
 
@@ -138,6 +139,13 @@ class Hypothesis:
     change: np.ndarray = field(repr=False, default=None)   # weighted output change on train
     indistinguishable_from: list[str] = field(default_factory=list)
     round: int = 1
+    n_eff_holdout: float = 0.0          # effective held-out samples of the residual after
+    holm_pass: bool = True              # survives the round's Holm correction (mismatch_testing)
+
+    @property
+    def p_value(self) -> float:
+        return holdout_p_value(self.sse_holdout_before, self.sse_holdout_after, len(self.values),
+                               self.n_eff_holdout)
 
     @property
     def plausible(self) -> bool:
@@ -154,7 +162,7 @@ class Hypothesis:
         return 100.0 * (1.0 - self.sse_train_after / max(self.sse_train_before, 1e-300))
 
     def supported(self, min_improvement_pct: float) -> bool:
-        return (self.plausible and self.delta_bic < BIC_THRESHOLD
+        return (self.plausible and self.delta_bic < BIC_THRESHOLD and self.holm_pass
                 and self.holdout_improvement_pct >= min_improvement_pct)
 
     def rank_key(self, min_improvement_pct: float) -> tuple:
@@ -168,6 +176,7 @@ class Hypothesis:
                 "holdout_improvement_pct": self.holdout_improvement_pct,
                 "train_improvement_pct": self.train_improvement_pct,
                 "delta_bic": self.delta_bic, "screening_err": self.err_screen,
+                "p_value": self.p_value, "holm_pass": self.holm_pass,
                 "plausible": self.plausible, "reason": self.reason or "",
                 "indistinguishable_from": list(self.indistinguishable_from), "round": self.round}
 
@@ -201,25 +210,56 @@ def delta_bic(r0: np.ndarray, r1: np.ndarray, k: int) -> float:
     return n_eff * math.log(max(s1, 1e-300) / s0) + k * math.log(n_eff)
 
 
+def _projection_share(S: np.ndarray, r: np.ndarray, rr: float) -> float:
+    """Share of |r|^2 in the span of the columns of S (least squares, rank-safe)."""
+    keep = np.linalg.norm(S, axis=0) > 0
+    if not keep.any():
+        return 0.0
+    coef, *_ = np.linalg.lstsq(S[:, keep], r, rcond=1e-10)
+    fit = S[:, keep] @ coef
+    return float(fit @ fit) / rr
+
+
 def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
            y0_train: np.ndarray, progress: Callable[[], None] | None = None) -> list[tuple[float, Candidate]]:
-    """Error-reduction ratio of every candidate at its start value, best first."""
-    r0 = problem.train_residual(y0_train)
-    rr = float(np.sum(r0 ** 2)) or 1.0
+    """Linearised screening, best first: the share of the training residual that lies in
+    the span of a candidate's output changes (the change at each start value of
+    :func:`_starts`, and a finite-difference step of every further parameter at x0), i.e.
+    the residual's projection on the candidate's local Jacobian (an error-reduction ratio
+    that a badly placed start value of a time constant or a phase cannot hide)."""
+    r0 = problem.train_residual(y0_train).ravel()
+    rr = float(r0 @ r0) or 1.0
+    st = problem.stride
     out = []
     for c in cands:
+        starts = _starts(c)
+        x0 = starts[0]
+        probes = list(starts)
+        for j in range(1, len(c.params)):
+            step = x0.copy()
+            p = c.params[j]
+            h = 0.05 * (p.hi - p.lo)
+            step[j] = x0[j] + h if x0[j] + h <= p.hi else x0[j] - h
+            probes.append(step)
+        cols = []
         try:
-            y = problem.outputs(c.apply(base_spec, [p.x0 for p in c.params]), stop=problem.n_train)
+            for v in probes:
+                y = problem.outputs(c.apply(base_spec, v), stop=problem.n_train)
+                cols.append(problem.weighted(y - y0_train)[:, ::st].ravel())
         except MachineSpecError:
-            out.append((0.0, c))
-            continue
+            pass
         finally:
             if progress:
                 progress()
-        s = problem.weighted(y - y0_train)[:, ::problem.stride]
-        ss = float(np.sum(s * s))
-        err = 0.0 if ss <= 0 else float(np.sum(s * r0)) ** 2 / (ss * rr)
-        out.append((err, c))
+        if not cols:
+            out.append((0.0, c))
+            continue
+        # one start's direction at a time with the steps of the further parameters, so
+        # that several starts of one time constant do not add up to a flexible basis
+        ns = len(starts)
+        steps = cols[ns:] if len(cols) == len(probes) else []
+        err = max(_projection_share(np.column_stack([d] + steps), r0, rr) for d in cols[:ns])
+        out.append((min(err, 1.0), c))
     out.sort(key=lambda e: -e[0])
     return out
 
@@ -281,6 +321,7 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
                       sse_train_before=float(np.sum(r0t ** 2)), sse_train_after=float(np.sum(r1t ** 2)),
                       sse_holdout_before=float(np.sum(r0h ** 2)), sse_holdout_after=float(np.sum(r1h ** 2)),
                       delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v),
+                      n_eff_holdout=effective_samples(r1h),
                       change=problem.weighted(y1[:, :nt:problem.stride] - y0_full[:, :nt:problem.stride]).ravel())
 
 
@@ -302,18 +343,23 @@ def mark_indistinguishable(hyps: list[Hypothesis], corr_threshold: float = 0.95,
 
 
 def run_round(problem: FitProblem, base_spec: dict, cands: list[Candidate], y0_full: np.ndarray,
-              shortlist: int = 6, min_improvement_pct: float = 5.0, round_no: int = 1,
-              progress: Callable[[], None] | None = None) -> list[Hypothesis]:
-    """Screen, fit the shortlist, rank. Returns hypotheses best first."""
+              shortlist: int = 10, min_improvement_pct: float = 5.0, round_no: int = 1,
+              progress: Callable[[], None] | None = None, keep_share: float = 0.2) -> list[Hypothesis]:
+    """Screen, fit the shortlist (every candidate whose screening share is at least
+    ``keep_share`` of the best, at most ``shortlist`` of them, plus the best of every
+    effect type and of every target), test on held-out data with Holm's correction over
+    all candidates screened, rank. Returns hypotheses best first."""
     nt = problem.n_train
     ranked = screen(problem, base_spec, cands, y0_full[:, :nt], progress)
+    best_err = ranked[0][0] if ranked else 0.0
     chosen: dict[str, tuple[float, Candidate]] = {}
     for err, c in ranked[:shortlist]:
-        chosen[c.key] = (err, c)
-    seen_effects = set()
+        if err >= keep_share * best_err or len(chosen) < 3:
+            chosen[c.key] = (err, c)
+    seen: set = set()
     for err, c in ranked:
-        if c.effect not in seen_effects and err > 0:
-            seen_effects.add(c.effect)
+        if err > 0 and c.effect not in seen:
+            seen.add(c.effect)
             chosen.setdefault(c.key, (err, c))
     hyps = []
     for err, c in chosen.values():
@@ -321,6 +367,8 @@ def run_round(problem: FitProblem, base_spec: dict, cands: list[Candidate], y0_f
         if h is not None:
             h.round = round_no
             hyps.append(h)
+    for h, ok in zip(hyps, holm_reject([h.p_value for h in hyps], len(cands))):
+        h.holm_pass = ok
     hyps.sort(key=lambda h: h.rank_key(min_improvement_pct))
     mark_indistinguishable(hyps)
     return hyps
