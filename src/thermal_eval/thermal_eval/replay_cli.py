@@ -16,7 +16,7 @@ import sys
 import time
 
 from thermal_eval.replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
-                             ReplayInputError, build_model, format_table, load_config_file, load_recording,
+                             ReplayInputError, build_model, format_table, load_config_file, load_replay_recording,
                              parse_overrides, probe_noise, summarise)
 
 MODEL_KINDS = ("talc", "agp", "cd")
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         config = load_config_file(args.config) if args.config else {}
         config.update(parse_overrides(args.overrides))
         model = build_model(args.model, config)
-        rec = load_recording(args.recording)
+        rec = load_replay_recording(args.recording)
         stop = None
         if args.hours is not None:
             stop = int((rec.time_s <= rec.time_s[0] + 3600.0 * args.hours).sum())

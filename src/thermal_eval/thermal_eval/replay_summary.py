@@ -11,9 +11,11 @@ import pathlib
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+import yaml
 
+from talc_model.adaptive_model import PHASE_CALIBRATION, is_angular, make_model
 from thermal_comp_common import metrics
-from talc_model.adaptive_model import PHASE_CALIBRATION, is_angular
+from thermal_comp_common.bag_recording import load_recording
 
 #: Probe repeatability (k = 1) of the sphere cycle, thesis Table 5.4.
 PROBE_NOISE_LINEAR_UM = 0.25
@@ -26,12 +28,12 @@ class ReplayInputError(ValueError):
     """Bad replay input (file, parameter); the message names the key / path and value."""
 
 
-def load_recording(path: str | pathlib.Path, errors_topic: str = "errors/ground_truth",
-                   temperatures_topic: str = "temperatures"):
-    """A ``Recording`` from a twin CSV, a bag folder or an ``.mcap`` file."""
-    from thermal_comp_common.bag_recording import load_recording as _load
+def load_replay_recording(path: str | pathlib.Path, errors_topic: str = "errors/ground_truth",
+                          temperatures_topic: str = "temperatures"):
+    """A ``Recording`` from a twin CSV, a bag folder or an ``.mcap`` file; a bad file is a
+    :class:`ReplayInputError` naming it."""
     try:
-        return _load(path, temperatures_topic, errors_topic)
+        return load_recording(path, temperatures_topic, errors_topic)
     except (OSError, ValueError) as exc:
         msg = str(exc)
         raise ReplayInputError(msg if msg.startswith("recording ") else f"recording {str(path)!r}: {msg}") from None
@@ -39,7 +41,6 @@ def load_recording(path: str | pathlib.Path, errors_topic: str = "errors/ground_
 
 def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
     """``["key=value", ...]`` -> mapping; values parsed as YAML (``inf``, ``[a, b]``, ``1e3``)."""
-    import yaml
     out: dict[str, Any] = {}
     for item in items:
         key, sep, raw = item.partition("=")
@@ -58,7 +59,6 @@ def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
 
 def load_config_file(path: str | pathlib.Path) -> dict[str, Any]:
     """A model configuration YAML file: a mapping of model parameters."""
-    import yaml
     path = pathlib.Path(path)
     try:
         data = yaml.safe_load(path.read_text())
@@ -76,7 +76,6 @@ def load_config_file(path: str | pathlib.Path) -> dict[str, Any]:
 
 def build_model(kind: str, config: Mapping[str, Any]):
     """``make_model`` with its configuration errors turned into :class:`ReplayInputError`."""
-    from talc_model.adaptive_model import make_model
     try:
         return make_model(kind, dict(config))
     except (ValueError, TypeError) as exc:

@@ -19,7 +19,8 @@ import time
 from thermal_comp_common.task_engine import EngineSpec, TaskEngineError, default_workers
 
 from thermal_eval.replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
-                             ReplayInputError, build_model, load_config_file, load_recording, parse_overrides)
+                             ReplayInputError, build_model, load_config_file, load_replay_recording,
+                             parse_overrides)
 from thermal_eval.sweep import (Q_PROD_MIN_PCT, TALC_INPUTS, SweepError, SweepRun, best_under_constraint, parse_grid_subset,
                     plot_sweep, run_sweep, seconds_per_combination, select_points, table_6_1_grid, write_table)
 
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
                                parse_grid_subset(args.grid_subset), args.limit)
         if not points:
             raise SweepError(f"--grid-subset {args.grid_subset!r}: selects no combination of the grid")
-        rec = load_recording(args.recording)
+        rec = load_replay_recording(args.recording)
         run = SweepRun("talc", base, args.probe_noise_um, args.probe_noise_um_per_m, args.probe_resolution_um,
                        args.seed, str(pathlib.Path(args.recording).resolve()))
         t0 = time.perf_counter()

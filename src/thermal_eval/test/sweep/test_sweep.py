@@ -91,8 +91,8 @@ def test_sweep_cli_three_combinations_two_jobs_then_resumes(short_csv, tmp_path)
 
 
 def test_interrupted_results_file_recomputes_only_the_cut_line(short_csv, tmp_path):
-    from thermal_eval.replay_summary import load_recording
-    rec = load_recording(short_csv)
+    from thermal_eval.replay_summary import load_replay_recording
+    rec = load_replay_recording(short_csv)
     run = SweepRun("talc", {"input_names": list(sweep.TALC_INPUTS)}, 0.25, 1.2, 0.25, 0, "test")
     pts = [SweepPoint(8.5, math.inf, 10.0, 12.0, 24.0), SweepPoint(8.5, 24.0, 30.0, 6.0, 24.0)]
     path = tmp_path / "results.jsonl"
