@@ -37,7 +37,8 @@ class TaskEngineError(RuntimeError):
 class EngineSpec:
     """Where tasks run. ``workers``: local pool size, or the LocalCluster's size for dask without
     ``address`` (ignored with an address: the cluster has the workers it has). ``retries``: how
-    often a task (dask) or the local pool is resubmitted after a worker died. ``timeout_s``: how
+    often the local pool is rebuilt, or a task rescheduled by a LocalCluster, after a worker died
+    (a cluster given by address uses its scheduler's ``allowed-failures``). ``timeout_s``: how
     long to wait for a dask scheduler to answer."""
 
     kind: str = "local"
@@ -156,10 +157,14 @@ def _dask_map(fn, shared, items: list, spec: EngineSpec) -> Iterator[tuple[int, 
         from distributed import Client, LocalCluster, as_completed
     except ImportError as exc:
         raise TaskEngineError("engine 'dask' needs the 'distributed' package (requirements/python.txt)") from exc
+    import dask
     cluster = None
     if spec.address is None:
-        cluster = LocalCluster(n_workers=spec.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+        # a task on workers that died more than ``retries`` times is given up (KilledWorker);
+        # a cluster given by address applies its own scheduler's setting (dask default 3)
+        with dask.config.set({"distributed.scheduler.allowed-failures": spec.retries}):
+            cluster = LocalCluster(n_workers=spec.workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None)
     try:
         try:
             client = Client(spec.address or cluster, timeout=spec.timeout_s)
@@ -179,8 +184,10 @@ def _dask_run(client, as_completed, fn, shared, items, spec) -> Iterator[tuple[i
     # broadcast: every worker holds the shared input, so one dying worker loses no copy of it
     shared_future = client.scatter(shared, broadcast=True, hash=False)
     run_id = uuid.uuid4().hex[:8]
-    futures = [client.submit(_call, fn, shared_future, item, key=f"task-{run_id}-{i}",
-                             retries=spec.retries, pure=False) for i, item in enumerate(items)]
+    # no ``retries=`` here: dask's retries rerun tasks that *raised*, which a deterministic task
+    # would do again; tasks of a dead worker are rescheduled by the scheduler itself
+    futures = [client.submit(_call, fn, shared_future, item, key=f"task-{run_id}-{i}", pure=False)
+               for i, item in enumerate(items)]
     index = {f.key: i for i, f in enumerate(futures)}
     try:
         for fut in as_completed(futures):

@@ -146,3 +146,15 @@ def test_projection_model_of_the_scale_bench():
     # N (2 + 3) (1 + 0.05) / W + 2 N o_s
     assert project_wall_s(costs, 0.05, 0.01, 4, per_case=100) == pytest.approx(100 * 5 * 1.05 / 4 + 200 * 0.01)
     assert project_wall_s(costs, 0.0, 0.0, 1, per_case=2191) == pytest.approx(2191 * 5.0)
+
+
+def _fails_on_two(shared, item):
+    if item == 2:
+        raise ValueError(f"item {item}: bad on purpose")
+    return item
+
+
+@pytest.mark.slow
+def test_a_raising_task_stops_the_dask_map_with_its_own_error():
+    with pytest.raises(ValueError, match="item 2: bad on purpose"):
+        list(map_tasks(_fails_on_two, None, range(4), EngineSpec("dask", workers=1)))
