@@ -16,6 +16,8 @@ That is 146 of the 2,191 combinations of Table 6.1 per load case (the sets of B 
 factorial points themselves; ``--full`` runs all 2,191:
 hours on this machine; ``thermal-comp sweep`` does the same with resume and plots).
 ``--quick``: the first 24 h of each load case and 2 combinations (CP 8.5 h).
+``--engine dask --address tcp://HOST:8786``: the replays on a Dask cluster (docs/distributed.md);
+``--engine dask`` alone: a LocalCluster of as many workers as cores.
 
 Figures per load case ``<case>`` = ``load-case-A`` .. ``load-case-D``:
 
@@ -32,12 +34,12 @@ Figures per load case ``<case>`` = ``load-case-A`` .. ``load-case-D``:
 from __future__ import annotations
 
 import math
-import os
 import pathlib
 import tempfile
 import time
 from typing import Any
 
+from thermal_comp_common.task_engine import EngineSpec, default_workers
 from thermal_eval.sweep import (THESIS_COMBINATIONS_PER_LOAD_CASE, THESIS_TALC_INPUTS, TALC_INPUTS, SweepPoint, SweepRun,
                     best_under_constraint, plot_sweep, run_sweep, seconds_per_combination, select_points,
                     table_6_1_grid, write_table)
@@ -81,15 +83,18 @@ def _r(v: float, nd: int = 2) -> float:
 
 
 def sweep_case(scenario: str, quick: bool, jobs: int, out_dir: pathlib.Path | None, full: bool = False,
-               inputs: tuple[str, ...] = TALC_INPUTS, label: str = "") -> tuple[dict[str, Any], str]:
-    """Sweep one load case; ``label`` (e.g. ``thesis_inputs``) names a variant's keys."""
+               inputs: tuple[str, ...] = TALC_INPUTS, label: str = "",
+               engine: EngineSpec | None = None) -> tuple[dict[str, Any], str]:
+    """Sweep one load case; ``label`` (e.g. ``thesis_inputs``) names a variant's keys; ``engine``
+    (default: a local pool of ``jobs``) where the replays run."""
     rec = _recording(scenario, QUICK_HOURS if quick else None)
     run = SweepRun("talc", {"input_names": list(inputs)}, PROBE_NOISE_LINEAR_UM, PROBE_NOISE_ANGULAR_UM_PER_M,
                    PROBE_RESOLUTION_UM, 0, f"twin nmv5000 {scenario} seed 0 hours {QUICK_HOURS if quick else 'all'}")
     points = subset_points(quick, full)
     with tempfile.TemporaryDirectory() as tmp:      # always measured afresh, never resumed
         t0 = time.perf_counter()
-        res = run_sweep(rec, run, points, pathlib.Path(tmp) / "results.jsonl", jobs=jobs, progress=True)
+        res = run_sweep(rec, run, points, pathlib.Path(tmp) / "results.jsonl", jobs=jobs, progress=True,
+                        engine=engine)
         wall = time.perf_counter() - t0
     rows = res["rows"]
     best = best_under_constraint(rows)
@@ -131,6 +136,8 @@ def run(args) -> dict[str, Any]:
     extra = argparse.ArgumentParser(prog="thermal-comp bench models")
     extra.add_argument("--full", action="store_true", help="the whole Table 6.1 grid (hours)")
     extra.add_argument("--cases", default=",".join(LOAD_CASES), help="comma-separated load cases")
+    extra.add_argument("--engine", choices=("local", "dask"), default="local", help="where the replays run")
+    extra.add_argument("--address", default=None, help="dask scheduler, e.g. tcp://host:8786 (docs/distributed.md)")
     opts, _ = extra.parse_known_args(list(getattr(args, "extra", []) or []))
     quick = bool(getattr(args, "quick", False))
     full = bool(opts.full) and not quick
@@ -140,20 +147,21 @@ def run(args) -> dict[str, Any]:
         raise ValueError(f"--cases: {unknown} are not load cases ({', '.join(LOAD_CASES)})")
     out_dir = getattr(args, "out_dir", None)
     out_dir = pathlib.Path(out_dir) if out_dir else None
-    jobs = max(1, os.cpu_count() or 1)
+    jobs = default_workers()
+    engine = EngineSpec(opts.engine, opts.address, jobs)
     n = len(subset_points(quick, full))
-    out: dict[str, Any] = {"sweep.jobs": jobs, "sweep.quick": quick, "sweep.full": full,
+    out: dict[str, Any] = {"sweep.jobs": jobs, "sweep.engine": engine.describe(), "sweep.quick": quick, "sweep.full": full,
                            "sweep.full_grid_combinations_per_load_case": THESIS_COMBINATIONS_PER_LOAD_CASE,
                            "talc.subset": ("quick: first 24 h, 2 combinations (CP 8.5 h)" if quick else
                                            "the whole Table 6.1 grid" if full else
                                            f"the 4 Table 6.3 sets + a coarse factorial of Table 6.1 values "
                                            f"({n} of 2,191 combinations), update 24 h")}
     for case in cases:
-        figs, line = sweep_case(case, quick, jobs, out_dir, full)
+        figs, line = sweep_case(case, quick, jobs, out_dir, full, engine=engine)
         out.update(figs)
         print(line, flush=True)
         if case == "load-case-D":      # what the MWF flag is worth: the thesis's inputs only
-            figs, line = sweep_case(case, quick, jobs, out_dir, full, THESIS_TALC_INPUTS, "thesis_inputs")
+            figs, line = sweep_case(case, quick, jobs, out_dir, full, THESIS_TALC_INPUTS, "thesis_inputs", engine)
             out.update(figs)
             print(line, flush=True)
     return out
