@@ -16,8 +16,10 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 
 def make_certificate(folder: pathlib.Path, name: str, application_uri: str,
-                     server: bool) -> tuple[str, str]:
-    """Write ``name.der`` (certificate) and ``name.pem`` (key, mode 600); return their paths."""
+                     server: bool, valid_days: float = 30.0) -> tuple[str, str]:
+    """Write ``name.der`` (certificate) and ``name.pem`` (key, mode 600); return their paths.
+
+    Valid from a day ago for ``valid_days`` from now (negative: already expired, for tests)."""
     key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name),
                          x509.NameAttribute(NameOID.ORGANIZATION_NAME, "thermal-comp tests")])
@@ -26,7 +28,7 @@ def make_certificate(folder: pathlib.Path, name: str, application_uri: str,
     cert = (x509.CertificateBuilder()
             .subject_name(subject).issuer_name(subject).public_key(key.public_key())
             .serial_number(x509.random_serial_number())
-            .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=30))
+            .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=valid_days))
             .add_extension(x509.SubjectAlternativeName(
                 [x509.UniformResourceIdentifier(application_uri), x509.DNSName("localhost"),
                  x509.DNSName(socket.gethostname())]), critical=False)

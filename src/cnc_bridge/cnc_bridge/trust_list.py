@@ -34,6 +34,9 @@ def load_certificate(path: str | pathlib.Path) -> x509.Certificate:
         data = p.read_bytes()
     except OSError as exc:
         raise TrustListError(f"certificate '{p}': cannot read: {exc.strerror}") from None
+    if b"PRIVATE KEY-----" in data:
+        raise TrustListError(f"certificate '{p}' holds a private key: a trust list holds "
+                             f"certificates only (move the key out of that folder)")
     try:
         if b"-----BEGIN CERTIFICATE-----" in data:
             return x509.load_pem_x509_certificate(data)

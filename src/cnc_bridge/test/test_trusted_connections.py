@@ -202,3 +202,34 @@ def test_credentials_file_must_be_private(tmp_path):
     assert load_credentials(None, {ENV_USER: "op", ENV_PASSWORD: "x"}).user == "op"
     with pytest.raises(CredentialsError, match="together"):
         load_credentials(None, {ENV_USER: "op"})
+
+
+def test_trust_list_refuses_unknown_and_expired_certificates(tmp_path):
+    from asyncua.common.utils import ServiceError
+    from asyncua import ua
+
+    from cnc_bridge.trust_list import TrustList, TrustListError, load_certificate
+    import shutil
+    good = make_certificate(tmp_path / "keys", "bridge", "urn:thermal-comp:cnc-bridge", server=False)[0]
+    with pytest.raises(TrustListError, match="holds a private key"):
+        TrustList.from_paths(tmp_path / "keys")                  # the key lies beside it
+    (tmp_path / "a").mkdir()
+    good = shutil.copy(good, tmp_path / "a")
+    old = make_certificate(tmp_path / "b", "old", "urn:thermal-comp:cnc-bridge", server=False,
+                           valid_days=-0.5)[0]
+    other = make_certificate(tmp_path / "c", "other", "urn:thermal-comp:cnc-bridge", server=False)[0]
+    trust = TrustList.from_paths([tmp_path / "a", old])     # a folder and a file
+    assert len(trust) == 2
+    trust.check(load_certificate(good))
+    with pytest.raises(ServiceError) as info:
+        trust.check(load_certificate(old))
+    assert info.value.code == ua.StatusCodes.BadCertificateTimeInvalid
+    with pytest.raises(ServiceError) as info:
+        trust.check(load_certificate(other))
+    assert info.value.code == ua.StatusCodes.BadCertificateUntrusted
+    assert [r[1] for r in trust.refused] == ["expired or not yet valid", "not in the trust list"]
+    (tmp_path / "junk.der").write_bytes(b"not a certificate")
+    with pytest.raises(TrustListError, match="junk.der.*not a DER or PEM"):
+        TrustList.from_paths(tmp_path / "junk.der")
+    with pytest.raises(TrustListError, match="no certificate"):
+        TrustList.from_paths([])

@@ -108,3 +108,21 @@ def test_a_failed_configure_is_one_error_naming_the_node_and_no_restart(tmp_path
     assert any("configure failed, nothing written" in ln for ln in lines)
     mp = launcher.processes[0]
     assert mp.restarts == 0 and mp.gave_up and launcher.lifecycle_failures
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_a_node_marked_lifecycle_without_the_services_fails_within_the_deadline(tmp_path, ros_domain_id):
+    from ros_helpers import PROCS
+    lines: list[str] = []
+    cell = parse_cell({"cell": "lc_plain", "domain_id": ros_domain_id, "env": {"PYTHONPATH": str(PROCS)},
+                       "nodes": [{"name": "talker", "module": "temperature_talker", "lifecycle": True,
+                                  "lifecycle_timeout_s": 3, "parameters": {"period_s": 0.5}}]},
+                      resolve=False)
+    launcher = Launcher([cell], run_dir=tmp_path, output=io.StringIO(),
+                        on_line=lambda label, line: lines.append(f"[{label}] {line}"))
+    t0 = time.monotonic()
+    code = launcher.run(poll_s=0.1)
+    assert code == 1 and time.monotonic() - t0 < 60
+    error = _wait(lines, "ERROR lc_plain/talker:", 1)
+    assert "no lifecycle service /lc_plain/talker/change_state within 3 s" in error
