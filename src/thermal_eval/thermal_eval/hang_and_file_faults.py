@@ -136,7 +136,7 @@ def _inf_reading_row(out: pathlib.Path, env: dict) -> dict:
     vals = [store.deserialize_cdr(m.data, m.type).temperatures_degc[0] for m in read_bag(bag).messages
             if m.topic == "/temperatures"] if r.returncode == 0 else []
     ok = len(vals) == 2 and math.isnan(vals[0]) and vals[1] == 20.5
-    return _row("bad file", "failed reading (inf) imported", ok, f"stored {vals[:1]} (contract: NaN)")
+    return _row("bad file", "failed reading (inf) imported", ok, f"failed reading stored as {float(vals[0]) if vals else None!r} (contract: NaN)")
 
 
 def rows(out: pathlib.Path, domain_id: int) -> list[dict]:
