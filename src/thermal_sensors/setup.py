@@ -26,7 +26,7 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-            "rtd-emulator = thermal_sensors.rtd_emulator:main",
+            "rtd-emulator = thermal_sensors.rtd_emulator_cli:main",
         ],
         "console_scripts": [
             "temperature_publisher = thermal_sensors.temperature_publisher_node:main",

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from thermal_sensors.modbus_source import ModbusSource
-from thermal_sensors.rtd_emulator import main
+from thermal_sensors.rtd_emulator_cli import main
 from thermal_sensors.sensor_config import load_sensor_config
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
 
@@ -48,7 +48,7 @@ def test_serves_a_recording_to_a_modbus_client_across_processes(tmp_path, ports)
     cfg.write_text(sensors_yaml(ports))
     config = load_sensor_config(cfg)
     # 10 s rows at speed 50: a new row every 0.2 s; then hold the last one
-    proc = subprocess.Popen([sys.executable, "-m", "thermal_sensors.rtd_emulator", "--config", str(cfg),
+    proc = subprocess.Popen([sys.executable, "-m", "thermal_sensors.rtd_emulator_cli", "--config", str(cfg),
                              "--csv", str(tmp_path / "r.csv"), "--speed", "50", "--hold"],
                             env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     source = ModbusSource(config)
@@ -87,7 +87,7 @@ def test_serves_the_live_twin_readings(tmp_path, ports, ros_context):
     cfg = tmp_path / "s.yaml"
     cfg.write_text(sensors_yaml(ports))
     config = load_sensor_config(cfg)
-    proc = subprocess.Popen([sys.executable, "-m", "thermal_sensors.rtd_emulator", "--config", str(cfg),
+    proc = subprocess.Popen([sys.executable, "-m", "thermal_sensors.rtd_emulator_cli", "--config", str(cfg),
                              "--twin"], env=dict(os.environ), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     node = Node("fake_machine_sim", context=ros_context)
