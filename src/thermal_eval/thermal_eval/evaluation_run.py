@@ -1,0 +1,165 @@
+"""One evaluation: every baseline and model, open loop and adaptive, on one recording.
+
+Per model and channel: select on the training rows (walk-forward), refit on them, predict every
+row open loop, score the validation and test rows; in adaptive mode the same prediction drives
+:mod:`thermal_eval.adaptive_eval`. A model that fails on a channel (unidentifiable, diverged,
+any exception) is recorded with its reason and the other models and channels go on.
+Figures are plain dicts (the JSON); arrays for the plots are returned beside them.
+"""
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from thermal_comp_common.metrics import mae
+from thermal_eval.adaptive_eval import ProbingBudget, probe_counts, run_adaptive
+from thermal_eval.baselines import BASELINES
+from thermal_eval.evaluation_spec import EvaluationData
+from thermal_eval.model_selection import ModelSpec, checked_prediction, out_of_fold_prediction
+from thermal_eval.open_loop_models import MODELS
+
+#: baselines whose adaptive row would only be holding again
+NOT_ADAPTIVE = ("train_mean", "hold_last_training")
+
+
+@dataclass
+class EvaluationResult:
+    figures: dict[str, Any]
+    open_loop: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)     # model -> ch -> prediction
+    adaptive: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)      # model -> ch -> compensation
+    hold: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    probe_rows: dict[str, list[int]] = field(default_factory=dict)
+
+
+def available_models(data: EvaluationData, names: Sequence[str] | None = None) -> list[ModelSpec]:
+    every = BASELINES + MODELS
+    if names:
+        known = {m.name: m for m in every}
+        bad = [n for n in names if n not in known]
+        if bad:
+            from thermal_eval.evaluation_spec import SpecError, closest
+            raise SpecError(f"--models: {bad[0]!r} is not a model{closest(bad[0], list(known))}")
+        chosen = [known[n] for n in names]
+        return [b for b in BASELINES if b not in chosen] + chosen   # baselines are always in the table
+    return [m for m in every if not (m.needs_inputs and data.inputs is None)]
+
+
+def _scores(data: EvaluationData, y: np.ndarray, p: np.ndarray) -> dict[str, float]:
+    s = data.split
+    return {"mae_test_um": round(mae(y[s.test], p[s.test]), 3),
+            "mae_validation_um": round(mae(y[s.validation], p[s.validation]), 3)}
+
+
+def _reason(exc: BaseException) -> str:
+    frame = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    where = f" ({frame.filename.rsplit('/', 1)[-1]}:{frame.lineno})" if frame else ""
+    return f"{type(exc).__name__}: {exc}"[:300] + where
+
+
+def _one_model(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: ProbingBudget,
+               result: EvaluationResult, tick: Callable[[], None]) -> None:
+    s = data.split
+    ol: dict[str, Any] = {"kind": model.kind, "description": model.description, "channels": {}}
+    preds, oofs = {}, {}
+    t0 = time.perf_counter()
+    for ch in data.channels:
+        y = data.displacement_um[ch]
+        try:
+            params = model.select(data, ch, s.n_train)
+            p = checked_prediction(model.predict(data, ch, params, s.n_train), data, slice(s.n_train, s.n), model.name)
+            cell = _scores(data, y, p)
+            cell["params"] = {k: v for k, v in params.items() if k != "orders"}
+            if adaptive and model.name not in NOT_ADAPTIVE:
+                oofs[ch] = out_of_fold_prediction(model, data, ch, params, s.n_train)
+            preds[ch] = p
+        except Exception as exc:   # one failing model/channel is one row with its reason
+            cell = {"failed": _reason(exc)}
+        ol["channels"][ch] = cell
+        tick()
+    ol["seconds"] = round(time.perf_counter() - t0, 1)
+    result.figures["open_loop"][model.name] = ol
+    result.open_loop[model.name] = preds
+    if adaptive and model.name not in NOT_ADAPTIVE:
+        _adaptive_row(data, model, preds, oofs, budget, result)
+
+
+def _adaptive_row(data, model, preds, oofs, budget, result) -> None:
+    row: dict[str, Any] = {"kind": model.kind, "channels": {}}
+    usable = {c: p for c, p in preds.items() if c in oofs}
+    if not usable:
+        row["failed"] = "no channel has an open-loop prediction"
+        result.figures["adaptive"][model.name] = row
+        return
+    try:
+        ad = run_adaptive(data, usable, oofs, budget)
+    except Exception as exc:
+        row["failed"] = _reason(exc)
+        result.figures["adaptive"][model.name] = row
+        return
+    for ch in data.channels:
+        if ch not in usable:
+            row["channels"][ch] = {"failed": "no open-loop prediction"}
+            continue
+        y = data.displacement_um[ch]
+        cell = _scores(data, y, ad.compensation[ch])
+        h = _scores(data, y, ad.hold[ch])
+        cell["hold_own_probes_mae_test_um"] = h["mae_test_um"]
+        cell["hold_own_probes_mae_validation_um"] = h["mae_validation_um"]
+        cell["corrected_model_mae_test_um"] = _scores(data, y, ad.corrected[ch])["mae_test_um"]
+        cell["ratio_to_hold_test"] = round(cell["mae_test_um"] / h["mae_test_um"], 3) if h["mae_test_um"] > 0 else None
+        cell["ratio_to_hold_validation"] = (round(cell["mae_validation_um"] / h["mae_validation_um"], 3)
+                                            if h["mae_validation_um"] > 0 else None)
+        cell["model_weight"] = round(ad.weights[ch], 3)
+        cell.update(ad.rates[ch])
+        row["channels"][ch] = cell
+    row.update(probe_counts(data, ad.probe_rows, budget))
+    row["probings_asked_by_model"] = len(ad.triggered_rows)
+    result.figures["adaptive"][model.name] = row
+    result.adaptive[model.name] = ad.compensation
+    result.hold[model.name] = ad.hold
+    result.probe_rows[model.name] = ad.probe_rows
+
+
+def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> None:
+    """Open loop: each model's MAE over the best baseline's on the same rows and channel."""
+    ol = figures["open_loop"]
+    for window in ("test", "validation"):
+        key = f"mae_{window}_um"
+        for ch in channels:
+            base = [v["channels"][ch][key] for v in ol.values() if v["kind"] == "baseline"
+                    and key in v["channels"][ch] and np.isfinite(v["channels"][ch][key])]
+            if not base:
+                continue
+            b = min(base)
+            figures.setdefault("best_baseline_mae_um", {}).setdefault(window, {})[ch] = b
+            for v in ol.values():
+                cell = v["channels"][ch]
+                if key in cell and b > 0:
+                    cell[f"ratio_to_best_baseline_{window}"] = round(cell[key] / b, 3)
+
+
+def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None, adaptive: bool = True,
+             budget: ProbingBudget | None = None, show_progress: bool = True) -> EvaluationResult:
+    """The whole evaluation (figures + arrays for the report)."""
+    from threadpoolctl import threadpool_limits
+    from tqdm import tqdm
+    budget = budget or ProbingBudget()
+    models = list(models) if models is not None else available_models(data)
+    figures: dict[str, Any] = {"source": data.source, "rows": data.split.as_dict(), "n_rows": len(data),
+                               "channels": data.channels, "temperatures": data.sensors, "inputs": data.input_names,
+                               "notes": data.notes, "budget": budget.__dict__, "open_loop": {}, "adaptive": {}}
+    result = EvaluationResult(figures)
+    t0 = time.perf_counter()
+    bar = tqdm(total=len(models) * len(data.channels), desc="evaluate", unit="model x channel",
+               disable=not show_progress)
+    with bar, threadpool_limits(1):   # small dense problems: BLAS threads only contend
+        for model in models:
+            bar.set_postfix_str(model.name)
+            _one_model(data, model, adaptive, budget, result, bar.update)
+    _ratios_to_best_baseline(figures, data.channels)
+    figures["seconds"] = round(time.perf_counter() - t0, 1)
+    return result
