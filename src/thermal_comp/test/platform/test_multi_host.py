@@ -2,8 +2,8 @@
 beside the machine and a recording/monitoring PC; ROS 2's own DDS discovery joins them.
 
 Host A (10.231.0.1) runs the cell (machine_sim + temperature publisher in lock-step) with
-``thermal-comp launch``; host B (10.231.0.2) runs ``thermal-comp nodes``, ``thermal-comp echo``
-and ``thermal-comp record``. Discovery is the ordinary SUBNET range (multicast on the link), the
+``thermal-comp launch``; host B (10.231.0.2) runs ``thermal-comp nodes``, ``thermal-comp echo``,
+``thermal-comp record`` and the live rerun view (``thermal-comp view --rrd``). Discovery is the ordinary SUBNET range (multicast on the link), the
 same ROS_DOMAIN_ID on both sides. Fast DDS's shared-memory transport is switched off
 (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``): both namespaces share one kernel and one /dev/shm, so
 without it the data could bypass the veth link, which two real hosts never can. The bytes counted
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import pathlib
+import re
 import shutil
 import signal
 import subprocess
@@ -39,7 +40,7 @@ nodes:
     module: thermal_twin.machine_sim_node
     parameters: {{machine: nmv5000, scenario: load-case-A, seed: 0, hours: {hours}, step_s: {step},
                  lockstep_participants: [sensors], shutdown_when_done: true,
-                 wait_for_subscribers: [recorder], lockstep_deadline_s: 60.0}}
+                 wait_for_subscribers: [recorder, viewer], lockstep_deadline_s: 60.0}}
   - name: sensors
     module: thermal_sensors.temperature_publisher_node
     parameters: {{source: twin, sensor_config: nmv5000, lockstep_participant: true}}
@@ -162,8 +163,9 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         why = hosts.create()
         if why is not None:
             pytest.skip(f"cannot build two hosts from network namespaces: {why}")
+        (tmp_path / "home").mkdir()                 # rerun writes its analytics settings into HOME
         env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="SUBNET",
-                   FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1")
+                   FASTDDS_BUILTIN_TRANSPORTS="UDPv4", PYTHONUNBUFFERED="1", HOME=str(tmp_path / "home"))
         env.pop("ROS_STATIC_PEERS", None)
         cli = [sys.executable, "-m", "thermal_comp.cli"]
         cell = tmp_path / "cell.yaml"
@@ -181,6 +183,10 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         matched = _run(hosts.a, env, sys.executable, "-c", WAIT_FOR_ECHO)
         assert matched.returncode == 0, "host A never saw host B's echo subscribe: " + matched.stderr
         rx_before = hosts.rx_bytes_b()
+        rrd = tmp_path / "view.rrd"
+        viewer = Proc(hosts.b, env, *cli, "view", "--rrd", str(rrd), "--ros-args", "-r", "__ns:=/mh",
+                      "-r", "__node:=viewer")
+        procs.append(viewer)
         bag = tmp_path / "bag"
         recorder = Proc(hosts.b, env, *cli, "record", str(bag), "--ros-args", "-r", "__ns:=/mh",
                         "-r", "__node:=recorder")
@@ -190,6 +196,7 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         assert echo.p.wait(timeout=60) == 0, echo.output()
         assert launch.stop(signal.SIGTERM) == 0, launch.output()
         assert recorder.stop(signal.SIGINT) == 0, recorder.output()
+        assert viewer.stop(signal.SIGINT) == 0, viewer.output()
         rx = hosts.rx_bytes_b() - rx_before
 
         contents = read_bag(bag)
@@ -202,6 +209,16 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         assert rx > payload, f"only {rx} bytes crossed the link for {payload} bytes of messages"
         # the echo on host B printed every instant of machine_state too
         assert echo.output().count("---") == len(INSTANTS_NS)
+        # and the live view wrote a valid .rrd holding the cell's entities
+        rerun = [str(pathlib.Path(sys.executable).parent / "rerun"), "rrd"]
+        verify = subprocess.run([*rerun, "verify", str(rrd)], env=env, capture_output=True, text=True, timeout=120)
+        assert verify.returncode == 0, verify.stderr
+        printed = subprocess.run([*rerun, "print", str(rrd)], env=env, capture_output=True, text=True, timeout=120)
+        rows: dict[str, int] = {}                  # scalar rows per entity, summed over its chunks
+        for m in re.finditer(r"with (\d+) rows .* - (/\S+) - data columns: \[Scalars:scalars", printed.stdout):
+            rows[m.group(2)] = rows.get(m.group(2), 0) + int(m.group(1))
+        truth = {e: n for e, n in rows.items() if e.startswith("/mh/errors/") and e.endswith("/ground_truth")}
+        assert len(truth) == 7 and set(truth.values()) == {len(INSTANTS_NS)}, rows
     finally:
         for p in reversed(procs):
             p.stop(signal.SIGKILL, timeout=5)
