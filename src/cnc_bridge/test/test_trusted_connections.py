@@ -103,15 +103,15 @@ def test_login_backoff_doubles_per_client_and_resets_on_success():
     assert gate.get_user(None, "cnc", "s3cret", b) is not None      # another client is not held
     waits = []
     for _ in range(6):
-        now[0] += gate.backoff.locked_for(SessionGate.client_key(a))
-        waits.append(gate.backoff.locked_for(SessionGate.client_key(a)))
+        now[0] += gate.backoff.locked_for(gate.client_key(a))
+        waits.append(gate.backoff.locked_for(gate.client_key(a)))
         assert gate.get_user(None, "cnc", "wrong", a) is None
-        waits.append(gate.backoff.locked_for(SessionGate.client_key(a)))
+        waits.append(gate.backoff.locked_for(gate.client_key(a)))
     assert waits[1::2] == [1.0, 2.0, 4.0, 8.0, 8.0, 8.0]            # doubled, capped
     assert gate.backoff.refused_in_backoff == 1
     now[0] += 8.0
     assert gate.get_user(None, "cnc", "s3cret", a) is not None
-    assert gate.backoff.locked_for(SessionGate.client_key(a)) == 0.0
+    assert gate.backoff.locked_for(gate.client_key(a)) == 0.0
 
 
 def test_twenty_wrong_passwords_are_slowed_down(port):
@@ -137,6 +137,8 @@ def test_twenty_wrong_passwords_are_slowed_down(port):
         gate = emu.emulator.gate
         print(f"20 wrong logins: {gate.backoff.refused_in_backoff} refused within the back-off")
         assert gate.backoff.refused_in_backoff >= 1
+        # keyed by the client's address (and certificate): 127.0.0.1 without a certificate
+        assert list(gate.backoff._failures) == ["127.0.0.1/no-certificate"]
     finally:
         emu.close()
 

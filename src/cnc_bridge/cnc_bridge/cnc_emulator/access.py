@@ -10,9 +10,11 @@
   refused); the password is compared in constant time;
 * :class:`LoginBackoff`: after a failed login the same client is refused without even
   checking the password for a delay that doubles with each further failure (``base_s``,
-  ``2 base_s`` ... up to ``max_s``); a success resets it. A client is its certificate
-  (fingerprint) when it has one, else one shared "no certificate" bucket: asyncua's session
-  layer does not pass the peer address to the user manager.
+  ``2 base_s`` ... up to ``max_s``); a success resets it. A client is its network address
+  together with its certificate (fingerprint, or "no-certificate"): asyncua does not pass
+  the peer to the user manager, so :meth:`SessionGate.attach` wraps the server's session
+  creation to note the address of the session being activated (activation is synchronous,
+  so no other session can interleave).
 """
 from __future__ import annotations
 
@@ -63,10 +65,31 @@ class SessionGate:
         self._user, self._password = user, password
         self._security_required = security_required
         self.backoff = backoff or LoginBackoff()
+        self._peer = "unknown-address"
 
-    @staticmethod
-    def client_key(certificate) -> str:
-        return hashlib.sha256(certificate).hexdigest()[:16] if certificate else "no-certificate"
+    def attach(self, iserver) -> None:
+        """Note each session's peer address when it is activated (see the module docstring)."""
+        create = iserver.create_session
+        gate = self
+
+        def create_session(name, *args, **kwargs):
+            session = create(name, *args, **kwargs)
+            activate = session.activate_session
+            host = name[0] if isinstance(name, tuple) and name else str(name)
+
+            def activate_session(*a, **kw):
+                gate._peer = host
+                try:
+                    return activate(*a, **kw)
+                finally:
+                    gate._peer = "unknown-address"
+            session.activate_session = activate_session
+            return session
+        iserver.create_session = create_session
+
+    def client_key(self, certificate) -> str:
+        who = hashlib.sha256(certificate).hexdigest()[:16] if certificate else "no-certificate"
+        return f"{self._peer}/{who}"
 
     def get_user(self, iserver, username=None, password=None, certificate=None):
         if self._security_required and not certificate:

@@ -114,6 +114,7 @@ class CncEmulator:
         cfg = self.config
         server = Server(user_manager=self.gate)
         await server.init()
+        self.gate.attach(server.iserver)
         if self.trust is not None:
             server.set_certificate_validator(self.trust)
         self._guard_writes(server)
