@@ -40,6 +40,7 @@ need_apt=()
 command -v cmake >/dev/null || need_apt+=(cmake)
 command -v g++ >/dev/null || need_apt+=(g++)
 command -v make >/dev/null || need_apt+=(make)
+command -v ip >/dev/null || need_apt+=(iproute2)   # the multi-host test (network namespaces)
 "$PY_BOOT" -c 'import venv, ensurepip' 2>/dev/null || need_apt+=(python3-venv)
 if [ "$WITH_BROWSER" = 1 ] && ! command -v chromium >/dev/null; then need_apt+=(chromium); fi
 if [ "${#need_apt[@]}" -gt 0 ]; then
