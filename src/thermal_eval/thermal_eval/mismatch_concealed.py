@@ -6,6 +6,12 @@ ambient with a slow drift and a hall-door drop). :func:`concealed_recording` swi
 or more effects of :mod:`thermal_twin.mismatch_effects` on in the twin with known
 parameters and simulates it with the twin's sensor noise and quantisation, so the finder
 can be run against the unmodified twin and judged on what it recovers.
+
+Harder, more realistic cases: :class:`OutOfVocabulary` physics that no word of the
+vocabulary describes (a sensor's slow linear drift, a quadratic thermo-elastic term, a
+speed x temperature product term) added to the simulated readings, coloured AR(1) sensor
+noise on top of the twin's white noise, and rows dropped at random (a logger that missed
+samples). :data:`SUITE` is the broadened case list of ``thermal-comp bench diagnose``.
 """
 from __future__ import annotations
 
@@ -34,6 +40,49 @@ class HiddenEffect:
     @property
     def key(self) -> str:
         return f"{self.effect}:{self.target}:{self.driver or '-'}"
+
+
+@dataclass(frozen=True)
+class OutOfVocabulary:
+    """Physics outside the vocabulary, added to the simulated readings:
+    ``sensor_drift`` (target: sensor id, value: K/h), ``quadratic_elastic`` (target:
+    ``channel/node``, value: um/K^2 on the node's rise), ``product`` (target:
+    ``channel/node``, value: um/K at full speed times the node's rise)."""
+
+    kind: str
+    target: str
+    value: float
+
+    @property
+    def key(self) -> str:
+        return f"unnamed:{self.kind}:{self.target}"
+
+
+def _apply_oov(rec: Recording, res, o: OutOfVocabulary, spec: Mapping) -> None:
+    t = rec.time_s
+    if o.kind == "sensor_drift":
+        rec.columns[f"{o.target}_c"] = rec.columns[f"{o.target}_c"] + o.value * (t - t[0]) / 3600.0
+        return
+    ch, node = o.target.split("/")
+    rise = res.node_temperatures[:, list(res.machine.nodes).index(node)]
+    rise = rise - rise[0]
+    if o.kind == "quadratic_elastic":
+        rec.columns[ch] = rec.columns[ch] + o.value * rise ** 2
+    elif o.kind == "product":
+        speed = next(n for n in spec["inputs"] if "rpm" in n.lower() or "speed" in n.lower())
+        u = np.asarray(rec.columns[speed], dtype=float)
+        rec.columns[ch] = rec.columns[ch] + o.value * u / (np.max(np.abs(u)) or 1.0) * rise
+    else:
+        raise ValueError(f"OutOfVocabulary.kind: {o.kind!r} is not sensor_drift, quadratic_elastic or product")
+
+
+def _ar1(n: int, sigma: float, phi: float, rng: np.random.Generator) -> np.ndarray:
+    e = rng.standard_normal(n) * sigma * math.sqrt(1.0 - phi ** 2)
+    x = np.empty(n)
+    x[0] = rng.standard_normal() * sigma
+    for k in range(1, n):
+        x[k] = phi * x[k - 1] + e[k]
+    return x
 
 
 def operating_programme(spec: Mapping, hours: float, step_s: float, seed: int) -> InputsTimeline:
@@ -90,9 +139,14 @@ def find_candidate(spec: Mapping, timeline: InputsTimeline, key: str) -> Candida
 
 
 def concealed_recording(spec: Mapping, hidden: Sequence[HiddenEffect], hours: float = 48.0,
-                        step_s: float = 300.0, seed: int = 0) -> tuple[Recording, dict]:
+                        step_s: float = 300.0, seed: int = 0, oov: Sequence[OutOfVocabulary] = (),
+                        ar1_sigma: float = 0.0, ar1_phi: float = 0.9,
+                        drop_fraction: float = 0.0) -> tuple[Recording, dict]:
     """Simulate ``spec`` with ``hidden`` effects switched on; returns the recording (inputs,
-    noisy quantised sensor readings, true errors plus probe noise) and the true machine."""
+    noisy quantised sensor readings, true errors plus probe noise) and the true machine.
+    ``oov``: out-of-vocabulary physics added to the readings; ``ar1_sigma`` (K): coloured
+    AR(1) noise (coefficient ``ar1_phi`` per step) added to every temperature reading;
+    ``drop_fraction``: share of rows removed at random."""
     spec = dict(spec)
     tl = operating_programme(spec, hours, step_s, seed)
     true = spec
@@ -104,5 +158,15 @@ def concealed_recording(spec: Mapping, hidden: Sequence[HiddenEffect], hours: fl
     rng = np.random.default_rng(seed + 10_000)
     for e in res.errors:   # displacement sensors: 0.1 um noise, 0.01 um resolution
         rec.columns[e] = np.round((rec.columns[e] + 0.1 * rng.standard_normal(len(rec))) / 0.01) * 0.01
-    rec.source = f"concealed:{'+'.join(h.key for h in hidden) or 'none'}:seed{seed}"
+    for o in oov:
+        _apply_oov(rec, res, o, spec)
+    if ar1_sigma > 0:
+        for c in rec.names("sensor"):
+            rec.columns[c] = rec.columns[c] + _ar1(len(rec), ar1_sigma, ar1_phi, rng)
+    if drop_fraction > 0:
+        keep = np.sort(np.concatenate([[0], 1 + np.flatnonzero(rng.random(len(rec) - 1) >= drop_fraction)]))
+        rec = Recording(rec.time_s[keep], {c: np.asarray(v)[keep] for c, v in rec.columns.items()},
+                        source=rec.source, warnings=list(rec.warnings))
+    label = "+".join([h.key for h in hidden] + [o.key for o in oov]) or "none"
+    rec.source = f"concealed:{label}:seed{seed}"
     return rec, true

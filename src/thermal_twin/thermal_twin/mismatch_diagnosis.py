@@ -21,6 +21,8 @@ from thermal_twin.machine_schema import Machine, load_machine
 from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
 from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, run_round
 from thermal_twin.mismatch_report import DiagnosisSeries
+from thermal_twin.mismatch_testing import PROCEDURE
+from thermal_twin import mismatch_unnamed as unnamed_mod
 from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
 from thermal_comp_common.metrics import rmse
 
@@ -37,9 +39,63 @@ class DiagnosisError(ValueError):
 @dataclass
 class Diagnosis:
     report: dict
-    augmented_spec: dict | None          # None when the answer is 'none'
+    augmented_spec: dict | None          # None when no vocabulary effect is adopted
     series: DiagnosisSeries
     hypotheses: list[Hypothesis]
+    calibrated_spec: dict | None = None  # with calibrate=True: the calibrated twin (search base)
+
+
+def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, channels: list[str],
+            effects: tuple[str, ...], max_effects: int, shortlist: int, min_improvement_pct: float,
+            progress: bool) -> tuple[list[Hypothesis], list[Hypothesis], dict, np.ndarray, list[int]]:
+    """Greedy rounds of screening, fitting and testing; returns (adopted, all hypotheses,
+    final description, its outputs, candidates screened per round)."""
+    adopted: list[Hypothesis] = []
+    all_hyps: list[Hypothesis] = []
+    tried: list[int] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(desc="screening candidates", unit="cand", leave=False)
+    for round_no in range(1, max_effects + 1):
+        cands = candidates(base, drivers, channels, effects)
+        tried.append(len(cands))
+        hyps = run_round(problem, base, cands, y_base, shortlist=shortlist,
+                         min_improvement_pct=min_improvement_pct, round_no=round_no,
+                         progress=(bar.update if bar is not None else None))
+        all_hyps += hyps
+        best = hyps[0] if hyps else None
+        if best is None or not best.supported(min_improvement_pct):
+            break
+        adopted.append(best)
+        base = best.spec
+        y_base = problem.outputs(base)
+    if bar is not None:
+        bar.close()
+    return adopted, all_hyps, base, y_base, tried
+
+
+def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: list[str], errors: set,
+             y_start: np.ndarray, y_named: np.ndarray, named: bool, min_improvement_pct: float):
+    """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
+    answers when nothing of the vocabulary was adopted, or when it leaves less than half the
+    held-out weighted residual the adopted vocabulary leaves (the vocabulary then only
+    imitated it). Returns (discrepancies, outputs with them added) or ([], None)."""
+    nt = problem.n_train
+    meas = problem._meas
+    resid = {c: np.where(problem._valid[i], meas[i] - y_start[i], np.nan) for i, c in enumerate(channels)}
+    lib = unnamed_mod.signal_library(rec.time_s, ccf_inputs, rec.sensors)
+    found = unnamed_mod.find_unnamed(resid, lib, nt, errors, min_improvement_pct)
+    if not found:
+        return [], None
+    y_u = y_start.copy()
+    for d in found:
+        y_u[channels.index(d.channel)] += d.prediction
+    sse_u = float(np.sum(problem.weighted_residual(y_u, nt) ** 2))
+    sse_n = float(np.sum(problem.weighted_residual(y_named, nt) ** 2))
+    if named and not sse_u < 0.5 * sse_n:
+        return [], None
+    return found, y_u
 
 
 def _unit(ch: str) -> str:
@@ -77,9 +133,13 @@ def shared_channels(machine: Machine, rec: Recording) -> list[str]:
 
 def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
              max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
-             effects: tuple[str, ...] = EFFECTS, shortlist: int = 6, max_lag_s: float = 6 * 3600.0,
-             progress: bool = False) -> Diagnosis:
-    """Diagnose ``twin`` against ``recording``; see the module docstring."""
+             effects: tuple[str, ...] = EFFECTS, shortlist: int = 10, max_lag_s: float = 6 * 3600.0,
+             progress: bool = False, calibrate: bool = False, calibration_section: Mapping | None = None,
+             calibration_nfev: int = 20, unnamed: bool = True) -> Diagnosis:
+    """Diagnose ``twin`` against ``recording``; see the module docstring. ``calibrate``:
+    fit the twin's existing parameters first (:mod:`thermal_twin.mismatch_calibrated`);
+    ``unnamed``: try a sparse out-of-vocabulary discrepancy (:mod:`thermal_twin.mismatch_unnamed`).
+    (Over 80 lines: one pass from the comparison to the report, each step delegated.)"""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise DiagnosisError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
     unknown = [e for e in effects if e not in EFFECTS]
@@ -104,7 +164,14 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
     dt = float(np.median(np.diff(t)))
     resolution = {machine.sensors[sid].column: machine.sensors[sid].resolution for sid in machine.sensors}
     problem = FitProblem(rec, channels, n_train, resolution=resolution)
-    y0 = problem.outputs(spec0)
+    y_given = problem.outputs(spec0)
+    cal_section = None
+    base0 = spec0
+    if calibrate:
+        from thermal_twin.mismatch_calibrated import calibrated_base
+        base0, cal_section = calibrated_base(machine, problem, holdout_fraction, calibration_section,
+                                             calibration_nfev)
+    y0 = problem.outputs(base0) if calibrate else y_given
     meas = {c: np.asarray(rec.columns[c], dtype=float) for c in channels}
     units = {c: _unit(c) for c in channels}
     resid0 = {c: meas[c] - y0[i] for i, c in enumerate(channels)}
@@ -143,41 +210,29 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
 
     # hypothesise and model -----------------------------------------------------------------
     drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
-    base, y_base = spec0, y0
-    adopted: list[Hypothesis] = []
-    all_hyps: list[Hypothesis] = []
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(desc="screening candidates", unit="sim", leave=False)
-    for round_no in range(1, max_effects + 1):
-        cands = candidates(base, drivers, channels, effects)
-        hyps = run_round(problem, base, cands, y_base, shortlist=shortlist,
-                         min_improvement_pct=min_improvement_pct, round_no=round_no,
-                         progress=(bar.update if bar is not None else None))
-        all_hyps += hyps
-        best = hyps[0] if hyps else None
-        if best is None or not best.supported(min_improvement_pct):
-            break
-        adopted.append(best)
-        base = best.spec
-        y_base = problem.outputs(base)
-    if bar is not None:
-        bar.close()
-
+    adopted, all_hyps, base, y_base, tried = _search(problem, base0, y0, drivers, channels, effects,
+                                                     max_effects, shortlist, min_improvement_pct, progress)
+    found_unnamed = []
+    if unnamed:
+        found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, channels, set(machine.errors), y0, y_base,
+                                      bool(adopted), min_improvement_pct)
+        if found_unnamed:
+            adopted, base, y_base = [], base0, y_u
     y1 = y_base
     for c in channels:
         i = channels.index(c)
         chan_report[c].update({
-            "rmse_before": rmse(meas[c], y0[i]), "rmse_after": rmse(meas[c], y1[i]),
-            "holdout_rmse_before": rmse(meas[c][n_train:], y0[i][n_train:]),
+            "rmse_before": rmse(meas[c], y_given[i]), "rmse_after": rmse(meas[c], y1[i]),
+            "holdout_rmse_calibrated": rmse(meas[c][n_train:], y0[i][n_train:]),
+            "holdout_rmse_before": rmse(meas[c][n_train:], y_given[i][n_train:]),
             "holdout_rmse_after": rmse(meas[c][n_train:], y1[i][n_train:]),
-            "train_rmse_before": rmse(meas[c][:n_train], y0[i][:n_train]),
+            "train_rmse_before": rmse(meas[c][:n_train], y_given[i][:n_train]),
             "train_rmse_after": rmse(meas[c][:n_train], y1[i][:n_train]),
             "noise_sigma": problem.sigma[c],
         })
         chan_report[c] = {k: chan_report[c][k] for k in
-                          ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_after",
+                          ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_calibrated",
+                           "holdout_rmse_after",
                            "train_rmse_before", "train_rmse_after", "noise_sigma", "ljung_box", "drift",
                            "spectral_peaks", "cross_correlation")}
 
@@ -196,14 +251,19 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         "regime_effects": reg_eff[:20],
         "hypotheses": [h.as_dict() for h in ranked],
         "selected": [h.as_dict() for h in adopted] if adopted else "none",
+        "unnamed": [d.as_dict(units[d.channel]) for d in found_unnamed],
+        "answer": ("unnamed" if found_unnamed else adopted[0].candidate.effect if adopted else "none"),
+        "calibration": cal_section,
         "augmented_twin": None,
         "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": BIC_THRESHOLD,
-                     "max_effects": max_effects},
+                     "max_effects": max_effects, "multiple_testing": PROCEDURE,
+                     "candidates_screened_per_round": tried},
         "simulations": problem.n_evals,
         "notes": notes,
     }
     series = DiagnosisSeries(
-        time_s=t, measured=meas, before={c: y0[i] for i, c in enumerate(channels)},
+        time_s=t, measured=meas, before={c: y_given[i] for i, c in enumerate(channels)},
         after={c: y1[i] for i, c in enumerate(channels)}, holdout_start_s=float(t[n_train]),
         ccf=ccf, dt_s=dt)
-    return Diagnosis(report, copy.deepcopy(base) if adopted else None, series, all_hyps)
+    return Diagnosis(report, copy.deepcopy(base) if adopted else None, series, all_hyps,
+                     copy.deepcopy(base0) if calibrate else None)
