@@ -36,6 +36,9 @@ import math
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 from std_msgs.msg import Header
 
 from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
@@ -206,9 +209,12 @@ class CncBridgeNode(LifecycleNode):
             self._audit_event("", f"{why}: released without writing; the CNC keeps {held}")
             self.get_logger().info(f"{why}: the CNC keeps {held}")
         for e in self._entities:
-            if e is not None:
-                self.destroy_timer(e) if hasattr(e, "timer_period_ns") else (
-                    self.destroy_publisher(e) if hasattr(e, "publish") else self.destroy_subscription(e))
+            if isinstance(e, Timer):
+                self.destroy_timer(e)
+            elif isinstance(e, Publisher):
+                self.destroy_publisher(e)
+            elif isinstance(e, Subscription):
+                self.destroy_subscription(e)
         self._entities, self.offsets_pub, self.sync_pub = [], None, None
         if self.backend is not None:
             self.backend.close()
