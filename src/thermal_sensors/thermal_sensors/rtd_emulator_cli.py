@@ -19,13 +19,21 @@ from thermal_sensors.sensor_config import (SensorConfig, SensorConfigError, load
                                            require_modbus, resolve_sensor_config)
 
 
-def _serve_twin(config: SensorConfig, ros_args: list[str]) -> int:
-    """Serve the twin's live readings until Ctrl-C / SIGTERM (an rclpy node in this process)."""
+def _started(config: SensorConfig) -> RtdEmulator | None:
+    """A started emulator, or None (reason printed) if an endpoint cannot be opened."""
     emu = RtdEmulator(config)
     try:
         emu.start()
     except RuntimeError as exc:
         print(f"rtd-emulator: {exc}", file=sys.stderr)
+        return None
+    return emu
+
+
+def _serve_twin(config: SensorConfig, ros_args: list[str]) -> int:
+    """Serve the twin's live readings until Ctrl-C / SIGTERM (an rclpy node in this process)."""
+    emu = _started(config)
+    if emu is None:
         return 1
 
     def feed(context):
@@ -84,11 +92,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def _serve_csv(config: SensorConfig, recording, args) -> int:
     """Serve the recording's rows at their times, then exit (or hold / loop as asked)."""
-    emu = RtdEmulator(config)
-    try:
-        emu.start()
-    except RuntimeError as exc:
-        print(f"rtd-emulator: {exc}", file=sys.stderr)
+    emu = _started(config)
+    if emu is None:
         return 1
     for m in config.modules:
         where = m.serial_port if m.transport == "rtu" else f"{m.host}:{m.port}"
