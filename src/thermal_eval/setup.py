@@ -13,7 +13,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
     install_requires=[
-        "setuptools", "asyncua", "distributed", "matplotlib", "numpy", "psutil", "pyyaml", "rich",
+        "setuptools", "asyncua", "distributed", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich",
         "rosbags", "scikit-learn", "scipy", "statsmodels", "sysidentpy", "threadpoolctl", "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
@@ -27,6 +27,7 @@ setup(
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
             "bench = thermal_eval.bench:main",
+            "evaluate = thermal_eval.evaluate_cli:main",
             "replay = thermal_eval.replay_cli:main",
             "sweep = thermal_eval.sweep_cli:main",
         ],
@@ -35,6 +36,7 @@ setup(
             "bags = thermal_eval.bench_bags:run",
             "bridge = thermal_eval.bench_bridge:run",
             "diagnose = thermal_eval.bench_diagnose:run",
+            "evaluate = thermal_eval.bench_evaluate:run",
             "faults = thermal_eval.bench_faults:run",
             "fl-thermal = thermal_eval.fl_thermal_benchmark:run",
             "model = thermal_eval.bench_model:run",
