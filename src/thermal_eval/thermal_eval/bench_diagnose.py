@@ -6,14 +6,22 @@ with a concealed heat source in the headstock (80 W at full speed), diagnosed ag
 unmodified twin. Figures: wall and CPU time of the whole diagnosis (simulation, statistics,
 locating, screening and fitting every candidate, two rounds), the number of twin
 evaluations, and whether the concealed effect was found. ``args.quick`` shortens the
-recording to 12 h.
+recording to 12 h and skips the suite.
+
+Then the broadened concealed-effect suite (:mod:`thermal_eval.diagnose_suite`): true effect
+first (%), exact target (%), extra adopted effects per ten cases, ``none`` on the no-effect
+cases, ``unnamed`` on the out-of-vocabulary cases with their held-out improvement, the
+diagnosis wall times, two diagnoses with ``calibrate=True`` (calibration and diagnosis wall
+time), and the twin's simulated hours per second of the finder's evaluation.
 """
 from __future__ import annotations
 
 import argparse
 import time
 
+from thermal_eval import diagnose_suite
 from thermal_twin.machine_schema import load_machine
+from thermal_twin.mismatch_fit import FitProblem
 from thermal_eval.mismatch_concealed import find_candidate
 from thermal_twin.mismatch_diagnosis import diagnose
 from thermal_twin.scenarios import make_timeline
@@ -48,7 +56,44 @@ def run(args: argparse.Namespace | None = None) -> dict:
         f"{key}.concealed_effect_found": bool(found),
     }
     for k, v in figures.items():
-        print(f"{k}: {v}")
+        print(f"{k}: {v}", flush=True)
+    if not quick:
+        figures.update(run_suite(spec, rec))
+    return figures
+
+
+def twin_hours_per_s(spec: dict, rec, repeats: int = 5) -> float:
+    """Simulated hours per wall second of the finder's noise-free twin evaluation."""
+    prob = FitProblem(rec, list(rec.sensors)[:1], len(rec) // 2)
+    t0 = time.perf_counter()
+    for _ in range(repeats):
+        prob.outputs(spec)
+    wall = time.perf_counter() - t0
+    return repeats * float(rec.time_s[-1] - rec.time_s[0]) / 3600.0 / wall
+
+
+def run_suite(spec_stand: dict, rec_stand) -> dict:
+    key = "diagnose.suite"
+    mm = diagnose_suite.mini_mill()
+    outcomes = []
+    for case in diagnose_suite.SUITE:
+        o = diagnose_suite.run_case(mm, case)
+        outcomes.append(o)
+        print(f"  {o['case']}: answer {o['answer']} {o['selected'] or ''}"
+              f"{' ' + '; '.join(u['formula'] + ' (' + format(u['holdout_improvement_pct'], '.1f') + ' %)' for u in o['unnamed']) if o['unnamed'] else ''}"
+              f" [{o['wall_s']:.1f} s]", flush=True)
+    figures = {f"{key}.{k}": (round(v, 2) if isinstance(v, float) else v)
+               for k, v in diagnose_suite.score(outcomes).items()}
+    for case in (diagnose_suite.SUITE[0], diagnose_suite.SUITE[22]):
+        o = diagnose_suite.run_case(mm, case, calibrate=True)
+        figures[f"{key}.calibrate_first.{o['case']}.answer"] = o["answer"]
+        figures[f"{key}.calibrate_first.{o['case']}.calibration_wall_s"] = round(o["calibration_wall_s"], 2)
+        figures[f"{key}.calibrate_first.{o['case']}.diagnosis_wall_s"] = round(o["wall_s"], 2)
+    rec_mm, _ = diagnose_suite.concealed_recording(mm, (), hours=48.0, step_s=300.0, seed=1)
+    figures[f"{key}.twin_simulated_h_per_s.mini_mill_300s"] = round(twin_hours_per_s(mm, rec_mm), 0)
+    figures[f"{key}.twin_simulated_h_per_s.spindle_stand_15s"] = round(twin_hours_per_s(spec_stand, rec_stand), 0)
+    for k, v in figures.items():
+        print(f"{k}: {v}", flush=True)
     return figures
 
 

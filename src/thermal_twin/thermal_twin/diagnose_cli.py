@@ -5,7 +5,10 @@ CSV or a rosbag2 MCAP bag) simulates the
 twin with the recording's inputs, locates and diagnoses the residuals, fits the effect
 library on a training window, adopts what improves the held-out window, and writes
 ``DIR/report.json``, ``DIR/report.md`` (PNG plots beside it), ``DIR/diagnosis.rrd`` (rerun)
-and, when an effect is adopted, ``DIR/twin_augmented.yaml``.
+and, when an effect is adopted, ``DIR/twin_augmented.yaml``. With ``--calibrate`` the twin's
+existing parameters are fitted first (``DIR/twin_calibrated.yaml``; the report separates
+mis-calibrated parameters from missing mechanisms); physics outside the vocabulary is
+answered ``unnamed`` with a sparse formula.
 """
 from __future__ import annotations
 
@@ -13,6 +16,8 @@ import argparse
 import pathlib
 import sys
 
+from thermal_twin.calibration import CalibrationError
+from thermal_twin.calibration_bounds import CalibrationSpecError
 from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
 from thermal_twin.mismatch_diagnosis import DiagnosisError, diagnose
 from thermal_twin.mismatch_effects import EFFECTS
@@ -47,6 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--start-hour", type=float, default=0.0,
                    help="clock hour at time_s = 0, for the day/night regimes (default 0)")
     p.add_argument("--max-lag-h", type=float, default=6.0, help="cross-correlation lags up to this (h)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="fit the twin's existing parameters first; effects must beat that on held-out data")
+    p.add_argument("--bounds", help="with --calibrate: YAML calibration section (kinds, parameters)")
+    p.add_argument("--max-nfev", type=int, default=20, help="with --calibrate: optimiser iterations (default 20)")
+    p.add_argument("--no-unnamed", action="store_true", help="do not fit an out-of-vocabulary discrepancy")
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -74,10 +84,18 @@ def main(argv: list[str] | None = None) -> int:
         rec.warnings += name_mismatches(machine, rec)
         for w in rec.warnings:
             print(f"warning: {w}", file=sys.stderr)
+        section = None
+        if args.bounds:
+            import yaml
+            raw = yaml.safe_load(pathlib.Path(args.bounds).read_text())
+            section = (raw or {}).get("calibration", raw)
         d = diagnose(machine, rec, holdout_fraction=args.holdout_fraction, max_effects=args.max_effects,
                      min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
-                     effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet)
-    except (MachineSpecError, MappingError, RecordingError, DiagnosisError, ValueError, OSError) as exc:
+                     effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet,
+                     calibrate=args.calibrate, calibration_section=section, calibration_nfev=args.max_nfev,
+                     unnamed=not args.no_unnamed)
+    except (MachineSpecError, MappingError, RecordingError, DiagnosisError, CalibrationSpecError,
+            CalibrationError, ValueError, OSError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
         return 1
     out = pathlib.Path(args.out)
@@ -85,11 +103,23 @@ def main(argv: list[str] | None = None) -> int:
     if d.augmented_spec is not None:
         save_machine(d.augmented_spec, out / "twin_augmented.yaml")
         d.report["augmented_twin"] = "twin_augmented.yaml"
+    if d.calibrated_spec is not None:
+        save_machine(d.calibrated_spec, out / "twin_calibrated.yaml")
     paths = write_report(d.report, d.series, out, rerun=not args.no_rerun)
+    cal = d.report.get("calibration")
+    if cal:
+        print(f"calibrated {cal['free_parameters']} parameters first (held-out improvement "
+              f"{cal['holdout_improvement_pct']:.1f} %, {'used' if cal['used_as_base'] else 'not used'} as the base)")
+        for m in cal["mis_calibrated"][:8]:
+            print(f"mis-calibrated: {m['name']} {m['start']:.4g} -> {m['value']:.4g} {m['unit']}"
+                  + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else ""))
     sel = d.report["selected"]
-    if sel == "none":
+    for u in d.report.get("unnamed", []):
+        print(f"unnamed (not in the vocabulary; nearest word {u['nearest_vocabulary_word']}): {u['formula']}; "
+              f"held-out improvement {u['holdout_improvement_pct']:.1f} %")
+    if sel == "none" and not d.report.get("unnamed"):
         print("selected: none (no effect improves the held-out fit significantly)")
-    else:
+    elif sel != "none":
         for h in sel:
             ps = ", ".join(f"{k}={v['value']:.4g} {v['unit']}" for k, v in h["params"].items())
             print(f"selected: {h['effect']} on {h['target']}"

@@ -139,9 +139,21 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
          f"{report['split']['holdout_start_s'] / 3600:.1f} - {report['split']['end_s'] / 3600:.1f} h",
          "", "## Verdict", ""]
     sel = report.get("selected")
-    if sel == "none" or not sel:
+    cal = report.get("calibration")
+    if cal:
+        L += [f"**Mis-calibrated** ({cal['free_parameters']} existing parameters fitted first; held-out "
+              f"improvement {cal['holdout_improvement_pct']:.1f} %; {cal['note']}):", ""]
+        L += [f"- `{m['name']}`: {_fmt(m['start'])} -> {_fmt(m['value'])} {m['unit']}"
+              + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else "")
+              + f", 95 % interval [{_fmt(m['ci95'][0])}, {_fmt(m['ci95'][1])}]"
+              for m in cal["mis_calibrated"][:15]] or ["- no parameter moved beyond its 95 % interval"]
+        L += ["", "**Missing** (mechanisms added):", ""]
+    for u in report.get("unnamed", []):
+        L.append(f"- **unnamed** (outside the vocabulary; nearest word: {u['nearest_vocabulary_word']}): "
+                 f"`{u['formula']}`; held-out improvement {u['holdout_improvement_pct']:.1f} %")
+    if not report.get("unnamed") and (sel == "none" or not sel):
         L.append("**none**: no effect of the library improves the held-out fit significantly.")
-    else:
+    elif sel and sel != "none":
         for h in sel:
             ps = ", ".join(f"{k} = {_fmt(p['value'])} {p['unit']}" for k, p in h["params"].items())
             L.append(f"- **{h['effect']}** on `{h['target']}`"
@@ -149,6 +161,8 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
                      + f": {ps}; held-out improvement {h['holdout_improvement_pct']:.1f} %")
         if report.get("augmented_twin"):
             L.append(f"\nAugmented twin: `{report['augmented_twin']}`")
+    if report.get("criteria", {}).get("multiple_testing"):
+        L.append(f"\nAdoption test: {report['criteria']['multiple_testing']}.")
     for note in report.get("notes", []):
         L.append(f"\n> {note}")
     L += ["", "## Channels (RMSE, before -> after; held-out before -> after)", "",
