@@ -19,6 +19,7 @@ from tqdm import tqdm
 from thermal_comp.cell_config import parse_cell
 from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
 from thermal_comp.demo_monitor import DemoMonitor
+from thermal_comp.graph_profile import ack_breakdown, instant_events, stage_breakdown
 from thermal_comp.launcher import Launcher
 from thermal_comp_common.domain_ids import claim_domain_id
 
@@ -33,6 +34,9 @@ class RunRecord:
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
     node_exit_codes: dict[str, list[int]] = field(default_factory=dict)
     restarts: dict[str, int] = field(default_factory=dict)
+    #: where an instant's wall time went (thermal_comp.graph_profile), per stage and per participant
+    stages: dict[str, dict[str, float]] = field(default_factory=dict)
+    acks: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def _free_port() -> int:
@@ -140,6 +144,9 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
         launcher.stop()
         if monitor is not None:
             record.latencies_s = list(monitor.latencies)
+            participants = _participants(cell)
+            record.stages = stage_breakdown(instant_events(monitor.arrivals, monitor.acks, participants))
+            record.acks = ack_breakdown(monitor.arrivals, monitor.acks, participants)
             monitor.close()
         if emulator is not None:
             _stop_emulator(emulator)
@@ -147,6 +154,12 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
     record.node_exit_codes = {mp.node.name: mp.exit_codes for mp in launcher.processes}
     record.restarts = {mp.node.name: mp.restarts for mp in launcher.processes}
     return record
+
+
+def _participants(cell) -> list[str]:
+    """The lock-step participants machine_sim waits for in ``cell``."""
+    sim = next(n for n in cell.nodes if n.name == "machine_sim")
+    return [n for n in sim.parameters.get("lockstep_participants", []) if n]
 
 
 def _supervise(cfg: DemoConfig, launcher: Launcher, monitor: DemoMonitor, bar, record: RunRecord,
@@ -198,4 +211,7 @@ def bench_graph(args) -> dict[str, Any]:
                                               "p99": round(float(np.percentile(lat, 99)), 2) if lat.size else None,
                                               "samples": int(lat.size)},
         "peak_rss_mb": {k: round(v, 1) for k, v in record.peak_rss_mb.items()},
+        "instant_stages": record.stages,
+        "acknowledgement_after_twin_ms": record.acks,
+        "load_average_1min": round(os.getloadavg()[0], 2),
     }

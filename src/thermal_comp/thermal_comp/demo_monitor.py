@@ -1,5 +1,7 @@
-"""The demo's in-process watcher of its graph: simulated time for the progress bar, and the
-wall-time latency from a temperature message to the offsets answering the same instant."""
+"""The demo's in-process watcher of its graph: simulated time for the progress bar, the
+wall-time latency from a temperature message to the offsets answering the same instant, and
+the arrival time of every instant's messages and acknowledgements (``bench graph``'s
+breakdown of the lock-step round trip, thermal_comp.graph_profile)."""
 from __future__ import annotations
 
 import threading
@@ -10,7 +12,14 @@ from rclpy.executors import SingleThreadedExecutor
 from rosgraph_msgs.msg import Clock
 
 from thermal_comp_common import node_runtime as rt
-from thermal_comp_msgs.msg import AxisOffsets, TemperatureArray
+from thermal_comp_common.bag_writer import stamp_from_cdr
+from thermal_comp_msgs.msg import AxisOffsets, SimSync, TemperatureArray, ThermalErrors
+
+#: Topics whose arrival per instant is recorded (raw: only the leading stamp is read).
+TIMED_TOPICS = ((rt.TOPIC_TWIN_SENSORS, TemperatureArray, rt.SENSOR_QOS),
+                (rt.TOPIC_TEMPERATURES, TemperatureArray, rt.SENSOR_QOS),
+                (rt.TOPIC_ERRORS_PREDICTED, ThermalErrors, rt.EVENT_QOS),
+                (rt.TOPIC_OFFSETS, AxisOffsets, rt.EVENT_QOS))
 
 
 class DemoMonitor:
@@ -22,31 +31,41 @@ class DemoMonitor:
         self.node = rclpy.create_node("demo_monitor", namespace=namespace, context=self.ctx,
                                       start_parameter_services=False)
         self.sim_s = 0.0
-        self.temp_wall: dict[int, float] = {}
         self.latencies: list[float] = []
+        #: (topic, stamp ns) -> first arrival (perf_counter s); (node, stamp ns) -> first ack
+        self.arrivals: dict[tuple[str, int], float] = {}
+        self.acks: dict[tuple[str, int], float] = {}
         self.node.create_subscription(Clock, "/clock", self._on_clock, 10)
-        self.node.create_subscription(TemperatureArray, rt.TOPIC_TEMPERATURES, self._on_temp, rt.SENSOR_QOS)
-        self.node.create_subscription(AxisOffsets, rt.TOPIC_OFFSETS, self._on_offsets, rt.EVENT_QOS)
+        for topic, cls, qos in TIMED_TOPICS:
+            self.node.create_subscription(cls, topic, self._arrival(topic), qos, raw=True)
+        self.node.create_subscription(SimSync, rt.TOPIC_SIM_SYNC, self._on_sync, rt.EVENT_QOS)
         self.executor = SingleThreadedExecutor(context=self.ctx)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True, name="demo-monitor")
         self.thread.start()
 
-    @staticmethod
-    def _ns(stamp) -> int:
-        return stamp.sec * 1_000_000_000 + stamp.nanosec
-
     def _on_clock(self, msg) -> None:
         self.sim_s = max(self.sim_s, msg.clock.sec + msg.clock.nanosec * 1e-9)
 
-    def _on_temp(self, msg) -> None:
-        self.temp_wall.setdefault(self._ns(msg.header.stamp), time.perf_counter())
+    def _arrival(self, topic: str):
+        def on_message(data: bytes) -> None:
+            now = time.perf_counter()
+            stamp = stamp_from_cdr(data)
+            if stamp is None:
+                return
+            if (topic, stamp) in self.arrivals:
+                return          # a re-sent instant: the first arrival counts
+            self.arrivals[(topic, stamp)] = now
+            if topic == rt.TOPIC_OFFSETS:
+                t0 = self.arrivals.get((rt.TOPIC_TEMPERATURES, stamp))
+                if t0 is not None:
+                    self.latencies.append(now - t0)
+        return on_message
 
-    def _on_offsets(self, msg) -> None:
-        t0 = self.temp_wall.pop(self._ns(msg.header.stamp), None)
-        if t0 is not None:
-            self.latencies.append(time.perf_counter() - t0)
+    def _on_sync(self, msg: SimSync) -> None:
+        stamp = msg.processed_until.sec * 1_000_000_000 + msg.processed_until.nanosec
+        self.acks.setdefault((msg.node_name, stamp), time.perf_counter())
 
     def _spin(self) -> None:
         while not self._stop.is_set() and self.ctx.ok():
