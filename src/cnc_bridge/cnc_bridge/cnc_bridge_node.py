@@ -236,7 +236,8 @@ class CncBridgeNode(LifecycleNode):
 
     @staticmethod
     def _fmt(values: dict[str, float]) -> str:
-        return ", ".join(f"{a}={v:.3f} um" for a, v in sorted(values.items())) or "nothing"
+        return ", ".join(f"{a}={v:.3f} {'um/m' if a in ANGULAR_COMPONENTS else 'um'}"
+                         for a, v in sorted(values.items())) or "nothing"
 
     def _audit_event(self, axis: str, text: str, flags: int = 0) -> None:
         if self.audit is not None:
