@@ -39,6 +39,7 @@ setup(
             "play = thermal_comp.play_cli:main",
             "import-csv = thermal_comp.import_csv_cli:main",
             "view = thermal_comp.view_cli:main",
+            "prior = thermal_comp.prior_cli:main",
         ],
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [

@@ -1,0 +1,105 @@
+"""``thermal-comp prior --machine M --out PRIOR``: a prior for TALC from the machine TYPE.
+
+Simulates the nominal twin of ``M`` on training load programmes (never the run a prior is later
+used on: other scenarios and seeds) and fits the prior's ARX models (talc_model.prior); or,
+with ``--from-state``, turns the persisted TALC model of another machine into a prior. On a real
+machine this costs no probing: it is simulation. docs/prior.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import time
+
+import talc_model
+from talc_model.prior import PriorError, build_talc_prior, prior_from_state, save_prior, training_labels
+from thermal_comp.demo_cell import MACHINES
+from thermal_twin.machine_schema import load_machine
+from thermal_twin.machine_spec import MachineSpecError
+from thermal_twin.scenarios import make_timeline
+from thermal_twin.simulate import simulate
+
+#: Training load programmes per machine type; the LAST one is held out to choose the orders.
+TRAINING_SCENARIOS = {"nmv5000": ["load-case-A", "load-case-B", "load-case-D", "talc-144h-mwf", "load-case-C"]}
+#: Seeds of the training runs: 101, 102, ... (the demo's runs use seeds 0-99).
+SEED_BASE = 101
+
+
+def default_config_path(machine: str) -> pathlib.Path:
+    """The TALC configuration the demo ships for ``machine``."""
+    m = MACHINES.get(machine, {})
+    if not m.get("model_config"):
+        raise PriorError(f"--machine: {machine!r} has no shipped TALC configuration; give --config")
+    return pathlib.Path(talc_model.__file__).with_name("config") / m["model_config"]
+
+
+def build_prior(machine: str, config: dict, scenarios: list[str], seed_base: int = SEED_BASE,
+                na_max: int = 1, nb_max: int = 8, progress=None) -> dict:
+    """Simulate the nominal ``machine`` on ``scenarios`` and fit the prior."""
+    nominal = load_machine(machine)
+    recs, used = [], []
+    for i, scenario in enumerate(scenarios):
+        seed = seed_base + i
+        timeline = make_timeline(nominal.name, scenario, seed=seed)
+        recs.append(simulate(nominal, timeline, seed=seed).to_recording())
+        used.append((scenario, seed))
+        if progress:
+            progress(f"simulated {scenario} (seed {seed})")
+    prior = build_talc_prior(recs, config, machine=nominal.name, sources=training_labels(used),
+                             na_max=na_max, nb_max=nb_max)
+    prior["held_out"] = training_labels(used[-1:])
+    return prior
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="thermal-comp prior", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--machine", default="nmv5000", help="the NOMINAL machine type (preset name or YAML)")
+    ap.add_argument("--out", required=True, help="prior file to write (JSON)")
+    ap.add_argument("--config", help="TALC configuration YAML (default: the one the demo ships for the machine)")
+    ap.add_argument("--scenarios", help="comma-separated training scenarios, the last held out "
+                                        "(default for nmv5000: " + ",".join(TRAINING_SCENARIOS["nmv5000"]) + ")")
+    ap.add_argument("--seed-base", type=int, default=SEED_BASE, help="seed of the first training run (default %(default)s)")
+    ap.add_argument("--na-max", type=int, default=1, help="largest n_a of the prior (default %(default)s)")
+    ap.add_argument("--nb-max", type=int, default=8, help="largest n_b of the prior (default %(default)s)")
+    ap.add_argument("--from-state", metavar="STATE",
+                    help="instead: the persisted TALC model state (model_state.json) of another machine")
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    a = _parser().parse_args(argv)
+    import yaml
+    t0 = time.perf_counter()
+    try:
+        if a.from_state:
+            try:
+                state = json.loads(pathlib.Path(a.from_state).read_text())
+            except (OSError, json.JSONDecodeError) as exc:
+                raise PriorError(f"--from-state {a.from_state!r}: cannot read it ({exc})") from None
+            prior = prior_from_state(state, machine=a.machine)
+        else:
+            cfg_path = pathlib.Path(a.config) if a.config else default_config_path(a.machine)
+            config = yaml.safe_load(cfg_path.read_text()) or {}
+            name = load_machine(a.machine).name
+            scenarios = a.scenarios.split(",") if a.scenarios else TRAINING_SCENARIOS.get(name)
+            if not scenarios:
+                raise PriorError(f"--scenarios: no default training scenarios for machine {name!r}")
+            prior = build_prior(a.machine, config, [s.strip() for s in scenarios], a.seed_base,
+                                a.na_max, a.nb_max, progress=lambda m: print(m, file=sys.stderr))
+    except (PriorError, MachineSpecError, ValueError, OSError) as exc:
+        print(f"thermal-comp prior: {exc}", file=sys.stderr)
+        return 2
+    path = save_prior(a.out, prior)
+    orders = {c: (m["orders"]["na"], m["orders"]["nb"]) for c, m in prior["talc_state"]["models"].items()}
+    print(f"wrote {path} ({time.perf_counter() - t0:.1f} s): TALC prior of {prior['machine']} from "
+          f"{', '.join(prior['sources'])}")
+    for c, (na, nb) in orders.items():
+        v = prior["validation_rms"].get(c)
+        print(f"  {c}: n_a {na}, n_b {nb}, held-out simulation RMS {v:.2f}" if v == v else f"  {c}: n_a {na}, n_b {nb}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
