@@ -110,6 +110,7 @@ class CncBridgeNode(LifecycleNode):
         self.audit: AuditLog | None = None
         self.lathe = None
         self.adopted = []                 # HeldAdoption per axis from the last configure
+        self._adoption_flags: dict[str, int] = {}
         self._active = False              # writes follow the predictions
         self._ramping_down = False        # deactivated, offsets still on their way to zero
         self._entities = []               # publishers, subscriptions, timer of a configured node
@@ -142,6 +143,8 @@ class CncBridgeNode(LifecycleNode):
                                                 {a: on for a, (_, on) in held.items()})
         if hasattr(self.backend, "adopt"):
             self.backend.adopt({a.axis: a.adopted_um for a in self.adopted})
+        # the first offsets message after activation carries what the adoption limited
+        self._adoption_flags = {a.axis: a.flags for a in self.adopted if a.flags}
         for a in self.adopted:
             text = "start-up: " + a.describe()
             if a.flags:      # rclpy: one severity per call site
@@ -385,7 +388,8 @@ class CncBridgeNode(LifecycleNode):
         for d in decisions:
             back = readback.get(d.axis)
             self.envelope.confirm(d.axis, back)
-            flags = d.flags | (LIMIT_WRITE_FAILED if back is None else 0)
+            flags = d.flags | (LIMIT_WRITE_FAILED if back is None else 0) | \
+                self._adoption_flags.pop(d.axis, 0)
             msg.axis_names.append(d.axis)
             msg.commanded_offsets_um.append(d.commanded_um)
             msg.applied_offsets_um.append(self.envelope.applied[d.axis])

@@ -342,6 +342,10 @@ def test_managed_bridge_never_writes_before_activate_and_honours_runtime_limits(
             cell.predict(t, E_X0C=20.0)
             msg = cell.answer_for(t)
             xs.append(dict(zip(msg.axis_names, msg.applied_offsets_um))["X"])
+            if k == 1:     # the dropped -5 mm is flagged once, in the first offsets message
+                assert msg.limits_hit[msg.axis_names.index("X")] & 8
+            else:
+                assert not msg.limits_hit[msg.axis_names.index("X")] & 8
         assert xs == pytest.approx([0.0, 10.0, 20.0])         # from zero, 1 um/s, never -5 mm
         assert all(abs(v) <= 30e-3 + 1e-12 for n, v in emu.write_log
                    if n == compensation_node_id("X", "SD43900"))
