@@ -6,6 +6,10 @@ instead of answering "successful" while changing nothing. Only the safety envelo
 and ``enable`` are applied at run time (:data:`RUNTIME_ENVELOPE`); everything that shapes a
 connection, a transform or a file is fixed for the life of the process (changing it would
 need a new configure). Credentials are never parameters (:mod:`cnc_bridge.credentials`).
+
+While the bridge is active a safety limit may only be tightened (:func:`loosening`): one
+parameter call must never widen the envelope of a running machine. Widening takes
+deactivate (offsets ramp to zero), set, activate -- each step logged and audited.
 """
 from __future__ import annotations
 
@@ -31,6 +35,23 @@ RUNTIME_ENVELOPE = {
 #: applied at run time besides the envelope fields
 RUNTIME_OTHER = ("enable", "abs_limit_um_per_m")
 RUNTIME = tuple(RUNTIME_ENVELOPE) + RUNTIME_OTHER
+#: runtime limits for which a larger value is a wider (less safe) envelope
+_WIDER_IF_LARGER = tuple(RUNTIME_ENVELOPE) + ("abs_limit_um_per_m",)
+
+
+def loosening(changes: Mapping[str, Any], current: Mapping[str, Any]) -> str | None:
+    """Why ``changes`` would widen the envelope set by ``current`` (None: it does not)."""
+    for name, new in changes.items():
+        old = current.get(name)
+        if name not in _WIDER_IF_LARGER or old is None:
+            continue
+        wider = float(new) > float(old)
+        if name == "watchdog_ramp_um_per_s" and float(new) == 0.0 < float(old):
+            wider = True        # 0 = hold stale offsets forever
+        if wider:
+            return (f"parameter '{name}': {old} -> {new} widens the safety envelope; refused while "
+                    f"the bridge is active (deactivate, set, activate)")
+    return None
 
 
 def _fixed(*a, **kw) -> Param:

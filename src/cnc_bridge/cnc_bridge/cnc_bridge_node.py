@@ -47,7 +47,8 @@ from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERROR
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
 
 from cnc_bridge.audit_log import AuditLog
-from cnc_bridge.bridge_params import PARAMS, RUNTIME, changed_envelope, envelope_config
+from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
+                                      loosening)
 from cnc_bridge.credentials import SECRET_NAMES, CredentialsError, load_credentials
 from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, HtmGeometry,
                                         LatheToolOffsets, TransformInputError, offsets_from_errors)
@@ -249,6 +250,10 @@ class CncBridgeNode(LifecycleNode):
     # ------------------------------------------------------------------ parameters
     def _check_params(self, params: list[Parameter]) -> SetParametersResult:
         changes = {prm.name: prm.value for prm in params if prm.name in RUNTIME}
+        why = loosening(changes, self._p) if self._active else None
+        if why is not None:
+            self.get_logger().warning(f"refused: {why}")
+            return SetParametersResult(successful=False, reason=why)
         if self.envelope is not None and changes:
             try:
                 changed_envelope(self.envelope.config, changes, self.kinematic)

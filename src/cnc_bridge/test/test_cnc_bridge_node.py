@@ -358,13 +358,17 @@ def test_managed_bridge_never_writes_before_activate_and_honours_runtime_limits(
         assert msg.commanded_offsets_um[x] == pytest.approx(20.0)
         assert msg.limits_hit[x] & 1, "the new absolute limit is applied and flagged"
         assert msg.applied_offsets_um[x] == pytest.approx(10.0)   # moving to 1 um at 1 um/s
+        wider = cell.set_param(node, "abs_limit_um", 30.0)       # widening while active: refused
+        assert not wider.successful and "widens the safety envelope" in wider.reason
         assert cell.transition(node, "deactivate")
         cell.predict(50.0, E_X0C=20.0)
         msg = cell.answer_for(50.0)
         assert not msg.compensation_enabled
         assert msg.applied_offsets_um[msg.axis_names.index("X")] == pytest.approx(0.0)
+        assert cell.set_param(node, "abs_limit_um", 30.0).successful   # inactive: may widen
         notes = [r["note"] for r in read_audit_log(audit) if r["note"]]
         assert any("abs_limit_um: 30.0 -> 1.0" in n for n in notes)
+        assert any("abs_limit_um: 1.0 -> 30.0" in n for n in notes)
     finally:
         cell.close()
         stop(proc)

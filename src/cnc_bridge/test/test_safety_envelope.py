@@ -236,3 +236,14 @@ def test_a_limit_changed_at_runtime_applies_to_the_next_step():
     assert out["X"].applied_um == 1.0 and out["X"].flags & se.LIMIT_ABSOLUTE
     with pytest.raises(EnvelopeConfigError, match="abs_limit_um"):
         EnvelopeConfig(abs_limit_um=-1.0)
+
+
+def test_only_tightening_is_allowed_while_active():
+    from cnc_bridge.bridge_params import loosening
+    current = {"abs_limit_um": 30.0, "max_rate_um_per_s": 0.5, "watchdog_ramp_um_per_s": 0.05}
+    assert loosening({"abs_limit_um": 1.0}, current) is None
+    assert loosening({"max_rate_um_per_s": 0.1}, current) is None
+    assert "widens" in loosening({"abs_limit_um": 31.0}, current)
+    assert "max_rate_um_per_s" in loosening({"max_rate_um_per_s": 5.0}, current)
+    assert "watchdog_ramp_um_per_s" in loosening({"watchdog_ramp_um_per_s": 0.0}, current)
+    assert loosening({"enable": False}, current) is None
