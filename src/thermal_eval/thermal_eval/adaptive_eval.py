@@ -10,12 +10,16 @@ After the training rows (the calibration phase) a probing measures every displac
   calibration stay within ``max_probes_per_h`` x elapsed hours (+1): the budget is a hard cap.
 
 Between probings the compensation is the **uncertainty-weighted hold**
-(:func:`talc_model.uncertainty_weighted_hold`): the model corrected by its residual at the last
-probe, c = p + (y_p - p(t_p)), blended with the held probe y_p by their variances. Both grow
-like random walks since the probe: the held probe with the displacement's rate q_y, the
-corrected model with its error's rate q_m; both are *measured* on the training rows (q_m on the
-model's out-of-fold walk-forward residuals), so a model whose error drifts faster than the
-displacement itself is given little weight and the result is never clearly worse than holding.
+(:func:`talc_model.uncertainty_weighted_hold`): the held probe y_p moved towards the model
+corrected by its residual at that probe, c = p + (y_p - p(t_p)), by the weight w. The error of
+y_p + w (c - y_p) is dy - w dp (dy the displacement's change since the probe, dp the model's), so
+the best w is the share of the model's predicted change that the displacement makes,
+sum(dy dp) / sum(dp^2) in [0, 1]: *measured* on the training rows (the model's out-of-fold
+walk-forward prediction, over the probing interval) and then from the model's own probings (the
+last few pairs of consecutive probings, :func:`online_gains`). A model whose predicted changes do
+not happen (noise, a plateau it does not see) gets w near 0 and the held probe wins: the result
+is never clearly worse than holding. (The rates q of a held probe and of the model error are
+reported beside it.)
 The baseline beside each model holds that model's own probes at exactly its probe instants.
 No rclpy here.
 """
@@ -32,6 +36,8 @@ from thermal_comp_common.metrics import q_prod
 from thermal_eval.evaluation_spec import EvaluationData
 
 PROBE_DURATION_S = 95.0
+#: pairs of consecutive probings whose changes set the gain
+GAIN_MEMORY = 4
 
 
 class AdaptiveSettingsError(ValueError):
@@ -110,26 +116,79 @@ def _since_probe_h(t: np.ndarray, measured: list[int], start: int, n: int) -> np
     return out
 
 
+def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, stop: int, lag_h: float) -> float:
+    """The share of the model's predicted change over ``lag_h`` that the displacement made on the
+    training rows (out-of-fold prediction): sum(dy dp) / sum(dp^2), clipped to [0, 1]."""
+    step = float(np.median(np.diff(t[first:stop])))
+    lag = max(1, int(round(lag_h * 3600.0 / step)))
+    if stop - first <= lag:
+        return 0.0
+    dy = y[first + lag:stop] - y[first:stop - lag]
+    dp = p_oof[first + lag:stop] - p_oof[first:stop - lag]
+    ok = np.isfinite(dy) & np.isfinite(dp)
+    den = float(np.sum(dp[ok] ** 2))
+    return float(np.clip(np.sum(dy[ok] * dp[ok]) / den, 0.0, 1.0)) if den > 0 else 0.0
+
+
+def online_gains(y: np.ndarray, p: np.ndarray, measured: list[int], gain0: float,
+                 memory: int = GAIN_MEMORY) -> np.ndarray:
+    """The gain in force after each measurement: the training gain until two probings have been
+    made, then sum(dy dp) / sum(dp^2) over the last ``memory`` pairs of consecutive probings
+    (dy measured, dp the model's change between them), clipped to [0, 1]. Reads the
+    displacement at measured rows only."""
+    gains = [gain0]
+    dys: list[float] = []
+    dps: list[float] = []
+    for prev, r in zip(measured[:-1], measured[1:]):
+        dys.append(float(y[r] - y[prev]))
+        dps.append(float(p[r] - p[prev]))
+        if len(dys) < 2:
+            gains.append(gain0)
+            continue
+        dy, dp = np.asarray(dys[-memory:]), np.asarray(dps[-memory:])
+        den = float(np.sum(dp * dp))
+        gains.append(float(np.clip(np.sum(dy * dp) / den, 0.0, 1.0)) if den > 0 else gain0)
+    return np.asarray(gains)
+
+
+def _segment_values(values: np.ndarray, measured: list[int], start: int, n: int) -> np.ndarray:
+    out = np.full(n, np.nan)
+    bounds = measured[1:] + [n - 1]
+    lo = start
+    for v, hi in zip(values, bounds):
+        out[lo:hi + 1] = v
+        lo = hi + 1
+    return out
+
+
 def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof: Mapping[str, tuple[np.ndarray, int]],
                  budget: ProbingBudget) -> AdaptiveResult:
-    """One model in adaptive mode: schedule, rates from the training rows, blended compensation."""
+    """One model in adaptive mode: schedule, rates from the training rows (updated at each of
+    its probings), blended compensation."""
     n, start, t = len(data), data.split.n_train, data.time_s
     rows, triggered = probe_schedule(data, prediction, budget)
     measured = [start - 1] + rows
-    since_h = _since_probe_h(t, measured, start, n)
+    since_h = np.nan_to_num(_since_probe_h(t, measured, start, n))
     comp, corr, hold, weights, rates = {}, {}, {}, {}, {}
+    lag_h = min(budget.probe_every_h, 1.0 / budget.max_probes_per_h)
     for c, p in prediction.items():
         y = data.displacement_um[c]
-        q_y = measured_hold_rate(t, y, start)
         p_oof, first = oof[c]
+        q_y = measured_hold_rate(t, y, start)
         q_m = measured_hold_rate(t[first:start], (y - p_oof)[first:start], start - first)
+        gain0 = training_gain(t, y, p_oof, first, start, lag_h)
+        gains = online_gains(y, p, measured, gain0)
         corrected = _piecewise_offset(y, p, measured, start, n)
-        std = np.sqrt(q_m * np.nan_to_num(since_h))
-        comp[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(corrected), std, measured, start, n, q_y)
-        hold[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(corrected), std, measured, start, n, 0.0)
+        # uncertainty-weighted hold with a unit hold rate: w = dt / (dt + s^2) = gain
+        g = _segment_values(gains, measured, start, n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s2 = np.where(g > 0, since_h * (1.0 - g) / np.where(g > 0, g, 1.0), np.inf)
+        comp[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(corrected), np.sqrt(s2), measured, start, n, 1.0)
+        hold[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(corrected), np.sqrt(s2), measured, start, n, 0.0)
         corr[c] = corrected
-        weights[c] = q_y / (q_y + q_m) if q_y + q_m > 0 else 0.0
-        rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3)}
+        weights[c] = float(np.mean(gains))
+        rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),
+                    "training_gain": round(gain0, 3)}
     return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates)
 
 
