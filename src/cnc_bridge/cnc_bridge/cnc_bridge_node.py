@@ -49,7 +49,7 @@ from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErr
 from cnc_bridge.audit_log import AuditLog
 from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
                                       loosening)
-from cnc_bridge.credentials import SECRET_NAMES, CredentialsError, load_credentials
+from cnc_bridge.credentials import SECRET_NAMES, load_credentials
 from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, HtmGeometry,
                                         LatheToolOffsets, TransformInputError, offsets_from_errors)
 from cnc_bridge.offset_backend import TwinBackend
@@ -62,7 +62,7 @@ LIFECYCLE_NODE = True
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
 
 
-def _make_backend(node, p: dict):
+def _make_backend(p: dict):
     """The backend for parameters ``p``; opcua: connected within connect_timeout_s or raise."""
     if p["backend"] == "twin":
         return TwinBackend()
@@ -133,7 +133,7 @@ class CncBridgeNode(LifecycleNode):
             self.envelope = SafetyEnvelope(envelope_config(p, self.kinematic), enabled=False)
             self.lathe = self._load_lathe(p["lathe_tools_file"])
             self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
-            self.backend = _make_backend(self, p)
+            self.backend = _make_backend(p)
         except (ValueError, OSError, ConnectionError) as exc:
             self._configure_error = str(exc)
             self.get_logger().error(f"configure failed, nothing written: {exc}")
