@@ -11,7 +11,7 @@ import talc_model
 from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
 from talc_model.talc import TalcModel
 from thermal_comp_common import metrics
-from thermal_eval.probe_and_hold import probe_and_hold
+from thermal_comp_common.probe_and_hold import probe_and_hold
 from thermal_eval.replay_summary import probe_noise
 from thermal_eval.virtual_experiment import run_virtual_experiment
 from thermal_twin.machine_instance import machine_instance

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from thermal_comp_common.metrics import q_prod
-from thermal_eval.probe_and_hold import hold_compensation, probe_and_hold, probe_interval_s
+from thermal_comp_common.probe_and_hold import hold_compensation, probe_and_hold, probe_interval_s
 
 
 def test_interval_gives_the_same_q_prod():
