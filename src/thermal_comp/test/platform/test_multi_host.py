@@ -223,3 +223,68 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         for p in reversed(procs):
             p.stop(signal.SIGKILL, timeout=5)
         hosts.delete()
+
+
+def _rows_without_timing(path: pathlib.Path) -> list[dict]:
+    import json
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    return sorted(({k: v for k, v in r.items() if k != "seconds"} for r in rows), key=lambda r: r["key"])
+
+
+def test_a_sweep_on_dask_workers_of_another_host_survives_a_killed_worker(tmp_path):
+    """`thermal-comp sweep --engine dask --address` from host A on a scheduler and two workers on
+    host B; one worker process is SIGKILLed from outside once the first result is in: the sweep
+    ends with the local pool's answers, every row once."""
+    import psutil
+    hosts = TwoHosts()
+    procs: list[Proc] = []
+    try:
+        why = hosts.create()
+        if why is not None:
+            pytest.skip(f"cannot build two hosts from network namespaces: {why}")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        cli = [sys.executable, "-m", "thermal_comp.cli"]
+        dask = str(pathlib.Path(sys.executable).parent / "dask")
+        rec = tmp_path / "rec.csv"
+        sim = subprocess.run([*cli, "sim", "--machine", "nmv5000", "--scenario", "load-case-A", "--hours", "12",
+                              "--seed", "3", "--csv", str(rec)], capture_output=True, text=True, timeout=300)
+        assert sim.returncode == 0, sim.stderr
+        sweep = [*cli, "sweep", str(rec), "--limit", "6", "--grid-subset", "cp_length_h=8.5;post_cp_interval_h=1,3,inf",
+                 "--no-progress"]
+        local = subprocess.run([*sweep, "--out", str(tmp_path / "local"), "--jobs", "2"], capture_output=True,
+                               text=True, timeout=600)
+        assert local.returncode == 0, local.stderr
+
+        address = f"tcp://{ADDR_B}:8786"
+        scheduler = Proc(hosts.b, env, dask, "scheduler", "--host", ADDR_B, "--port", "8786", "--no-dashboard")
+        procs.append(scheduler)
+        scheduler.wait_for("Scheduler at:", timeout=60.0)
+        workers = Proc(hosts.b, env, dask, "worker", address, "--nworkers", "2", "--nthreads", "1",
+                       "--host", ADDR_B, "--no-dashboard")
+        procs.append(workers)
+        out = tmp_path / "remote"
+        client = Proc(hosts.a, env, *sweep, "--out", str(out), "--engine", "dask", "--address", address)
+        procs.append(client)
+        results = out / "results.jsonl"
+        deadline = time.monotonic() + 300.0
+        while not (results.exists() and results.read_text().count("\n") >= 1):
+            assert client.p.poll() is None, "the sweep ended before a worker could be killed:\n" + client.output()
+            assert time.monotonic() < deadline, "no result within 300 s:\n" + client.output()
+            try:
+                client.p.wait(timeout=0.2)                  # wakes at once if the sweep ends
+            except subprocess.TimeoutExpired:
+                pass
+        # the nannies' worker processes (multiprocessing spawn children, not its resource tracker)
+        spawned = [c for c in psutil.Process(workers.p.pid).children()
+                   if any("spawn_main" in a for a in c.cmdline())]
+        assert len(spawned) == 2, [c.cmdline() for c in psutil.Process(workers.p.pid).children()]
+        victim = spawned[0].pid
+        spawned[0].kill()                                   # one worker process dies mid-sweep
+        assert client.p.wait(timeout=600) == 0, client.output()
+        assert _rows_without_timing(results) == _rows_without_timing(tmp_path / "local" / "results.jsonl")
+        assert results.read_text().count("\n") == 6
+        workers.wait_for(f"Worker process {victim} was killed by signal 9", timeout=60.0)
+    finally:
+        for p in reversed(procs):
+            p.stop(signal.SIGKILL, timeout=5)
+        hosts.delete()
