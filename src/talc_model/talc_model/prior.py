@@ -271,7 +271,7 @@ class TalcPriorModel(TalcModel):
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "TalcPriorModel":
-        base = TalcModel.from_state(state)
+        base = TalcModel.from_state({k: v for k, v in state.items() if k != "prior"})
         model = cls(base.config, None, float(state.get("prior_samples", 200.0)), float(state.get("check_h", 1.0)))
         model.__dict__.update({k: v for k, v in base.__dict__.items() if k != "config"})
         if state.get("prior") is not None:

@@ -337,6 +337,9 @@ class TalcModel(TalcIdentification):
             raise ValueError(f"TALC state: 'kind' is {state.get('kind')!r}, expected 'talc'")
         if state.get("version") != STATE_VERSION:
             raise ValueError(f"TALC state: 'version' {state.get('version')!r} is not {STATE_VERSION}")
+        if cls is TalcModel and state.get("prior") is not None:   # a run started from a prior resumes with it
+            from talc_model.prior import TalcPriorModel
+            return TalcPriorModel.from_state(state)
         cfg = dict(state["config"])
         cfg["input_names"] = list(state["input_names"])
         model = cls(TalcConfig.from_mapping(cfg))

@@ -61,6 +61,7 @@ PARAMS = [
     Param("state_path", "", "JSON file for the model state (resumed at start; empty = no persistence); "
           "a relative path lives under $XDG_STATE_HOME/thermal-comp (default ~/.local/state/thermal-comp)"),
     Param("pretrained_path", "", "state of a trained model to start from when state_path has none"),
+    Param("prior_path", "", "TALC prior (thermal-comp prior) to start from when state_path has none"),
     Param("save_period_s", 3600.0, "save the state at least this often (model time), s", 1.0, 1e7),
     Param("artefact", "sphere", "probing artefact", choices=("sphere", "guide_bush")),
     Param("tool_position", "", "lathe: tool position probed (e.g. GB)"),
@@ -140,6 +141,11 @@ class TalcModelNode(Node):
         return self.loop.model
 
     def _fresh_model(self):
+        if self.p["prior_path"]:
+            if self.kind != "talc":
+                raise ValueError(f"parameter 'prior_path': a prior is for model_kind 'talc', not {self.kind!r}")
+            from talc_model.prior import load_prior, talc_with_prior
+            return talc_with_prior(self.config, load_prior(self.p["prior_path"])), f"prior {self.p['prior_path']}"
         if self.p["pretrained_path"]:
             return (load_pretrained(self.p["pretrained_path"], self.config, expected_kind=self.kind),
                     f"pre-trained from {self.p['pretrained_path']}")

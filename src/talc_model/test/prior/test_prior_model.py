@@ -114,3 +114,12 @@ def test_bad_priors_are_refused(prior, tmp_path):
         load_prior(tmp_path / "x.json")
     with pytest.raises(PriorError, match="no fitted models"):
         prior_from_state(TalcModel(CFG).to_state())
+
+
+def test_a_saved_prior_run_resumes_with_its_prior(prior, tmp_path):
+    from talc_model.model_persistence import load_model, save_model
+    model = talc_with_prior(CFG, prior)
+    _drive(model, _plant(11, hours=3.0))
+    save_model(tmp_path / "state.json", model)
+    back = load_model(tmp_path / "state.json", expected_kind="talc")
+    assert isinstance(back, TalcPriorModel) and back.prior_models
