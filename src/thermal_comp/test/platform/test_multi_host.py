@@ -7,7 +7,9 @@ Host A (10.231.0.1) runs the cell (machine_sim + temperature publisher in lock-s
 same ROS_DOMAIN_ID on both sides. Fast DDS's shared-memory transport is switched off
 (``FASTDDS_BUILTIN_TRANSPORTS=UDPv4``): both namespaces share one kernel and one /dev/shm, so
 without it the data could bypass the veth link, which two real hosts never can. The bytes counted
-on B's end of the link prove the data crossed it. See docs/distributed.md.
+on B's end of the link prove the data crossed it. The second test runs ``thermal-comp sweep`` on
+host A against a dask scheduler and workers on host B (only the CLI: no import of thermal_eval).
+See docs/distributed.md.
 """
 from __future__ import annotations
 
