@@ -11,7 +11,8 @@ by it (``BagMessage.stamp_ns``). ``timestamps:=header`` keeps the old header-sta
 
 As a lock-step participant (``lockstep_participant``) the recorder loses nothing across a crash
 and restart: it acknowledges instant t_k on ``sim_sync`` only once it has written a message
-stamped t_k on every one of ``ack_topics`` and fsynced the file, so machine_sim cannot run
+stamped t_k on every one of ``ack_topics`` and handed the file to the OS (fsynced with
+``ack_fsync``), so machine_sim cannot run
 ahead of a dead recorder; the restarted recorder gets the unacknowledged instant when
 machine_sim re-sends it. (Buffering in the publishers and replaying was the alternative; it
 needs a second copy of every stream and a replay protocol, where lock-step reuses the
@@ -119,10 +120,13 @@ class BagRecorderNode(Node):
                      "continue in a new bag 'output.2', 'output.3', ... and leave the old one as it "
                      "is, or fail", choices=("continue", "fail")),
             rt.Param("lockstep_participant", False, "acknowledge instant t_k on sim_sync once a message "
-                     "stamped t_k of every ack_topics topic is written and fsynced"),
+                     "stamped t_k of every ack_topics topic is written (and fsynced with ack_fsync)"),
             rt.Param("ack_topics", ["machine_state", "twin/sensor_readings"], "lock-step: topics "
                      "whose message for t_k must be written before t_k is acknowledged (topics "
                      "machine_sim re-sends; ones not recorded are ignored)"),
+            rt.Param("ack_fsync", False, "lock-step: fsync the bag before each acknowledgement (survives a "
+                     "power loss, a few ms per instant); without, the written chunk is handed to the OS "
+                     "first, which survives a crash or kill of this process"),
         ])
         if not p["output"]:
             raise ValueError("parameter 'output': a bag folder path is required")
@@ -151,6 +155,7 @@ class BagRecorderNode(Node):
         self.writer = BagWriter(p["output"], infos, chunk_bytes=p["chunk_bytes"],
                                 compression=p["compression"],
                                 custom_data={"recorded_by": "thermal_comp.bag_recorder_node"})
+        self._ack_fsync = bool(p["ack_fsync"])
         self._flush_timer = self.create_timer(p["flush_period_s"], self._periodic,
                                               clock=Clock(clock_type=ClockType.STEADY_TIME))
         self._ack_topics = set()
@@ -183,12 +188,12 @@ class BagRecorderNode(Node):
         return on_message
 
     def _written(self, topic: str, stamp_ns: int) -> None:
-        """Acknowledge t_k once every ack topic has a written message stamped t_k (fsynced first)."""
+        """Acknowledge t_k once every ack topic has a written message stamped t_k (handed to the OS first)."""
         seen = self._pending.setdefault(stamp_ns, set())
         seen.add(topic)
         if seen != self._ack_topics:
             return
-        self.writer.sync()
+        self.writer.sync(fsync=self._ack_fsync)
         for k in [k for k in self._pending if k <= stamp_ns]:
             del self._pending[k]
         self.acked_ns = stamp_ns if self.acked_ns is None else max(self.acked_ns, stamp_ns)

@@ -197,14 +197,16 @@ class BagWriter:
         os.fsync(self._stream.fileno())
         self._write_metadata()
 
-    def sync(self) -> None:
-        """Close the open chunk and fsync the MCAP file (metadata.yaml left for :meth:`flush`):
-        what was written so far survives a kill -9. Used before a lock-step acknowledgement."""
+    def sync(self, fsync: bool = True) -> None:
+        """Close the open chunk and hand it to the OS, fsynced unless ``fsync`` is False (metadata.yaml
+        left for :meth:`flush`): what was written so far survives a kill -9 (with fsync a power
+        loss too). Used before a lock-step acknowledgement."""
         if self.closed:
             return
         self._writer.flush()
         self._stream.flush()
-        os.fsync(self._stream.fileno())
+        if fsync:
+            os.fsync(self._stream.fileno())
 
     def close(self) -> None:
         """Finish the MCAP file (rosbag2 metadata record, summary, footer) and metadata.yaml."""
