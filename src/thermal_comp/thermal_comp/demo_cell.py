@@ -11,6 +11,7 @@ from typing import Any
 
 import talc_model
 from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
+from thermal_twin.machine_instance import instance_label, write_instance
 from thermal_twin.scenarios import SCENARIOS, make_timeline
 
 #: What each built-in machine runs.
@@ -43,11 +44,27 @@ class DemoConfig:
     wall_timeout_s: float = 3600.0
     #: restart policy of every node (cell-file ``restart`` mapping); None = no restarts
     restart: dict[str, Any] | None = None
+    #: the plant: unit ``unit`` of the machine type (thermal_twin.machine_instance); None = nominal
+    unit: int | None = None
+    #: TALC prior file (thermal-comp prior) the model starts from; None = the thesis's start
+    prior: str | None = None
 
 
 def scenario_hours(machine: str, scenario: str, hours: float | None) -> float:
     make_timeline(machine, scenario, hours=hours or None, step_s=3600.0)  # validates the pair
     return float(hours) if hours else float(SCENARIOS[scenario].hours)
+
+
+def plant_machine(cfg: DemoConfig, out: pathlib.Path) -> str:
+    """The machine the twin simulates: the preset, or unit ``cfg.unit`` of it written to ``out``."""
+    if cfg.unit is None:
+        return cfg.machine
+    return str(write_instance(out / f"machine_unit{cfg.unit}.yaml", cfg.machine, cfg.unit))
+
+
+def plant_label(cfg: DemoConfig) -> str:
+    """Which machine the demo ran: ``nmv5000 unit #1`` or ``nmv5000 (nominal)``."""
+    return instance_label(cfg.machine, cfg.unit) if cfg.unit is not None else f"{cfg.machine} (nominal)"
 
 
 def _model_parameters(cfg: DemoConfig, out: pathlib.Path) -> dict[str, Any]:
@@ -56,6 +73,8 @@ def _model_parameters(cfg: DemoConfig, out: pathlib.Path) -> dict[str, Any]:
                               "lockstep_participant": True, "artefact": m["artefact"]}
     if m.get("tool_position"):
         params["tool_position"] = m["tool_position"]
+    if cfg.prior:
+        params["prior_path"] = str(pathlib.Path(cfg.prior).resolve())
     if m.get("model_config"):   # shipped with talc_model: the thesis's parameter set for this machine
         params["model_config"] = str(pathlib.Path(talc_model.__file__).with_name("config") / m["model_config"])
     return params
@@ -82,7 +101,7 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
     participants = ["sensors", "model", "bridge", "recorder"]   # the recorder acks what it wrote
     nodes = [
         {"name": "machine_sim", "module": "thermal_twin.machine_sim_node",
-         "parameters": {"machine": cfg.machine, "scenario": cfg.scenario, "seed": cfg.seed,
+         "parameters": {"machine": plant_machine(cfg, out), "scenario": cfg.scenario, "seed": cfg.seed,
                         "hours": float(cfg.hours or 0.0), "step_s": float(step),
                         "lockstep_participants": participants, "shutdown_when_done": True,
                         # the recorder is no lock-step participant; the first instant waits for it

@@ -13,10 +13,11 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from thermal_comp.demo_cell import MACHINES, DemoConfig
+from thermal_comp.demo_cell import MACHINES, DemoConfig, plant_label
 from thermal_comp.demo_graph import RunRecord
 from thermal_comp.demo_series import DemoSeries
 from thermal_comp_common import metrics
+from thermal_comp_common.probe_and_hold import TABLE_5_4_RESOLUTION_UM, probe_and_hold, table_5_4_noise
 
 #: Published results the demo is compared with (Blaser thesis, Tables 6.5 and 6.7; P99).
 THESIS_TABLES = {
@@ -62,6 +63,27 @@ def evaluation_start_s(series: DemoSeries) -> float:
     return float(series.t_true[0])
 
 
+def whole_run_and_baseline(series: DemoSeries, comp: dict[str, np.ndarray], q_prod_pct: float,
+                           seed: int) -> dict[str, Any]:
+    """P99 over the WHOLE run (calibration phase included: nothing compensated there) and the
+    probe-and-hold baseline at the run's Q_prod over the same instants (Table 5.4 probe)."""
+    out: dict[str, Any] = {"p99_compensated_whole_run": {}, "probe_and_hold": None}
+    for c in series.components:
+        ok = np.isfinite(series.true[c])
+        if ok.any():
+            out["p99_compensated_whole_run"][c] = round(metrics.p99(series.true[c][ok], comp[c][ok]), 3)
+    if np.isfinite(q_prod_pct) and 0 <= q_prod_pct < 100 and series.t_true.size > 1:
+        base = probe_and_hold(series.t_true, series.true, q_prod_pct, table_5_4_noise(series.components),
+                              TABLE_5_4_RESOLUTION_UM, probe_duration_s=metrics.PROBE_CYCLE_DURATION_S, seed=seed)
+        out["probe_and_hold"] = {"interval_h": round(base["interval_h"], 3),
+                                 "p99": {c: round(v["p99"], 3) for c, v in base["components"].items()},
+                                 "p99_lin_um": round(base["p99_lin_um"], 3),
+                                 "p99_ang_um_per_m": round(base["p99_ang_um_per_m"], 3)}
+    lin = [c for c in out["p99_compensated_whole_run"] if series.units.get(c) == "um"]
+    out["p99_lin_whole_run_um"] = round(metrics.p99_group(out["p99_compensated_whole_run"], lin), 3)
+    return out
+
+
 def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> dict[str, Any]:
     comp = compensation_in_effect(series)
     t_eval = evaluation_start_s(series)
@@ -88,7 +110,9 @@ def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> 
         "parameter_updates": series.status.get("parameter_updates", 0),
         "q_prod_pct": round(series.status.get("q_prod_pct", float("nan")), 2),
         "offsets_limited_steps": series.limit_hits, "offsets_published": series.offsets_published,
+        "plant": plant_label(cfg), "prior": cfg.prior,
     }
+    summary.update(whole_run_and_baseline(series, comp, summary["q_prod_pct"], cfg.seed))
     if record is not None and record.wall_s > 0:
         summary["wall_time_s"] = round(record.wall_s, 1)
         summary["times_real_time"] = round(record.sim_end_s / record.wall_s, 1)
@@ -100,19 +124,29 @@ def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> 
 def print_table(summary: dict[str, Any]) -> None:
     thesis = summary.get("thesis", {})
     w0, w1 = summary["evaluation_window_h"]
-    t = Table(title=f"{summary['machine']} / {summary['scenario']}: P99 of the thermal errors, "
-                    f"{summary['model_kind'].upper()}, {summary['simulated_hours']} h simulated "
-                    f"(evaluated {w0:g}-{w1:g} h, after the calibration phase)")
+    base = summary.get("probe_and_hold")
+    t = Table(title=f"{summary.get('plant', summary['machine'])} / {summary['scenario']}: P99 of the thermal "
+                    f"errors, {summary['model_kind'].upper()}"
+                    f"{' with the prior ' + str(summary['prior']) if summary.get('prior') else ' (no prior)'}, "
+                    f"{summary['simulated_hours']} h simulated (compensated: {w0:g}-{w1:g} h, after the "
+                    f"calibration phase; whole run: from 0 h)")
     t.add_column("error")
     t.add_column("unit")
     t.add_column("uncompensated", justify="right")
     t.add_column("compensated", justify="right")
     t.add_column("reduction", justify="right")
+    t.add_column("comp. whole run", justify="right")
+    if base:
+        t.add_column(f"probe-and-hold (every {base['interval_h']:.2f} h)", justify="right")
     if thesis:
         t.add_column(f"{thesis['title']}: uncomp. / comp.", justify="right")
     for c, e in summary["errors"].items():
         row = [c, e["unit"], f"{e['p99_uncompensated']:.1f}", f"{e['p99_compensated']:.1f}",
                f"{e['reduction_pct']:.0f} %" if e["reduction_pct"] is not None else "-"]
+        whole = summary.get("p99_compensated_whole_run", {}).get(c)
+        row.append(f"{whole:.1f}" if whole is not None else "-")
+        if base:
+            row.append(f"{base['p99'][c]:.1f}" if c in base["p99"] else "-")
         if thesis:
             u = thesis["p99_uncompensated"].get(c)
             k = thesis["p99_compensated"].get(c)
@@ -125,5 +159,9 @@ def print_table(summary: dict[str, Any]) -> None:
             f"Q_prod {summary['q_prod_pct']} %"
             + (f"; thesis (§6.4.2): 4 no-good events from E_Y0C, 4 from E_Z0T, Q_prod about 97 % at the end"
                if summary["scenario"] == "talc-178h-dry" else ""))
+    if base:
+        ratio = summary["p99_lin_whole_run_um"] / base["p99_lin_um"] if base["p99_lin_um"] else float("nan")
+        c.print(f"whole run P99_lin {summary['p99_lin_whole_run_um']} um; probe-and-hold at the same Q_prod "
+                f"(no model, Table 5.4 probe): P99_lin {base['p99_lin_um']} um; ratio {ratio:.2f} (goal <= 0.5)")
     if "wall_time_s" in summary:
         c.print(f"wall time {summary['wall_time_s']} s ({summary['times_real_time']} x real time)")

@@ -16,6 +16,18 @@ import numpy as np
 from thermal_comp_common import metrics
 from thermal_comp_common.components import is_angular
 
+#: Probe noise (k = 1) and resolution of the sphere cycle, Blaser thesis Table 5.4: the demo's
+#: baseline uses them (thermal_eval's replay has the same values as its defaults).
+TABLE_5_4_NOISE_LINEAR_UM = 0.25
+TABLE_5_4_NOISE_ANGULAR_UM_PER_M = 1.2
+TABLE_5_4_RESOLUTION_UM = 0.25
+
+
+def table_5_4_noise(components: Sequence[str]) -> dict[str, float]:
+    """Probe noise std per component after Table 5.4 (um/m for the angular ones)."""
+    return {c: TABLE_5_4_NOISE_ANGULAR_UM_PER_M if is_angular(c) else TABLE_5_4_NOISE_LINEAR_UM
+            for c in components}
+
 
 def probe_interval_s(q_prod_pct: float, probe_duration_s: float) -> float:
     """Even probing interval (start to start) that costs ``100 - q_prod_pct`` % of the time."""
