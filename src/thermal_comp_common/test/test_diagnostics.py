@@ -98,3 +98,28 @@ def test_python_logging_reaches_rosout(ros_context):
         ex.shutdown()
         node.destroy_node()
         listener.destroy_node()
+
+
+def test_library_info_records_stay_off_rosout():
+    """asyncua logs every read and write at INFO: only our packages' INFO records go out."""
+    import logging
+
+    from thermal_comp_common.node_runtime import RosoutHandler
+
+    sent: list = []
+
+    class _Logger:
+        def info(self, text):
+            sent.append(text)
+
+        warning = error = debug = info
+
+    class _Node:
+        def get_logger(self):
+            return _Logger()
+
+    h = RosoutHandler(_Node())
+    for name, level in (("asyncua.client.ua_session", logging.INFO), ("asyncua.client", logging.WARNING),
+                        ("thermal_sensors.modbus_source", logging.INFO)):
+        h.handle(logging.LogRecord(name, level, __file__, 1, "m", None, None))
+    assert sent == ["[asyncua.client] m", "[thermal_sensors.modbus_source] m"]

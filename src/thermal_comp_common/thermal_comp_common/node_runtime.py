@@ -159,16 +159,26 @@ def s_to_stamp(t_s: float):
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
 
+#: Top-level packages whose INFO records are forwarded; other libraries' (asyncua logs every
+#: read and write at INFO: one /rosout message per instant and per node) from ``library_level``.
+OWN_PACKAGES = ("thermal_comp", "thermal_comp_common", "thermal_twin", "thermal_sensors",
+                "thermal_eval", "talc_model", "probe_cycle", "cnc_bridge", "__main__")
+
+
 class RosoutHandler(logging.Handler):
     """Forward Python ``logging`` records (backends: OPC UA, Modbus, models) to a node's rclpy
-    logger, so they reach ``/rosout`` and the viewer. :func:`run_node` installs one on the root
-    logger for the node's lifetime."""
+    logger, so they reach ``/rosout`` and the viewer: ours from ``level``, other libraries'
+    from ``library_level``. :func:`run_node` installs one on the root logger for the node's
+    lifetime."""
 
-    def __init__(self, node: Node, level: int = logging.INFO):
+    def __init__(self, node: Node, level: int = logging.INFO, library_level: int = logging.WARNING):
         super().__init__(level)
         self._logger = node.get_logger()
+        self.library_level = library_level
 
     def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno < self.library_level and record.name.split(".", 1)[0] not in OWN_PACKAGES:
+            return
         try:
             text = f"[{record.name}] {self.format(record)}"
             if record.levelno >= logging.ERROR:
