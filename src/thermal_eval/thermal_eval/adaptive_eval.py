@@ -7,7 +7,7 @@ After the training rows (the calibration phase) a probing measures every displac
 - **the model's own**: when the model predicts a change of more than ``tolerance_um`` on any
   channel since the last probing (it sees a load change the held probe cannot), at the
   earliest ``min_gap_s`` after the previous cycle, and only while the probings after
-  calibration stay within ``max_probes_per_h`` x elapsed hours (+1): the budget is a hard cap.
+  calibration stay within ``max_probes_per_h`` x elapsed hours: the budget is a hard cap.
 
 Between probings the compensation is the **uncertainty-weighted hold**
 (:func:`talc_model.uncertainty_weighted_hold`): the held probe y_p moved towards the model
@@ -86,7 +86,7 @@ def probe_schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], b
         scheduled = since >= budget.probe_every_h * 3600.0
         asks = since >= budget.min_gap_s and any(
             abs(prediction[c][r] - prediction[c][last_row]) > budget.tolerance_um for c in prediction)
-        within = len(rows) + 1 <= budget.max_probes_per_h * elapsed_h + 1
+        within = len(rows) + 1 <= budget.max_probes_per_h * elapsed_h
         if scheduled or (asks and within):
             rows.append(r)
             if not scheduled:
