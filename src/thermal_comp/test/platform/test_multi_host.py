@@ -41,8 +41,8 @@ nodes:
   - name: machine_sim
     module: thermal_twin.machine_sim_node
     parameters: {{machine: nmv5000, scenario: load-case-A, seed: 0, hours: {hours}, step_s: {step},
-                 lockstep_participants: [sensors], shutdown_when_done: true,
-                 wait_for_subscribers: [recorder, viewer], lockstep_deadline_s: 60.0}}
+                 lockstep_participants: {participants}, shutdown_when_done: true,
+                 wait_for_subscribers: {observers}, lockstep_deadline_s: 60.0}}
   - name: sensors
     module: thermal_sensors.temperature_publisher_node
     parameters: {{source: twin, sensor_config: nmv5000, lockstep_participant: true}}
@@ -157,7 +157,10 @@ def _run(ns: str, env: dict, *argv: str, timeout: float = 90.0) -> subprocess.Co
                           timeout=timeout)
 
 
-def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_domain_id):
+@pytest.mark.parametrize("recorder_role", ["observer", "participant"])
+def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_domain_id, recorder_role):
+    """The remote recorder as an observer machine_sim waits for before the first instant, or as a
+    lock-step participant that acknowledges every instant across the link."""
     from thermal_comp_common.bag_reader import read_bag
     hosts = TwoHosts()
     procs: list[Proc] = []
@@ -171,7 +174,10 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         env.pop("ROS_STATIC_PEERS", None)
         cli = [sys.executable, "-m", "thermal_comp.cli"]
         cell = tmp_path / "cell.yaml"
-        cell.write_text(CELL.format(domain_id=ros_domain_id, hours=HOURS, step=STEP_S))
+        participant = recorder_role == "participant"
+        cell.write_text(CELL.format(domain_id=ros_domain_id, hours=HOURS, step=STEP_S,
+                                    participants="[sensors, recorder]" if participant else "[sensors]",
+                                    observers="[viewer]" if participant else "[recorder, viewer]"))
 
         launch = Proc(hosts.a, env, *cli, "launch", str(cell), "--run-dir", str(tmp_path / "run"), "--no-restart")
         procs.append(launch)
@@ -191,7 +197,7 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
         procs.append(viewer)
         bag = tmp_path / "bag"
         recorder = Proc(hosts.b, env, *cli, "record", str(bag), "--ros-args", "-r", "__ns:=/mh",
-                        "-r", "__node:=recorder")
+                        "-r", "__node:=recorder", "-p", f"lockstep_participant:={str(participant).lower()}")
         procs.append(recorder)
 
         launch.wait_for("mh/machine_sim exited with code 0", timeout=120.0)
