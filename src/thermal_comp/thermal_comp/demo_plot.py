@@ -8,12 +8,10 @@ from typing import Any
 
 import matplotlib
 import numpy as np
-import rerun as rr
 
 from thermal_comp.demo_series import DemoSeries
 from thermal_comp.demo_summary import compensation_in_effect
-from thermal_comp.view_cli import log_bag
-from thermal_comp_common.bag_reader import read_bag
+from thermal_comp.view_cli import bag_to_rrd
 
 
 def _no_good_spans_h(series: DemoSeries) -> list[tuple[float, float]]:
@@ -67,10 +65,7 @@ def plot(series: DemoSeries, summary: dict[str, Any], path: pathlib.Path) -> Non
 
 def write_rrd(bag: pathlib.Path, rrd: pathlib.Path) -> int:
     """Log the whole bag into an .rrd file; the number of messages logged."""
-    rec = rr.RecordingStream("thermal_comp_demo")
-    rec.save(str(rrd))
-    n, damage = log_bag(read_bag(bag), rec, progress=False)
-    rec.flush()
+    n, damage = bag_to_rrd(bag, rrd, app_id="thermal_comp_demo")   # with the bag view's blueprint
     if damage:
         print(f"warning: {damage}", file=sys.stderr)
     return n

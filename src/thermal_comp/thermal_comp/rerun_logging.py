@@ -20,6 +20,9 @@ Entity paths (``<ns>/`` is the cell namespace of the topic, empty for the root n
 ==================================================  ===========================================
 
 Time is the message stamp on the timeline ``sim_time`` (seconds since 0 in simulation).
+Live topics are logged message by message; a whole bag is converted ``columnar``: scalars
+and text lines are gathered per entity and sent with ``rr.send_columns`` in one call each
+(:meth:`RerunLogger.send_columns`), which is what makes the conversion fast.
 Messages are duck-typed: rclpy messages and ``rosbags`` deserialized ones have the same
 fields. No rclpy import here.
 
@@ -166,9 +169,16 @@ def _blend(t: float) -> tuple[int, int, int]:
 class RerunLogger:
     """Logs messages to a rerun recording stream (see the module doc for the entities)."""
 
-    def __init__(self, recording: rr.RecordingStream, layout: SensorLayout | None = None):
+    def __init__(self, recording: rr.RecordingStream, layout: SensorLayout | None = None,
+                 columnar: bool = False):
         self.rec = recording
         self.layout = layout
+        self.columnar = columnar
+        self._t_s = 0.0                      # time of the message being logged
+        self._rec_t: float | None = None     # time last set on the recording
+        #: columnar: entity -> (times, values) of scalars; entity -> (times, texts, levels)
+        self._scalars: dict[str, tuple[list[float], list[float]]] = {}
+        self._texts: dict[str, tuple[list[float], list[str], list[str]]] = {}
         self._styled: set[str] = set()
         self._last_phase: dict[str, int] = {}
         self._last_status: dict[str, int] = {}
@@ -192,20 +202,53 @@ class RerunLogger:
             width = 1.0 if kind == "band" else 2.0
             self.rec.log(path, rr.SeriesLines(colors=[c], widths=[width], names=[name]), static=True)
 
+    def _timed(self) -> rr.RecordingStream:
+        """The recording with its time set to the current message's (set only when it changed)."""
+        if self._rec_t != self._t_s:
+            self.rec.set_time(TIMELINE, duration=self._t_s)
+            self._rec_t = self._t_s
+        return self.rec
+
     def _scalar(self, path: str, value: float, kind: str | None = None, name: str = "") -> None:
         if value is None or not math.isfinite(float(value)):
             return
         if kind:
             self._style(path, kind, name or path.rsplit("/", 1)[-1])
-        self.rec.log(path, rr.Scalars([float(value)]))
+        if self.columnar:
+            times, values = self._scalars.setdefault(path, ([], []))
+            times.append(self._t_s)
+            values.append(float(value))
+        else:
+            self._timed().log(path, rr.Scalars([float(value)]))
 
     def _event(self, ns: str, text: str, level: str = "INFO") -> None:
-        self.rec.log(f"{ns}events", rr.TextLog(text, level=level))
+        if self.columnar:
+            times, texts, levels = self._texts.setdefault(f"{ns}events", ([], [], []))
+            times.append(self._t_s)
+            texts.append(text)
+            levels.append(level)
+        else:
+            self._timed().log(f"{ns}events", rr.TextLog(text, level=level))
+
+    def send_columns(self) -> int:
+        """Columnar: send what was gathered (one ``rr.send_columns`` per entity) and forget it;
+        the number of rows sent. Nothing to do when logging message by message."""
+        rows = 0
+        for path, (times, values) in self._scalars.items():
+            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(times))],
+                                  columns=rr.Scalars.columns(scalars=np.asarray(values)))
+            rows += len(times)
+        for path, (times, texts, levels) in self._texts.items():
+            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(times))],
+                                  columns=rr.TextLog.columns(text=texts, level=levels))
+            rows += len(times)
+        self._scalars, self._texts = {}, {}
+        return rows
 
     # ----------------------------------------------------------------------------------
     def log(self, topic: str, type_name: str, msg: Any, t_ns: int) -> None:
         """Log one message of ``topic`` (type 'pkg/msg/Type') at bag / sim time ``t_ns``."""
-        self.rec.set_time(TIMELINE, duration=t_ns * 1e-9)
+        self._t_s = t_ns * 1e-9
         ns, rel = split_topic(topic)
         prefix = f"{ns}/" if ns else ""
         short = type_name.rsplit("/", 1)[-1]
@@ -254,7 +297,7 @@ class RerunLogger:
             cols.append(_blend((v - lo) / span) if math.isfinite(v) else (128, 128, 128))
             labels.append(f"{sid} {v:.2f} C" if math.isfinite(v) else f"{sid} failed")
         if pts:
-            self.rec.log(f"{p}machine/sensors", rr.Points3D(np.asarray(pts), colors=cols, labels=labels,
+            self._timed().log(f"{p}machine/sensors", rr.Points3D(np.asarray(pts), colors=cols, labels=labels,
                                                            radii=0.04))
 
     def _log_ThermalErrors(self, p: str, rel: str, m) -> None:

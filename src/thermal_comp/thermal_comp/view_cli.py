@@ -33,7 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--grpc-port", type=int, default=9876, help="rerun gRPC port (default 9876)")
     ap.add_argument("--layout", metavar="FILE|PRESET", help="sensor layout YAML or twin preset name "
                     "(default: the preset whose sensors match, else a schematic ring)")
-    ap.add_argument("--namespace", default="", help="cell namespace for the default blueprint")
+    ap.add_argument("--namespace", default="", help="cell namespace for the default blueprint "
+                    "(default: the bag's)")
     ap.add_argument("--no-progress", action="store_true")
     ap.add_argument("--ros-args", dest="ros_args", nargs=argparse.REMAINDER, default=[],
                     help="(live mode) further ROS arguments, e.g. -r __ns:=/cell1")
@@ -65,13 +66,23 @@ def error_components(contents) -> list[str]:
     return comps
 
 
+def bag_namespace(contents) -> str:
+    """The cell namespace of the bag's thermal-comp topics ('' for the root namespace)."""
+    from thermal_comp.rerun_logging import split_topic
+    for t in sorted({m.topic for m in contents.messages}):
+        ns, _ = split_topic(t)
+        if ns:
+            return ns
+    return ""
+
+
 def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = True) -> tuple[int, str | None]:
-    """Log every message of a bag (``bag_player.BagContents``) to ``rec``;
-    (messages logged, damage report or None)."""
+    """Log every message of a bag (``bag_player.BagContents``) to ``rec``, in columns (one
+    ``rr.send_columns`` per entity at the end); (messages logged, damage report or None)."""
     from thermal_comp_common import msg_definitions
     from thermal_comp.rerun_logging import RerunLogger
     store = msg_definitions.typestore()
-    logger = RerunLogger(rec, layout)
+    logger = RerunLogger(rec, layout, columnar=True)
     msgs = contents.messages
     if progress:
         from tqdm import tqdm
@@ -89,7 +100,23 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
             continue
         logger.log(m.topic, full, msg, m.stamp_ns)
         n += 1
+    logger.send_columns()
     return n, contents.damage
+
+
+def bag_to_rrd(bag, rrd, layout=None, app_id: str = "thermal_comp") -> tuple[int, str | None]:
+    """Write a whole bag into the .rrd file ``rrd`` with the view's default blueprint (the
+    bag's namespace and error components); (messages logged, damage report or None)."""
+    from thermal_comp_common.bag_reader import read_bag
+    from thermal_comp.rerun_logging import default_blueprint
+    contents = read_bag(bag)
+    rec = rr.RecordingStream(app_id)
+    rec.save(str(rrd), default_blueprint=default_blueprint(bag_namespace(contents),
+                                                             error_components(contents)))
+    n, damage = log_bag(contents, rec, layout, progress=False)
+    rec.flush()
+    rec.disconnect()
+    return n, damage
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -114,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
         except BagReadError as exc:
             print(f"thermal-comp view: {exc}", file=sys.stderr)
             return 2
-    blueprint = default_blueprint(args.namespace, error_components(contents) if contents else ())
+    namespace = args.namespace or (bag_namespace(contents) if contents else "")
+    blueprint = default_blueprint(namespace, error_components(contents) if contents else ())
     try:
         output = open_output(rrd=args.rrd, spawn=spawn, serve_web=args.serve_web, web_port=args.web_port,
                              grpc_port=args.grpc_port, blueprint=blueprint)

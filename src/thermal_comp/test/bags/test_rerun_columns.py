@@ -1,0 +1,65 @@
+"""Bag-to-rerun conversion in columns: the same scalars and text lines, at the same times, as
+logging message by message; the .rrd of a bag (and the demo's) carries the view's blueprint."""
+import collections
+import subprocess
+import sys
+
+import rerun as rr
+
+from bags_helpers import small_recording_csv
+from test_rerun_view import RERUN, _env, _synthetic_messages
+from thermal_comp.rerun_logging import RerunLogger, schematic_layout
+from thermal_comp.view_cli import bag_to_rrd
+from thermal_comp_common.csv_to_bag import csv_to_bag
+
+
+class _Capture:
+    """Stands in for a RecordingStream: every timed scalar and text row as (entity, time, value)."""
+
+    def __init__(self):
+        self.t = None
+        self.rows = collections.Counter()
+
+    def set_time(self, timeline, duration):
+        self.t = round(duration, 9)
+
+    def log(self, path, entity, static=False):
+        if static:
+            return
+        if isinstance(entity, rr.Scalars):
+            self.rows[(path, self.t, entity.scalars.as_arrow_array().to_pylist()[0])] += 1
+        elif isinstance(entity, rr.TextLog):
+            self.rows[(path, self.t, entity.text.as_arrow_array().to_pylist()[0],
+                       entity.level.as_arrow_array().to_pylist()[0])] += 1
+
+    def send_columns(self, path, indexes, columns):
+        times = [round(t.total_seconds(), 9) for t in indexes[0].as_arrow_array().to_pylist()]
+        values = [c.as_arrow_array().to_pylist() for c in columns]
+        for i, t in enumerate(times):
+            self.rows[(path, t, *(v[i][0] for v in values))] += 1
+
+
+def _logged(columnar: bool) -> collections.Counter:
+    rec = _Capture()
+    logger = RerunLogger(rec, schematic_layout(["a"]), columnar=columnar)
+    for topic, type_name, t, msg in _synthetic_messages():
+        logger.log(topic, type_name, msg, int(t * 1e9))
+    assert (logger.send_columns() > 0) == columnar
+    return rec.rows
+
+
+def test_columns_hold_what_message_by_message_logging_holds():
+    by_message, by_column = _logged(False), _logged(True)
+    assert by_message and by_column == by_message
+    assert any(k[0] == "cell1/events" for k in by_column)          # text lines too
+    assert ("cell1/errors/E_X0C/predicted", 240.0, 5.0) in by_column
+
+
+def test_a_converted_bag_opens_with_the_blueprint(tmp_path):
+    csv_to_bag(small_recording_csv(tmp_path / "rec.csv", rows=30), tmp_path / "bag")
+    n, damage = bag_to_rrd(tmp_path / "bag", tmp_path / "out.rrd")
+    assert (n, damage) == (90, None)
+    printed = subprocess.run([str(RERUN), "rrd", "print", str(tmp_path / "out.rrd")], env=_env(tmp_path),
+                             capture_output=True, text=True, timeout=120).stdout
+    assert "ViewportBlueprint" in printed                 # the blueprint store is in the file
+    assert "with 30 rows" in printed and "/temperatures/ambient" in printed   # one chunk per entity
