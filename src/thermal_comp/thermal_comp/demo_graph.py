@@ -204,6 +204,11 @@ def bench_graph(args) -> dict[str, Any]:
     cfg.scenario = MACHINES[cfg.machine]["scenario"]
     record = run_graph(cfg)
     lat = np.array(record.latencies_s) * 1e3
+    from thermal_comp.view_cli import bag_to_rrd
+    (out / "graph.rrd").unlink(missing_ok=True)
+    t0 = time.perf_counter()
+    messages, _ = bag_to_rrd(out / "bag", out / "graph.rrd")     # what the demo writes after its graph
+    rrd_s = time.perf_counter() - t0
     return {
         "scenario": f"{cfg.machine}/{cfg.scenario}", "simulated_h": round(record.sim_end_s / 3600.0, 2),
         "wall_s": round(record.wall_s, 1), "times_real_time": round(record.sim_end_s / record.wall_s, 1),
@@ -211,6 +216,8 @@ def bench_graph(args) -> dict[str, Any]:
                                               "p99": round(float(np.percentile(lat, 99)), 2) if lat.size else None,
                                               "samples": int(lat.size)},
         "peak_rss_mb": {k: round(v, 1) for k, v in record.peak_rss_mb.items()},
+        "bag_to_rrd": {"messages": messages, "wall_s": round(rrd_s, 2),
+                       "messages_per_s": round(messages / rrd_s) if rrd_s > 0 else None},
         "instant_stages": record.stages,
         "acknowledgement_after_twin_ms": record.acks,
         "load_average_1min": round(os.getloadavg()[0], 2),
