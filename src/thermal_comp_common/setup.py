@@ -13,7 +13,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
     install_requires=[
-        "setuptools", "distributed", "mcap", "numpy", "pytest", "pyyaml", "rosbags",
+        "setuptools", "dask", "distributed", "mcap", "numpy", "pytest", "pyyaml", "rosbags",
         "threadpoolctl",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it

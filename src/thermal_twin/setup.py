@@ -16,7 +16,7 @@ setup(
         (f"share/{PACKAGE}/config/presets", sorted(glob(f"{PACKAGE}/presets/*.yaml"))),
     ],
     install_requires=[
-        "setuptools", "matplotlib", "numpy", "pyyaml", "rerun-sdk", "scipy", "statsmodels",
+        "setuptools", "matplotlib", "numpy", "pyyaml", "rerun-sdk", "scikit-learn", "scipy", "statsmodels",
         "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it

@@ -67,6 +67,7 @@ LIBRARIES = {
     "threadpoolctl": ("python3-threadpoolctl-pip", "threadpoolctl"),
     "sysidentpy": ("python3-sysidentpy-pip", "sysidentpy"),
     "distributed": ("python3-distributed-pip", "distributed"),
+    "dask": ("python3-dask-pip", "dask"),
     "cloudpickle": ("python3-cloudpickle-pip", "cloudpickle"),
 }
 
