@@ -8,6 +8,7 @@ import time
 
 import pytest
 
+from cnc_bridge.cnc_emulator import free_tcp_port
 from thermal_comp.cell_config import CellConfigError, load_cell, parse_cell
 from thermal_comp.launcher import Launcher
 
@@ -88,7 +89,6 @@ def test_launcher_configures_activates_and_deactivates_a_managed_bridge(tmp_path
 @pytest.mark.slow
 @pytest.mark.ros
 def test_a_failed_configure_is_one_error_naming_the_node_and_no_restart(tmp_path, ros_domain_id):
-    from cnc_bridge.cnc_emulator import free_tcp_port
     lines: list[str] = []
     cell = parse_cell(_bridge_cell("lc_bad", ros_domain_id, backend="opcua", connect_timeout_s=1.0,
                                    endpoint=f"opc.tcp://127.0.0.1:{free_tcp_port()}/nobody"))
