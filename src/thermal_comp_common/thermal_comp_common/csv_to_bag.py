@@ -73,13 +73,9 @@ def _topic(namespace: str, rel: str) -> str:
     return f"{ns}/{rel}"
 
 
-def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_topic: str = "temperatures",
-                     errors_as: str = "ground_truth", error_model_kind: str | None = None,
-                     namespace: str = "", start_s: float = 0.0, every: int = 1,
-                     rows: tuple[int, int | None] = (0, None), strict: bool = False,
-                     frame_id: str = "", chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-                     progress: Callable[[int], None] | None = None) -> ImportResult:
-    """Write ``rec`` as a bag folder ``out`` (see module doc). ``every`` keeps every n-th row."""
+def _checked_rows(rec: Recording, temperatures_topic: str, errors_as: str, start_s: float, every: int,
+                  rows: tuple[int, int | None]) -> np.ndarray:
+    """The row indices to import; a bad argument raises :class:`CsvImportError` naming it."""
     if errors_as not in ERROR_TOPICS:
         raise CsvImportError(f"errors_as: {errors_as!r} is not one of {list(ERROR_TOPICS)}")
     if every < 1:
@@ -92,7 +88,34 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
     hi = len(rec) if hi is None else hi
     if not 0 <= lo < hi <= len(rec):
         raise CsvImportError(f"rows: {lo}:{hi} is not a non-empty range of the {len(rec)} rows")
-    idx = np.arange(lo, hi, every)
+    return np.arange(lo, hi, every)
+
+
+def _machine_state(MachineState, header, inputs: dict[str, float]):
+    """A MachineState message (rosbags type) from one row's input columns, as machine_sim fills it."""
+    f = machine_state_fields(inputs)
+    return MachineState(
+        header=header,
+        spindle_names=f["spindle_names"],
+        spindle_speeds_rpm=np.asarray(f["spindle_speeds_rpm"], dtype=np.float64),
+        rotary_axis_names=f["rotary_axis_names"],
+        rotary_axis_speeds_rpm=np.asarray(f["rotary_axis_speeds_rpm"], dtype=np.float64),
+        axis_names=[], axis_positions=np.zeros(0),
+        coolant_on=f["coolant_on"], coolant_temperature_degc=f["coolant_temperature_degc"],
+        door_open=f["door_open"],
+        drive_names=f["drive_names"],
+        drive_powers_w=np.asarray(f["drive_powers_w"], dtype=np.float64),
+        machine_busy_probing=False)
+
+
+def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_topic: str = "temperatures",
+                     errors_as: str = "ground_truth", error_model_kind: str | None = None,
+                     namespace: str = "", start_s: float = 0.0, every: int = 1,
+                     rows: tuple[int, int | None] = (0, None), strict: bool = False,
+                     frame_id: str = "", chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+                     progress: Callable[[int], None] | None = None) -> ImportResult:
+    """Write ``rec`` as a bag folder ``out`` (see module doc). ``every`` keeps every n-th row."""
+    idx = _checked_rows(rec, temperatures_topic, errors_as, start_s, every, rows)
     sensors = rec.names("sensor")
     errors = rec.names("error")
     state_cols, unmapped = represented_inputs(rec.names("input"))
@@ -128,19 +151,7 @@ def recording_to_bag(rec: Recording, out: str | os.PathLike, *, temperatures_top
             sec, nsec = divmod(t_ns, 1_000_000_000)
             header = Header(stamp=Time(sec=sec, nanosec=nsec), frame_id=frame_id)
             if has_state:
-                f = machine_state_fields({c: float(rec.columns[c][k]) for c in state_cols})
-                msg = MachineState(
-                    header=header,
-                    spindle_names=f["spindle_names"],
-                    spindle_speeds_rpm=np.asarray(f["spindle_speeds_rpm"], dtype=np.float64),
-                    rotary_axis_names=f["rotary_axis_names"],
-                    rotary_axis_speeds_rpm=np.asarray(f["rotary_axis_speeds_rpm"], dtype=np.float64),
-                    axis_names=[], axis_positions=np.zeros(0),
-                    coolant_on=f["coolant_on"], coolant_temperature_degc=f["coolant_temperature_degc"],
-                    door_open=f["door_open"],
-                    drive_names=f["drive_names"],
-                    drive_powers_w=np.asarray(f["drive_powers_w"], dtype=np.float64),
-                    machine_busy_probing=False)
+                msg = _machine_state(MachineState, header, {c: float(rec.columns[c][k]) for c in state_cols})
                 bag.write(topics[0].name, t_ns, store.serialize_cdr(msg, T_STATE))
             if sensors:
                 row = sens_mat[k].astype(np.float64)

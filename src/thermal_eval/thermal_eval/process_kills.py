@@ -69,6 +69,22 @@ class KillPlan:
 DEMO_ENVELOPE = {"max_rate_um_per_s": 0.5, "abs_limit_um": 30.0, "max_step_s": 600.0}
 
 
+def _audit_check(audit_log: pathlib.Path, truth: set[int], first_pred: int):
+    """The bridge's audit log: its rows, the writes that broke the demo envelope, and the
+    instants (s) after the first prediction that no audit row covers."""
+    rows = read_audit_log(audit_log)
+    times = sorted({float(r["time_s"]) for r in rows})
+    index = {t: i for i, t in enumerate(times)}
+    applied: dict[str, np.ndarray] = {}
+    for r in rows:
+        a = applied.setdefault(r["axis"], np.full(len(times), np.nan))
+        a[index[float(r["time_s"])]] = float(r["applied_um"]) if r["applied_um"] else np.nan
+    violations = offset_violations(times, applied, **DEMO_ENVELOPE)
+    audited = {round(t, 3) for t in times}
+    missing = sorted(t / 1e9 for t in truth if t >= first_pred and round(t / 1e9, 3) not in audited)
+    return rows, violations, missing
+
+
 def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: int = 0,
                      wall_timeout_s: float = 600.0, progress: bool = False,
                      p99_until_h: float | None = None) -> dict:
@@ -80,9 +96,6 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
     temperatures / predictions / offsets in the bag (data lost), bag damage, and audit-log
     writes that broke the bridge's envelope (unsafe writes).
     """
-
-
-
     out = pathlib.Path(out_dir)
     cfg = DemoConfig(out_dir=out, hours=hours, seed=seed, view="none", progress=progress, cnc="opcua",
                      wall_timeout_s=wall_timeout_s,
@@ -111,21 +124,11 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
         p == ModelStatus.PHASE_CALIBRATION for p in phases[left_calibration:])
     counter_regressions = sum(1 for a, b in zip(probing, probing[1:]) if b < a)
     log_text = (out / "logs" / "nodes.log").read_text(errors="replace")
-    rows = read_audit_log(out / "cnc_audit.log")
-    times = sorted({float(r["time_s"]) for r in rows})
-    index = {t: i for i, t in enumerate(times)}
-    applied: dict[str, np.ndarray] = {}
-    for r in rows:
-        a = applied.setdefault(r["axis"], np.full(len(times), np.nan))
-        a[index[float(r["time_s"])]] = float(r["applied_um"]) if r["applied_um"] else np.nan
-    violations = offset_violations(times, applied, **DEMO_ENVELOPE)
-    audited = {round(t, 3) for t in times}
-    audit_missing = sorted(t / 1e9 for t in truth if t >= first_pred and round(t / 1e9, 3) not in audited)
+    rows, violations, audit_missing = _audit_check(out / "cnc_audit.log", truth, first_pred)
     series = read_series(out / "bag")
     summary = summarise(series, cfg, record)
     p99_until = None
     if p99_until_h is not None:   # compensated P99 over the instants before p99_until_h only
-
         comp = compensation_in_effect(series)
         keep = series.t_true < p99_until_h * 3600.0
         p99_until = {c: round(metrics.p99(series.true[c][keep], comp[c][keep]), 3) for c in series.components}
@@ -165,8 +168,6 @@ def run_recorder_kill(out_dir, domain_id: int, min_bytes: int = 20000, wall_time
     it is killed. Returns the messages readable, the damage :func:`read_bag` reports, and
     what a restart of the recorder onto the same output does (exit code, first error line).
     """
-
-
     out = pathlib.Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     bag = out / "bag"
