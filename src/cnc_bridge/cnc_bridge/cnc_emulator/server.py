@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
@@ -63,8 +64,8 @@ class EmulatorConfig:
         if self.security == "required" and not self.client_trust:
             raise ValueError("security 'required' needs a trust list of client certificates "
                              "(--client-trust): unknown certificates are refused")
-        if not (self.offset_limit_mm > 0):
-            raise ValueError(f"offset_limit_mm: must be > 0, got {self.offset_limit_mm!r}")
+        if not (isinstance(self.offset_limit_mm, (int, float)) and 0 < self.offset_limit_mm < math.inf):
+            raise ValueError(f"offset_limit_mm: must be a finite number > 0, got {self.offset_limit_mm!r}")
         if not 0 < int(self.port) < 65536:
             raise ValueError(f"port: must be 1..65535, got {self.port!r}")
 
