@@ -17,6 +17,10 @@ Entity paths (``<ns>/`` is the cell namespace of the topic, empty for the root n
                                                     door, probing flag
 ``<ns>/machine/sensors``                            3D sensor layout coloured by temperature
 ``<ns>/events``                                     text log: probing, phase changes, limits, failed sensors
+``diagnostics/<node>/<status>``                     ``/diagnostics`` (diagnostic_msgs/DiagnosticArray):
+                                                    a text line when a status's level or message
+                                                    changes, and ``.../level`` (0 OK .. 3 stale)
+``rosout/<node>``                                   ``/rosout`` (rcl_interfaces/Log) lines, with level
 ==================================================  ===========================================
 
 Time is the message stamp on the timeline ``sim_time`` (seconds since 0 in simulation).
@@ -60,6 +64,14 @@ SOURCES = {0: "measured", 1: "predicted", 2: "ground_truth"}
 STATUS = {0: "ok", 1: "stale", 2: "out of range", 3: "failed"}
 #: relative topic -> entity sub-tree for TemperatureArray topics
 TEMPERATURE_TREES = {"temperatures": "temperatures", "twin/sensor_readings": "twin_sensors"}
+#: diagnostic_msgs/DiagnosticStatus level -> rerun text-log level
+DIAGNOSTIC_LEVELS = {0: "INFO", 1: "WARN", 2: "ERROR", 3: "WARN"}
+DIAGNOSTIC_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+#: rcl_interfaces/Log level -> rerun text-log level
+ROSOUT_LEVELS = {10: "DEBUG", 20: "INFO", 30: "WARN", 40: "ERROR", 50: "CRITICAL"}
+#: types from outside thermal_comp_msgs that are drawn: type -> handler name
+FOREIGN_TYPES = {"diagnostic_msgs/msg/DiagnosticArray": "_log_DiagnosticArray",
+                 "rcl_interfaces/msg/Log": "_log_Log"}
 KNOWN_RELATIVE = ("twin/sensor_readings", "temperatures", "machine_state", "errors/ground_truth",
                   "errors/predicted", "errors/measured", "model_status", "offsets", "sim_sync")
 
@@ -182,6 +194,7 @@ class RerunLogger:
         self._styled: set[str] = set()
         self._last_phase: dict[str, int] = {}
         self._last_status: dict[str, int] = {}
+        self._last_diagnostic: dict[str, tuple[int, str]] = {}
         self._probing: dict[str, bool] = {}
         self._t_range: list[float] = [math.inf, -math.inf]
         self._unknown: set[str] = set()
@@ -222,13 +235,16 @@ class RerunLogger:
             self._timed().log(path, rr.Scalars([float(value)]))
 
     def _event(self, ns: str, text: str, level: str = "INFO") -> None:
+        self._text(f"{ns}events", text, level)
+
+    def _text(self, path: str, text: str, level: str) -> None:
         if self.columnar:
-            times, texts, levels = self._texts.setdefault(f"{ns}events", ([], [], []))
+            times, texts, levels = self._texts.setdefault(path, ([], [], []))
             times.append(self._t_s)
             texts.append(text)
             levels.append(level)
         else:
-            self._timed().log(f"{ns}events", rr.TextLog(text, level=level))
+            self._timed().log(path, rr.TextLog(text, level=level))
 
     def send_columns(self) -> int:
         """Columnar: send what was gathered (one ``rr.send_columns`` per entity) and forget it;
@@ -252,8 +268,9 @@ class RerunLogger:
         ns, rel = split_topic(topic)
         prefix = f"{ns}/" if ns else ""
         short = type_name.rsplit("/", 1)[-1]
-        handler = getattr(self, f"_log_{short}", None)
-        if handler is None or not type_name.startswith("thermal_comp_msgs/"):
+        handler = (getattr(self, FOREIGN_TYPES[type_name]) if type_name in FOREIGN_TYPES else
+                   getattr(self, f"_log_{short}", None) if type_name.startswith("thermal_comp_msgs/") else None)
+        if handler is None:
             if topic not in self._unknown:
                 self._unknown.add(topic)
                 self._event(prefix, f"topic {topic} ({type_name}) is not visualised", "DEBUG")
@@ -355,6 +372,25 @@ class RerunLogger:
             self._event(p, "probing cycle started" if busy else "probing cycle finished")
             self._probing[p] = busy
 
+    def _log_DiagnosticArray(self, p: str, rel: str, m) -> None:
+        """Each status: its level as a scalar, a text line when level or message changed."""
+        for st in m.status:
+            node, _, name = str(st.name).rpartition(": ")
+            path = f"{p}diagnostics/{_part(node) + '/' if node else ''}{_part(name)}"
+            level = int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level)
+            self._scalar(f"{path}/level", float(level))
+            if self._last_diagnostic.get(path) != (level, st.message):
+                self._last_diagnostic[path] = (level, st.message)
+                values = ", ".join(f"{kv.key}={kv.value}" for kv in st.values)
+                self._text(path, f"{DIAGNOSTIC_NAMES.get(level, level)} {st.name}: {st.message}"
+                           + (f" ({values})" if values else ""), DIAGNOSTIC_LEVELS.get(level, "WARN"))
+
+    def _log_Log(self, p: str, rel: str, m) -> None:
+        """One /rosout line under the node that wrote it."""
+        node = str(m.name).replace(".", "/").strip("/")
+        self._text(f"{p}rosout/{'/'.join(_part(x) for x in node.split('/')) if node else '_'}",
+                   f"[{m.name}] {m.msg}", ROSOUT_LEVELS.get(int(m.level), "INFO"))
+
     def _log_SimSync(self, p: str, rel: str, m) -> None:
         """Lock-step handshakes carry no measurement; counted, not drawn."""
 
@@ -367,7 +403,8 @@ def _series(origin: str, name: str, **kw) -> rrb.TimeSeriesView:
 
 def default_blueprint(namespace: str = "", error_components: Iterable[str] = ()) -> rrb.Blueprint:
     """Errors (one plot per component when they are known: units differ), temperatures,
-    offsets and model on the left; 3D sensor layout, machine state and events on the right."""
+    offsets and model on the left; 3D sensor layout, machine state and, in tabs, events,
+    health (``/diagnostics``) and the ``/rosout`` log on the right."""
     p = f"/{namespace.strip('/')}" if namespace.strip("/") else ""
     comps = list(error_components)
     if comps:
@@ -392,7 +429,9 @@ def default_blueprint(namespace: str = "", error_components: Iterable[str] = ())
             rrb.Vertical(
                 rrb.Spatial3DView(origin=f"{p}/machine/sensors", name="Sensor layout"),
                 _series(f"{p}/machine", "Machine state", contents=["$origin/**", "- $origin/sensors/**"]),
-                rrb.TextLogView(origin=f"{p}/events", name="Events"),
+                rrb.Tabs(rrb.TextLogView(origin=f"{p}/events", name="Events"),
+                         rrb.TextLogView(origin="/diagnostics", name="Health (/diagnostics)"),
+                         rrb.TextLogView(origin="/rosout", name="Log (/rosout)")),
             ),
             column_shares=[3, 2],
         ),

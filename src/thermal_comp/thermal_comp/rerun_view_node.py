@@ -1,17 +1,26 @@
 """rerun_view node: logs every thermal-comp topic of the cell to rerun as it arrives.
 
 Subscribes to the default topics of the recorder (same types and QoS, so reliable
-publishers are matched and the latched model status arrives at once) and hands each message
-to :class:`thermal_comp.rerun_logging.RerunLogger`, stamped with its header time.
+publishers are matched and the latched model status arrives at once) and to the graph's
+health, ``/diagnostics`` and ``/rosout``, and hands each message to
+:class:`thermal_comp.rerun_logging.RerunLogger`, stamped with its header time (a Log's stamp).
 Run: ``python -m thermal_comp.rerun_view_node --ros-args -p rrd:=out/live.rrd`` (parameters
 below; default: a spawned native viewer), or ``thermal-comp view`` without a bag.
 """
 from __future__ import annotations
 
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from thermal_comp_common import node_runtime as rt
 from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, message_class
+from thermal_comp_common.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS
+
+#: The graph's health: absolute topics every node publishes on -> (type, QoS to subscribe with).
+HEALTH_TOPICS = {
+    TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS),
+    "/rosout": ("rcl_interfaces/msg/Log", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)),
+}
 from thermal_comp.rerun_logging import RerunLogger, default_blueprint, resolve_layout
 from thermal_comp.rerun_sinks import RerunOutput, open_output
 
@@ -42,15 +51,16 @@ class RerunViewNode(Node):
                 self.get_logger().info(f"rerun web viewer: {output.web_url}")
         self.output = output
         self.logger_ = RerunLogger(output.recording, layout)
-        for name, (type_name, qos) in DEFAULT_TOPICS.items():
+        topics = {**DEFAULT_TOPICS, **HEALTH_TOPICS}
+        for name, (type_name, qos) in topics.items():
             topic = self.resolve_topic_name(name)
             self.create_subscription(message_class(type_name), name,
                                      self._callback_for(topic, type_name), qos)
-        self.get_logger().info("logging topics to rerun: " + ", ".join(DEFAULT_TOPICS))
+        self.get_logger().info("logging topics to rerun: " + ", ".join(topics))
 
     def _callback_for(self, topic: str, type_name: str):
         def on_message(msg) -> None:
-            stamp = msg.header.stamp
+            stamp = msg.header.stamp if hasattr(msg, "header") else msg.stamp
             t_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
             if t_ns == 0:
                 t_ns = self.get_clock().now().nanoseconds

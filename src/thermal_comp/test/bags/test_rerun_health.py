@@ -1,0 +1,76 @@
+"""Health in rerun: /diagnostics statuses and /rosout lines become text logs with levels
+(thermal_comp.rerun_logging), and the live view subscribes to both."""
+import subprocess
+import sys
+
+import pytest
+
+from bags_helpers import stop, wait_for
+from test_rerun_columns import _Capture
+from test_rerun_view import _entities, _env
+from thermal_comp.rerun_logging import RerunLogger
+from thermal_comp_common import msg_definitions as md
+
+
+def _diagnostics(store, t, level, message):
+    T, H = store.types["builtin_interfaces/msg/Time"], store.types["std_msgs/msg/Header"]
+    S, KV = store.types["diagnostic_msgs/msg/DiagnosticStatus"], store.types["diagnostic_msgs/msg/KeyValue"]
+    return store.types["diagnostic_msgs/msg/DiagnosticArray"](
+        header=H(stamp=T(sec=t, nanosec=0), frame_id=""),
+        status=[S(level=level, name="sensors: sensor spindle", message=message, hardware_id="nmv5000",
+                  values=[KV(key="temperature_degc", value="25.0")])])
+
+
+def _log(store, t, level, name, text):
+    T = store.types["builtin_interfaces/msg/Time"]
+    return store.types["rcl_interfaces/msg/Log"](stamp=T(sec=t, nanosec=0), level=level, name=name, msg=text,
+                                                 file="f.py", function="f", line=1)
+
+
+SPINDLE = "diagnostics/sensors/sensor\\ spindle"     # status "sensors: sensor spindle", escaped
+
+
+@pytest.mark.parametrize("columnar", [False, True])
+def test_diagnostics_and_rosout_become_text_logs_with_levels(columnar):
+    store = md.typestore()
+    rec = _Capture()
+    logger = RerunLogger(rec, columnar=columnar)
+    for t, level, message in ((0, 0, "ok"), (1, 0, "ok"), (2, 1, "stale: no reading for 30 s")):
+        logger.log("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", _diagnostics(store, t, level, message),
+                   t * 10**9)
+    logger.log("/rosout", "rcl_interfaces/msg/Log", _log(store, 3, 40, "demo.bridge", "link lost"), 3 * 10**9)
+    logger.send_columns()
+    texts = sorted(k for k in rec.rows if len(k) == 4)
+    assert texts == [
+        (SPINDLE, 0.0, "OK sensors: sensor spindle: ok (temperature_degc=25.0)", "INFO"),
+        (SPINDLE, 2.0,
+         "WARN sensors: sensor spindle: stale: no reading for 30 s (temperature_degc=25.0)", "WARN"),
+        ("rosout/demo/bridge", 3.0, "[demo.bridge] link lost", "ERROR")]      # a line per change only
+    levels = sorted(k[1:] for k in rec.rows if k[0] == SPINDLE + "/level")
+    assert levels == [(0.0, 0.0), (1.0, 0.0), (2.0, 1.0)]
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_live_view_shows_diagnostics_and_rosout(tmp_path, ros_context):
+    import rclpy
+    from thermal_comp_common.diagnostics import DiagnosticsPublisher
+    out = tmp_path / "live.rrd"
+    proc = subprocess.Popen([sys.executable, "-m", "thermal_comp.rerun_view_node", "--ros-args",
+                             "-p", "spawn:=false", "-p", f"rrd:={out}"], env=_env(tmp_path),
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    node = rclpy.create_node("health_source", context=ros_context)
+    try:
+        diag = DiagnosticsPublisher(node, hardware_id="test")
+        wait_for(lambda: node.count_subscribers("/diagnostics") >= 1 or proc.poll() is not None, 30,
+                 "the live viewer to subscribe to /diagnostics")
+        assert proc.poll() is None, proc.communicate()[0]
+        diag.set("link", "ERROR", "OPC UA link lost")
+        wait_for(lambda: node.count_subscribers("/rosout") >= 1, 30, "the viewer on /rosout")
+        node.get_logger().error("a line for the viewer")
+        wait_for(lambda: out.exists() and {"/diagnostics/health_source/link", "/rosout/health_source"}
+                 <= _entities(tmp_path, out), 30, "health in the .rrd", poll=0.5)
+        out_text = stop(proc)
+    finally:
+        node.destroy_node()
+    assert proc.returncode == 0, out_text
