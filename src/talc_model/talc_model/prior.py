@@ -20,7 +20,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
-from talc_model.adaptive_model import PHASE_COMPENSATION
+from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION
 from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, regression_matrix, solve_wls
 from talc_model.talc import TalcModel
 from talc_model.talc_config import TalcConfig
@@ -136,8 +136,12 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
                                                    na_max, nb_max)
     probe.models = models
     probe.phase = PHASE_COMPENSATION
+    # adaptation defaults (docs/prior.md): with the angular probe noise (1.2 um/m, Table 5.4) as
+    # large as the prior's error, a measurement moves the angular output history by half
+    adaptation = {"prior_samples": 200.0, "check_h": 1.0,
+                  "state_gain": {c: 0.5 if c in cfg.angular_components else 1.0 for c in cfg.component_names}}
     return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "talc", "machine": machine,
-            "sources": list(sources), "talc_state": probe.to_state(),
+            "sources": list(sources), "talc_state": probe.to_state(), "adaptation": adaptation,
             "gram": {c: g.tolist() for c, g in grams.items()},
             "validation_rms": {c: m.extra["validation_rms"] for c, m in models.items()}}
 
@@ -181,8 +185,15 @@ class TalcPriorModel(TalcModel):
     """TALC started from a prior (module docstring); same protocol and kind as TALC."""
 
     def __init__(self, config=None, prior: Mapping[str, Any] | None = None, prior_samples: float = 200.0,
-                 check_h: float = 1.0):
+                 check_h: float = 1.0, state_gain: float | Mapping[str, float] = 1.0):
         super().__init__(config)
+        gains = dict(state_gain) if isinstance(state_gain, Mapping) else \
+            {c: state_gain for c in self.component_names}
+        for c, v in gains.items():
+            if c not in self.component_names or not (isinstance(v, (int, float)) and 0 < v <= 1):
+                raise PriorError(f"state_gain[{c!r}]: {v!r} must be in (0, 1] for a component of the model")
+        self.state_gain = {c: float(gains.get(c, 1.0)) for c in self.component_names}
+        self._gain = np.array([self.state_gain[c] for c in self.component_names])
         if not (math.isfinite(prior_samples) and prior_samples >= 0):
             raise PriorError(f"prior_samples: {prior_samples!r} must be a finite number >= 0")
         if not (math.isfinite(check_h) and check_h >= 0):
@@ -226,6 +237,22 @@ class TalcPriorModel(TalcModel):
             return self.config.cp_interval_s      # the shortened calibration phase
         return super()._interval_s()
 
+    def add_measurement(self, t_s: float, measured: Mapping[str, float],
+                        applied_compensation: Mapping[str, float]) -> None:
+        """TALC's measurement; with ``state_gain`` < 1 the output history takes only that
+        fraction of the innovation (a fixed-gain filter: probe noise is not held for hours)."""
+        if np.all(self._gain >= 1.0) or self.grid is None or self.t0 is None or self.phase == PHASE_CALIBRATION:
+            return super().add_measurement(t_s, measured, applied_compensation)
+        self._advance(max(float(t_s), self.t0))
+        k = max(0, min(int(round((float(t_s) - self.t0) / self.step)), self.grid.n - 1))
+        before, was = self.grid.y[k].copy(), self.grid.measured[k].copy()
+        super().add_measurement(t_s, measured, applied_compensation)
+        g = self.grid
+        blend = g.measured[k] & ~was & np.isfinite(before)
+        if np.any(blend):
+            g.y[k, blend] = before[blend] + self._gain[blend] * (g.y[k, blend] - before[blend])
+            self._resimulate_after(k)
+
     def _update(self, t_s: float, why: str) -> None:
         """WLS regularised towards the prior; without a prior, TALC's own update."""
         if not self.prior_models:
@@ -267,12 +294,14 @@ class TalcPriorModel(TalcModel):
         state["prior"] = self.prior
         state["prior_samples"] = self.prior_samples
         state["check_h"] = self.check_h
+        state["state_gain"] = self.state_gain
         return state
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "TalcPriorModel":
         base = TalcModel.from_state({k: v for k, v in state.items() if k != "prior"})
-        model = cls(base.config, None, float(state.get("prior_samples", 200.0)), float(state.get("check_h", 1.0)))
+        model = cls(base.config, None, float(state.get("prior_samples", 200.0)), float(state.get("check_h", 1.0)),
+                    state.get("state_gain", 1.0))
         model.__dict__.update({k: v for k, v in base.__dict__.items() if k != "config"})
         if state.get("prior") is not None:
             model.prior = dict(state["prior"])
@@ -283,10 +312,13 @@ class TalcPriorModel(TalcModel):
 
 
 def talc_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs) -> TalcPriorModel:
-    """TALC with ``prior``; the model's ``input_names`` default to the prior's."""
+    """TALC with ``prior``; the model's ``input_names`` default to the prior's, the adaptation
+    settings (prior_samples, check_h, state_gain) to the prior's ``adaptation`` mapping."""
     cfg = dict(config)
     cfg.setdefault("input_names", list(prior["talc_state"]["input_names"]))
-    return TalcPriorModel(cfg, prior, **kwargs)
+    settings = dict(prior.get("adaptation") or {})
+    settings.update(kwargs)
+    return TalcPriorModel(cfg, prior, **settings)
 
 
 def training_labels(items: Iterable[tuple[str, int]]) -> list[str]:
