@@ -8,6 +8,8 @@ honours cancel requests before the next point, and returns the measured errors w
 their uncertainties. Any failure aborts the goal with a message and an empty error set.
 The probing goes to the ``twin`` backend (machine_sim's ``twin/touch_probe`` service, in
 simulated time) or to the ``cnc`` backend (a ProbeMove method on the CNC over OPC UA).
+Health on ``/diagnostics``: ``probe cycle`` -- the last cycle's result (OK, WARN when it
+failed, with the message), cycles run, failures.
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
+from thermal_comp_common.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, Param, declare_parameters,
                                        run_node, s_to_stamp)
 from thermal_comp_msgs.action import ProbeCycle
@@ -107,6 +110,9 @@ class ProbeCycleNode(Node):
             reference_path=p["reference_file"] or None)
         self.backend = self._make_backend(p)
         self._busy = threading.Lock()
+        self.cycles = self.failures = 0
+        self.diag = DiagnosticsPublisher(self, hardware_id=f"probe ({p['backend']} backend)")
+        self.diag.set("probe cycle", "OK", "no cycle yet", cycles=0, failures=0)
         self._server = ActionServer(self, ProbeCycle, ACTION_PROBE_CYCLE,
                                     execute_callback=self._execute,
                                     goal_callback=self._on_goal,
@@ -155,12 +161,22 @@ class ProbeCycleNode(Node):
                 goal_handle.succeed()
             else:
                 goal_handle.abort()
+            self._report(result)
             # (rclpy refuses two severities from one call site: two calls)
             if result.success:
                 self.get_logger().info(f"probe cycle done: {result.message}")
             else:
                 self.get_logger().warning(f"probe cycle FAILED: {result.message}")
             return msg
+
+    def _report(self, result: CycleResult) -> None:
+        """The last cycle's result on /diagnostics."""
+        self.cycles += 1
+        self.failures += 0 if result.success else 1
+        self.diag.set("probe cycle", "OK" if result.success else "WARN",
+                      ("last cycle ok: " if result.success else "last cycle FAILED: ") + result.message,
+                      cycles=self.cycles, failures=self.failures, duration_s=round(float(result.duration_s), 1),
+                      fit_residual_rms_um=round(float(result.fit_residual_rms_um), 3))
 
     def _result_msg(self, result: CycleResult, spec: GoalSpec) -> ProbeCycle.Result:
         out = ProbeCycle.Result()

@@ -13,7 +13,9 @@ Sources (parameter ``source``):
   thread; a timer on the node clock publishes the newest readings every ``period_s``.
 
 As a lock-step participant (``lockstep_participant``) the node publishes SimSync for t_k
-after ``temperatures`` for t_k. Run: ``python -m thermal_sensors.temperature_publisher_node``.
+after ``temperatures`` for t_k. Each sensor's status is on ``/diagnostics`` (``sensor <id>``:
+OK, WARN for stale or out of range, ERROR for failed, with the reason), beside a summary
+(``sensors``: how many are not ok, frames published). Run: ``python -m thermal_sensors.temperature_publisher_node``.
 """
 from __future__ import annotations
 
@@ -28,6 +30,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
+from thermal_comp_common.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                        TOPIC_TWIN_SENSORS, Param, declare_parameters, run_node,
                                        s_to_stamp, stamp_to_s)
@@ -39,6 +42,9 @@ from thermal_sensors.temperature_frame import TemperatureFrame, TemperatureFrame
 from thermal_sensors.temperature_source import SOURCE_KINDS
 from thermal_sensors.twin_source import TwinSource
 
+#: /diagnostics level of each sensor status
+SENSOR_LEVELS = {SensorStatus.OK: "OK", SensorStatus.STALE: "WARN", SensorStatus.OUT_OF_RANGE: "WARN",
+                 SensorStatus.FAILED: "ERROR"}
 CLOCK_QOS = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
 SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -93,6 +99,9 @@ class TemperaturePublisher(Node):
         self.config = config
         self.builder = TemperatureFrameBuilder(config)
         self._last_status = np.full(len(config.sensors), -1)
+        self.diag = DiagnosticsPublisher(self, hardware_id=f"{self.source_kind} sensors")
+        self.diag.set("sensors", "OK", f"{len(config.sensors)} sensors, source {self.source_kind}",
+                      not_ok=0, frames=0)
 
         self.pub = self.create_publisher(TemperatureArray, TOPIC_TEMPERATURES, SENSOR_QOS)
         self.sync_pub = (self.create_publisher(SimSync, TOPIC_SIM_SYNC, SIM_SYNC_QOS)
@@ -136,16 +145,26 @@ class TemperaturePublisher(Node):
                                           processed_until=stamp))
 
     def _log_status_changes(self, frame: TemperatureFrame) -> None:
+        """Log and put on /diagnostics each sensor whose status changed; refresh the summary."""
         changed = np.flatnonzero(frame.status != self._last_status)
         for i in changed:
             st = SensorStatus(int(frame.status[i]))
+            sid = frame.sensor_ids[i]
             if st == SensorStatus.OK:
                 if self._last_status[i] >= 0:
-                    self.get_logger().info(f"sensor {frame.sensor_ids[i]}: ok again")
+                    self.get_logger().info(f"sensor {sid}: ok again")
+                self.diag.set(f"sensor {sid}", "OK", "ok")
             else:
-                self.get_logger().warning(f"sensor {frame.sensor_ids[i]}: {st.name.lower()}: "
-                                          f"{frame.reasons[i]}")
+                self.get_logger().warning(f"sensor {sid}: {st.name.lower()}: {frame.reasons[i]}")
+                self.diag.set(f"sensor {sid}", SENSOR_LEVELS[st], f"{st.name.lower()}: {frame.reasons[i]}")
         self._last_status = frame.status.astype(int)
+        not_ok = int(np.count_nonzero(frame.status != SensorStatus.OK))
+        if changed.size:
+            self.diag.set("sensors", "WARN" if not_ok else "OK",
+                          f"{not_ok} of {len(frame.status)} sensors not ok" if not_ok else "all sensors ok",
+                          not_ok=not_ok, frames=self.published)
+        else:
+            self.diag.update_values("sensors", frames=self.published)
 
     # -- twin -----------------------------------------------------------------------------
     def _on_twin(self, msg: TemperatureArray) -> None:
