@@ -126,7 +126,11 @@ def run_plateau(show_progress: bool) -> dict[str, Any]:
         if "failed" not in row:
             ratios[name] = max(max(c.get("ratio_to_hold_test") or 0.0, c.get("ratio_to_hold_validation") or 0.0)
                                for c in row["channels"].values() if "failed" not in c)
-    return {"worst_ratio_to_hold_by_model": ratios,
+    excess = {name: round(max(max(c["mae_test_um"] - c["hold_own_probes_mae_test_um"],
+                                  c["mae_validation_um"] - c["hold_own_probes_mae_validation_um"])
+                              for c in row["channels"].values() if "failed" not in c), 4)
+              for name, row in f["adaptive"].items() if "failed" not in row}
+    return {"worst_ratio_to_hold_by_model": ratios, "worst_excess_over_hold_um": excess,
             "within_10_pct_of_hold": {k: bool(v <= PLATEAU_TOLERANCE) for k, v in ratios.items()},
             "hold_mae_test_um": {ch: c["hold_own_probes_mae_test_um"] for ch, c in
                                  next(iter(f["adaptive"].values()))["channels"].items() if "failed" not in c},
