@@ -15,11 +15,22 @@ import pathlib
 import sys
 import time
 
+from thermal_eval.baseline_beside import beside_probe_and_hold
 from thermal_eval.replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
                              ReplayInputError, build_model, format_table, load_config_file, load_replay_recording,
                              parse_overrides, probe_noise, summarise)
 
 MODEL_KINDS = ("talc", "agp", "cd")
+
+
+def _with_prior(kind: str, config: dict, path: str):
+    from talc_model.prior import PriorError, load_prior, talc_with_prior
+    if kind != "talc":
+        raise ReplayInputError(f"--prior: a prior is for --model talc, not {kind!r}")
+    try:
+        return talc_with_prior(config, load_prior(path))
+    except PriorError as exc:
+        raise ReplayInputError(str(exc)) from None
 
 
 def _json_safe(value):
@@ -54,6 +65,7 @@ def parser() -> argparse.ArgumentParser:
                     help="quantisation of probe readings (default %(default)s; 0 = none)")
     ap.add_argument("--seed", type=int, default=0, help="probe-noise seed (default %(default)s)")
     ap.add_argument("--hours", type=float, default=None, help="replay only the first HOURS of the recording")
+    ap.add_argument("--prior", metavar="PRIOR", help="TALC only: start from this prior (thermal-comp prior)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
 
@@ -69,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ReplayInputError(f"--hours: {args.hours!r} must be a finite number > 0")
         config = load_config_file(args.config) if args.config else {}
         config.update(parse_overrides(args.overrides))
-        model = build_model(args.model, config)
+        model = build_model(args.model, config) if not args.prior else _with_prior(args.model, config, args.prior)
         rec = load_replay_recording(args.recording)
         stop = None
         if args.hours is not None:
@@ -86,16 +98,18 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     status = model.status(float(result.time_s[-1]))
     summary = summarise(result, status)
+    beside, text = beside_probe_and_hold(result, summary["q_prod_pct"], noise, args.probe_resolution_um, seed=args.seed)
     out = {"recording": str(args.recording), "model": args.model, "config": config,
            "probe_noise": {"linear_um": args.probe_noise_um, "angular_um_per_m": args.probe_noise_um_per_m,
                            "resolution_um": args.probe_resolution_um, "seed": args.seed},
-           **summary, "replay_s": round(wall, 3)}
+           "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3)}
     json_path = pathlib.Path(args.json)
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(_json_safe(out), indent=2) + "\n")
     png = pathlib.Path(args.png) if args.png else json_path.with_suffix(".png")
     plot_virtual_experiment(result, png, title=f"{args.model} {pathlib.Path(args.recording).name}")
     print(format_table(summary, title=f"{args.model} on {args.recording} ({wall:.1f} s)"))
+    print(text)
     print(f"wrote {json_path} and {png}")
     return 0
 
