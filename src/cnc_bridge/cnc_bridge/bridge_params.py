@@ -103,6 +103,10 @@ PARAMS = [
           "applied at run time", lo=1e-6, hi=1000.0),
     _fixed("update_period_s", 1.0, "without lock-step: envelope update period between predictions, s",
            lo=1e-3, hi=3600.0),
+    _fixed("deactivate_wait_s", 20.0, "wall-clock bridge (no lock-step, no sim time): deactivate "
+           "ramps the offsets to zero in real time for at most this long before it returns (the "
+           "ramp goes on after that while the node runs); keep it below the launcher's "
+           "lifecycle_timeout_s", lo=0.0, hi=600.0),
     _fixed("lockstep", False, "publish SimSync after the offsets answering each prediction"),
     _fixed("audit_log_path", "", "append-only CSV of every write (empty = no audit log)"),
     _fixed("connect_timeout_s", 10.0, "opcua: configure fails unless connected within this time, s",

@@ -17,7 +17,10 @@ launcher drives them, ``autostart:=true`` does it without a manager).
   (timer, or machine_state instants in lock-step once the watchdog is due).
 * **deactivate** switches compensation off: the offsets ramp to zero at
   ``disable_ramp_um_per_s`` (the envelope keeps stepping and writing only that ramp until
-  every axis is at zero), predictions are no longer followed.
+  every axis is at zero), predictions are no longer followed. A wall-clock bridge steps the
+  ramp inside the transition, for at most ``deactivate_wait_s``, so that a clean stop leaves
+  the CNC at zero when the ramp fits; in lock-step / simulated time the ramp follows the
+  simulation's instants.
 * **cleanup / shutdown** release the connection without writing: the CNC keeps what it was
   last told (no jump); the audit says what it holds.
 * Parameters: the envelope's limits and ``enable`` apply at run time (validated, audited,
@@ -32,6 +35,7 @@ skipped; nothing already applied changes, and the watchdog takes over if they pe
 from __future__ import annotations
 
 import math
+import time
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -191,7 +195,24 @@ class CncBridgeNode(LifecycleNode):
                 f"{self.envelope.config.disable_ramp_um_per_s} um/s from {self._fmt(self.envelope.applied)}")
         self._audit_event("", text)
         self.get_logger().info(text)
+        if self._ramping_down and not self._p["lockstep"] and \
+                not self.get_parameter("use_sim_time").value:
+            self._ramp_down_for(self._p["deactivate_wait_s"])
         return SUCCESS
+
+    def _ramp_down_for(self, wait_s: float) -> None:
+        """Step the ramp to zero in real time (the executor is ours meanwhile) until every
+        offset is at zero or ``wait_s`` passed; the ramp goes on after that on the timer."""
+        deadline = time.monotonic() + wait_s
+        while self._ramping_down and time.monotonic() < deadline:
+            # pacing a physical ramp in wall time: the rate limit is per second of real time
+            time.sleep(min(self._p["update_period_s"], max(0.0, deadline - time.monotonic())))
+            t = self.get_clock().now().nanoseconds * 1e-9
+            self._update(t, s_to_stamp(t), fresh=False)
+        if self._ramping_down:
+            self.get_logger().warning(
+                f"deactivate: not at zero after {wait_s:g} s ({self._fmt(self.envelope.applied)}); "
+                f"the ramp goes on while the node runs, a stop now leaves these offsets held")
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
         self._release("cleanup")

@@ -373,3 +373,33 @@ def test_managed_bridge_never_writes_before_activate_and_honours_runtime_limits(
         cell.close()
         stop(proc)
         emu.close()
+
+
+def test_wall_clock_deactivate_ramps_the_cnc_to_zero_within_the_rate(tmp_path, ros_domain_id):
+    """A bridge on a real clock: deactivate returns once the CNC is back at zero, every step
+    within the disable ramp rate (a clean stop by the launcher then leaves nothing applied)."""
+    from cnc_bridge.cnc_emulator import compensation_node_id
+    port = free_tcp_port()
+    emu = CncEmulatorThread(EmulatorConfig(port=port)).start()
+    proc = spawn_bridge("/bridge_ramp", "backend:=opcua",
+                        f"endpoint:=opc.tcp://127.0.0.1:{port}{ENDPOINT_PATH}", "update_period_s:=0.1",
+                        "max_rate_um_per_s:=20.0", "disable_ramp_um_per_s:=4.0", "max_step_s:=0.5",
+                        "deactivate_wait_s:=10.0", autostart=False)
+    cell = Cell("/bridge_ramp")
+    node = "/bridge_ramp/cnc_bridge"
+    try:
+        assert cell.transition(node, "configure") and cell.transition(node, "activate")
+        cell.spin_until(lambda: cell.pred_pub.get_subscription_count() > 0
+                        and cell.subs[0].get_publisher_count() > 0, 30, "the bridge (no lock-step)")
+        cell.predict(time.time(), E_X0C=2.0)
+        cell.spin_until(lambda: abs(emu.applied_um()["X"] - 2.0) < 1e-9, 20, "X at 2 um on the CNC")
+        n = len(emu.write_log)
+        assert cell.transition(node, "deactivate")
+        assert emu.applied_um()["X"] == pytest.approx(0.0, abs=1e-12), "at zero when deactivate returns"
+        ramp = [v * 1000.0 for nid, v in emu.write_log[n:] if nid == compensation_node_id("X", "SD43900")]
+        assert ramp[-1] == 0.0 and len(ramp) >= 4          # 2 um at 4 um/s in 0.1 s steps: a ramp
+        assert all(abs(a - b) <= 4.0 * 0.5 + 1e-9 for a, b in zip([2.0] + ramp, ramp))
+    finally:
+        cell.close()
+        stop(proc)
+        emu.close()
