@@ -32,6 +32,8 @@ class RunRecord:
     wall_s: float = 0.0
     latencies_s: list[float] = field(default_factory=list)
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
+    #: CPU seconds (user + system) each node's process tree used, last seen (restarts add up)
+    cpu_s: dict[str, float] = field(default_factory=dict)
     node_exit_codes: dict[str, list[int]] = field(default_factory=dict)
     restarts: dict[str, int] = field(default_factory=dict)
     #: where an instant's wall time went (thermal_comp.graph_profile), per stage and per participant
@@ -58,13 +60,20 @@ def _wait_port(port: int, proc: subprocess.Popen, timeout_s: float) -> None:
     raise DemoError(f"CNC emulator not listening on 127.0.0.1:{port} after {timeout_s:.0f} s")
 
 
-def _rss_tree_mb(pid: int) -> float:
+def _usage_tree(pid: int) -> tuple[float, float]:
+    """(resident MiB, CPU s) of a process and its children."""
     try:
         p = psutil.Process(pid)
         procs = [p] + p.children(recursive=True)
-        return sum(q.memory_info().rss for q in procs if q.is_running()) / 2**20
+        mem = cpu = 0.0
+        for q in procs:
+            with q.oneshot():
+                mem += q.memory_info().rss
+                t = q.cpu_times()
+                cpu += t.user + t.system
+        return mem / 2**20, cpu
     except psutil.Error:
-        return 0.0
+        return 0.0, 0.0
 
 
 def _fresh_out_dir(cfg: DemoConfig) -> pathlib.Path:
@@ -149,6 +158,7 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
             record.acks = ack_breakdown(monitor.arrivals, monitor.acks, participants)
             monitor.close()
         if emulator is not None:
+            record.cpu_s["cnc_emulator"] = _usage_tree(emulator.pid)[1]
             _stop_emulator(emulator)
         node_log.close()
     record.node_exit_codes = {mp.node.name: mp.exit_codes for mp in launcher.processes}
@@ -167,13 +177,17 @@ def _supervise(cfg: DemoConfig, launcher: Launcher, monitor: DemoMonitor, bar, r
     """Poll the launcher (about 4 Hz) until machine_sim ends its scenario; raise DemoError if it
     fails, a node crashes for good, or the wall-time limit passes."""
     sim_proc = next(mp for mp in launcher.processes if mp.node.name == "machine_sim")
+    cpu_by_pid: dict[str, dict[int, float]] = {}
     deadline = time.monotonic() + cfg.wall_timeout_s
     while True:
         launcher.poll()
         for mp in launcher.processes:
             if mp.pid:
-                record.peak_rss_mb[mp.node.name] = max(record.peak_rss_mb.get(mp.node.name, 0.0),
-                                                       _rss_tree_mb(mp.pid))
+                mem, cpu = _usage_tree(mp.pid)
+                record.peak_rss_mb[mp.node.name] = max(record.peak_rss_mb.get(mp.node.name, 0.0), mem)
+                cpu_by_pid.setdefault(mp.node.name, {})[mp.pid] = max(
+                    cpu, cpu_by_pid.get(mp.node.name, {}).get(mp.pid, 0.0))
+                record.cpu_s[mp.node.name] = sum(cpu_by_pid[mp.node.name].values())
         if on_poll is not None:
             on_poll(launcher, monitor.sim_s)
         if bar is not None:
@@ -216,6 +230,8 @@ def bench_graph(args) -> dict[str, Any]:
                                               "p99": round(float(np.percentile(lat, 99)), 2) if lat.size else None,
                                               "samples": int(lat.size)},
         "peak_rss_mb": {k: round(v, 1) for k, v in record.peak_rss_mb.items()},
+        "cpu_s": {**{k: round(v, 1) for k, v in record.cpu_s.items()},
+                  "demo process (launcher, monitor)": round(sum(psutil.Process().cpu_times()[:2]), 1)},
         "bag_to_rrd": {"messages": messages, "wall_s": round(rrd_s, 2),
                        "messages_per_s": round(messages / rrd_s) if rrd_s > 0 else None},
         "instant_stages": record.stages,

@@ -8,14 +8,14 @@ write-and-rename gives, without a rename per instant (on ext4 a rename over an e
 forces the data out to disk: 4-8 ms per instant, the largest cost of a lock-step instant).
 ``fsync=True`` adds an fsync per save (survives a power loss too). A slot holds a private
 pickle tagged with the node's parameters; a file written by another configuration is refused
-with a message naming the differing parameter. Objects the node builds the same way from its
-parameters (machine, time line: ``shared``) are pickled by name, not copied into every save.
+with a message naming the differing parameter. The runner's attributes the node builds the
+same way from its parameters (machine, time line: ``shared``) are left out of every save and
+taken from the loading node's own runner.
 Only ever load a checkpoint machine_sim
 wrote (pickle executes code from the file). No rclpy here.
 """
 from __future__ import annotations
 
-import io
 import os
 import pathlib
 import pickle
@@ -39,17 +39,16 @@ class TwinCheckpoint:
         self.key = dict(key)
         self.fsync = bool(fsync)
         self.shared = dict(shared or {})
-        self._shared_ids = {id(v): k for k, v in self.shared.items()}
         self._seq: int | None = None     # sequence number of the newest slot (None: not opened)
         self._slot_bytes = 0
 
     def save(self, runner, probe_rng, applied_offsets: dict) -> None:
-        buf = io.BytesIO()
-        pickler = pickle.Pickler(buf, protocol=pickle.HIGHEST_PROTOCOL)
-        pickler.persistent_id = lambda obj: self._shared_ids.get(id(obj))
-        pickler.dump({"key": self.key, "shared": sorted(self.shared), "runner": runner,
-                      "probe_rng": probe_rng, "applied_offsets": dict(applied_offsets)})
-        payload = buf.getvalue()
+        # the runner without its shared attributes (a persistent_id hook would be asked about
+        # every object pickled: slower than pickling them)
+        payload = pickle.dumps({"key": self.key, "shared": sorted(self.shared),
+                                "runner": _strip(runner, "", self.shared) if self.shared else runner,
+                                "probe_rng": probe_rng, "applied_offsets": dict(applied_offsets)},
+                               protocol=pickle.HIGHEST_PROTOCOL)
         seq = 0 if self._seq is None else self._seq + 1
         slot = _HEADER.pack(_MAGIC, self.VERSION, seq, len(payload), zlib.crc32(payload)) + payload
         if self._seq is None or len(slot) > self._slot_bytes:
@@ -93,9 +92,12 @@ class TwinCheckpoint:
                              f"checkpoint (version {self.VERSION}, no intact slot)")
         seq, payload, offset = newest
         try:
-            unpickler = pickle.Unpickler(io.BytesIO(payload))
-            unpickler.persistent_load = self.shared.__getitem__   # KeyError: not shared here
-            state = unpickler.load()
+            state = pickle.loads(payload)
+            runner = state["runner"]
+            if state["shared"]:          # rebuilt from the loading node's parameters
+                if sorted(self.shared) != state["shared"]:
+                    raise KeyError(f"saved without {state['shared']}, loaded with {sorted(self.shared)}")
+                runner = _dress(runner, "", self.shared)
         except Exception as exc:  # a damaged checkpoint must not be half-used
             raise ValueError(f"parameter 'state_path': {str(self.path)!r} is not a readable twin "
                              f"checkpoint ({type(exc).__name__}: {exc})") from None
@@ -107,7 +109,7 @@ class TwinCheckpoint:
         self._seq, self._slot_bytes = seq, len(data) // 2
         if offset != (seq % 2) * self._slot_bytes:   # slots not where this writer puts them
             self._seq = None
-        return state["runner"], state["probe_rng"], state["applied_offsets"]
+        return runner, state["probe_rng"], state["applied_offsets"]
 
 
 def _read_slot(data: bytes, offset: int, version: int) -> tuple[int, bytes] | None:
@@ -122,11 +124,48 @@ def _read_slot(data: bytes, offset: int, version: int) -> tuple[int, bytes] | No
     return (seq, payload) if zlib.crc32(payload) == crc else None
 
 
-#: attributes of a ScenarioRunner that its node's parameters rebuild identically
-_REBUILT = ("machine", "timeline", "_vals", "_t")
+#: attributes (dotted paths) of a ScenarioRunner that its node's parameters rebuild identically:
+#: the machine, the time line and its resolved inputs, the thermal network (constant matrices
+#: and a cache of step matrices)
+_REBUILT = ("machine", "timeline", "_vals", "_t", "stepper.machine", "stepper.net")
 
 
 def shared_objects(runner) -> dict:
-    """The parts of ``runner`` (a ScenarioRunner) that the node's parameters rebuild identically
-    -- machine, time line, its resolved inputs: ``shared`` of :class:`TwinCheckpoint`."""
-    return {name: getattr(runner, name) for name in _REBUILT}
+    """The parts of ``runner`` (a ScenarioRunner) that the node's parameters rebuild identically,
+    by dotted attribute path: ``shared`` of :class:`TwinCheckpoint`."""
+    out = {}
+    for path in _REBUILT:
+        obj = runner
+        for name in path.split("."):
+            obj = getattr(obj, name)
+        out[path] = obj
+    return out
+
+
+class _Stripped:
+    """An object's class and its attributes less the shared ones (nested objects on a shared
+    path stripped too): what is pickled in place of the object."""
+
+    def __init__(self, cls, attrs: dict):
+        self.cls, self.attrs = cls, attrs
+
+
+def _strip(obj, prefix: str, shared: dict) -> _Stripped:
+    attrs = {}
+    for name, value in vars(obj).items():
+        path = prefix + name
+        if path in shared:
+            continue
+        attrs[name] = (_strip(value, path + ".", shared)
+                       if any(p.startswith(path + ".") for p in shared) else value)
+    return _Stripped(type(obj), attrs)
+
+
+def _dress(stripped: _Stripped, prefix: str, shared: dict):
+    obj = stripped.cls.__new__(stripped.cls)
+    for name, value in stripped.attrs.items():
+        obj.__dict__[name] = _dress(value, prefix + name + ".", shared) if isinstance(value, _Stripped) else value
+    for path, value in shared.items():
+        if path.startswith(prefix) and "." not in path[len(prefix):]:
+            obj.__dict__[path[len(prefix):]] = value
+    return obj

@@ -72,6 +72,7 @@ def test_rebuilt_parts_are_saved_by_name_and_taken_from_the_loader(tmp_path):
     fresh = _runner()
     b, _, _ = TwinCheckpoint(path, KEY, shared=shared_objects(fresh)).load()
     assert b.timeline is fresh.timeline and b.machine is fresh.machine and b.k == a.k
+    assert b.stepper.net is fresh.stepper.net and b.stepper.x is not fresh.stepper.x
     b.step()
     a.step()
     assert a.errors() == b.errors()
