@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from thermal_comp_common.task_engine import EngineSpec
 from thermal_eval.adaptive_eval import ProbingBudget
 from thermal_eval.evaluation_report import print_table
 from thermal_eval.evaluation_run import evaluate
@@ -92,13 +93,13 @@ def _adaptive_targets(figures: dict) -> dict:
     return out
 
 
-def run_fl_thermal(csv: str | None, every: int, show_progress: bool) -> dict[str, Any]:
+def run_fl_thermal(csv: str | None, every: int, show_progress: bool, engine: EngineSpec | None = None) -> dict[str, Any]:
     from thermal_eval.fl_thermal_data import default_csv_path
     t0 = time.perf_counter()
     data = thinned(load_evaluation_data(csv or default_csv_path(), FL_THERMAL_SPEC), every, FL_THERMAL_SPEC["split"])
     load_s = time.perf_counter() - t0
     result = evaluate(data, budget=ProbingBudget(probe_every_h=2.0, max_probes_per_h=1.0, tolerance_um=1.0),
-                      show_progress=show_progress)
+                      show_progress=show_progress, engine=engine)
     f = result.figures
     print_table(f)
     f["load_seconds"] = round(load_s, 1)
@@ -109,7 +110,7 @@ def run_fl_thermal(csv: str | None, every: int, show_progress: bool) -> dict[str
     return f
 
 
-def run_plateau(show_progress: bool) -> dict[str, Any]:
+def run_plateau(show_progress: bool, engine: EngineSpec | None = None) -> dict[str, Any]:
     """Twin spindle stand, ISO 230-3 for 30 h: the held-out rows are a long steady state."""
     from thermal_twin.sim_cli import main as sim_main
     with tempfile.TemporaryDirectory() as d:
@@ -119,7 +120,7 @@ def run_plateau(show_progress: bool) -> dict[str, Any]:
         if rc != 0:
             return {"failed": f"thermal-comp sim exited with {rc}"}
         data = load_evaluation_data(path, {"inputs": []})
-    result = evaluate(data, budget=ProbingBudget(), show_progress=show_progress)
+    result = evaluate(data, budget=ProbingBudget(), show_progress=show_progress, engine=engine)
     f = result.figures
     ratios = {}
     for name, row in f["adaptive"].items():
@@ -141,11 +142,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ap = argparse.ArgumentParser(prog="thermal-comp bench evaluate")
     ap.add_argument("--csv", default=None, help="FL_THERMAL CSV (default: $THERMAL_COMP_SHARED/data/fl_thermal)")
     ap.add_argument("--no-plateau", action="store_true")
+    ap.add_argument("--jobs", type=int, default=2, help="model rows on N local processes (default 2: the 2 cores)")
     opts = ap.parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
     every = 4 if getattr(args, "quick", False) else 1
     t0 = time.perf_counter()
-    figures = {"fl_thermal": run_fl_thermal(opts.csv, every, show_progress=True)}
+    engine = EngineSpec("local", workers=opts.jobs)
+    figures = {"fl_thermal": run_fl_thermal(opts.csv, every, show_progress=True, engine=engine)}
     figures["fl_thermal_seconds"] = round(time.perf_counter() - t0, 1)
+    figures["engine"] = engine.describe()
     if not opts.no_plateau:
-        figures["plateau"] = run_plateau(show_progress=True)
+        figures["plateau"] = run_plateau(show_progress=True, engine=engine)
     return figures

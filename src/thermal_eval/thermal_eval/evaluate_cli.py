@@ -5,7 +5,8 @@ default the project's kinds (``*_c`` temperatures, ``*_um`` / ``E_*`` displaceme
 machine inputs); ``--temperatures/--displacements/--inputs`` take names or glob patterns,
 ``--map OLD=NEW`` / ``--map NAME*K`` / ``--map-file`` rename and scale (the calibrate mapping),
 ``--unit NAME=mm`` converts, ``--spec YAML`` holds all of it (docs/evaluate.md). Writes
-evaluation.json, evaluation.png and evaluation.rrd into DIR and prints the table.
+evaluation.json, evaluation.png and evaluation.rrd into DIR and prints the table. Model rows run
+serially, on ``--jobs N`` local processes or on a dask cluster (``--engine dask --address ...``).
 Exit codes: 0 done, 2 bad input (named), 3 --out exists and is not empty (use --force).
 """
 from __future__ import annotations
@@ -15,6 +16,7 @@ import pathlib
 import sys
 
 from thermal_comp_common.recording_csv import RecordingError
+from thermal_comp_common.task_engine import EngineSpec, TaskEngineError
 from thermal_twin.column_mapping import MappingError
 
 from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget
@@ -38,12 +40,21 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--split-rows", metavar="TRAIN_END,BOUNDARY", help="first validation row and first test row")
     ap.add_argument("--test-first", action="store_true", help="the test window comes before the validation window")
     ap.add_argument("--models", nargs="+", metavar="NAME", help="only these models (baselines always run)")
+    ap.add_argument("--also", nargs="+", default=[], metavar="NAME",
+                    help="the default models plus these (opt-in: gp_static)")
     ap.add_argument("--open-loop-only", action="store_true", help="no adaptive mode")
     ap.add_argument("--probe-every-h", type=float, default=2.0, help="scheduled probing interval (h)")
     ap.add_argument("--max-probes-per-h", type=float, default=1.0,
                     help="cap on all probings after calibration, average per hour")
     ap.add_argument("--tolerance-um", type=float, default=1.0,
                     help="predicted change since the last probing that asks for one")
+    ap.add_argument("--jobs", type=int, default=1, metavar="N",
+                    help="model rows in parallel: local processes, or the LocalCluster's size with "
+                         "--engine dask and no --address (default 1: serial)")
+    ap.add_argument("--engine", choices=("local", "dask"), default="local",
+                    help="where the model rows run (docs/distributed.md)")
+    ap.add_argument("--address", default=None, metavar="tcp://HOST:PORT",
+                    help="the dask scheduler of a running cluster (with --engine dask)")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
@@ -100,14 +111,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         budget = ProbingBudget(args.probe_every_h, args.max_probes_per_h, args.tolerance_um)
         data = load_evaluation_data(args.recording, spec_from_args(args), args.map_file, args.map)
-        models = available_models(data, args.models)
-    except (SpecError, MappingError, RecordingError, AdaptiveSettingsError, FileNotFoundError, ValueError) as exc:
+        models = available_models(data, args.models, args.also)
+        engine = EngineSpec(args.engine, args.address, args.jobs)
+    except (SpecError, MappingError, RecordingError, AdaptiveSettingsError, TaskEngineError, FileNotFoundError,
+            ValueError) as exc:
         print(f"thermal-comp evaluate: {exc}", file=sys.stderr)
         return 2
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
     result = evaluate(data, models=models, adaptive=not args.open_loop_only, budget=budget,
-                      show_progress=not args.no_progress)
+                      show_progress=not args.no_progress, engine=engine)
     figures = result.figures
     figures["outputs"] = {"json": str(out / "evaluation.json"), "png": str(report.plot(data, result, out))}
     if not args.no_rerun:

@@ -5,25 +5,30 @@ row open loop, score the validation and test rows; in adaptive mode the same pre
 :mod:`thermal_eval.adaptive_eval`. A model that fails on a channel (unidentifiable, diverged,
 any exception) is recorded with its reason and the other models and channels go on.
 Figures are plain dicts (the JSON); arrays for the plots are returned beside them.
+Each model row is one task of :func:`thermal_comp_common.task_engine.map_tasks` (serial, a local
+process pool or a dask cluster): rows are independent and put back in the models' order.
 """
 from __future__ import annotations
 
 import time
 import traceback
 from dataclasses import dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
 from thermal_comp_common.metrics import mae
+from thermal_comp_common.task_engine import EngineSpec, map_tasks
 from thermal_eval.adaptive_eval import ProbingBudget, probe_counts, run_adaptive
 from thermal_eval.baselines import BASELINES
 from thermal_eval.evaluation_spec import EvaluationData
 from thermal_eval.model_selection import ModelSpec, checked_prediction, out_of_fold_prediction
-from thermal_eval.open_loop_models import MODELS
+from thermal_eval.open_loop_models import MODELS, OPT_IN
 
 #: baselines whose adaptive row would only be holding again
 NOT_ADAPTIVE = ("train_mean", "hold_last_training")
+#: every model a task may name
+REGISTRY: dict[str, ModelSpec] = {m.name: m for m in BASELINES + MODELS}
 
 
 @dataclass
@@ -35,8 +40,14 @@ class EvaluationResult:
     probe_rows: dict[str, list[int]] = field(default_factory=dict)
 
 
-def available_models(data: EvaluationData, names: Sequence[str] | None = None) -> list[ModelSpec]:
+def available_models(data: EvaluationData, names: Sequence[str] | None = None,
+                     also: Sequence[str] = ()) -> list[ModelSpec]:
+    """The models of the table: ``names`` only (with every baseline), or the defaults (every
+    model the recording has inputs for, without the opt-in ones) plus ``also``."""
     every = BASELINES + MODELS
+    if also and not names:
+        names = [m.name for m in available_models(data)] + list(also)
+        names = list(dict.fromkeys(names))
     if names:
         known = {m.name: m for m in every}
         bad = [n for n in names if n not in known]
@@ -45,7 +56,7 @@ def available_models(data: EvaluationData, names: Sequence[str] | None = None) -
             raise SpecError(f"--models: {bad[0]!r} is not a model{closest(bad[0], list(known))}")
         chosen = [known[n] for n in names]
         return [b for b in BASELINES if b not in chosen] + chosen   # baselines are always in the table
-    return [m for m in every if not (m.needs_inputs and data.inputs is None)]
+    return [m for m in every if not (m.needs_inputs and data.inputs is None) and m.name not in OPT_IN]
 
 
 def _scores(data: EvaluationData, y: np.ndarray, p: np.ndarray) -> dict[str, float]:
@@ -60,8 +71,21 @@ def _reason(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {exc}"[:300] + where
 
 
-def _one_model(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: ProbingBudget,
-               result: EvaluationResult, tick: Callable[[], None]) -> None:
+@dataclass
+class ModelRow:
+    """One model's row of the evaluation: its figures and arrays (what a task returns)."""
+
+    name: str
+    open_loop: dict[str, Any]
+    predictions: dict[str, np.ndarray]
+    adaptive: dict[str, Any] | None = None
+    compensation: dict[str, np.ndarray] | None = None
+    hold: dict[str, np.ndarray] | None = None
+    probe_rows: list[int] | None = None
+
+
+def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: ProbingBudget) -> ModelRow:
+    """Every channel of one model, open loop and (unless a plain baseline) adaptive."""
     s = data.split
     ol: dict[str, Any] = {"kind": model.kind, "description": model.description, "channels": {}}
     preds, oofs = {}, {}
@@ -79,26 +103,24 @@ def _one_model(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: P
         except Exception as exc:   # one failing model/channel is one row with its reason
             cell = {"failed": _reason(exc)}
         ol["channels"][ch] = cell
-        tick()
     ol["seconds"] = round(time.perf_counter() - t0, 1)
-    result.figures["open_loop"][model.name] = ol
-    result.open_loop[model.name] = preds
+    row = ModelRow(model.name, ol, preds)
     if adaptive and model.name not in NOT_ADAPTIVE:
-        _adaptive_row(data, model, preds, oofs, budget, result)
+        _adaptive_row(data, model, preds, oofs, budget, row)
+    return row
 
 
-def _adaptive_row(data, model, preds, oofs, budget, result) -> None:
+def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow) -> None:
     row: dict[str, Any] = {"kind": model.kind, "channels": {}}
+    out.adaptive = row
     usable = {c: p for c, p in preds.items() if c in oofs}
     if not usable:
         row["failed"] = "no channel has an open-loop prediction"
-        result.figures["adaptive"][model.name] = row
         return
     try:
         ad = run_adaptive(data, usable, oofs, budget)
     except Exception as exc:
         row["failed"] = _reason(exc)
-        result.figures["adaptive"][model.name] = row
         return
     for ch in data.channels:
         if ch not in usable:
@@ -118,10 +140,27 @@ def _adaptive_row(data, model, preds, oofs, budget, result) -> None:
         row["channels"][ch] = cell
     row.update(probe_counts(data, ad.probe_rows, budget))
     row["probings_asked_by_model"] = len(ad.triggered_rows)
-    result.figures["adaptive"][model.name] = row
-    result.adaptive[model.name] = ad.compensation
-    result.hold[model.name] = ad.hold
-    result.probe_rows[model.name] = ad.probe_rows
+    out.compensation, out.hold, out.probe_rows = ad.compensation, ad.hold, ad.probe_rows
+
+
+def _row_task(shared: tuple, item: str | ModelSpec) -> ModelRow:
+    """Task of the engine: one model row. ``item`` is a registered model's name (so the local
+    pool pickles a string, not the model's closures) or, for a model outside the registry, the
+    spec itself (serial run or dask, which pickles closures)."""
+    data, adaptive, budget = shared
+    model = REGISTRY[item] if isinstance(item, str) else item
+    return model_row(data, model, adaptive, budget)
+
+
+def _add_row(result: EvaluationResult, row: ModelRow) -> None:
+    result.figures["open_loop"][row.name] = row.open_loop
+    result.open_loop[row.name] = row.predictions
+    if row.adaptive is not None:
+        result.figures["adaptive"][row.name] = row.adaptive
+    if row.compensation is not None:
+        result.adaptive[row.name] = row.compensation
+        result.hold[row.name] = row.hold
+        result.probe_rows[row.name] = row.probe_rows
 
 
 def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> None:
@@ -143,23 +182,33 @@ def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> No
 
 
 def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None, adaptive: bool = True,
-             budget: ProbingBudget | None = None, show_progress: bool = True) -> EvaluationResult:
-    """The whole evaluation (figures + arrays for the report)."""
+             budget: ProbingBudget | None = None, show_progress: bool = True,
+             engine: EngineSpec | None = None) -> EvaluationResult:
+    """The whole evaluation (figures + arrays for the report). Model rows are independent tasks
+    of :func:`thermal_comp_common.task_engine.map_tasks` (serial by default, a local pool or a
+    dask cluster with ``engine``); the rows are put back in the models' order, so the figures do
+    not depend on the engine."""
     from threadpoolctl import threadpool_limits
     from tqdm import tqdm
     budget = budget or ProbingBudget()
+    engine = engine or EngineSpec()
     models = list(models) if models is not None else available_models(data)
     figures: dict[str, Any] = {"source": data.source, "rows": data.split.as_dict(), "n_rows": len(data),
                                "channels": data.channels, "temperatures": data.sensors, "inputs": data.input_names,
-                               "notes": data.notes, "budget": budget.__dict__, "open_loop": {}, "adaptive": {}}
+                               "notes": data.notes, "budget": budget.__dict__, "engine": engine.describe(),
+                               "open_loop": {}, "adaptive": {}}
     result = EvaluationResult(figures)
     t0 = time.perf_counter()
-    bar = tqdm(total=len(models) * len(data.channels), desc="evaluate", unit="model x channel",
-               disable=not show_progress)
+    items = [m.name if REGISTRY.get(m.name) is m else m for m in models]
+    rows: dict[int, ModelRow] = {}
+    bar = tqdm(total=len(models), desc="evaluate", unit="model", disable=not show_progress)
     with bar, threadpool_limits(1):   # small dense problems: BLAS threads only contend
-        for model in models:
-            bar.set_postfix_str(model.name)
-            _one_model(data, model, adaptive, budget, result, bar.update)
+        for i, row in map_tasks(_row_task, (data, adaptive, budget), items, engine):
+            rows[i] = row
+            bar.set_postfix_str(row.name)
+            bar.update()
+    for i in range(len(models)):
+        _add_row(result, rows[i])
     _ratios_to_best_baseline(figures, data.channels)
     figures["seconds"] = round(time.perf_counter() - t0, 1)
     return result

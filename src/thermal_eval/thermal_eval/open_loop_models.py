@@ -12,7 +12,7 @@ predicts open loop from temperatures (and, for the ``*_inputs`` variants, machin
 - ``characteristic_diagram``: a smoothed-grid diagram of the medoid temperatures and their
   1-h low-pass (grid refinement on the training rows' last 40 %);
 - ``gp_static``: the AGP's ARD-RBF GP on the medoid temperatures and 0.5-h / 2-h low-pass
-  copies (thinned to <= 400 training points), whose predictive std the adaptive mode uses.
+  copies (thinned to <= 400 training points); opt-in (:data:`OPT_IN`: ``--also gp_static``).
 
 Nothing here knows a dataset. No rclpy here.
 """
@@ -210,3 +210,7 @@ MODELS = [
               _cd_select, _cd_predict),
     ModelSpec("gp_static", "model", "ARD-RBF GP on medoid temperatures + low-pass copies", _gp_select, _gp_predict),
 ]
+
+#: models run only when asked for (``--models`` / ``--also``): the static GP dominated the wall
+#: time on FL_THERMAL (108-121 s of 172-297 s) and was worse than the training mean there
+OPT_IN = ("gp_static",)

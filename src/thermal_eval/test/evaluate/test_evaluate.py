@@ -147,3 +147,33 @@ def test_models_needing_inputs_are_left_out_without_inputs():
     assert not any(m.needs_inputs for m in available_models(d))
     with pytest.raises(SpecError, match="closest: 'lagged_ridge'"):
         available_models(d, ["lagged_rige"])
+
+
+def test_the_static_gp_is_opt_in():
+    d = _data()
+    names = [m.name for m in available_models(d)]
+    assert "gp_static" not in names and "lagged_ridge" in names
+    also = [m.name for m in available_models(d, also=["gp_static"])]
+    assert also == names + ["gp_static"]
+
+
+def _arrays_equal(a: dict, b: dict) -> bool:
+    return a.keys() == b.keys() and all(
+        a[m].keys() == b[m].keys() and all(np.array_equal(a[m][c], b[m][c], equal_nan=True) for c in a[m]) for m in a)
+
+
+def test_model_rows_on_a_local_pool_give_the_serial_figures():
+    from thermal_comp_common.task_engine import EngineSpec
+    d = _data()
+    models = available_models(d, ["lagged_ridge", "arx_subgrid"])
+    serial = evaluate(d, models=models, show_progress=False)
+    pooled = evaluate(d, models=models, show_progress=False, engine=EngineSpec("local", workers=2))
+    for f in (serial.figures, pooled.figures):
+        f.pop("seconds"), f.pop("engine")
+        for kind in ("open_loop",):
+            for row in f[kind].values():
+                row.pop("seconds")
+    assert list(pooled.figures["open_loop"]) == [m.name for m in models]
+    assert serial.figures == pooled.figures
+    assert _arrays_equal(serial.open_loop, pooled.open_loop) and _arrays_equal(serial.adaptive, pooled.adaptive)
+    assert serial.probe_rows == pooled.probe_rows
