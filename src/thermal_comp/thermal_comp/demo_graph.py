@@ -21,6 +21,7 @@ from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError, build_cell, 
 from thermal_comp.demo_monitor import DemoMonitor
 from thermal_comp.graph_profile import ack_breakdown, instant_events, stage_breakdown
 from thermal_comp.launcher import Launcher
+from thermal_comp_common import node_runtime as rt
 from thermal_comp_common.domain_ids import claim_domain_id
 
 
@@ -123,6 +124,9 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
     os.environ["ROS_DOMAIN_ID"] = str(domain_id)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_LOG_DIR", str(out / "logs" / "ros"))
+    # the nodes' executor: rclpy's EventsExecutor takes about a third of the CPU per message
+    # of the SingleThreadedExecutor, which on 2 cores sets the graph's speed (bench graph)
+    os.environ.setdefault(rt.EXECUTOR_ENV, "events")
     live_view = cfg.view == "live" or (cfg.view == "auto" and bool(os.environ.get("DISPLAY")))
     log_dir = out / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
@@ -236,5 +240,6 @@ def bench_graph(args) -> dict[str, Any]:
                        "messages_per_s": round(messages / rrd_s) if rrd_s > 0 else None},
         "instant_stages": record.stages,
         "acknowledgement_after_twin_ms": record.acks,
+        "executor": os.environ.get(rt.EXECUTOR_ENV, "single"),
         "load_average_1min": round(os.getloadavg()[0], 2),
     }

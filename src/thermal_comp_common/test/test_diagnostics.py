@@ -123,3 +123,11 @@ def test_library_info_records_stay_off_rosout():
                         ("thermal_sensors.modbus_source", logging.INFO)):
         h.handle(logging.LogRecord(name, level, __file__, 1, "m", None, None))
     assert sent == ["[asyncua.client] m", "[thermal_sensors.modbus_source] m"]
+
+
+def test_an_unknown_executor_stops_the_node_in_one_line(monkeypatch, capsys):
+    from thermal_comp_common.node_runtime import EXECUTOR_ENV, run_node
+    monkeypatch.setenv(EXECUTOR_ENV, "fancy")
+    assert run_node(lambda context: None, ["x"]) == 2
+    assert capsys.readouterr().err.strip() == (f"environment {EXECUTOR_ENV}: 'fancy' is not one of "
+                                               "['single', 'events']")

@@ -19,12 +19,12 @@ pytestmark = [pytest.mark.slow, pytest.mark.ros]
 MODULE = "thermal_sensors.temperature_publisher_node"
 
 
-def spawn_node(params: dict, name: str):
+def spawn_node(params: dict, name: str, env: dict | None = None):
     args = [sys.executable, "-m", MODULE, "--ros-args", "-r", f"__node:={name}"]
     for k, v in params.items():
         v = str(v).lower() if isinstance(v, bool) else v
         args += ["-p", f"{k}:={v}"]
-    return subprocess.Popen(args, env=dict(os.environ), stdout=subprocess.PIPE,
+    return subprocess.Popen(args, env={**os.environ, **(env or {})}, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
 
 
@@ -75,9 +75,11 @@ def setup(tmp_path, ports):
     return csv, cfg, t, cols
 
 
-def test_twin_source_in_lockstep_with_a_simulated_machine(setup, ros_context):
+@pytest.mark.parametrize("executor", ["single", "events"])
+def test_twin_source_in_lockstep_with_a_simulated_machine(setup, ros_context, executor):
     """The test plays machine_sim: it publishes /clock and twin/sensor_readings for t_k and
-    advances only after the node's SimSync for t_k, which must follow temperatures(t_k)."""
+    advances only after the node's SimSync for t_k, which must follow temperatures(t_k);
+    with either executor of the node runtime (THERMAL_COMP_EXECUTOR, the demo uses events)."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
@@ -89,7 +91,7 @@ def test_twin_source_in_lockstep_with_a_simulated_machine(setup, ros_context):
     csv, cfg, t, cols = setup
     config = load_sensor_config(cfg)
     proc = spawn_node({"source": "twin", "sensor_config": str(cfg), "lockstep_participant": True,
-                       "use_sim_time": True}, "sensors")
+                       "use_sim_time": True}, "sensors", env={"THERMAL_COMP_EXECUTOR": executor})
     node = Node("fake_machine_sim", context=ros_context)
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
