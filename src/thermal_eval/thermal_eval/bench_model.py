@@ -48,9 +48,7 @@ from thermal_twin.simulate import simulate
 TALC_INPUTS = ["ambient", "ws_mwf", "c_coolant_delta"]     # the thesis's three temperatures
 # probe noise (k=1) of the sphere cycle, thesis Table 5.4 (reproduced by probe_cycle):
 # U(k=2) 0.4-0.6 um on linear errors and 2.3-2.6 um/m on angular ones
-PROBE_NOISE_LINEAR_UM = 0.25
-PROBE_NOISE_ANGULAR_UM_PER_M = 1.2
-PROBE_RESOLUTION_UM = 0.25     # 1 um axis resolution averaged over 4 positions (Table 5.4)
+from thermal_eval.replay_summary import PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM  # noqa: E402,F401  Table 5.4, defined once
 TALC_RUNS = (("talc-178h-dry", "table_6_4_178h"), ("talc-144h-mwf", "table_6_6_144h_mwf"))
 LOAD_CASES = ("load-case-A", "load-case-B", "load-case-C", "load-case-D")
 

@@ -17,11 +17,11 @@ from talc_model.adaptive_model import PHASE_CALIBRATION, is_angular, make_model
 from thermal_comp_common import metrics
 from thermal_comp_common.bag_recording import load_recording
 
-#: Probe repeatability (k = 1) of the sphere cycle, thesis Table 5.4.
-PROBE_NOISE_LINEAR_UM = 0.25
-PROBE_NOISE_ANGULAR_UM_PER_M = 1.2
-#: 1 um axis resolution averaged over the four probing positions (Table 5.4).
-PROBE_RESOLUTION_UM = 0.25
+#: Probe repeatability (k = 1) and resolution of the sphere cycle, thesis Table 5.4 (defined once,
+#: in thermal_comp_common.probe_and_hold).
+from thermal_comp_common.probe_and_hold import TABLE_5_4_NOISE_ANGULAR_UM_PER_M as PROBE_NOISE_ANGULAR_UM_PER_M  # noqa: E402
+from thermal_comp_common.probe_and_hold import TABLE_5_4_NOISE_LINEAR_UM as PROBE_NOISE_LINEAR_UM  # noqa: E402
+from thermal_comp_common.probe_and_hold import TABLE_5_4_RESOLUTION_UM as PROBE_RESOLUTION_UM  # noqa: E402
 
 
 class ReplayInputError(ValueError):
@@ -88,20 +88,37 @@ def probe_noise(components: Sequence[str], linear_um: float = PROBE_NOISE_LINEAR
     return {c: (angular_um_per_m if is_angular(c) else linear_um) for c in components}
 
 
-def summarise(result, status) -> dict[str, Any]:
+def scored_rows(result, score_from_h: float | None = None) -> np.ndarray:
+    """The rows scored: the compensation part, and with ``score_from_h`` only from that many hours
+    after the recording's first row (a held-out window: the rows the model has not been
+    calibrated on)."""
+    t = np.asarray(result.time_s, float)
+    comp = np.asarray(result.phase) != PHASE_CALIBRATION
+    if score_from_h is None:
+        return comp
+    if not (isinstance(score_from_h, (int, float)) and math.isfinite(score_from_h) and score_from_h >= 0):
+        raise ReplayInputError(f"--score-from-h: {score_from_h!r} must be a finite number >= 0")
+    if t.size and t[0] + 3600.0 * score_from_h > t[-1]:
+        raise ReplayInputError(f"--score-from-h: {score_from_h!r} h is after the recording's end "
+                               f"({(t[-1] - t[0]) / 3600.0:.2f} h)")
+    return comp & (t >= t[0] + 3600.0 * score_from_h) if t.size else comp
+
+
+def summarise(result, status, score_from_h: float | None = None) -> dict[str, Any]:
     """Table 6.5-style indicators of a ``VirtualExperimentResult`` and the model's final status.
 
-    ``status`` is a ``ModelStatusData``. Components without a finite sample in the
-    compensation part get NaN indicators (and are left out of P99_lin / P99_ang).
+    ``status`` is a ``ModelStatusData``. Scored: :func:`scored_rows`. Components without a
+    finite sample there get NaN indicators (and are left out of P99_lin / P99_ang).
     """
     phase = np.asarray(result.phase)
     comp = phase != PHASE_CALIBRATION
+    scored = scored_rows(result, score_from_h)
     t = result.time_s
     per: dict[str, dict[str, float]] = {}
     p99c: dict[str, float] = {}
     for c in result.components:
-        e = np.asarray(result.true[c], float)[comp]
-        applied = np.asarray(result.predicted[c], float)[comp]
+        e = np.asarray(result.true[c], float)[scored]
+        applied = np.asarray(result.predicted[c], float)[scored]
         applied = np.where(np.isfinite(applied), applied, 0.0)   # no prediction = no compensation
         ok = np.isfinite(e)
         row = {"unit": "um/m" if is_angular(c) else "um", "p99": math.nan, "rms": math.nan,
@@ -125,6 +142,8 @@ def summarise(result, status) -> dict[str, Any]:
             "parameter_updates": int(status.parameter_updates),
             "calibration_h": calibration_h,
             "compensation_steps": int(comp.sum()),
+            "scored_steps": int(scored.sum()),
+            "scored_from_h": score_from_h,
             "duration_h": float(t[-1] - t[0]) / 3600.0 if t.size else 0.0,
             "final_phase": status.phase}
 
@@ -153,6 +172,8 @@ def format_table(summary: Mapping[str, Any], title: str = "") -> str:
     lines.append("Reduction %".ljust(20) + "".join(cell(r) for r in red))
     lines.append("RMS compensated".ljust(20) + "".join(cell(per[c]["rms"]) for c in comps))
     lines.append(f"P99_lin {summary['p99_lin_um']:.2f} um, P99_ang {summary['p99_ang_um_per_m']:.2f} um/m")
+    if summary.get("scored_from_h") is not None:
+        lines.append(f"scored from {summary['scored_from_h']:g} h ({summary['scored_steps']} steps)")
     if summary["compensation_steps"] == 0:
         lines.append("the model never left its calibration phase: nothing compensated to score (n/a)")
     return "\n".join(lines)
