@@ -8,7 +8,6 @@ import threading
 import time
 
 import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rosgraph_msgs.msg import Clock
 
 from thermal_comp_common import node_runtime as rt
@@ -39,7 +38,7 @@ class DemoMonitor:
         for topic, cls, qos in TIMED_TOPICS:
             self.node.create_subscription(cls, topic, self._arrival(topic), qos, raw=True)
         self.node.create_subscription(SimSync, rt.TOPIC_SIM_SYNC, self._on_sync, rt.EVENT_QOS)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
+        self.executor = rt.make_executor(self.ctx)     # the graph's nodes' kind (demo_graph)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
         self.thread = threading.Thread(target=self._spin, daemon=True, name="demo-monitor")

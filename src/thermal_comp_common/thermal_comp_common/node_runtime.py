@@ -235,10 +235,15 @@ def _drain(executor, node, context) -> None:
 #: event queue: about a third of the CPU per message, measured by a ping-pong between two
 #: processes; ``bench graph`` reports the graph with either).
 EXECUTOR_ENV = "THERMAL_COMP_EXECUTOR"
+EXECUTOR_KINDS = ("single", "events")
 
 
-def _make_executor(context, kind: str, multi_threaded: bool, num_threads: int):
-    """The executor of a node: multi-threaded on request, else ``kind`` (single or events)."""
+def make_executor(context, kind: str | None = None, multi_threaded: bool = False, num_threads: int = 2):
+    """The executor of a node: multi-threaded on request, else ``kind`` (single or events;
+    None: the environment's :data:`EXECUTOR_ENV`, default single)."""
+    kind = kind or os.environ.get(EXECUTOR_ENV, "single")
+    if kind not in EXECUTOR_KINDS:
+        raise ValueError(f"environment {EXECUTOR_ENV}: {kind!r} is not one of {list(EXECUTOR_KINDS)}")
     if multi_threaded:
         return MultiThreadedExecutor(num_threads=num_threads, context=context)
     if kind == "events":
@@ -262,13 +267,13 @@ def run_node(node_factory: Callable[..., Node], args: list[str] | None = None,
     if args is None:
         args = sys.argv
     kind = os.environ.get(EXECUTOR_ENV, "single")
-    if kind not in ("single", "events"):
-        print(f"environment {EXECUTOR_ENV}: {kind!r} is not one of ['single', 'events']",
+    if kind not in EXECUTOR_KINDS:
+        print(f"environment {EXECUTOR_ENV}: {kind!r} is not one of {list(EXECUTOR_KINDS)}",
               file=sys.stderr, flush=True)
         return 2
     context = rclpy.context.Context()
     rclpy.init(args=args, context=context, signal_handler_options=SignalHandlerOptions.NO)
-    executor = _make_executor(context, kind, multi_threaded, num_threads)
+    executor = make_executor(context, kind, multi_threaded, num_threads)
     stop = threading.Event()
 
     def _on_signal(signum, frame):
