@@ -24,6 +24,9 @@ Figures per load case ``<case>`` = ``load-case-A`` .. ``load-case-D``:
 - ``talc.<case>.p99_lin_um`` / ``talc.<case>.q_prod_pct``: the lowest P99_lin with
   Q_prod >= 95 % *among the combinations run* (NaN if none reaches 95 %),
   ``talc.<case>.best_params``, ``talc.<case>.combinations``;
+- ``talc.<case>.probe_and_hold_p99_lin_um`` / ``.p99_lin_over_probe_and_hold``: probe-and-hold
+  at the best row's Q_prod over the same instants (issue 22; goal ratio <= 0.5), and
+  ``talc.<case>.whole_run.*`` the same over the whole run (the CP included);
 - ``talc.<case>.table_6_3.p99_lin_um`` / ``.q_prod_pct``: the thesis's recommended set for that case;
 - ``sweep.<case>.replayed_h``: hours of the load case replayed per combination;
 - ``sweep.<case>.seconds_per_combination``: median replay time of one combination (one core);
@@ -82,6 +85,11 @@ def _r(v: float, nd: int = 2) -> float:
     return round(float(v), nd) if math.isfinite(v) else float(v)
 
 
+def _pah(best, name: str) -> float:
+    """A probe-and-hold figure of the best row (NaN without a best row)."""
+    return _r(float((best or {}).get("probe_and_hold", {}).get(name, math.nan)))
+
+
 def sweep_case(scenario: str, quick: bool, jobs: int, out_dir: pathlib.Path | None, full: bool = False,
                inputs: tuple[str, ...] = TALC_INPUTS, label: str = "",
                engine: EngineSpec | None = None) -> tuple[dict[str, Any], str]:
@@ -107,6 +115,12 @@ def sweep_case(scenario: str, quick: bool, jobs: int, out_dir: pathlib.Path | No
         f"{key}.best_params": (", ".join(f"{k}={v:g}" for k, v in best["params"].items()) if best
                                else "none with Q_prod >= 95 %"),
         f"{key}.best_p99_um": ({c: _r(v) for c, v in best["p99"].items()} if best else {}),
+        f"{key}.probe_and_hold_p99_lin_um": _pah(best, "p99_lin_um"),
+        f"{key}.probe_and_hold_p99_ang_um_per_m": _pah(best, "p99_ang_um_per_m"),
+        f"{key}.p99_lin_over_probe_and_hold": _pah(best, "p99_lin_ratio"),
+        f"{key}.whole_run.p99_lin_um": _pah(best, "whole_run_model_p99_lin_um"),
+        f"{key}.whole_run.probe_and_hold_p99_lin_um": _pah(best, "whole_run_p99_lin_um"),
+        f"{key}.whole_run.p99_lin_over_probe_and_hold": _pah(best, "whole_run_p99_lin_ratio"),
         f"{key}.inputs": ", ".join(inputs),
         f"{key}.combinations": len(rows),
     }
@@ -123,7 +137,9 @@ def sweep_case(scenario: str, quick: bool, jobs: int, out_dir: pathlib.Path | No
         write_table(rows, case_dir / "table.csv")
         plot_sweep(rows, case_dir, title=f"{scenario} {label}".strip())
     line = (f"{scenario}{' ' + label if label else ''}: {len(rows)} combinations, best with Q_prod >= 95 %: "
-            + (f"P99_lin {best['p99_lin_um']:.2f} um at Q_prod {best['q_prod_pct']:.2f} %" if best else "none")
+            + (f"P99_lin {best['p99_lin_um']:.2f} um at Q_prod {best['q_prod_pct']:.2f} % "
+               f"(probe-and-hold at that Q_prod {_pah(best, 'p99_lin_um'):.2f} um, "
+               f"ratio {_pah(best, 'p99_lin_ratio'):.2f})" if best else "none")
             + f"; {spc:.1f} s per combination, {wall:.0f} s wall with {jobs} jobs"
             + ("" if label else f" -> one full sweep {THESIS_COMBINATIONS_PER_LOAD_CASE * wall / len(rows) / 60:.0f} min"))
     return out, line

@@ -32,6 +32,8 @@ and a results file of another run is refused.
 
 The best set is the thesis's balanced criterion (6.2) turned around as the issue asks: the
 lowest P99_lin among the combinations with Q_prod >= 95 % (ties: the higher Q_prod).
+Every line also carries probe-and-hold at that combination's Q_prod (issue 22: no model,
+even probes, same noise, same instants; ``thermal_comp_common.probe_and_hold``).
 """
 from __future__ import annotations
 
@@ -195,12 +197,39 @@ def evaluate_point(recording, run: SweepRun, point: SweepPoint) -> dict[str, Any
     summary = summarise(res, model.status(float(res.time_s[-1])))
     return {"key": point.key(), "run": run.fingerprint(), "params": point.config(),
             "p99_lin_um": summary["p99_lin_um"], "p99_ang_um_per_m": summary["p99_ang_um_per_m"],
-            "q_prod_pct": summary["q_prod_pct"], "probing_cycles": summary["probing_cycles"],
+            "q_prod_pct": summary["q_prod_pct"],
+            "probe_and_hold": probe_and_hold_row(res, summary["q_prod_pct"], run),
+            "probing_cycles": summary["probing_cycles"],
             "no_good_phases": summary["no_good_phases"], "parameter_updates": summary["parameter_updates"],
             "calibration_h": summary["calibration_h"],
             "p99": {c: v["p99"] for c, v in summary["components"].items()},
             "rms": {c: v["rms"] for c, v in summary["components"].items()},
             "seconds": time.perf_counter() - t0}
+
+
+def probe_and_hold_row(res, q_prod_pct: float, run: SweepRun) -> dict[str, float]:
+    """Probe-and-hold at the combination's Q_prod over the same instants as its P99 (the
+    compensation part, as ``summarise``) and over the whole run, beside the model's figures.
+    NaN where the Q_prod leaves no even probing interval (0 or no finite value)."""
+    from thermal_eval.baseline_beside import beside_probe_and_hold
+    from thermal_eval.replay_summary import probe_noise
+    nan = math.nan
+    out = {"p99_lin_um": nan, "p99_ang_um_per_m": nan, "interval_h": nan, "p99_lin_ratio": nan,
+           "whole_run_p99_lin_um": nan, "whole_run_model_p99_lin_um": nan, "whole_run_p99_lin_ratio": nan}
+    if not (math.isfinite(q_prod_pct) and 0.0 < q_prod_pct < 100.0):
+        return out
+    noise = probe_noise(res.components, run.probe_noise_linear_um, run.probe_noise_angular_um_per_m)
+    figs, _ = beside_probe_and_hold(res, q_prod_pct, noise, run.probe_resolution_um, seed=run.seed)
+    comp, whole = figs.get("compensation_part"), figs.get("whole_run")
+    if comp is not None:
+        base = comp["probe_and_hold"]
+        out.update(p99_lin_um=base["p99_lin_um"], p99_ang_um_per_m=base["p99_ang_um_per_m"],
+                   interval_h=base["interval_h"], p99_lin_ratio=comp["p99_lin_ratio"])
+    if whole is not None:
+        out.update(whole_run_p99_lin_um=whole["probe_and_hold"]["p99_lin_um"],
+                   whole_run_model_p99_lin_um=whole["model"]["p99_lin_um"],
+                   whole_run_p99_lin_ratio=whole["p99_lin_ratio"])
+    return out
 
 
 def _sweep_task(shared, point: SweepPoint) -> dict[str, Any]:
@@ -333,6 +362,21 @@ def max_q_prod_front(rows: Iterable[Mapping[str, Any]], limits_um: Sequence[floa
 TABLE_COLUMNS = ("cp_length_h", "post_cp_interval_h", "ng_interval_min", "ng_measurements", "update_interval_h",
                  "p99_lin_um", "p99_ang_um_per_m", "q_prod_pct", "probing_cycles", "no_good_phases",
                  "parameter_updates", "seconds")
+#: Probe-and-hold at each row's Q_prod (``probe_and_hold_row``), written beside the model's columns.
+PROBE_AND_HOLD_COLUMNS = ("p99_lin_um", "p99_ang_um_per_m", "p99_lin_ratio", "whole_run_model_p99_lin_um",
+                          "whole_run_p99_lin_um", "whole_run_p99_lin_ratio")
+
+
+def format_probe_and_hold(row: Mapping[str, Any]) -> str:
+    """One line: the row's P99_lin beside probe-and-hold at its Q_prod (compensation part and
+    whole run), or a note when the row has none (a results file written before the baseline)."""
+    b = row.get("probe_and_hold")
+    if not b or not math.isfinite(b.get("p99_lin_um", math.nan)):
+        return "probe-and-hold: n/a (no finite Q_prod, or a results line written without the baseline)"
+    return (f"probe-and-hold at the same Q_prod {row['q_prod_pct']:.2f} % (a probe every {b['interval_h']:.2f} h): "
+            f"P99_lin {b['p99_lin_um']:.2f} um over the compensation part (model / probe-and-hold = "
+            f"{b['p99_lin_ratio']:.2f}), whole run model {b['whole_run_model_p99_lin_um']:.2f} vs "
+            f"{b['whole_run_p99_lin_um']:.2f} um ({b['whole_run_p99_lin_ratio']:.2f}; goal: at most 0.5)")
 
 
 def write_table(rows: Sequence[Mapping[str, Any]], path: str | pathlib.Path) -> None:
@@ -343,11 +387,14 @@ def write_table(rows: Sequence[Mapping[str, Any]], path: str | pathlib.Path) -> 
     comps = list(rows[0]["p99"]) if rows else []
     with pathlib.Path(path).open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(list(TABLE_COLUMNS) + [f"p99_{c}" for c in comps])
+        w.writerow(list(TABLE_COLUMNS) + [f"p99_{c}" for c in comps]
+                   + [f"probe_and_hold_{k}" for k in PROBE_AND_HOLD_COLUMNS])
         for r in rows:
             vals = [r["params"][k] for k in TABLE_COLUMNS[:5]] + [r[k] for k in TABLE_COLUMNS[5:]]
+            base = r.get("probe_and_hold") or {}
             w.writerow([_fmt(v) if isinstance(v, float) else v for v in vals] +
-                       [_fmt(r["p99"].get(c, math.nan)) for c in comps])
+                       [_fmt(r["p99"].get(c, math.nan)) for c in comps] +
+                       [_fmt(float(base.get(k, math.nan))) for k in PROBE_AND_HOLD_COLUMNS])
 
 
 def seconds_per_combination(rows: Iterable[Mapping[str, Any]]) -> float:

@@ -4,7 +4,7 @@ TALC over the Blaser thesis's Table 6.1 grid (2,191 combinations per load case, 
 ``thermal_eval.sweep``) on one recording, in parallel with a progress bar: on a local process
 pool (default) or on a Dask cluster (``--engine dask``; docs/distributed.md). Writes
 ``DIR/results.jsonl`` (one line per combination; rerun the same command to resume),
-``DIR/table.csv`` (sorted by P99_lin), ``DIR/best.json`` (lowest P99_lin with Q_prod >= 95 %)
+``DIR/table.csv`` (sorted by P99_lin; probe-and-hold at each row's Q_prod beside it), ``DIR/best.json`` (lowest P99_lin with Q_prod >= 95 %)
 and the plots ``DIR/p99_vs_qprod.png`` (Fig. 6.9) and ``DIR/qprod_vs_p99_limit.png`` (Fig. 6.10).
 """
 from __future__ import annotations
@@ -21,8 +21,8 @@ from thermal_comp_common.task_engine import EngineSpec, TaskEngineError, default
 from thermal_eval.replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
                              ReplayInputError, build_model, load_config_file, load_replay_recording,
                              parse_overrides)
-from thermal_eval.sweep import (Q_PROD_MIN_PCT, TALC_INPUTS, SweepError, SweepRun, best_under_constraint, parse_grid_subset,
-                    plot_sweep, run_sweep, seconds_per_combination, select_points, table_6_1_grid, write_table)
+from thermal_eval.sweep import (Q_PROD_MIN_PCT, TALC_INPUTS, SweepError, SweepRun, best_under_constraint,
+                    format_probe_and_hold, parse_grid_subset, plot_sweep, run_sweep, seconds_per_combination, select_points, table_6_1_grid, write_table)
 
 
 def parser() -> argparse.ArgumentParser:
@@ -107,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"best with Q_prod >= {args.q_prod_min:g} %: P99_lin {best['p99_lin_um']:.2f} um, "
               f"Q_prod {best['q_prod_pct']:.2f} % (CP {p['cp_length_h']:g} h, post-CP {p['post_cp_interval_h']:g} h, "
               f"NG {p['ng_measurements']:g} x {p['ng_interval_min']:g} min, update {p['update_interval_h']:g} h)")
+        print(format_probe_and_hold(best))
     print(f"wrote {out / 'results.jsonl'}, {out / 'table.csv'}, {out / 'best.json'}, "
           + ", ".join(str(p) for p in plots))
     return 0
