@@ -1,10 +1,12 @@
 """``thermal-comp replay REC --model talc|agp|cd [--config YAML] [--set key=value ...] --json OUT``
+``[--errors-topic TOPIC] [--temperatures-topic TOPIC] [--score-from-h H]``
 
 The virtual experiment of the Blaser thesis §6.3: replay a recording (the twin's CSV, a bag
 folder or an ``.mcap`` file) through an adaptive model, without ROS, probing only when the
 model asks, with realistic probe noise (Table 5.4: 0.25 um linear, 1.2 um/m angular, 0.25 um
 resolution). Prints a Table 6.5-style table, writes the indicators as JSON and a PNG of true
-error, compensation and residual per component.
+error, compensation and residual per component. A model component is named as its error column
+(``z_um``) or without its ``_um``; ``--score-from-h`` scores a held-out window only.
 """
 from __future__ import annotations
 
@@ -65,6 +67,14 @@ def parser() -> argparse.ArgumentParser:
                     help="quantisation of probe readings (default %(default)s; 0 = none)")
     ap.add_argument("--seed", type=int, default=0, help="probe-noise seed (default %(default)s)")
     ap.add_argument("--hours", type=float, default=None, help="replay only the first HOURS of the recording")
+    ap.add_argument("--errors-topic", default="errors/ground_truth", metavar="TOPIC",
+                    help="bag topic of the measured errors (default %(default)s; `import-csv --errors measured` "
+                         "writes errors/measured)")
+    ap.add_argument("--temperatures-topic", default="temperatures", metavar="TOPIC",
+                    help="bag topic of the temperatures (default %(default)s)")
+    ap.add_argument("--score-from-h", type=float, default=None, metavar="H",
+                    help="score only the rows from H hours after the first row (a held-out window; "
+                         "default: the whole compensation part)")
     ap.add_argument("--prior", metavar="PRIOR", help="TALC only: start from this prior (thermal-comp prior)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
@@ -82,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         config = load_config_file(args.config) if args.config else {}
         config.update(parse_overrides(args.overrides))
         model = build_model(args.model, config) if not args.prior else _with_prior(args.model, config, args.prior)
-        rec = load_replay_recording(args.recording)
+        rec = load_replay_recording(args.recording, args.errors_topic, args.temperatures_topic)
         stop = None
         if args.hours is not None:
             stop = int((rec.time_s <= rec.time_s[0] + 3600.0 * args.hours).sum())
@@ -93,13 +103,14 @@ def main(argv: list[str] | None = None) -> int:
                                         probe_resolution_um=args.probe_resolution_um, seed=args.seed,
                                         stop=stop, progress=not args.no_progress, compute_metrics=False)
         wall = time.perf_counter() - t0
+        status = model.status(float(result.time_s[-1]))
+        summary = summarise(result, status, args.score_from_h)
     except (ReplayInputError, ValueError) as exc:
         print(f"thermal-comp replay: {exc}", file=sys.stderr)
         return 2
-    status = model.status(float(result.time_s[-1]))
-    summary = summarise(result, status)
     beside, text = beside_probe_and_hold(result, summary["q_prod_pct"], noise, args.probe_resolution_um, seed=args.seed)
     out = {"recording": str(args.recording), "model": args.model, "config": config,
+           "errors_topic": args.errors_topic, "temperatures_topic": args.temperatures_topic,
            "probe_noise": {"linear_um": args.probe_noise_um, "angular_um_per_m": args.probe_noise_um_per_m,
                            "resolution_um": args.probe_resolution_um, "seed": args.seed},
            "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3)}

@@ -9,6 +9,7 @@ See docs/talc.md for the thesis background (Blaser §6.3, AGP thesis Ch. 5-6).
 """
 from __future__ import annotations
 
+import difflib
 import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
@@ -38,6 +39,7 @@ class ReplayColumns:
         sensors = {c[:-2]: c for c in recording.names("sensor")}
         inputs = {c: c for c in recording.names("input")}
         errors = {(c[:-3] if c.endswith("_um") else c): c for c in recording.names("error")}
+        errors.update({c: c for c in recording.names("error")})   # a component may be named as its column
         return cls(sensors, inputs, errors)
 
 
@@ -109,18 +111,28 @@ def _noise_per_component(probe_noise_um, probed: Sequence[str]) -> dict[str, flo
 
 
 
+def _closest_error_column(name: str, columns: ReplayColumns) -> str:
+    pool = sorted(set(columns.errors.values()))
+    match = difflib.get_close_matches(name, pool, n=1, cutoff=0.3)
+    return f"closest: {match[0]!r}; " if match else ""
+
+
 def _check_columns(recording, columns: ReplayColumns, names: Sequence[str], probed: Sequence[str]) -> None:
     for c in names:
         if c not in columns.errors:
             raise VirtualExperimentError(f"model component {c!r} has no error column in the recording "
-                                         f"(error columns: {sorted(columns.errors.values())})")
+                                         f"({_closest_error_column(c, columns)}"
+                                         f"error columns: {sorted(set(columns.errors.values()))}; a component "
+                                         f"is named as its column, or without its '_um')")
     for mapping in (columns.sensors, columns.inputs, columns.errors):
         for key, col in mapping.items():
             if col not in recording.columns:
                 raise VirtualExperimentError(f"column {col!r} (for {key!r}) is not in the recording")
     for c in probed:
         if c not in columns.errors:
-            raise VirtualExperimentError(f"probed component {c!r} has no error column in the recording")
+            raise VirtualExperimentError(f"probed component {c!r} has no error column in the recording "
+                                         f"({_closest_error_column(c, columns)}"
+                                         f"error columns: {sorted(set(columns.errors.values()))})")
 
 
 def _true_errors(recording, columns: ReplayColumns, components: Sequence[str], rows: slice,
