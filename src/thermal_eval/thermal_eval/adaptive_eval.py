@@ -51,12 +51,16 @@ class ProbingBudget:
     tolerance_um: float = 1.0             # predicted change that asks for a probing
     min_gap_s: float = 600.0              # after the end of the previous cycle
     probe_duration_s: float = PROBE_DURATION_S
+    probe_resolution_um: float = 0.0      # the user's probe: a predicted change below it is not acted on
 
     def __post_init__(self) -> None:
         for k in ("probe_every_h", "max_probes_per_h", "tolerance_um", "min_gap_s", "probe_duration_s"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise AdaptiveSettingsError(f"{k}: {v!r} must be a finite number > 0")
+        v = self.probe_resolution_um
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise AdaptiveSettingsError(f"probe_resolution_um: {v!r} must be a finite number >= 0")
 
 
 @dataclass
@@ -116,7 +120,35 @@ def _since_probe_h(t: np.ndarray, measured: list[int], start: int, n: int) -> np
     return out
 
 
-def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, stop: int, lag_h: float) -> float:
+#: a predicted change counts once it exceeds the noise of the difference of two readings at
+#: two standard deviations: 2 sqrt(2) sigma
+DEAD_BAND_SIGMAS = 2.0 * math.sqrt(2.0)
+
+
+def reading_noise_um(y: np.ndarray, n_train: int) -> float:
+    """The noise of one displacement reading, measured on the training rows: the robust spread
+    (1.4826 MAD) of the row-to-row changes around their median, over sqrt(2) (a change is the
+    difference of two readings). Slow drift moves the median, not the spread."""
+    d = np.diff(np.asarray(y[:n_train], dtype=float))
+    d = d[np.isfinite(d)]
+    if d.size < 2:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+
+
+def dead_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0) -> float:
+    """Predicted changes smaller than this are not acted on (the compensation holds): the larger
+    of the probe's resolution and two standard deviations of the difference of two readings."""
+    return max(float(probe_resolution_um), DEAD_BAND_SIGMAS * reading_noise_um(y, n_train))
+
+
+def shrink(dp: np.ndarray, band: float) -> np.ndarray:
+    """The predicted change beyond the dead band (soft threshold: continuous, 0 inside it)."""
+    return np.sign(dp) * np.maximum(np.abs(dp) - band, 0.0)
+
+
+def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, stop: int, lag_h: float,
+                  band: float = 0.0) -> float:
     """The share of the model's predicted change over ``lag_h`` that the displacement made on the
     training rows (out-of-fold prediction): sum(dy dp) / sum(dp^2), clipped to [0, 1]."""
     step = float(np.median(np.diff(t[first:stop])))
@@ -124,14 +156,14 @@ def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, s
     if stop - first <= lag:
         return 0.0
     dy = y[first + lag:stop] - y[first:stop - lag]
-    dp = p_oof[first + lag:stop] - p_oof[first:stop - lag]
+    dp = shrink(p_oof[first + lag:stop] - p_oof[first:stop - lag], band)
     ok = np.isfinite(dy) & np.isfinite(dp)
     den = float(np.sum(dp[ok] ** 2))
     return float(np.clip(np.sum(dy[ok] * dp[ok]) / den, 0.0, 1.0)) if den > 0 else 0.0
 
 
 def online_gains(y: np.ndarray, p: np.ndarray, measured: list[int], gain0: float,
-                 memory: int = GAIN_MEMORY) -> np.ndarray:
+                 memory: int = GAIN_MEMORY, band: float = 0.0) -> np.ndarray:
     """The gain in force after each measurement: the training gain until two probings have been
     made, then sum(dy dp) / sum(dp^2) over the last ``memory`` pairs of consecutive probings
     (dy measured, dp the model's change between them), clipped to [0, 1]. Reads the
@@ -141,7 +173,7 @@ def online_gains(y: np.ndarray, p: np.ndarray, measured: list[int], gain0: float
     dps: list[float] = []
     for prev, r in zip(measured[:-1], measured[1:]):
         dys.append(float(y[r] - y[prev]))
-        dps.append(float(p[r] - p[prev]))
+        dps.append(float(shrink(np.asarray(p[r] - p[prev]), band)))
         if len(dys) < 2:
             gains.append(gain0)
             continue
@@ -174,21 +206,24 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
     for c, p in prediction.items():
         y = data.displacement_um[c]
         p_oof, first = oof[c]
+        band = dead_band_um(y, start, budget.probe_resolution_um)
         q_y = measured_hold_rate(t, y, start)
         q_m = measured_hold_rate(t[first:start], (y - p_oof)[first:start], start - first)
-        gain0 = training_gain(t, y, p_oof, first, start, lag_h)
-        gains = online_gains(y, p, measured, gain0)
+        gain0 = training_gain(t, y, p_oof, first, start, lag_h, band)
+        gains = online_gains(y, p, measured, gain0, band=band)
         corrected = _piecewise_offset(y, p, measured, start, n)
+        y_p = _segment_values(y[measured], measured, start, n)
+        outside = y_p + shrink(corrected - y_p, band)          # the model's change beyond the dead band
         # uncertainty-weighted hold with a unit hold rate: w = dt / (dt + s^2) = gain
         g = _segment_values(gains, measured, start, n)
         with np.errstate(divide="ignore", invalid="ignore"):
             s2 = np.where(g > 0, since_h * (1.0 - g) / np.where(g > 0, g, 1.0), np.inf)
-        comp[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(corrected), np.sqrt(s2), measured, start, n, 1.0)
-        hold[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(corrected), np.sqrt(s2), measured, start, n, 0.0)
+        comp[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(outside), np.sqrt(s2), measured, start, n, 1.0)
+        hold[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(outside), np.sqrt(s2), measured, start, n, 0.0)
         corr[c] = corrected
         weights[c] = float(np.mean(gains))
         rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),
-                    "training_gain": round(gain0, 3)}
+                    "training_gain": round(gain0, 3), "dead_band_um": round(band, 4)}
     return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates)
 
 

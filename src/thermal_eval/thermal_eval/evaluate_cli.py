@@ -48,6 +48,9 @@ def parser() -> argparse.ArgumentParser:
                     help="cap on all probings after calibration, average per hour")
     ap.add_argument("--tolerance-um", type=float, default=1.0,
                     help="predicted change since the last probing that asks for one")
+    ap.add_argument("--probe-resolution-um", type=float, default=0.0,
+                    help="your probe's resolution: a predicted change below it (or below twice the noise of "
+                         "a reading difference measured on the training rows) is not acted on (default 0)")
     ap.add_argument("--jobs", type=int, default=1, metavar="N",
                     help="model rows in parallel: local processes, or the LocalCluster's size with "
                          "--engine dask and no --address (default 1: serial)")
@@ -109,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp evaluate: {exc}", file=sys.stderr)
         return 3
     try:
-        budget = ProbingBudget(args.probe_every_h, args.max_probes_per_h, args.tolerance_um)
+        budget = ProbingBudget(args.probe_every_h, args.max_probes_per_h, args.tolerance_um,
+                               probe_resolution_um=args.probe_resolution_um)
         data = load_evaluation_data(args.recording, spec_from_args(args), args.map_file, args.map)
         models = available_models(data, args.models, args.also)
         engine = EngineSpec(args.engine, args.address, args.jobs)
