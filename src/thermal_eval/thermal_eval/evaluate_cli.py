@@ -42,6 +42,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--models", nargs="+", metavar="NAME", help="only these models (baselines always run)")
     ap.add_argument("--also", nargs="+", default=[], metavar="NAME",
                     help="the default models plus these (opt-in: gp_static)")
+    ap.add_argument("--closed-loop", nargs="+", default=[], metavar="NAME",
+                    help="also the project's adaptive models with their own logic, within the budget: "
+                         "agp_closed_loop (sigma_max recalibration), talc_closed_loop (calibration, no-good, updates)")
     ap.add_argument("--open-loop-only", action="store_true", help="no adaptive mode")
     ap.add_argument("--probe-every-h", type=float, default=2.0, help="scheduled probing interval (h)")
     ap.add_argument("--max-probes-per-h", type=float, default=1.0,
@@ -123,8 +126,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for note in data.notes:
         print(f"note: {note}", file=sys.stderr)
+    try:
+        from thermal_eval.closed_loop_rows import CLOSED_LOOP
+        bad = [c for c in args.closed_loop if c not in CLOSED_LOOP]
+        if bad:
+            raise SpecError(f"--closed-loop: {bad[0]!r} is not one of {sorted(CLOSED_LOOP)}")
+    except SpecError as exc:
+        print(f"thermal-comp evaluate: {exc}", file=sys.stderr)
+        return 2
     result = evaluate(data, models=models, adaptive=not args.open_loop_only, budget=budget,
-                      show_progress=not args.no_progress, engine=engine)
+                      show_progress=not args.no_progress, engine=engine, closed_loop=args.closed_loop)
     figures = result.figures
     figures["outputs"] = {"json": str(out / "evaluation.json"), "png": str(report.plot(data, result, out))}
     if not args.no_rerun:

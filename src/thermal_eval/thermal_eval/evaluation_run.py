@@ -21,6 +21,7 @@ from thermal_comp_common.metrics import mae
 from thermal_comp_common.task_engine import EngineSpec, map_tasks
 from thermal_eval.adaptive_eval import ProbingBudget, probe_counts, run_adaptive
 from thermal_eval.baselines import BASELINES
+from thermal_eval.closed_loop_rows import CLOSED_LOOP, hold_probes, run_closed_loop
 from thermal_eval.evaluation_spec import EvaluationData
 from thermal_eval.model_selection import ModelSpec, checked_prediction, out_of_fold_prediction
 from thermal_eval.open_loop_models import MODELS, OPT_IN
@@ -76,7 +77,7 @@ class ModelRow:
     """One model's row of the evaluation: its figures and arrays (what a task returns)."""
 
     name: str
-    open_loop: dict[str, Any]
+    open_loop: dict[str, Any] | None
     predictions: dict[str, np.ndarray]
     adaptive: dict[str, Any] | None = None
     compensation: dict[str, np.ndarray] | None = None
@@ -143,18 +144,52 @@ def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow) -> None:
     out.compensation, out.hold, out.probe_rows = ad.compensation, ad.hold, ad.probe_rows
 
 
-def _row_task(shared: tuple, item: str | ModelSpec) -> ModelRow:
+def closed_loop_row(data: EvaluationData, name: str, budget: ProbingBudget) -> ModelRow:
+    """An adaptive row of one of the project's adaptive models (:mod:`thermal_eval.closed_loop_rows`),
+    beside holding its own probes at the same instants; a failure is the row's reason."""
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"kind": "closed_loop", "channels": {}}
+    try:
+        run = run_closed_loop(data, name, budget)
+    except Exception as exc:
+        row["failed"] = _reason(exc)
+        return ModelRow(name, None, {}, row)
+    n, hold = len(data), {}
+    for ch in data.channels:
+        y = data.displacement_um[ch]
+        hold[ch] = hold_probes(y, run["probe_rows"], n)
+        cell = _scores(data, y, run["compensation"][ch])
+        h = _scores(data, y, np.nan_to_num(hold[ch]))
+        cell["hold_own_probes_mae_test_um"] = h["mae_test_um"]
+        cell["hold_own_probes_mae_validation_um"] = h["mae_validation_um"]
+        for w in ("test", "validation"):
+            cell[f"ratio_to_hold_{w}"] = (round(cell[f"mae_{w}_um"] / h[f"mae_{w}_um"], 3)
+                                          if h[f"mae_{w}_um"] > 0 else None)
+        row["channels"][ch] = cell
+    after = run["probe_rows_after_calibration"]
+    row.update({k: v for k, v in run.items() if k not in ("compensation", "probe_rows", "probe_rows_after_calibration")})
+    s = data.split
+    row["probings_test"] = sum(1 for r in after if s.test.start <= r < s.test.stop)
+    row["probings_validation"] = sum(1 for r in after if s.validation.start <= r < s.validation.stop)
+    row["seconds"] = round(time.perf_counter() - t0, 1)
+    return ModelRow(name, None, {}, row, run["compensation"], hold, run["probe_rows"])
+
+
+def _row_task(shared: tuple, item: str | ModelSpec | tuple) -> ModelRow:
     """Task of the engine: one model row. ``item`` is a registered model's name (so the local
-    pool pickles a string, not the model's closures) or, for a model outside the registry, the
-    spec itself (serial run or dask, which pickles closures)."""
+    pool pickles a string, not the model's closures), ``("closed_loop", name)``, or, for a model
+    outside the registry, the spec itself (serial run or dask, which pickles closures)."""
     data, adaptive, budget = shared
+    if isinstance(item, tuple):
+        return closed_loop_row(data, item[1], budget)
     model = REGISTRY[item] if isinstance(item, str) else item
     return model_row(data, model, adaptive, budget)
 
 
 def _add_row(result: EvaluationResult, row: ModelRow) -> None:
-    result.figures["open_loop"][row.name] = row.open_loop
-    result.open_loop[row.name] = row.predictions
+    if row.open_loop is not None:
+        result.figures["open_loop"][row.name] = row.open_loop
+        result.open_loop[row.name] = row.predictions
     if row.adaptive is not None:
         result.figures["adaptive"][row.name] = row.adaptive
     if row.compensation is not None:
@@ -183,11 +218,12 @@ def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> No
 
 def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None, adaptive: bool = True,
              budget: ProbingBudget | None = None, show_progress: bool = True,
-             engine: EngineSpec | None = None) -> EvaluationResult:
+             engine: EngineSpec | None = None, closed_loop: Sequence[str] = ()) -> EvaluationResult:
     """The whole evaluation (figures + arrays for the report). Model rows are independent tasks
     of :func:`thermal_comp_common.task_engine.map_tasks` (serial by default, a local pool or a
     dask cluster with ``engine``); the rows are put back in the models' order, so the figures do
-    not depend on the engine."""
+    not depend on the engine. ``closed_loop``: names of :data:`closed_loop_rows.CLOSED_LOOP` (the
+    project's adaptive models with their own logic; adaptive rows only)."""
     from threadpoolctl import threadpool_limits
     from tqdm import tqdm
     budget = budget or ProbingBudget()
@@ -199,15 +235,20 @@ def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None,
                                "open_loop": {}, "adaptive": {}}
     result = EvaluationResult(figures)
     t0 = time.perf_counter()
-    items = [m.name if REGISTRY.get(m.name) is m else m for m in models]
+    bad = [c for c in closed_loop if c not in CLOSED_LOOP]
+    if bad:
+        from thermal_eval.evaluation_spec import SpecError, closest
+        raise SpecError(f"--closed-loop: {bad[0]!r} is not a closed-loop model{closest(bad[0], list(CLOSED_LOOP))}")
+    items: list = [m.name if REGISTRY.get(m.name) is m else m for m in models]
+    items += [("closed_loop", c) for c in closed_loop] if adaptive else []
     rows: dict[int, ModelRow] = {}
-    bar = tqdm(total=len(models), desc="evaluate", unit="model", disable=not show_progress)
+    bar = tqdm(total=len(items), desc="evaluate", unit="model", disable=not show_progress)
     with bar, threadpool_limits(1):   # small dense problems: BLAS threads only contend
         for i, row in map_tasks(_row_task, (data, adaptive, budget), items, engine):
             rows[i] = row
             bar.set_postfix_str(row.name)
             bar.update()
-    for i in range(len(models)):
+    for i in range(len(items)):
         _add_row(result, rows[i])
     _ratios_to_best_baseline(figures, data.channels)
     figures["seconds"] = round(time.perf_counter() - t0, 1)

@@ -177,3 +177,23 @@ def test_model_rows_on_a_local_pool_give_the_serial_figures():
     assert serial.figures == pooled.figures
     assert _arrays_equal(serial.open_loop, pooled.open_loop) and _arrays_equal(serial.adaptive, pooled.adaptive)
     assert serial.probe_rows == pooled.probe_rows
+
+
+def test_the_project_adaptive_models_run_their_own_logic_within_the_budget():
+    from thermal_eval.closed_loop_rows import hold_probes
+    d = _data()
+    res = evaluate(d, models=available_models(d, ["lagged_ridge"]), show_progress=False,
+                   closed_loop=["agp_closed_loop", "talc_closed_loop"])
+    agp = res.figures["adaptive"]["agp_closed_loop"]
+    assert agp["kind"] == "closed_loop" and agp["calibration_end_h"] is not None
+    hours = (d.time_s[-1] - d.time_s[0]) / 3600.0 - agp["calibration_end_h"]
+    assert 1 <= agp["probings_after_calibration"] <= hours          # the cap: 1 per hour after calibration
+    assert agp["steps_probing_refused_by_budget"] > 0 and agp["recalibrations"] >= 1
+    rows = res.probe_rows["agp_closed_loop"]
+    for ch in d.channels:     # beside it: holding exactly its probes
+        assert np.array_equal(res.hold["agp_closed_loop"][ch], hold_probes(d.displacement_um[ch], rows, len(d)),
+                              equal_nan=True)
+        assert agp["channels"][ch]["ratio_to_hold_test"] < 1.0
+    assert "talc_closed_loop" in res.figures["adaptive"]
+    with pytest.raises(SpecError, match="closest: 'agp_closed_loop'"):
+        evaluate(d, models=[], show_progress=False, closed_loop=["agp_closedloop"])
