@@ -8,6 +8,7 @@ The graph and the evaluation are described in README.md ("What the demo does").
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import pathlib
 import sys
@@ -17,16 +18,38 @@ from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError
 from thermal_comp.demo_graph import run_graph
 from thermal_comp.demo_plot import plot, write_rrd
 from thermal_comp.demo_series import read_series
-from thermal_comp.demo_summary import print_table, summarise
+from thermal_comp.demo_summary import print_prior_gain, print_table, summarise
 
 
-def run_demo(cfg: DemoConfig) -> dict[str, Any]:
-    """Run the graph, then write summary.json, the PNG and the .rrd; return the summary."""
+def run_demo(cfg: DemoConfig, compare_no_prior: bool = False) -> dict[str, Any]:
+    """Run the graph, then write summary.json, the PNG and the .rrd; return the summary.
+    ``cfg.prior`` = DEFAULT_PRIOR: the machine type's cached prior where one applies;
+    ``compare_no_prior``: run the same plant again without the prior (into ``out/no_prior``)."""
     if cfg.machine not in MACHINES:
         raise DemoError(f"--machine: {cfg.machine!r} is not one of {sorted(MACHINES)}")
     cfg.scenario = cfg.scenario or MACHINES[cfg.machine]["scenario"]
+    note = None
+    if cfg.prior == DEFAULT_PRIOR:
+        note = _no_default_prior_reason(cfg)
+        cfg.prior = None if note else BUILD_PRIOR
+        if note:
+            print(f"no prior: {note}", flush=True)
     if cfg.prior == BUILD_PRIOR:
         cfg.prior = str(_build_prior(cfg))
+    summary = _run_and_summarise(cfg)
+    if note:
+        summary["prior_note"] = note
+    if compare_no_prior and cfg.prior:
+        base = dataclasses.replace(cfg, prior=None, out_dir=cfg.out_dir / "no_prior", view="none")
+        print(f"the same plant without the prior (the thesis's protocol), into {base.out_dir}", flush=True)
+        summary["no_prior"] = _run_and_summarise(base)
+    out = cfg.out_dir.resolve()
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _run_and_summarise(cfg: DemoConfig) -> dict[str, Any]:
+    """One run of the graph into ``cfg.out_dir``: summary.json, the PNG and the .rrd."""
     record = run_graph(cfg)
     out = cfg.out_dir.resolve()
     series = read_series(out / "bag")
@@ -37,25 +60,41 @@ def run_demo(cfg: DemoConfig) -> dict[str, Any]:
     return summary
 
 
-#: ``--prior`` without a file: build the machine type's prior into the output folder first
+#: ``--prior`` without a file: the machine type's prior (from the cache, built on a miss)
 BUILD_PRIOR = "build"
+#: no ``--prior`` / ``--no-prior``: the type's prior where one applies, else none (said why)
+DEFAULT_PRIOR = "default"
+
+
+def _no_default_prior_reason(cfg: DemoConfig) -> str | None:
+    """Why the default run has no prior (None: it has one)."""
+    from thermal_comp.prior_cli import TRAINING_SCENARIOS
+    if MACHINES[cfg.machine]["model_kind"] != "talc" or cfg.machine not in TRAINING_SCENARIOS:
+        return (f"machine {cfg.machine!r} runs {MACHINES[cfg.machine]['model_kind'].upper()}, which has no "
+                f"prior of the type yet (TALC machines: {sorted(TRAINING_SCENARIOS)})")
+    if cfg.scenario in TRAINING_SCENARIOS[cfg.machine]:
+        return (f"the scenario {cfg.scenario!r} is one of the prior's training programmes (a prior never "
+                "sees the evaluated run); give --prior FILE built without it")
+    return None
 
 
 def _build_prior(cfg: DemoConfig) -> pathlib.Path:
-    """The nominal type's TALC prior (thermal-comp prior's defaults) in the output folder."""
+    """The nominal type's TALC prior (thermal-comp prior's defaults), from the cache or built
+    (about 20 s) on a miss, copied into the output folder so the run's folder is complete."""
+    import shutil
+
     import yaml
-    from talc_model.prior import save_prior
-    from thermal_comp.prior_cli import build_prior, default_config_path, TRAINING_SCENARIOS
-    if MACHINES[cfg.machine]["model_kind"] != "talc" or cfg.machine not in TRAINING_SCENARIOS:
-        raise DemoError(f"--prior: no prior for machine {cfg.machine!r} (TALC machines: {sorted(TRAINING_SCENARIOS)})")
-    if cfg.scenario in TRAINING_SCENARIOS[cfg.machine]:
-        raise DemoError(f"--prior: the scenario {cfg.scenario!r} is one of the prior's training programmes; "
-                        "give a prior file built without it")
+    from thermal_comp.prior_cli import TRAINING_SCENARIOS, cached_prior, default_config_path
+    reason = _no_default_prior_reason(cfg)
+    if reason:
+        raise DemoError(f"--prior: {reason}")
     config = yaml.safe_load(default_config_path(cfg.machine).read_text())
-    print(f"building the prior of the machine type {cfg.machine} (nominal twin, "
-          f"{', '.join(TRAINING_SCENARIOS[cfg.machine])})", flush=True)
-    prior = build_prior(cfg.machine, config, TRAINING_SCENARIOS[cfg.machine])
-    return save_prior(cfg.out_dir.resolve() / "prior.json", prior)
+    path, built = cached_prior(cfg.machine, config, TRAINING_SCENARIOS[cfg.machine])
+    print(f"{'built' if built else 'cached'} prior of the machine type {cfg.machine} (nominal twin, "
+          f"{', '.join(TRAINING_SCENARIOS[cfg.machine])}): {path}", flush=True)
+    out = cfg.out_dir.resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    return pathlib.Path(shutil.copyfile(path, out / "prior.json"))
 
 
 def _unit(text: str) -> int | None:
@@ -87,9 +126,15 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--unit", type=_unit, default=1,
                     help="the plant: unit N of the machine type (its parameters perturbed within the "
                          "tolerances of thermal_twin.machine_instance, seed N) or 'nominal' (default 1)")
-    ap.add_argument("--prior", nargs="?", const=BUILD_PRIOR, default=None, metavar="PRIOR",
-                    help="start TALC from a prior of the machine type (a file from `thermal-comp prior`; "
-                         "without a file: build it first from the nominal twin, about 20 s)")
+    prior = ap.add_mutually_exclusive_group()
+    prior.add_argument("--prior", nargs="?", const=BUILD_PRIOR, default=DEFAULT_PRIOR, metavar="PRIOR",
+                       help="start TALC from a prior of the machine type: a file from `thermal-comp prior`, or "
+                            "without a file (the default) the nominal type's prior, cached (built once, about "
+                            "20 s); the default run has none where no prior applies and says why")
+    prior.add_argument("--no-prior", dest="prior", action="store_const", const=None,
+                       help="start from zero, the thesis's protocol (calibration phase, order growth)")
+    ap.add_argument("--compare-no-prior", action="store_true",
+                    help="also run the same plant without the prior (into OUT/no_prior) and print both")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--wall-timeout", type=float, default=3600.0, help="give up after this many wall seconds")
     return ap
@@ -101,12 +146,19 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DemoConfig(machine=a.machine, scenario=a.scenario, hours=a.hours, seed=a.seed, step_s=a.step_s,
                      out_dir=pathlib.Path(a.out), view=a.view, cnc=a.cnc, progress=not a.no_progress,
                      wall_timeout_s=a.wall_timeout, unit=a.unit, prior=a.prior)
+    if a.compare_no_prior and a.prior is None:
+        print("thermal-comp demo: --compare-no-prior compares against the prior; it cannot go with --no-prior",
+              file=sys.stderr)
+        return 1
     try:
-        summary = run_demo(cfg)
+        summary = run_demo(cfg, compare_no_prior=a.compare_no_prior)
     except (DemoError, ValueError) as exc:
         print(f"thermal-comp demo: {exc}", file=sys.stderr)
         return 1
     print_table(summary)
+    if summary.get("no_prior"):
+        print_table(summary["no_prior"])
+        print_prior_gain(summary, summary["no_prior"])
     out = cfg.out_dir.resolve()
     print(f"written: {out / 'summary.json'}, {out / 'compensation.png'}, {out / 'demo.rrd'}, {out / 'bag'}")
     return 0

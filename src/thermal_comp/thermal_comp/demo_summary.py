@@ -165,3 +165,35 @@ def print_table(summary: dict[str, Any]) -> None:
                 f"(no model, Table 5.4 probe): P99_lin {base['p99_lin_um']} um; ratio {ratio:.2f} (goal <= 0.5)")
     if "wall_time_s" in summary:
         c.print(f"wall time {summary['wall_time_s']} s ({summary['times_real_time']} x real time)")
+
+
+def prior_gain(with_prior: dict[str, Any], no_prior: dict[str, Any], first_h: float = 24.0) -> dict[str, Any]:
+    """Whole-run P99 per component with and without the prior (same plant, same scenario), the
+    thesis's Table 6.5 beside them where the scenario has one, and the runs' Q_prod."""
+    thesis = with_prior.get("thesis", {}).get("p99_compensated", {})
+    rows = {}
+    for c, v in with_prior.get("p99_compensated_whole_run", {}).items():
+        rows[c] = {"with_prior": v, "no_prior": no_prior.get("p99_compensated_whole_run", {}).get(c),
+                   "thesis": thesis.get(c)}
+    return {"components": rows, "q_prod_pct": [with_prior["q_prod_pct"], no_prior["q_prod_pct"]],
+            "p99_lin_whole_run_um": [with_prior["p99_lin_whole_run_um"], no_prior["p99_lin_whole_run_um"]],
+            "no_good_phases": [with_prior["no_good_phases"], no_prior["no_good_phases"]]}
+
+
+def print_prior_gain(with_prior: dict[str, Any], no_prior: dict[str, Any]) -> None:
+    """The gain of the prior: whole-run P99 with and without it, beside Table 6.5."""
+    g = prior_gain(with_prior, no_prior)
+    t = Table(title=f"{with_prior.get('plant', with_prior['machine'])} / {with_prior['scenario']}: whole-run P99 "
+                    "with the machine type's prior and without it (the thesis's protocol), same plant")
+    for name in ("error", "with prior", "no prior", "thesis Table 6.5 (comp.)"):
+        t.add_column(name, justify="left" if name == "error" else "right")
+
+    def cell(v) -> str:
+        return f"{v:.1f}" if isinstance(v, (int, float)) and np.isfinite(v) else "-"
+    for c, r in g["components"].items():
+        t.add_row(c, cell(r["with_prior"]), cell(r["no_prior"]), cell(r["thesis"]))
+    t.add_row("P99_lin (um)", *(cell(v) for v in g["p99_lin_whole_run_um"]), "")
+    thesis_run = with_prior["scenario"] == "talc-178h-dry"          # §6.4.2 gives these for that run
+    t.add_row("Q_prod (%)", *(f"{v:.2f}" for v in g["q_prod_pct"]), "about 97" if thesis_run else "-")
+    t.add_row("no-good phases", *(str(v) for v in g["no_good_phases"]), "8" if thesis_run else "-")
+    Console().print(t)

@@ -53,6 +53,56 @@ def build_prior(machine: str, config: dict, scenarios: list[str], seed_base: int
     return prior
 
 
+def prior_cache_dir() -> pathlib.Path:
+    """Where built priors are kept: ``$THERMAL_COMP_CACHE`` or ``$XDG_CACHE_HOME/thermal-comp``
+    (default ``~/.cache/thermal-comp``), sub-folder ``priors``."""
+    import os
+    root = os.environ.get("THERMAL_COMP_CACHE") or pathlib.Path(
+        os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache") / "thermal-comp"
+    return pathlib.Path(root) / "priors"
+
+
+def _cache_key(machine: str, config: dict, scenarios: list[str], seed_base: int, na_max: int, nb_max: int) -> str:
+    """Everything the prior depends on: the nominal preset's text, the configuration, the training
+    programmes and seeds, the orders and the code that fits and runs it."""
+    import hashlib
+    import talc_model.prior as prior_mod
+    import talc_model.talc as talc_mod
+    import thermal_twin
+    preset = pathlib.Path(thermal_twin.__file__).with_name("presets") / f"{machine.replace('-', '_')}.yaml"
+    parts = [json.dumps({"machine": machine, "config": config, "scenarios": scenarios, "seed_base": seed_base,
+                         "na_max": na_max, "nb_max": nb_max}, sort_keys=True, default=str).encode(),
+             preset.read_bytes() if preset.is_file() else machine.encode(),
+             pathlib.Path(prior_mod.__file__).read_bytes(), pathlib.Path(talc_mod.__file__).read_bytes()]
+    h = hashlib.sha256()
+    for part in parts:
+        h.update(hashlib.sha256(part).digest())
+    return h.hexdigest()[:16]
+
+
+def cached_prior(machine: str, config: dict, scenarios: list[str], seed_base: int = SEED_BASE,
+                 na_max: int = 1, nb_max: int = 8, cache_dir: pathlib.Path | None = None,
+                 progress=None) -> tuple[pathlib.Path, bool]:
+    """(path, built_now): the nominal type's prior from the cache, built and stored on a miss.
+    A cache file that does not read back as a prior is rebuilt."""
+    from talc_model.prior import load_prior
+    folder = pathlib.Path(cache_dir) if cache_dir is not None else prior_cache_dir()
+    path = folder / f"{machine}-{_cache_key(machine, config, scenarios, seed_base, na_max, nb_max)}.json"
+    if path.is_file():
+        try:
+            load_prior(path)
+            return path, False
+        except (PriorError, OSError, ValueError):
+            pass                                    # a damaged cache entry: rebuilt below
+    folder.mkdir(parents=True, exist_ok=True)
+    prior = build_prior(machine, config, scenarios, seed_base, na_max, nb_max, progress)
+    import os
+    tmp = path.with_suffix(f".{os.getpid()}.tmp")
+    save_prior(tmp, prior)
+    tmp.replace(path)                                # atomic: a concurrent reader never sees half a file
+    return path, True
+
+
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp prior", description=__doc__.split("\n\n")[0])
     ap.add_argument("--machine", default="nmv5000", help="the NOMINAL machine type (preset name or YAML)")

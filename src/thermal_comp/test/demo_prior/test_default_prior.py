@@ -1,0 +1,89 @@
+"""The demo starts from the machine type's prior by default (cached), says when none applies,
+and prints the no-prior run of the same plant beside it only when asked."""
+import pathlib
+
+import pytest
+
+from talc_model.prior import build_talc_prior, load_prior
+from thermal_comp import demo_cli, prior_cli
+from thermal_comp.demo_cell import DemoConfig
+from thermal_comp.demo_summary import print_prior_gain, prior_gain
+from thermal_twin.scenarios import make_timeline
+from thermal_twin.simulate import simulate
+
+CONFIG = {"input_names": ["ambient", "ws_mwf", "c_coolant_delta"]}
+
+
+@pytest.fixture
+def counted_build(monkeypatch):
+    """prior_cli.build_prior on three nominal runs (the real fit, fewer programmes and orders), counting calls."""
+    calls = []
+
+    def build(machine, config, scenarios, seed_base=101, na_max=1, nb_max=8, progress=None):
+        calls.append((machine, tuple(scenarios)))
+        recs = [simulate(machine, make_timeline(machine, s, seed=seed_base + i, step_s=300.0),
+                         seed=seed_base + i).to_recording() for i, s in enumerate(scenarios)]
+        return build_talc_prior(recs, config, machine=machine, na_max=na_max, nb_max=3)
+    monkeypatch.setattr(prior_cli, "build_prior", build)
+    return calls
+
+
+def test_prior_is_built_once_then_read_from_the_cache(tmp_path, counted_build):
+    scen = ["load-case-A", "load-case-D", "load-case-B"]
+    p1, built1 = prior_cli.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
+    p2, built2 = prior_cli.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
+    assert (built1, built2) == (True, False) and p1 == p2 and len(counted_build) == 1
+    assert load_prior(p2)["machine"] == "nmv5000"
+    # another configuration is another prior
+    p3, built3 = prior_cli.cached_prior("nmv5000", {**CONFIG, "nb_max": 4}, scen, cache_dir=tmp_path)
+    assert built3 and p3 != p1 and len(counted_build) == 2
+    # a damaged cache entry is rebuilt, not trusted
+    p1.write_text("{not json")
+    _, built4 = prior_cli.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
+    assert built4 and load_prior(p1)["machine"] == "nmv5000"
+
+
+def test_default_is_the_prior_and_no_prior_is_asked_for():
+    ap = demo_cli._parser()
+    assert ap.parse_args([]).prior == demo_cli.DEFAULT_PRIOR
+    assert ap.parse_args(["--prior"]).prior == demo_cli.BUILD_PRIOR
+    assert ap.parse_args(["--prior", "x.json"]).prior == "x.json"
+    assert ap.parse_args(["--no-prior"]).prior is None
+    assert not ap.parse_args([]).compare_no_prior
+    with pytest.raises(SystemExit):
+        ap.parse_args(["--prior", "x.json", "--no-prior"])
+
+
+def test_no_default_prior_where_none_applies(tmp_path, capsys):
+    assert demo_cli._no_default_prior_reason(DemoConfig(scenario="talc-178h-dry")) is None
+    assert "training programmes" in demo_cli._no_default_prior_reason(DemoConfig(scenario="load-case-A"))
+    assert "AGP" in demo_cli._no_default_prior_reason(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed"))
+    with pytest.raises(demo_cli.DemoError, match="training programmes"):
+        demo_cli._build_prior(DemoConfig(scenario="load-case-A", out_dir=tmp_path))
+    assert demo_cli.main(["--no-prior", "--compare-no-prior", "--out", str(tmp_path)]) == 1
+    assert "cannot go with --no-prior" in capsys.readouterr().err
+
+
+def test_build_prior_copies_the_cached_prior_into_the_run(tmp_path, monkeypatch, counted_build):
+    monkeypatch.setenv("THERMAL_COMP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setitem(prior_cli.TRAINING_SCENARIOS, "nmv5000", ["load-case-A", "load-case-D", "load-case-B"])
+    cfg = DemoConfig(scenario="talc-178h-dry", out_dir=tmp_path / "run")
+    path = demo_cli._build_prior(cfg)
+    assert path == (tmp_path / "run" / "prior.json").resolve() and load_prior(path)["machine"] == "nmv5000"
+    demo_cli._build_prior(DemoConfig(scenario="talc-178h-dry", out_dir=tmp_path / "run2"))
+    assert len(counted_build) == 1                                   # the second run used the cache
+    assert pathlib.Path(tmp_path / "cache" / "priors").is_dir()
+
+
+def test_prior_gain_table(capsys):
+    def summary(p99, q, ng):
+        return {"machine": "nmv5000", "plant": "nmv5000 unit #1", "scenario": "talc-178h-dry",
+                "p99_compensated_whole_run": {"E_Y0C": p99, "E_C0C": 2 * p99}, "q_prod_pct": q,
+                "p99_lin_whole_run_um": p99, "no_good_phases": ng,
+                "thesis": {"p99_compensated": {"E_Y0C": 4.9, "E_C0C": 7.0}}}
+    g = prior_gain(summary(2.0, 98.5, 0), summary(6.0, 96.9, 7))
+    assert g["components"]["E_Y0C"] == {"with_prior": 2.0, "no_prior": 6.0, "thesis": 4.9}
+    assert g["q_prod_pct"] == [98.5, 96.9] and g["no_good_phases"] == [0, 7]
+    print_prior_gain(summary(2.0, 98.5, 0), summary(6.0, 96.9, 7))
+    out = capsys.readouterr().out
+    assert "with prior" in out and "no prior" in out and "4.9" in out
