@@ -7,6 +7,7 @@ prediction (in component space). The bridge's limits are reported separately.
 """
 from __future__ import annotations
 
+import pathlib
 from typing import Any
 
 import numpy as np
@@ -127,7 +128,7 @@ def print_table(summary: dict[str, Any]) -> None:
     base = summary.get("probe_and_hold")
     t = Table(title=f"{summary.get('plant', summary['machine'])} / {summary['scenario']}: P99 of the thermal "
                     f"errors, {summary['model_kind'].upper()}"
-                    f"{' with the prior ' + str(summary['prior']) if summary.get('prior') else ' (no prior)'}, "
+                    f"{' with the prior ' + pathlib.Path(summary['prior']).name if summary.get('prior') else ' (no prior)'}, "
                     f"{summary['simulated_hours']} h simulated (compensated: {w0:g}-{w1:g} h, after the "
                     f"calibration phase; whole run: from 0 h)")
     t.add_column("error")
