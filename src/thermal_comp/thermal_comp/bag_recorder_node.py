@@ -27,11 +27,11 @@ import pathlib
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from thermal_comp_common import node_runtime as rt
 from thermal_comp_common.bag_writer import BagWriter, TopicInfo, qos_dict, stamp_from_cdr
-from thermal_comp_common.diagnostics import DiagnosticsPublisher
+from thermal_comp_common.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS, DiagnosticsPublisher
 from thermal_comp_common.msg_definitions import first_field_type, normalize_type
 
 #: The topics recorded when none are given: relative name -> (type, QoS the publisher offers).
@@ -45,10 +45,17 @@ DEFAULT_TOPICS: dict[str, tuple[str, QoSProfile]] = {
     rt.TOPIC_OFFSETS: ("thermal_comp_msgs/msg/AxisOffsets", rt.EVENT_QOS),
     rt.TOPIC_MODEL_STATUS: ("thermal_comp_msgs/msg/ModelStatus", rt.LATCHED_QOS),
 }
+#: The graph's health, absolute topics every node publishes on (recorded with ``health``, shown
+#: by the rerun view): name -> (type, QoS to subscribe with).
+HEALTH_TOPICS: dict[str, tuple[str, QoSProfile]] = {
+    TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS),
+    "/rosout": ("rcl_interfaces/msg/Log", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)),
+}
 #: Known topics that are not recorded by default but may be named on the command line.
 OPTIONAL_TOPICS: dict[str, tuple[str, QoSProfile]] = {
     rt.TOPIC_SIM_SYNC: ("thermal_comp_msgs/msg/SimSync", rt.EVENT_QOS),
     "/clock": ("rosgraph_msgs/msg/Clock", rt.MONITOR_QOS),
+    **HEALTH_TOPICS,
 }
 #: Receive-side queue depth for reliable topics (absorbs bursts of an as-fast-as-possible replay).
 RECEIVE_DEPTH = 1000
@@ -124,6 +131,8 @@ class BagRecorderNode(Node):
             rt.Param("ack_topics", ["machine_state", "twin/sensor_readings"], "lock-step: topics "
                      "whose message for t_k must be written before t_k is acknowledged (topics "
                      "machine_sim re-sends; ones not recorded are ignored)"),
+            rt.Param("health", False, "also record the graph's health: /diagnostics and /rosout "
+                     "(with the default topics; the demo's recorder does)"),
             rt.Param("ack_fsync", False, "lock-step: fsync the bag before each acknowledgement (survives a "
                      "power loss, a few ms per instant); without, the written chunk is handed to the OS "
                      "first, which survives a crash or kill of this process"),
@@ -142,6 +151,8 @@ class BagRecorderNode(Node):
         args = [t for t in p["topics"] if t.strip()]
         specs = ([parse_topic_arg(a) for a in args] if args
                  else [(n, t, q) for n, (t, q) in DEFAULT_TOPICS.items()])
+        if p["health"]:
+            specs += [(n, t, q) for n, (t, q) in HEALTH_TOPICS.items() if n not in {s[0] for s in specs}]
         self._use_header = p["timestamps"] == "header"
         self._subs = []
         infos = []

@@ -10,17 +10,9 @@ below; default: a spawned native viewer), or ``thermal-comp view`` without a bag
 from __future__ import annotations
 
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from thermal_comp_common import node_runtime as rt
-from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, message_class
-from thermal_comp_common.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS
-
-#: The graph's health: absolute topics every node publishes on -> (type, QoS to subscribe with).
-HEALTH_TOPICS = {
-    TOPIC_DIAGNOSTICS: ("diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS),
-    "/rosout": ("rcl_interfaces/msg/Log", QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)),
-}
+from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, HEALTH_TOPICS, message_class
 from thermal_comp.rerun_logging import RerunLogger, default_blueprint, resolve_layout
 from thermal_comp.rerun_sinks import RerunOutput, open_output
 

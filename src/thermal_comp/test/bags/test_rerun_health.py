@@ -74,3 +74,22 @@ def test_live_view_shows_diagnostics_and_rosout(tmp_path, ros_context):
     finally:
         node.destroy_node()
     assert proc.returncode == 0, out_text
+
+
+@pytest.mark.ros
+def test_the_recorder_records_health_when_asked(tmp_path):
+    import rclpy
+    from thermal_comp.bag_recorder_node import BagRecorderNode
+    topics = {}
+    for health in (False, True):
+        ctx = rclpy.context.Context()
+        rclpy.init(args=["x", "--ros-args", "-p", f"output:={tmp_path / f'bag_{health}'}",
+                         "-p", f"health:={str(health).lower()}"], context=ctx)
+        node = BagRecorderNode(context=ctx)
+        try:
+            topics[health] = {topic for _, topic, _ in node._subs}
+        finally:
+            node.close()
+            node.destroy_node()
+            ctx.try_shutdown()
+    assert topics[True] - topics[False] == {"/diagnostics", "/rosout"}
