@@ -219,7 +219,7 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         with np.errstate(divide="ignore", invalid="ignore"):
             s2 = np.where(g > 0, since_h * (1.0 - g) / np.where(g > 0, g, 1.0), np.inf)
         comp[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(outside), np.sqrt(s2), measured, start, n, 1.0)
-        hold[c] = uncertainty_weighted_hold(t, y, np.nan_to_num(outside), np.sqrt(s2), measured, start, n, 0.0)
+        hold[c] = y_p          # the last probe before each row (a probe row was compensated before its probe)
         corr[c] = corrected
         weights[c] = float(np.mean(gains))
         rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),

@@ -197,3 +197,18 @@ def test_the_project_adaptive_models_run_their_own_logic_within_the_budget():
     assert "talc_closed_loop" in res.figures["adaptive"]
     with pytest.raises(SpecError, match="closest: 'agp_closed_loop'"):
         evaluate(d, models=[], show_progress=False, closed_loop=["agp_closedloop"])
+
+
+def test_the_hold_beside_a_model_is_pure_holding_of_its_probes():
+    d = _data()
+    model = LAGGED
+    params = {ch: model.select(d, ch, d.split.n_train) for ch in d.channels}
+    pred = {ch: model.predict(d, ch, params[ch], d.split.n_train) for ch in d.channels}
+    oof = {ch: out_of_fold_prediction(model, d, ch, params[ch], d.split.n_train) for ch in d.channels}
+    a = run_adaptive(d, pred, oof, ProbingBudget(probe_every_h=2.0, max_probes_per_h=1.0, tolerance_um=0.5))
+    measured = [d.split.n_train - 1] + a.probe_rows
+    for ch in d.channels:
+        y, h = d.displacement_um[ch], a.hold[ch]
+        for r in range(d.split.n_train, len(d)):     # a probe row was compensated before its probe
+            last = max(m for m in measured if m < r)
+            assert h[r] == y[last]
