@@ -122,6 +122,13 @@ def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> 
     return summary
 
 
+def _console() -> Console:
+    """The terminal's console; piped or logged output gets 160 columns, so the table's nine
+    columns are not squeezed into 80 (headers and numbers broken over lines)."""
+    c = Console()
+    return c if c.is_terminal else Console(width=160)
+
+
 def print_table(summary: dict[str, Any]) -> None:
     thesis = summary.get("thesis", {})
     w0, w1 = summary["evaluation_window_h"]
@@ -153,7 +160,7 @@ def print_table(summary: dict[str, Any]) -> None:
             k = thesis["p99_compensated"].get(c)
             row.append(f"{u if u is not None else '-'} / {k if k is not None else '-'}")
         t.add_row(*row)
-    c = Console()
+    c = _console()
     c.print(t)
     c.print(f"probing cycles {summary['probing_cycles']} (failed {summary['failed_probing_cycles']}), "
             f"no-good phases {summary['no_good_phases']}, parameter updates {summary['parameter_updates']}, "
@@ -197,4 +204,4 @@ def print_prior_gain(with_prior: dict[str, Any], no_prior: dict[str, Any]) -> No
     thesis_run = with_prior["scenario"] == "talc-178h-dry"          # §6.4.2 gives these for that run
     t.add_row("Q_prod (%)", *(f"{v:.2f}" for v in g["q_prod_pct"]), "about 97" if thesis_run else "-")
     t.add_row("no-good phases", *(str(v) for v in g["no_good_phases"]), "8" if thesis_run else "-")
-    Console().print(t)
+    _console().print(t)
