@@ -376,6 +376,7 @@ class RerunLogger:
         """Each status: its level as a scalar, a text line when level or message changed."""
         for st in m.status:
             node, _, name = str(st.name).rpartition(": ")
+            name = name.replace(" ", "_")     # 'sensor spindle' -> sensor_spindle (no escaped spaces)
             path = f"{p}diagnostics/{_part(node) + '/' if node else ''}{_part(name)}"
             level = int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level)
             self._scalar(f"{path}/level", float(level))

@@ -27,7 +27,7 @@ def _log(store, t, level, name, text):
                                                  file="f.py", function="f", line=1)
 
 
-SPINDLE = "diagnostics/sensors/sensor\\ spindle"     # status "sensors: sensor spindle", escaped
+SPINDLE = "diagnostics/sensors/sensor_spindle"     # status "sensors: sensor spindle"
 
 
 @pytest.mark.parametrize("columnar", [False, True])
