@@ -3,7 +3,10 @@
 The same nodes, namespace, parameters, arguments and ROS_DOMAIN_ID as
 ``thermal-comp launch CELL.yaml``: both read the file with ``thermal_comp.cell_config`` and the
 node list comes from ``thermal_comp.cell_launch.launch_plan``. Differences that launch imposes:
-a crashed node is respawned after a fixed ``backoff_s`` (the launcher doubles it per crash).
+a crashed node is respawned after a fixed ``backoff_s`` (the launcher doubles it per crash), and a
+managed (lifecycle) node is configured and activated once after its start by the same driver the
+launcher runs (``thermal_comp.lifecycle_driver``, one deadline per transition); after a respawn it
+stays unconfigured (writes nothing) and the lock-step deadline names it.
 """
 import pathlib
 import sys
@@ -37,6 +40,10 @@ def _cell_actions(context):
                 cmd=[sys.executable, "-m", spec.module, *spec.arguments,
                      *spec.ros_arguments(str(params_file))],
                 name=f"{cell.cell}_{spec.name}", additional_env=spec.env, output="screen", **respawn))
+        if spec.lifecycle:
+            actions.append(ExecuteProcess(cmd=spec.lifecycle_command(sys.executable),
+                                          name=f"{cell.cell}_{spec.name}_lifecycle",
+                                          additional_env=spec.env, output="screen"))
     return actions
 
 

@@ -29,6 +29,13 @@ class NodeLaunch:
     respawn: bool = False
     respawn_delay_s: float = 0.0
     respawn_max_retries: int = -1
+    lifecycle: bool = False          # a managed node: configure + activate after its start
+    lifecycle_timeout_s: float = 30.0
+
+    def lifecycle_command(self, python: str, transitions=("configure", "activate")) -> list[str]:
+        """The driver ``thermal-comp launch`` runs for a managed node (same deadline per transition)."""
+        return [python, "-m", "thermal_comp.lifecycle_driver", "--timeout", f"{self.lifecycle_timeout_s:g}",
+                f"{self.namespace}/{self.name}", *transitions]
 
     def ros_arguments(self, params_file: str) -> list[str]:
         """The ``--ros-args`` part of the command line, as ``thermal-comp launch`` builds it."""
@@ -59,5 +66,6 @@ def launch_plan(cell: CellConfig) -> list[NodeLaunch]:
             respawn=node.restart.enabled,
             # launch waits a fixed delay before each respawn; the launcher doubles it per crash.
             respawn_delay_s=node.restart.backoff_s if node.restart.enabled else 0.0,
-            respawn_max_retries=node.restart.max_restarts if node.restart.enabled else -1))
+            respawn_max_retries=node.restart.max_restarts if node.restart.enabled else -1,
+            lifecycle=node.lifecycle, lifecycle_timeout_s=node.lifecycle_timeout_s))
     return plan

@@ -138,7 +138,15 @@ def test_cell_launch_file_builds_the_plan(cell_file, monkeypatch, tmp_path):
     assert declare.args == ("cell_file",)
     actions = opaque.kwargs["function"]({"cell_file": str(cell_file)})
     plan = launch_plan(load_cell(cell_file))
+    drivers = {a.kwargs["name"]: a for a in actions if a.kwargs.get("name", "").endswith("_lifecycle")}
+    actions = [a for a in actions if a.kwargs.get("name", "") not in drivers]
     assert len(actions) == len(plan)
+    managed = [spec for spec in plan if spec.lifecycle]
+    assert sorted(drivers) == sorted(f"{load_cell(cell_file).cell}_{s.name}_lifecycle" for s in managed)
+    for spec in managed:   # configure + activate by the launcher's own driver, in the node's environment
+        kw = drivers[f"{load_cell(cell_file).cell}_{spec.name}_lifecycle"].kwargs
+        assert kw["cmd"] == spec.lifecycle_command(sys.executable)
+        assert kw["cmd"][-2:] == ["configure", "activate"] and kw["additional_env"] == spec.env
     for action, spec in zip(actions, plan):
         kw = action.kwargs
         params_file = pathlib.Path(kw["parameters"][0] if spec.package else kw["cmd"][-1])
