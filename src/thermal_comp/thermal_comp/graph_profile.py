@@ -1,5 +1,6 @@
 """Where the wall time of a lock-step instant goes: the stages of the round trip, from the
-arrival times (one observer's clock) of each instant's messages.
+publication times of each instant's messages (DDS source timestamps, one host's clock:
+thermal_comp.demo_monitor).
 
 Per instant t_k the critical path is machine_sim -> ``twin/sensor_readings`` -> sensors ->
 ``temperatures`` -> model -> ``errors/predicted`` -> bridge (CNC write, read back) ->
@@ -25,10 +26,10 @@ STAGES = (
 
 def instant_events(arrivals: dict[tuple[str, int], float], acks: dict[tuple[str, int], float],
                    participants: list[str]) -> dict[int, dict[str, float]]:
-    """Per instant (stamp ns): event name -> arrival time (s), for instants with every event.
+    """Per instant (stamp ns): event name -> publication time (s), for instants with every event.
 
-    ``arrivals[(topic, stamp_ns)]`` is the first arrival of a topic's message for an instant,
-    ``acks[(node, stamp_ns)]`` the first acknowledgement of a participant."""
+    ``arrivals[(topic, stamp_ns)]`` is the first publication of a topic's message for an
+    instant, ``acks[(node, stamp_ns)]`` the first acknowledgement of a participant."""
     twin = sorted(s for (topic, s) in arrivals if topic == "twin/sensor_readings")
     out: dict[int, dict[str, float]] = {}
     for k, s in enumerate(twin[:-1]):

@@ -49,3 +49,54 @@ def test_ack_breakdown_names_who_holds_the_graph():
 
 def test_no_instants_no_figures():
     assert stage_breakdown({}) == {}
+
+
+@pytest.mark.ros
+def test_the_monitor_times_publications_and_acknowledgements(ros_context):
+    """DemoMonitor records each instant's publication times (source timestamps) and the
+    temperature -> offsets latency, once per instant even when an instant is re-sent."""
+    import time
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    from thermal_comp.demo_monitor import DemoMonitor
+    from thermal_comp_common import node_runtime as rt
+    from thermal_comp_msgs.msg import AxisOffsets, SimSync, TemperatureArray
+
+    monitor = DemoMonitor("/monitor_test")
+    node = rclpy.create_node("source", namespace="/monitor_test", context=ros_context)
+    ex = SingleThreadedExecutor(context=ros_context)
+    ex.add_node(node)
+    temps = node.create_publisher(TemperatureArray, rt.TOPIC_TEMPERATURES, rt.SENSOR_QOS)
+    offsets = node.create_publisher(AxisOffsets, rt.TOPIC_OFFSETS, rt.EVENT_QOS)
+    sync = node.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
+
+    def until(cond, what):
+        end = time.monotonic() + 30
+        while not cond():
+            assert time.monotonic() < end, what
+            ex.spin_once(timeout_sec=0.05)
+
+    try:
+        until(lambda: temps.get_subscription_count() and offsets.get_subscription_count()
+              and sync.get_subscription_count(), "the monitor to subscribe")
+        stamp = rt.s_to_stamp(300.0)
+        t, o = TemperatureArray(), AxisOffsets()
+        t.header.stamp = o.header.stamp = stamp
+        before = time.time()
+        for _ in range(2):                       # the instant re-sent: counted once
+            temps.publish(t)
+            offsets.publish(o)
+        sync.publish(SimSync(node_name="sensors", processed_until=stamp))
+        t.header.stamp = o.header.stamp = rt.s_to_stamp(600.0)    # the next instant, in order after
+        temps.publish(t)
+        offsets.publish(o)
+        until(lambda: ("offsets", 600 * 10**9) in monitor.arrivals and ("sensors", 300 * 10**9) in monitor.acks,
+              "the monitor to see both instants")
+        assert len(monitor.latencies) == 2 and all(0.0 <= x < 1.0 for x in monitor.latencies)
+        published = monitor.arrivals[(rt.TOPIC_TEMPERATURES, 300 * 10**9)]
+        assert before - 1.0 < published <= time.time()          # the host clock at publication
+    finally:
+        monitor.close()
+        node.destroy_node()
