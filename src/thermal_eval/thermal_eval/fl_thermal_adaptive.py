@@ -46,12 +46,13 @@ from talc_model.probe_update import ProbeSchedule
 from talc_model.sensor_selection import sensor_medoids
 
 from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits, mae
+from thermal_eval.open_loop_models import GROUP_CANDIDATES
 
 #: One probing every 2 h after calibration (issue 10); 95 s per probing for Q_prod.
 PROBE_INTERVAL_S = 7200.0
 PROBE_DURATION_S = 95.0
-#: Numbers of sensor groups tried for TALC's inputs (one medoid sensor per group).
-TALC_GROUP_CANDIDATES = (2, 3, 4, 6, 8, 10, 12)
+#: Numbers of sensor groups tried for TALC's inputs (one medoid sensor per group): the generic ARX's.
+TALC_GROUP_CANDIDATES = GROUP_CANDIDATES
 
 
 def _columns():

@@ -11,19 +11,19 @@ from __future__ import annotations
 import argparse
 import pathlib
 import time
-from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from talc_model.sensor_selection import sensor_medoids
-from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA_GRID, LaggedTemperatureModel,
-                                                 default_tau_grid, walk_forward_select)
+from talc_model.lagged_temperature_model import DEFAULT_ALPHA_GRID
+from thermal_eval.baselines import BASELINES
+from thermal_eval.evaluation_run import evaluate
 from thermal_eval.fl_thermal_adaptive import (adaptive_configs, run_adaptive, run_calibrated_talc_variants,
                                             select_talc_inputs)
-from thermal_eval.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
-from thermal_eval.fl_thermal_arx import arx_open_loop_channel
-from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, load_fl_thermal, mae
+from thermal_eval.fl_thermal_data import (CHANNELS, FlThermalData, FlThermalError, Splits, as_evaluation_data,
+                                          load_fl_thermal, mae)
+from thermal_eval.open_loop_models import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
+from thermal_eval.open_loop_models import arx_model, lagged_ridge_model
 
 #: MAE (um) on the test rows, from the authors' README (shared/data/fl_thermal/README.md).
 PUBLISHED_MAE_UM: dict[str, dict[str, float]] = {
@@ -34,82 +34,52 @@ PUBLISHED_MAE_UM: dict[str, dict[str, float]] = {
 }
 BEST_PUBLISHED = "S2S2"
 
-#: Spindle-speed low-pass time constants of the spindle variant (s): the same physical range
-#: as the temperature lags (bearings ... structure); fixed, not tuned.
-SPINDLE_TAUS_S = CANDIDATE_TAUS_S
-
-
 # ----------------------------------------------------------------------------- open loop
 
-@dataclass
-class OpenLoopChannel:
-    prediction: np.ndarray       # whole recording, open loop
-    taus_s: tuple[float, ...]
-    alpha: float
-    walk_forward_mae_um: float
-    fold_mae_um: list[float]
+#: benchmark name -> (generic model of :mod:`thermal_eval.open_loop_models`, uses the spindle speed)
+OPEN_LOOP_MODELS = {"lagged_ridge": ("lagged_ridge", False), "lagged_ridge_spindle": ("lagged_ridge_inputs", True)}
+ARX_MODELS = {"arx_simulation": ("arx_simulation", False), "arx_simulation_spindle": ("arx_simulation_inputs", True)}
 
 
-def open_loop_channel(data: FlThermalData, splits: Splits, channel: str, *, with_spindle: bool,
-                      tau_grid: Sequence[Sequence[float]] | None = None,
-                      alpha_grid: Sequence[float] = DEFAULT_ALPHA_GRID, n_folds: int = 4,
-                      progress=None) -> OpenLoopChannel:
-    """Select on rows < n_train by walk-forward MAE, refit on the training rows, predict everything."""
-    n = splits.n_train
-    y = data.displacement_um[channel]
-    exo = data.spindle_rpm / 1000.0 if with_spindle else None   # krpm keeps the features O(1)
-    exo_taus = SPINDLE_TAUS_S if with_spindle else ()
-    sel = walk_forward_select(data.time_s, data.temperatures, y, n, tau_grid or default_tau_grid(), alpha_grid,
-                              n_folds=n_folds, exogenous=exo, exogenous_taus_s=exo_taus, progress=progress)
-    model = LaggedTemperatureModel(sel.taus_s, sel.alpha, exo_taus)
-    model.fit_recording(data.time_s[:n], data.temperatures[:n], y[:n], None if exo is None else exo[:n])
-    pred = model.predict_recording(data.time_s, data.temperatures, exo)
-    return OpenLoopChannel(pred, sel.taus_s, sel.alpha, sel.best_mae, sel.fold_mae)
-
-
-OPEN_LOOP_MODELS = {"lagged_ridge": False, "lagged_ridge_spindle": True}   # name -> uses the spindle speed
-ARX_MODELS = {"arx_simulation": False, "arx_simulation_spindle": True}
+def _open_loop_cell(data: FlThermalData, splits: Splits, name: str, ch: str, cell: Mapping[str, Any],
+                    pred: np.ndarray | None, with_spindle: bool) -> dict[str, Any]:
+    """The benchmark's figure keys from one generic evaluate cell (a failure stays its reason)."""
+    if "failed" in cell:
+        return {"failed": cell["failed"]}
+    p = dict(cell["params"])
+    out: dict[str, Any] = {"mae_um": cell["mae_test_um"], "mae_validation_um": cell["mae_validation_um"]}
+    if name in OPEN_LOOP_MODELS:
+        y = data.displacement_um[ch]
+        out.update(mae_train_um=round(mae(y[:splits.n_train], pred[:splits.n_train]), 3),
+                   walk_forward_mae_um=p["walk_forward_mae_um"],
+                   walk_forward_fold_mae_um=p["walk_forward_fold_mae_um"], taus_s=p["taus_s"], alpha=p["alpha"])
+    elif name in ARX_MODELS:
+        out.update(training_validation_rms_um=p["training_validation_rms_um"],
+                   inputs=list(p["inputs"]) + (["spindle_krpm"] if with_spindle else []), na=p["na"], nb=p["nb"],
+                   input_set_training_validation_rms_um=p["input_sets"])
+    return out
 
 
 def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID,
-                  n_folds: int = 4, arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES,
+                  arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES,
                   show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]]]:
     """Figures and predictions of every open-loop model (lagged ridge with and without the
-    spindle speed, ARX in simulation mode)."""
-    from tqdm import tqdm
-    grid = list(tau_grid or default_tau_grid())
+    spindle speed, ARX in simulation mode) and of the generic baselines, all through the generic
+    ``evaluate`` path (:func:`thermal_eval.evaluation_run.evaluate`) on the authors' split."""
+    ed = as_evaluation_data(data, splits)
+    models = [lagged_ridge_model(name, spindle, tau_grid, alpha_grid) for name, (_, spindle) in OPEN_LOOP_MODELS.items()]
+    models += [arx_model(name, spindle, False, arx_groups) for name, (_, spindle) in ARX_MODELS.items()]
+    res = evaluate(ed, models=BASELINES + models, adaptive=False, show_progress=show_progress)
     figures: dict[str, Any] = {}
     predictions: dict[str, dict[str, np.ndarray]] = {}
-    bar = tqdm(total=len(OPEN_LOOP_MODELS) * len(CHANNELS) * len(grid), desc="open loop: walk-forward",
-               unit="lag set", disable=not show_progress, leave=False)
-    with bar:
-        for name, with_spindle in OPEN_LOOP_MODELS.items():
-            figures[name], predictions[name] = {}, {}
-            for ch in CHANNELS:
-                r = open_loop_channel(data, splits, ch, with_spindle=with_spindle, tau_grid=grid,
-                                      alpha_grid=alpha_grid, n_folds=n_folds, progress=bar.update)
-                y = data.displacement_um[ch]
-                predictions[name][ch] = r.prediction
-                figures[name][ch] = {
-                    "mae_um": round(mae(y[splits.test], r.prediction[splits.test]), 3),
-                    "mae_validation_um": round(mae(y[splits.validation], r.prediction[splits.validation]), 3),
-                    "mae_train_um": round(mae(y[:splits.n_train], r.prediction[:splits.n_train]), 3),
-                    "walk_forward_mae_um": round(r.walk_forward_mae_um, 3),
-                    "walk_forward_fold_mae_um": [round(v, 3) for v in r.fold_mae_um],
-                    "taus_s": list(r.taus_s), "alpha": r.alpha}
-    input_sets = {k: sensor_medoids(data.temperatures[:splits.n_train], int(k), SENSORS) for k in arx_groups}
-    for name, with_spindle in ARX_MODELS.items():
-        figures[name], predictions[name] = {}, {}
-        for ch in tqdm(CHANNELS, desc=f"open loop: {name}", disable=not show_progress, leave=False):
-            r = arx_open_loop_channel(data, splits, ch, input_sets=input_sets, with_spindle=with_spindle)
-            y = data.displacement_um[ch]
-            predictions[name][ch] = r.prediction
-            figures[name][ch] = {
-                "mae_um": round(mae(y[splits.test], r.prediction[splits.test]), 3),
-                "mae_validation_um": round(mae(y[splits.validation], r.prediction[splits.validation]), 3),
-                "training_validation_rms_um": round(r.validation_rms_um, 3), "inputs": r.inputs, "na": r.na,
-                "nb": r.nb, "input_set_training_validation_rms_um": r.candidates}
-    return figures, predictions
+    for name, (_, spindle) in {**OPEN_LOOP_MODELS, **ARX_MODELS}.items():
+        per = res.figures["open_loop"][name]["channels"]
+        predictions[name] = dict(res.open_loop[name])
+        figures[name] = {ch: _open_loop_cell(data, splits, name, ch, per[ch], predictions[name].get(ch), spindle)
+                         for ch in CHANNELS}
+    baselines = {b.name: {ch: _open_loop_cell(data, splits, b.name, ch,
+                                              res.figures["open_loop"][b.name]["channels"][ch], None, False) for ch in CHANNELS} for b in BASELINES}
+    return figures, predictions, baselines
 
 
 # ----------------------------------------------------------------------------- report
@@ -126,12 +96,15 @@ def print_table(figures: Mapping[str, Any]) -> None:
     for name, per in PUBLISHED_MAE_UM.items():
         table.add_row(f"published {name}", *[f"{per[ch]:.3f}" for ch in CHANNELS], "")
     best = PUBLISHED_MAE_UM[BEST_PUBLISHED]
-    for group in ("open_loop", "adaptive"):
+    for group in ("baselines", "open_loop", "adaptive"):
         for name, per in figures.get(group, {}).items():
             cells = []
             for ch in CHANNELS:
+                if "mae_um" not in per[ch]:
+                    cells.append("[red]failed[/red]")
+                    continue
                 v, vv = per[ch]["mae_um"], per[ch]["mae_validation_um"]
-                target = best[ch] if group == "open_loop" else 1.0
+                target = best[ch] if group != "adaptive" else 1.0
                 style = "green" if v <= target else "red"
                 cells.append(f"[{style}]{v:.3f}[/{style}] [{vv:.3f}]")
             q = f"{per['q_prod_pct']:.2f}" if "q_prod_pct" in per else ""
@@ -231,9 +204,9 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         "published": {name: dict(per) for name, per in PUBLISHED_MAE_UM.items()},
     }
     with threadpool_limits(1):   # small dense problems: BLAS threads only contend on a shared machine
-        figures["open_loop"], predictions = run_open_loop(data, splits, tau_grid=tau_grid, alpha_grid=alpha_grid,
-                                                          arx_groups=arx_groups or ARX_GROUP_CANDIDATES,
-                                                          show_progress=show_progress)
+        figures["open_loop"], predictions, figures["baselines"] = run_open_loop(
+            data, splits, tau_grid=tau_grid, alpha_grid=alpha_grid, arx_groups=arx_groups or ARX_GROUP_CANDIDATES,
+            show_progress=show_progress)
     figures["open_loop_s"] = round(time.perf_counter() - t0, 1)
     if adaptive:
         overrides = dict(adaptive_overrides or {})
@@ -270,8 +243,8 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         figures["adaptive_s"] = round(time.perf_counter() - t1, 1)
         predictions.update({f"adaptive {k}": adaptive_pred[k] for k in ADAPTIVE_IN_PREDICTION_PLOT})
     best = PUBLISHED_MAE_UM[BEST_PUBLISHED]
-    figures["open_loop_beats_s2s2"] = {name: {ch: bool(per[ch]["mae_um"] < best[ch]) for ch in CHANNELS}
-                                       for name, per in figures["open_loop"].items()}
+    figures["open_loop_beats_s2s2"] = {name: {ch: bool(per[ch].get("mae_um", np.inf) < best[ch])
+                                              for ch in CHANNELS} for name, per in figures["open_loop"].items()}
     if out_dir is not None:
         out = pathlib.Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

@@ -36,10 +36,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from talc_model.probe_update import ProbeSchedule, q_prod_pct, run_probe_updates
-from talc_model.sensor_selection import sensor_medoids
 from talc_model.slow_error_filter import SlowErrorFilter
 from thermal_eval.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
-from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
+from thermal_eval.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
 
 #: Slow-error time constants tried (s): 30 min (spindle nose) ... 24 h (a drifting reference).
 BIAS_TAU_GRID_S = (1800.0, 3600.0, 7200.0, 14400.0, 28800.0, 86400.0)
@@ -76,7 +75,7 @@ def load_change_rows(data: FlThermalData) -> list[int]:
 
 
 def grid_step_rows(data: FlThermalData) -> int:
-    from thermal_eval.fl_thermal_arx import GRID_STEP_S
+    from thermal_eval.open_loop_models import GRID_STEP_S
     return max(1, int(round(GRID_STEP_S / float(np.median(np.diff(data.time_s))))))
 
 
@@ -85,14 +84,13 @@ def calibrated_arx(data: FlThermalData, n_calibration: int, channel: str, group_
     """ARX identified on rows < n_calibration only (inputs, orders, parameters), simulated after:
     ({evaluation mode: prediction for every row, NaN before n_calibration}, input names).
     Modes (:data:`EVALUATIONS`): "grid_hold" holds each 5-min grid value, "subgrid" evaluates
-    between grid samples (:func:`fl_thermal_arx.subgrid_prediction`)."""
+    between grid samples (:func:`open_loop_models.subgrid_prediction`)."""
     from thermal_eval.fl_thermal_arx import arx_open_loop_channel
     key = (channel, int(n_calibration), bool(with_spindle), tuple(group_candidates))
     if cache is not None and key in cache:
         return cache[key]
-    sets = {k: sensor_medoids(data.temperatures[:n_calibration], int(k), SENSORS) for k in group_candidates}
     splits = Splits(n_calibration, n_calibration + 1, len(data))
-    r = arx_open_loop_channel(data, splits, channel, input_sets=sets, with_spindle=with_spindle)
+    r = arx_open_loop_channel(data, splits, channel, group_candidates, with_spindle=with_spindle)
     out = ({"grid_hold": r.prediction, "subgrid": r.prediction_subgrid}, list(r.inputs))
     if cache is not None:
         cache[key] = out

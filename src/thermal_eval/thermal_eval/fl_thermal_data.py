@@ -130,3 +130,14 @@ def walk_forward_fold_rows(fold_starts, n: int) -> list[int]:
     return rows
 
 
+
+
+def as_evaluation_data(data: FlThermalData, splits: Splits | None = None):
+    """The same rows as the generic ``evaluate`` data (names ``t1..t16`` / ``ch1..ch5``, the spindle
+    speed as the one machine input, ``splits`` or the authors' split), so the benchmark runs the
+    generic models (:mod:`thermal_eval.open_loop_models`) and baselines on FL_THERMAL."""
+    from thermal_eval.evaluation_spec import EvaluationData, Split
+    s = splits or Splits.authors(len(data))
+    return EvaluationData(data.time_s, data.temperatures, list(SENSORS), data.spindle_rpm[:, None],
+                          [SPINDLE_COLUMN], dict(data.displacement_um), Split(s.n_train, s.validation, s.test, s.n),
+                          "FL_THERMAL")

@@ -28,7 +28,6 @@ from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA
 from talc_model.order_selection import select_orders
 from talc_model.sensor_selection import sensor_groups, sensor_medoids
 from thermal_eval.evaluation_spec import EvaluationData, input_scale
-from thermal_eval.fl_thermal_arx import subgrid_prediction
 from thermal_eval.model_selection import ModelFailure, ModelSpec
 
 GRID_STEP_S = 300.0                       # TALC's model grid
@@ -49,13 +48,14 @@ def _inputs(data: EvaluationData) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- lagged ridge
 
-def _lagged_select(with_inputs: bool):
+def _lagged_select(with_inputs: bool, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID):
     def select(data, channel, n_fit):
         exo = _inputs(data) if with_inputs else None
         sel = walk_forward_select(data.time_s, data.temperatures, data.displacement_um[channel], n_fit,
-                                  default_tau_grid(), DEFAULT_ALPHA_GRID, n_folds=4, exogenous=exo,
+                                  list(tau_grid or default_tau_grid()), alpha_grid, n_folds=4, exogenous=exo,
                                   exogenous_taus_s=CANDIDATE_TAUS_S if with_inputs else ())
-        return {"taus_s": list(sel.taus_s), "alpha": sel.alpha, "walk_forward_mae_um": round(sel.best_mae, 3)}
+        return {"taus_s": list(sel.taus_s), "alpha": sel.alpha, "walk_forward_mae_um": round(sel.best_mae, 3),
+                "walk_forward_fold_mae_um": [round(v, 3) for v in sel.fold_mae]}
     return select
 
 
@@ -83,7 +83,43 @@ def _arx_rows(data: EvaluationData, names: list[str], with_inputs: bool) -> np.n
     return np.column_stack([u, _inputs(data)]) if with_inputs else u
 
 
-def _arx_select(with_inputs: bool):
+def subgrid_prediction(model, u_rows: np.ndarray, grid: np.ndarray, pred_grid: np.ndarray, first: int) -> np.ndarray:
+    """Rows from grid index ``first`` on, evaluated between the grid samples instead of held.
+
+    A row r after grid sample k gets y_k + f (y~_{k+1}(r) - y_k), f = (t_r - t_k) / step, where
+    y~_{k+1}(r) is the model's next grid value computed with the inputs of row r in place of those
+    of grid sample k+1 (only the b_0 terms change). It uses nothing later than row r.
+
+    ``u_rows``: inputs at every row (N x m); ``grid``: row index of each grid sample;
+    ``pred_grid``: outputs on the grid (measured before ``first``, simulated after).
+    """
+    n = u_rows.shape[0]
+    step = int(grid[1] - grid[0]) if grid.size > 1 else 1
+    o = model.orders
+    out = np.full(n, np.nan)
+    u_grid = u_rows[grid]
+    g_rows = np.arange(n) // step                  # grid index at or before each row
+    rows = np.arange(grid[first], n)
+    k = g_rows[rows]
+    out[rows] = pred_grid[k]                        # grid rows (and the fallback for nk > 0)
+    if o.nk != 0:
+        return out
+    nxt = k + 1                                     # the grid sample being approached
+    val = np.full(rows.size, model.c)
+    for i in range(1, o.na + 1):
+        val -= model.a[i - 1] * pred_grid[nxt - i]
+    for j, bj in enumerate(model.b):
+        for lag in range(1, bj.size):
+            val += bj[lag] * u_grid[nxt - lag, j]
+        if bj.size:
+            val += bj[0] * u_rows[rows, j]
+    frac = (rows - grid[k]) / float(step)
+    inside = frac > 0
+    out[rows[inside]] = pred_grid[k[inside]] + frac[inside] * (val[inside] - pred_grid[k[inside]])
+    return out
+
+
+def _arx_select(with_inputs: bool, groups=GROUP_CANDIDATES):
     def select(data, channel, n_fit):
         grid, _ = _grid(data)
         g = int(np.sum(grid < n_fit))
@@ -92,7 +128,7 @@ def _arx_select(with_inputs: bool):
         y = data.displacement_um[channel][grid]
         m = len(data.sensors)
         best, scores = None, {}
-        for k in [k for k in GROUP_CANDIDATES if k <= m] or [m]:
+        for k in [k for k in groups if k <= m] or [m]:
             names = sensor_medoids(data.temperatures[:n_fit], k, data.sensors)
             u = _arx_rows(data, names, with_inputs)[grid]
             try:
@@ -214,3 +250,17 @@ MODELS = [
 #: models run only when asked for (``--models`` / ``--also``): the static GP dominated the wall
 #: time on FL_THERMAL (108-121 s of 172-297 s) and was worse than the training mean there
 OPT_IN = ("gp_static",)
+
+
+def lagged_ridge_model(name: str, with_inputs: bool, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID) -> ModelSpec:
+    """The lagged ridge with its own walk-forward grids (a benchmark's smaller or larger search)."""
+    return ModelSpec(name, "model", "lagged ridge" + (" + machine inputs" if with_inputs else ""),
+                     _lagged_select(with_inputs, tau_grid, alpha_grid), _lagged_predict(with_inputs),
+                     needs_inputs=with_inputs)
+
+
+def arx_model(name: str, with_inputs: bool, subgrid: bool = False, groups=GROUP_CANDIDATES) -> ModelSpec:
+    """TALC's ARX with its own candidate sensor-group counts (a benchmark's smaller or larger search)."""
+    return ModelSpec(name, "model", "TALC's ARX, simulated" + (" + machine inputs" if with_inputs else ""),
+                     _arx_select(with_inputs, tuple(groups)), _arx_predict(with_inputs, subgrid),
+                     needs_inputs=with_inputs)

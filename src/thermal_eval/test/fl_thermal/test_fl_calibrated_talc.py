@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from talc_model.arx import ArxModel, ArxOrders
-from thermal_eval.fl_thermal_arx import subgrid_prediction
+from thermal_eval.open_loop_models import subgrid_prediction
 from thermal_eval.fl_thermal_calibrated_talc import (calibrated_talc_figures, run_calibrated_talc,
                                                    walk_forward_filter)
 from thermal_eval.fl_thermal_data import CHANNELS, FlThermalError, Splits, load_fl_thermal

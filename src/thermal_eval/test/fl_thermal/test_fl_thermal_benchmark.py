@@ -7,9 +7,10 @@ import pytest
 
 from talc_model.sensor_selection import sensor_medoids
 from thermal_eval.fl_thermal_arx import arx_open_loop_channel
-from thermal_eval.fl_thermal_benchmark import open_loop_channel
 from thermal_eval.fl_thermal_benchmark import PUBLISHED_MAE_UM, run_benchmark
-from thermal_eval.fl_thermal_data import CHANNELS, FlThermalError, Splits, default_csv_path, load_fl_thermal
+from thermal_eval.fl_thermal_data import (CHANNELS, FlThermalError, Splits, as_evaluation_data, default_csv_path,
+                                          load_fl_thermal)
+from thermal_eval.open_loop_models import lagged_ridge_model
 
 
 def test_authors_split_of_the_full_recording():
@@ -129,6 +130,9 @@ def test_open_loop_models_never_use_a_displacement_after_the_training_rows(share
             assert np.all(np.isnan(a.prediction[:splits.n_train]))
             assert np.all(np.isfinite(a.prediction[splits.n_train:]))
         for spindle in (False, True):
-            kw = dict(with_spindle=spindle, tau_grid=[(), (1800.0,)], alpha_grid=[1.0, 100.0])
-            np.testing.assert_array_equal(open_loop_channel(data, splits, ch, **kw).prediction,
-                                          open_loop_channel(poisoned, splits, ch, **kw).prediction)
+            model = lagged_ridge_model("lagged", spindle, [(), (1800.0,)], [1.0, 100.0])
+            preds = []
+            for d in (data, poisoned):
+                ed = as_evaluation_data(d, splits)
+                preds.append(model.predict(ed, ch, model.select(ed, ch, splits.n_train), splits.n_train))
+            np.testing.assert_array_equal(*preds)
