@@ -95,6 +95,12 @@ def test_the_monitor_times_publications_and_acknowledgements(ros_context):
         until(lambda: ("offsets", 600 * 10**9) in monitor.arrivals and ("sensors", 300 * 10**9) in monitor.acks,
               "the monitor to see both instants")
         assert len(monitor.latencies) == 2 and all(0.0 <= x < 1.0 for x in monitor.latencies)
+        assert monitor.sim_s == 0.0              # only machine_sim's instants move it
+        twin = node.create_publisher(TemperatureArray, rt.TOPIC_TWIN_SENSORS, rt.SENSOR_QOS)
+        until(lambda: twin.get_subscription_count(), "the monitor on twin/sensor_readings")
+        t.header.stamp = rt.s_to_stamp(900.0)
+        twin.publish(t)
+        until(lambda: monitor.sim_s == 900.0, "simulated time to reach the twin's instant")
         published = monitor.arrivals[(rt.TOPIC_TEMPERATURES, 300 * 10**9)]
         assert before - 1.0 < published <= time.time()          # the host clock at publication
     finally:
