@@ -91,7 +91,7 @@ def _gp(config: AgpConfig) -> ArdGaussianProcess:
 
 def build_agp_prior(recordings: Sequence[Any], config: Mapping[str, Any] | AgpConfig, *, machine: str = "",
                     sources: Sequence[str] = (), every_s: float | None = None,
-                    max_points: int = 800) -> dict[str, Any]:
+                    max_points: int = 400) -> dict[str, Any]:
     """The AGP prior from nominal recordings: GPs fitted on all of them (thinned evenly to
     ``max_points``); inputs whose length scale reaches half the upper bound on every component
     are dropped and the GPs refitted on the rest; the validation RMS is that of GPs fitted
@@ -263,3 +263,17 @@ class AgpPriorModel(AdaptiveGaussianProcess):
 def agp_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs) -> AgpPriorModel:
     """The run's AGP started from ``prior`` (from :func:`build_agp_prior` / ``thermal-comp prior``)."""
     return AgpPriorModel(config, prior, **kwargs)
+
+
+def model_from_prior(kind: str, config: Mapping[str, Any], prior: Mapping[str, Any]):
+    """The run's model of ``kind`` started from ``prior`` (TALC or AGP; its ``model_kind`` must
+    match): the one place the node and ``replay --prior`` dispatch on the prior's kind."""
+    from talc_model.prior import talc_with_prior
+    prior_kind = prior.get("model_kind", "talc")
+    if prior_kind != kind:
+        raise PriorError(f"prior: 'model_kind' is {prior_kind!r}, the model is {kind!r}")
+    if kind == "talc":
+        return talc_with_prior(config, prior)
+    if kind == "agp":
+        return agp_with_prior(config, prior)
+    raise PriorError(f"prior: no prior for model kind {kind!r} (talc, agp)")

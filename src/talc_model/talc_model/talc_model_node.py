@@ -142,10 +142,9 @@ class TalcModelNode(Node):
 
     def _fresh_model(self):
         if self.p["prior_path"]:
-            if self.kind != "talc":
-                raise ValueError(f"parameter 'prior_path': a prior is for model_kind 'talc', not {self.kind!r}")
-            from talc_model.prior import load_prior, talc_with_prior
-            return talc_with_prior(self.config, load_prior(self.p["prior_path"])), f"prior {self.p['prior_path']}"
+            from talc_model.prior import load_prior
+            from talc_model.prior_agp import model_from_prior
+            return model_from_prior(self.kind, self.config, load_prior(self.p["prior_path"])), f"prior {self.p['prior_path']}"
         if self.p["pretrained_path"]:
             return (load_pretrained(self.p["pretrained_path"], self.config, expected_kind=self.kind),
                     f"pre-trained from {self.p['pretrained_path']}")

@@ -25,6 +25,26 @@ from thermal_twin.simulate import simulate
 TRAINING_SCENARIOS = {"nmv5000": ["load-case-A", "load-case-B", "load-case-D", "talc-144h-mwf", "load-case-C"]}
 #: Seeds of the training runs: 101, 102, ... (the demo's runs use seeds 0-99).
 SEED_BASE = 101
+#: AGP machines: training programmes of the AGP prior (the demo's lathe-random-speed is not
+#: among them); the LAST one is held out for the validation RMS.
+AGP_TRAINING_SCENARIOS = {"swiss_lathe": ["lathe-oil-steps", "lathe-door-openings", "lathe-test-piece"]}
+
+
+def build_agp_prior_of(machine: str, config: dict, scenarios: list[str], seed_base: int = SEED_BASE,
+                       progress=None) -> dict:
+    """Simulate the nominal ``machine`` on ``scenarios`` and fit the AGP prior (talc_model.prior_agp)."""
+    from talc_model.prior_agp import build_agp_prior
+    nominal = load_machine(machine)
+    recs, used = [], []
+    for i, scenario in enumerate(scenarios):
+        seed = seed_base + i
+        recs.append(simulate(nominal, make_timeline(nominal.name, scenario, seed=seed), seed=seed).to_recording())
+        used.append((scenario, seed))
+        if progress:
+            progress(f"simulated {scenario} (seed {seed})")
+    prior = build_agp_prior(recs, config, machine=nominal.name, sources=training_labels(used))
+    prior["held_out"] = training_labels(used[-1:])
+    return prior
 
 
 def default_config_path(machine: str) -> pathlib.Path:
@@ -128,7 +148,13 @@ def main(argv: list[str] | None = None) -> int:
                 state = json.loads(pathlib.Path(a.from_state).read_text())
             except (OSError, json.JSONDecodeError) as exc:
                 raise PriorError(f"--from-state {a.from_state!r}: cannot read it ({exc})") from None
-            prior = prior_from_state(state, machine=a.machine)
+            if isinstance(state, dict) and state.get("kind") == "agp":   # another lathe's persisted AGP
+                from talc_model.prior_agp import agp_prior_from_state
+                prior = agp_prior_from_state(state, machine=a.machine)
+            else:
+                prior = prior_from_state(state, machine=a.machine)
+        elif load_machine(a.machine).name in AGP_TRAINING_SCENARIOS:
+            return _main_agp(a, t0)
         else:
             cfg_path = pathlib.Path(a.config) if a.config else default_config_path(a.machine)
             config = yaml.safe_load(cfg_path.read_text()) or {}
@@ -148,6 +174,26 @@ def main(argv: list[str] | None = None) -> int:
     for c, (na, nb) in orders.items():
         v = prior["validation_rms"].get(c)
         print(f"  {c}: n_a {na}, n_b {nb}, held-out simulation RMS {v:.2f}" if v == v else f"  {c}: n_a {na}, n_b {nb}")
+    return 0
+
+
+def _main_agp(a, t0: float) -> int:
+    """``thermal-comp prior --machine swiss-lathe``: the AGP prior of the nominal lathe."""
+    import yaml
+    config = (yaml.safe_load(pathlib.Path(a.config).read_text()) or {}) if a.config else {}
+    name = load_machine(a.machine).name
+    scenarios = [s.strip() for s in a.scenarios.split(",")] if a.scenarios else AGP_TRAINING_SCENARIOS[name]
+    try:
+        prior = build_agp_prior_of(a.machine, config, scenarios, a.seed_base,
+                                   progress=lambda m: print(m, file=sys.stderr))
+    except (PriorError, MachineSpecError, ValueError, OSError) as exc:
+        print(f"thermal-comp prior: {exc}", file=sys.stderr)
+        return 2
+    path = save_prior(a.out, prior)
+    print(f"wrote {path} ({time.perf_counter() - t0:.1f} s): AGP prior of {prior['machine']} from "
+          f"{', '.join(prior['sources'])}; inputs {', '.join(prior['input_names'])}")
+    for c, v in prior["validation_rms"].items():
+        print(f"  {c}: {prior['training_points']} training points, held-out RMS {v:.2f} um")
     return 0
 
 

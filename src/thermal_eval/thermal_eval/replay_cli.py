@@ -26,11 +26,10 @@ MODEL_KINDS = ("talc", "agp", "cd")
 
 
 def _with_prior(kind: str, config: dict, path: str):
-    from talc_model.prior import PriorError, load_prior, talc_with_prior
-    if kind != "talc":
-        raise ReplayInputError(f"--prior: a prior is for --model talc, not {kind!r}")
+    from talc_model.prior import PriorError, load_prior
+    from talc_model.prior_agp import model_from_prior
     try:
-        return talc_with_prior(config, load_prior(path))
+        return model_from_prior(kind, config, load_prior(path))
     except PriorError as exc:
         raise ReplayInputError(str(exc)) from None
 
