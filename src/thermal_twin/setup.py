@@ -17,7 +17,7 @@ setup(
     ],
     install_requires=[
         "setuptools", "matplotlib", "numpy", "pyyaml", "rerun-sdk", "scikit-learn", "scipy", "statsmodels",
-        "tqdm",
+        "threadpoolctl", "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,

@@ -17,19 +17,24 @@ file given to ``thermal-comp calibrate --bounds``) overrides a kind or one param
 """
 from __future__ import annotations
 
+import copy
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
-# kind -> (default rule, what it is); rules as in the module docstring
+# kind -> (default rule, what it is); rules as in the module docstring. The defaults are the
+# tolerances a builder would state for a twin built from drawings and data sheets; the
+# calibration also pulls every parameter toward its nominal value with a prior whose 95 %
+# range is the tolerance (see calibration.py), so that a calibration does not absorb physics
+# the twin lacks by moving everything to its limits.
 DEFAULT_KINDS: dict[str, dict] = {
-    "conductance": {"factor": 3.0},          # links.<l>.conductance [W/K]
-    "convection": {"factor": 3.0},           # links.<l>.varies_with.<input>.per_unit
-    "capacity": {"factor": 2.0},             # nodes.<n>.capacity [J/K]
-    "source": {"factor": 3.0},               # sources.<s>.coefficient (or .power without input) [W]
-    "gain": {"tolerance": 1.0, "absolute": 1.0},   # errors.<ch>.terms.<node> [um/K]
-    "bias": {"absolute": 2.0},               # sensors.<id>.bias [K]
-    "boundary": {"absolute": 3.0},           # boundaries.<b>.temperature (constants only) [degC]
+    "conductance": {"tolerance": 0.3},       # links.<l>.conductance [W/K]
+    "convection": {"tolerance": 0.3},        # links.<l>.varies_with.<input>.per_unit
+    "capacity": {"tolerance": 0.3},          # nodes.<n>.capacity [J/K]
+    "source": {"tolerance": 0.3},            # sources.<s>.coefficient (or .power without input) [W]
+    "gain": {"tolerance": 0.3, "absolute": 0.1},   # errors.<ch>.terms.<node> [um/K]
+    "bias": {"absolute": 0.5},               # sensors.<id>.bias [K]
+    "boundary": {"absolute": 1.0},           # boundaries.<b>.temperature (constants only) [degC]
 }
 UNITS = {"conductance": "W/K", "convection": "W/K per unit^n", "capacity": "J/K", "source": "W",
          "gain": "um/K", "bias": "K", "boundary": "degC"}
@@ -60,6 +65,10 @@ class Param:
 
     def value(self, theta: float) -> float:
         return self.value0 * math.exp(theta) if self.log else self.value0 + theta
+
+    def theta(self, value: float) -> float:
+        """The inverse of :meth:`value`."""
+        return math.log(value / self.value0) if self.log else value - self.value0
 
     @property
     def unit(self) -> str:
@@ -177,6 +186,32 @@ def set_values(spec: dict, params: list[Param], values) -> dict:
             d = d[k]
         d[p.path[-1]] = float(v)
     return spec
+
+
+def patch_machine(machine, params: list[Param], values):
+    """A copy of the validated ``machine`` with ``values`` (one per parameter) in its
+    records, without re-validating the description: the calibration's inner loop (a
+    parameter within its range cannot make a valid machine invalid, except a conductance
+    or capacity driven to zero, which the ranges exclude). ``machine.spec`` is not updated:
+    :func:`set_values` writes the description."""
+    m = copy.copy(machine)
+    tables = {k: dict(getattr(machine, k)) for k in ("links", "nodes", "sources", "errors", "sensors",
+                                                      "boundaries")}
+    for p, v in zip(params, values):
+        v = float(v)
+        kind, key = p.path[0], p.path[1]
+        rec = tables[kind][key]
+        if p.kind == "convection":
+            vw = tuple((i, v if i == p.path[3] else pu, e) for i, pu, e in rec.varies_with)
+            rec = replace(rec, varies_with=vw)
+        elif p.kind == "gain":
+            rec = replace(rec, terms=tuple((n, v if n == p.path[3] else g) for n, g in rec.terms))
+        else:
+            rec = replace(rec, **{p.path[-1]: v})
+        tables[kind][key] = rec
+    for k, d in tables.items():
+        setattr(m, k, d)
+    return m
 
 
 def check_section(section: Mapping, spec: Mapping) -> dict:

@@ -22,6 +22,7 @@ from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
 from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, run_round
 from thermal_twin.mismatch_report import DiagnosisSeries
 from thermal_twin.mismatch_testing import PROCEDURE
+from thermal_twin.mismatch_twin_eval import single_threaded_blas
 from thermal_twin import mismatch_unnamed as unnamed_mod
 from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
 from thermal_comp_common.metrics import rmse
@@ -98,6 +99,32 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
     return found, y_u
 
 
+def holdout_sse_with_offsets(problem: FitProblem, y: np.ndarray) -> float:
+    """Held-out weighted SSE of ``y`` after each channel's training-window mean residual is
+    removed: the unnamed discrepancy is fitted with an offset per channel, so what it is
+    compared with after calibrating gets one too (an offset alone is a bias: vocabulary)."""
+    nt = problem.n_train
+    r = problem.weighted_residual(y)
+    v = problem._valid
+    mean = np.array([r[i, :nt][v[i, :nt]].mean() if v[i, :nt].any() else 0.0 for i in range(len(r))])
+    rh = np.where(v[:, nt:], r[:, nt:] - mean[:, None], 0.0)
+    return float(np.sum(rh ** 2))
+
+
+def _answer(found_unnamed: list, adopted: list, cal_section: dict | None, min_improvement_pct: float) -> str:
+    """unnamed, the first adopted effect, ``mis-calibrated`` (calibrate-first moved existing
+    parameters, improved the held-out fit by at least ``min_improvement_pct`` and nothing is
+    missing) or ``none``."""
+    if found_unnamed:
+        return "unnamed"
+    if adopted:
+        return adopted[0].candidate.effect
+    if (cal_section and cal_section["used_as_base"] and cal_section["mis_calibrated"]
+            and cal_section["holdout_improvement_pct"] >= min_improvement_pct):
+        return "mis-calibrated"
+    return "none"
+
+
 def _unit(ch: str) -> str:
     return "degC" if column_kind(ch) == "sensor" else error_unit(ch)
 
@@ -131,11 +158,17 @@ def shared_channels(machine: Machine, rec: Recording) -> list[str]:
     return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8]
 
 
-def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
-             max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
-             effects: tuple[str, ...] = EFFECTS, shortlist: int = 10, max_lag_s: float = 6 * 3600.0,
-             progress: bool = False, calibrate: bool = False, calibration_section: Mapping | None = None,
-             calibration_nfev: int = 20, unnamed: bool = True) -> Diagnosis:
+def diagnose(*args, **kwargs) -> Diagnosis:
+    """:func:`_diagnose` (its arguments) with BLAS on one thread (see ``single_threaded_blas``)."""
+    with single_threaded_blas():
+        return _diagnose(*args, **kwargs)
+
+
+def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
+              max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
+              effects: tuple[str, ...] = EFFECTS, shortlist: int = 10, max_lag_s: float = 6 * 3600.0,
+              progress: bool = False, calibrate: bool = False, calibration_section: Mapping | None = None,
+              calibration_nfev: int = 20, unnamed: bool = True) -> Diagnosis:
     """Diagnose ``twin`` against ``recording``; see the module docstring. ``calibrate``:
     fit the twin's existing parameters first (:mod:`thermal_twin.mismatch_calibrated`);
     ``unnamed``: try a sparse out-of-vocabulary discrepancy (:mod:`thermal_twin.mismatch_unnamed`).
@@ -212,12 +245,31 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
     drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
     adopted, all_hyps, base, y_base, tried = _search(problem, base0, y0, drivers, channels, effects,
                                                      max_effects, shortlist, min_improvement_pct, progress)
+    if calibrate and adopted:
+        from thermal_twin.mismatch_calibrated import joint_adoption_test
+        test = joint_adoption_test(machine, problem, holdout_fraction, adopted, base0, cal_section,
+                                   calibration_section, min_improvement_pct)
+        joint_spec = test.pop("spec")
+        cal_section["adoption_test"] = test
+        if test["passed"]:
+            base, y_base = joint_spec, problem.outputs(joint_spec)
+        else:
+            adopted, base, y_base = [], base0, y0
     found_unnamed = []
     if unnamed:
         found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, channels, set(machine.errors), y0, y_base,
                                       bool(adopted), min_improvement_pct)
+        if found_unnamed and calibrate:
+            from thermal_twin.mismatch_calibrated import unnamed_beats_free_calibration
+            test = unnamed_beats_free_calibration(machine, problem, holdout_fraction, y_u, cal_section,
+                                                  calibration_section, min_improvement_pct)
+            cal_section["unnamed_test"] = test
+            if not test["passed"]:
+                found_unnamed = []
         if found_unnamed:
             adopted, base, y_base = [], base0, y_u
+    if cal_section is not None:
+        cal_section.pop("_estimates", None)
     y1 = y_base
     for c in channels:
         i = channels.index(c)
@@ -252,7 +304,7 @@ def diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fracti
         "hypotheses": [h.as_dict() for h in ranked],
         "selected": [h.as_dict() for h in adopted] if adopted else "none",
         "unnamed": [d.as_dict(units[d.channel]) for d in found_unnamed],
-        "answer": ("unnamed" if found_unnamed else adopted[0].candidate.effect if adopted else "none"),
+        "answer": _answer(found_unnamed, adopted, cal_section, min_improvement_pct),
         "calibration": cal_section,
         "augmented_twin": None,
         "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": BIC_THRESHOLD,

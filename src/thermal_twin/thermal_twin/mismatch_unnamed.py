@@ -118,7 +118,7 @@ class Discrepancy:
     sse_holdout_before: float
     sse_holdout_after: float
     p_value: float
-    prediction: np.ndarray          # the term over the whole recording, channel units
+    prediction: np.ndarray          # the terms without the offset (a bias is vocabulary), channel units
     holm_pass: bool = False
 
     @property
@@ -164,14 +164,15 @@ def fit_channel(channel: str, resid: np.ndarray, lib: list[Term], n_train: int, 
     full = np.column_stack([np.ones(r.size)] + [X_all[:, j] for j in order]) @ coef
     ho = np.arange(n_train, r.size)
     ho = ho[ok[ho]]
+    # the terms must beat a constant offset (a bias is vocabulary) and the twin as it is
     base = r[ho] - r[:n_train][ok[:n_train]].mean()
     after = r[ho] - full[ho]
-    s0, s1 = float(base @ base), float(after @ after)
+    s0, s1 = min(float(base @ base), float(r[ho] @ r[ho])), float(after @ after)
     p = holdout_p_value(s0, s1, len(order), effective_samples(after[None, :]))
     lead = max(order, key=lambda j: abs(coef[1 + order.index(j)]) * sd[j])
     return Discrepancy(channel, [lib[j].name for j in order], [float(c) for c in coef[1:]], float(coef[0]),
                        [float(freq[j]) for j in order], nearest_word(lib[lead], is_error), s0, s1, p,
-                       full - coef[0] + 0.0)
+                       full - coef[0])
 
 
 def find_unnamed(residuals: dict[str, np.ndarray], lib: list[Term], n_train: int, errors: set[str],

@@ -22,7 +22,9 @@ TRUE = {("links", "spindle_head", "conductance"): 8.0 * 1.6,
         ("sources", "spindle_losses", "coefficient"): 0.00015396 * 1.4,
         ("errors", "E_Z0T", "terms", "spindle"): 2.6,
         ("sensors", "head", "bias"): 0.3}
-SECTION = {"kinds": {"capacity": "fixed"}}
+# the truth lies beyond the default tolerances (+-30 %): this test states wider ones
+SECTION = {"kinds": {"capacity": "fixed", "conductance": {"factor": 2.0}, "source": {"factor": 2.0},
+                     "gain": {"tolerance": 1.0, "absolute": 1.0}, "bias": {"absolute": 1.0}}}
 
 
 def _set(spec, path, v):
