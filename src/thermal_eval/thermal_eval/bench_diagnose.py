@@ -13,15 +13,22 @@ first (%), exact target (%), extra adopted effects per ten cases, ``none`` on th
 cases, ``unnamed`` on the out-of-vocabulary cases with their held-out improvement, the
 diagnosis wall times, two diagnoses with ``calibrate=True`` (calibration and diagnosis wall
 time), and the twin's simulated hours per second of the finder's evaluation.
+
+Then, when the FL_THERMAL CSV is available (``$THERMAL_COMP_SHARED``), the calibration of
+the ``spindle-stand`` preset on it (46 h, 16 sensors, 5 channels; the preset's calibration
+section): wall and CPU time, twin evaluations, simulated hours per second. Every timing
+line carries the machine's load average, because the 2 cores are shared.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 from thermal_eval import diagnose_suite
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.mismatch_fit import FitProblem
+from thermal_twin.mismatch_twin_eval import single_threaded_blas
 from thermal_eval.mismatch_concealed import find_candidate
 from thermal_twin.mismatch_diagnosis import diagnose
 from thermal_twin.scenarios import make_timeline
@@ -55,20 +62,51 @@ def run(args: argparse.Namespace | None = None) -> dict:
         f"{key}.hypotheses_fitted": len(rep["hypotheses"]),
         f"{key}.concealed_effect_found": bool(found),
     }
+    figures[f"{key}.twin_simulated_h_per_s"] = round(twin_hours_per_s(spec, rec), 0)
+    figures[f"{key}.load_average_1min"] = round(os.getloadavg()[0], 1)
     for k, v in figures.items():
         print(f"{k}: {v}", flush=True)
+    figures.update(fl_thermal_calibration())
     if not quick:
         figures.update(run_suite(spec, rec))
+    return figures
+
+
+def fl_thermal_calibration() -> dict:
+    """Calibration of spindle-stand on the real FL_THERMAL recording (skipped, with a line
+    saying so, when the CSV is not available)."""
+    from thermal_eval.fl_thermal_data import FlThermalError, default_csv_path
+    from thermal_twin.calibration import calibrate
+    from thermal_twin.column_mapping import parse_mapping, read_real_recording
+    key = "diagnose.calibrate.fl_thermal"
+    try:
+        csv = default_csv_path()
+    except FlThermalError as exc:
+        print(f"{key}: skipped ({exc})", flush=True)
+        return {}
+    rec = read_real_recording(str(csv), parse_mapping(None, []), "temperatures", "errors/ground_truth")
+    t0, c0 = time.perf_counter(), time.process_time()
+    r = calibrate("spindle-stand", rec)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    figures = {f"{key}.free_parameters": len(r.estimates), f"{key}.channels": len(r.channels),
+               f"{key}.wall_s": round(wall, 2), f"{key}.cpu_s": round(cpu, 2),
+               f"{key}.twin_evaluations": r.n_evals,
+               f"{key}.twin_simulated_h_per_s": round(r.simulated_h / max(wall, 1e-9), 0),
+               f"{key}.cost_reduction_pct": round(100.0 * (1.0 - r.cost_after / max(r.cost_before, 1e-300)), 1),
+               f"{key}.status": r.status, f"{key}.load_average_1min": round(os.getloadavg()[0], 1)}
+    for k, v in figures.items():
+        print(f"{k}: {v}", flush=True)
     return figures
 
 
 def twin_hours_per_s(spec: dict, rec, repeats: int = 5) -> float:
     """Simulated hours per wall second of the finder's noise-free twin evaluation."""
     prob = FitProblem(rec, list(rec.sensors)[:1], len(rec) // 2)
-    t0 = time.perf_counter()
-    for _ in range(repeats):
-        prob.outputs(spec)
-    wall = time.perf_counter() - t0
+    with single_threaded_blas():          # as inside diagnose and calibrate
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            prob.outputs(spec)
+        wall = time.perf_counter() - t0
     return repeats * float(rec.time_s[-1] - rec.time_s[0]) / 3600.0 / wall
 
 

@@ -38,7 +38,8 @@ from thermal_twin.inputs_timeline import timeline_from_recording
 from thermal_twin.machine_schema import MachineSpecError, load_machine
 from thermal_twin.mismatch_effects import Candidate
 from thermal_twin.mismatch_testing import holdout_p_value, holm_reject
-from thermal_twin.mismatch_twin_eval import expected_outputs
+from thermal_twin.mismatch_twin_eval import expected_outputs, node_states
+from scipy.signal import lfilter
 from thermal_comp_common.recording_csv import Recording
 
 BIC_THRESHOLD = -2.0
@@ -231,6 +232,7 @@ def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
     rr = float(r0 @ r0) or 1.0
     st = problem.stride
     out = []
+    cache: dict = {}
     for c in cands:
         starts = _starts(c)
         x0 = starts[0]
@@ -244,8 +246,10 @@ def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
         cols = []
         try:
             for v in probes:
-                y = problem.outputs(c.apply(base_spec, v), stop=problem.n_train)
-                cols.append(problem.weighted(y - y0_train)[:, ::st].ravel())
+                dy = linear_change(problem, base_spec, c, v, y0_train, cache)
+                if dy is None:
+                    dy = problem.outputs(c.apply(base_spec, v), stop=problem.n_train) - y0_train
+                cols.append(problem.weighted(dy)[:, ::st].ravel())
         except MachineSpecError:
             pass
         finally:
@@ -262,6 +266,57 @@ def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
         out.append((min(err, 1.0), c))
     out.sort(key=lambda e: -e[0])
     return out
+
+
+def linear_change(problem: FitProblem, base_spec: dict, c: Candidate, v: np.ndarray,
+                  y0: np.ndarray, cache: dict) -> np.ndarray | None:
+    """The output change of candidate ``c`` at ``v`` without simulating the twin, for the
+    effects that act after the thermal network (None for the others): a sensor bias shifts
+    its reading, an elastic gain adds gain x (node temperature - its start) to its channel,
+    and a lag on a sensor without one filters the twin's reading (the reading is gain x true
+    + bias, and the first-order lag started at the first value passes constants, so lagging
+    the reading equals the twin's lag of the true temperature). ``cache`` holds the base
+    twin's node temperatures for the screening round."""
+    sensors = base_spec.get("sensors", {})
+    nt = y0.shape[1]
+    if c.effect == "sensor_bias":
+        col = f"{c.target}_c"
+        if col not in problem.channels:
+            return None
+        dy = np.zeros_like(y0)
+        dy[problem.channels.index(col)] = float(v[0])
+        return dy
+    if c.effect == "elastic_gain":
+        ch, node = c.target.split("/", 1)
+        if ch not in problem.channels:
+            return None
+        if "X" not in cache:
+            m = load_machine(base_spec)
+            vals = timeline_from_recording(m, problem.recording).resolved(m)
+            net, _, X, _ = node_states(m, problem.recording.time_s, vals, stop=nt)
+            cache["X"], cache["nodes"] = X, list(net.node_names)
+        if node not in cache["nodes"]:
+            return None
+        x = cache["X"][:, cache["nodes"].index(node)]
+        dy = np.zeros_like(y0)
+        dy[problem.channels.index(ch)] = float(v[0]) * (x - x[0])
+        return dy
+    if c.effect == "time_lag" and c.target in sensors and not float(sensors[c.target].get("lag_s", 0.0)):
+        col = f"{c.target}_c"
+        t = problem.recording.time_s[:nt]
+        dt = np.diff(t)
+        if col not in problem.channels or nt < 2 or np.ptp(dt) > 1e-9 * abs(dt[0]):
+            return None
+        j = problem.channels.index(col)
+        a = math.exp(-float(dt[0]) / float(v[0]))
+        y = y0[j]
+        lag = np.empty_like(y)
+        lag[0] = y[0]
+        lag[1:] = lfilter([1.0 - a], [1.0, -a], y[1:], zi=[a * y[0]])[0]
+        dy = np.zeros_like(y0)
+        dy[j] = lag - y
+        return dy
+    return None
 
 
 def _starts(c: Candidate) -> list[np.ndarray]:
