@@ -46,6 +46,7 @@ from talc_model.probe_update import ProbeSchedule
 from talc_model.sensor_selection import sensor_medoids
 
 from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits, mae
+from thermal_eval.closed_loop_rows import hold_probes
 from thermal_eval.open_loop_models import GROUP_CANDIDATES
 
 #: One probing every 2 h after calibration (issue 10); 95 s per probing for Q_prod.
@@ -173,14 +174,18 @@ def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tupl
         wall = time.perf_counter() - t0
         fig: dict[str, Any] = {}
         predictions[name] = {}
+        probes = np.asarray(res.probe_times_s)
+        probe_rows[name] = [int(r) for r in np.searchsorted(data.time_s, probes)]
         for ch in CHANNELS:
             comp = np.where(np.isfinite(res.predicted[ch]), res.predicted[ch], 0.0)
             predictions[name][ch] = comp
             true = data.displacement_um[ch]
+            held = np.nan_to_num(hold_probes(true, probe_rows[name], len(data)))   # hold its own probes
             fig[ch] = {"mae_um": round(mae(true[splits.test], comp[splits.test]), 3),
-                       "mae_validation_um": round(mae(true[splits.validation], comp[splits.validation]), 3)}
-        probes = np.asarray(res.probe_times_s)
-        probe_rows[name] = [int(r) for r in np.searchsorted(data.time_s, probes)]
+                       "mae_validation_um": round(mae(true[splits.validation], comp[splits.validation]), 3),
+                       "hold_last_measurement_mae_um": round(mae(true[splits.test], held[splits.test]), 3),
+                       "hold_last_measurement_mae_validation_um": round(mae(true[splits.validation],
+                                                                            held[splits.validation]), 3)}
         fig["q_prod_pct"] = round(float(res.final_status["q_prod_pct"]), 2)
         fig["probing_cycles"] = int(probes.size)
         fig["probing_cycles_test_rows"] = int(np.sum((probes >= data.time_s[splits.n_train]) &

@@ -37,6 +37,7 @@ import numpy as np
 
 from talc_model.probe_update import ProbeSchedule, q_prod_pct, run_probe_updates
 from talc_model.slow_error_filter import SlowErrorFilter
+from thermal_eval.closed_loop_rows import hold_probes
 from thermal_eval.fl_thermal_arx import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
 from thermal_eval.fl_thermal_data import CHANNELS, FlThermalData, FlThermalError, Splits, mae, walk_forward_fold_rows
 
@@ -175,11 +176,17 @@ def calibrated_talc_figures(data: FlThermalData, splits: Splits, result: Calibra
     first = result.probe_rows[0] if result.probe_rows else splits.n
     blind, seen = slice(splits.n_train, min(first, splits.test_end)), slice(min(first, splits.test_end),
                                                                           splits.test_end)
+    step = grid_step_rows(data)
+    measured = [((splits.n_train - 1) // step) * step] + list(result.probe_rows)   # last calibration probing on
     for ch in CHANNELS:
         y = data.displacement_um[ch]
         c, p, f = result.compensation[ch], result.prediction[ch], result.filters[ch]
+        held = hold_probes(y, measured, splits.n)    # the generic baseline: hold this model's own probes
         figures[ch] = {"mae_um": round(mae(y[splits.test], c[splits.test]), 3),
                        "mae_validation_um": round(mae(y[splits.validation], c[splits.validation]), 3),
+                       "hold_last_measurement_mae_um": round(mae(y[splits.test], held[splits.test]), 3),
+                       "hold_last_measurement_mae_validation_um": round(mae(y[splits.validation],
+                                                                            held[splits.validation]), 3),
                        # test rows before / from the first probing after calibration (blind / probed)
                        "mae_before_first_probe_um": round(mae(y[blind], c[blind]), 3),
                        "mae_from_first_probe_um": round(mae(y[seen], c[seen]), 3),

@@ -81,7 +81,12 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
         f = figures["adaptive"][model]
         for ch in CHANNELS:
             assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["mae_validation_um"])
+            # beside every adaptive row: holding that model's own probes (the generic baseline)
+            assert math.isfinite(f[ch]["hold_last_measurement_mae_um"])
+            assert math.isfinite(f[ch]["hold_last_measurement_mae_validation_um"])
         assert 0.0 < f["q_prod_pct"] < 100.0 and f["probing_cycles"] > 0
+    for name in ("train_mean", "hold_last_training", "static_ls", "lowpass_ridge"):   # the generic baselines
+        assert all(math.isfinite(figures["baselines"][name][ch]["mae_um"]) for ch in CHANNELS)
     assert set(figures["adaptive"]["talc_own_cp"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
     assert figures["adaptive"]["talc"]["load_change_phases"] == 0
     assert figures["adaptive"]["talc_load_probing"]["probing_after_load_changes"] is True
