@@ -147,6 +147,17 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
               + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else "")
               + f", 95 % interval [{_fmt(m['ci95'][0])}, {_fmt(m['ci95'][1])}]"
               for m in cal["mis_calibrated"][:15]] or ["- no parameter moved beyond its 95 % interval"]
+        for key, what in (("adoption_test", "calibration + effects, jointly re-calibrated, against the "
+                                            "calibration alone"),
+                          ("unnamed_test", "calibrated twin + unnamed discrepancy against the parameters "
+                                           "fitted without the prior")):
+            t = cal.get(key)
+            if t:
+                L.append(f"- test, {what}: held-out {t['holdout_improvement_pct']:.1f} % better -> "
+                         f"{'passed' if t['passed'] else 'failed: not adopted'}")
+        if report.get("answer") == "mis-calibrated":
+            L += ["", "Answer **mis-calibrated**: the existing parameters explain the mismatch; "
+                      "nothing is missing."]
         L += ["", "**Missing** (mechanisms added):", ""]
     for u in report.get("unnamed", []):
         L.append(f"- **unnamed** (outside the vocabulary; nearest word: {u['nearest_vocabulary_word']}): "

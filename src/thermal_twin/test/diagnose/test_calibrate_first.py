@@ -17,6 +17,7 @@ from thermal_eval.mismatch_concealed import HiddenEffect as H, OutOfVocabulary a
 from thermal_eval.mismatch_concealed import operating_programme
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.mismatch_diagnosis import diagnose
+from thermal_twin.mismatch_report import write_markdown
 from thermal_twin.simulate import simulate
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
@@ -45,7 +46,7 @@ def test_a_drifting_sensor_is_still_unnamed_after_calibrating():
     assert rep["calibration"]["unnamed_test"]["passed"]
 
 
-def test_a_mis_calibrated_twin_answers_mis_calibrated_with_nothing_missing():
+def test_a_mis_calibrated_twin_answers_mis_calibrated_with_nothing_missing(tmp_path):
     true = copy.deepcopy(SPEC)
     true["links"]["spindle_head"]["conductance"] *= 1.25
     true["links"]["table_air"]["conductance"] *= 0.8
@@ -53,9 +54,12 @@ def test_a_mis_calibrated_twin_answers_mis_calibrated_with_nothing_missing():
     true["errors"]["E_Z0T"]["terms"]["spindle"] = 2.4
     true["sensors"]["head"]["bias"] = 0.3
     rec = simulate(true, operating_programme(SPEC, hours=48.0, step_s=300.0, seed=1), seed=1).to_recording()
-    rep = diagnose(SPEC, rec, calibrate=True).report
+    d = diagnose(SPEC, rec, calibrate=True)
+    rep = d.report
     assert rep["answer"] == "mis-calibrated", (rep["selected"], [u["formula"] for u in rep["unnamed"]])
     assert rep["selected"] == "none" and rep["unnamed"] == []
     moved = {m["name"] for m in rep["calibration"]["mis_calibrated"]}
     assert {"errors.E_Z0T.terms.spindle", "sensors.head.bias"} <= moved
     assert rep["calibration"]["holdout_improvement_pct"] > 90.0
+    text = write_markdown(rep, d.series, tmp_path).read_text()
+    assert "Answer **mis-calibrated**" in text and "errors.E_Z0T.terms.spindle" in text
