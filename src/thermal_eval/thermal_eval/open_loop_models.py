@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from talc_model.arx import RankDeficientError, fit_arx
+from talc_model.arx import ArxOrders, RankDeficientError, fit_arx
 from talc_model.characteristic_diagram import fit_with_grid_refinement
 from talc_model.gaussian_process import ArdGaussianProcess
 from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA_GRID, LaggedTemperatureModel,
@@ -147,6 +147,20 @@ def _arx_select(with_inputs: bool, groups=GROUP_CANDIDATES):
     return select
 
 
+def fit_guarded(y: np.ndarray, u: np.ndarray, orders):
+    """The chosen orders fitted as TALC's order selection keeps them (:func:`select_orders`'s
+    refit rule): on every fit sample if that model is stable, else on the first 60 % it was
+    selected on (an unstable refit would diverge in simulation)."""
+    start = ArxOrders(NA_RANGE[1], (NB_RANGE[1],) * u.shape[1], orders.nk, orders.intercept).max_lag
+    try:
+        full = fit_arx(y, u, orders, start=start)
+        if full.is_stable(0.0, False):
+            return full
+    except RankDeficientError:
+        pass
+    return fit_arx(y, u, orders, start=start, stop=int(round(0.6 * y.size)))
+
+
 def _arx_predict(with_inputs: bool, subgrid: bool):
     def predict(data, channel, params, n_fit):
         grid, step = _grid(data)
@@ -155,7 +169,7 @@ def _arx_predict(with_inputs: bool, subgrid: bool):
         u_rows = _arx_rows(data, params["inputs"], with_inputs)
         u = u_rows[grid]
         try:
-            model = fit_arx(y[:g], u[:g], params["orders"])
+            model = fit_guarded(y[:g], u[:g], params["orders"])
         except RankDeficientError as exc:
             raise ModelFailure(f"ARX unidentifiable on rows < {n_fit}: {exc}") from None
         pred_grid = model.simulate(u, y[:g], g)
