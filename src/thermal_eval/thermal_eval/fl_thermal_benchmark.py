@@ -2,7 +2,8 @@
 
 ``thermal-comp bench fl-thermal --json OUT [--out-dir DIR] [--quick] [--csv=PATH --rows=N --every=K --no-adaptive
 --agp-load-probing --no-agp-calibrated]`` (suite options in the ``--name=value`` form).
-The authors' chronological 60/20/20 split; open-loop models (lagged ridge, ARX simulation) and
+The authors' chronological 60/20/20 split; open-loop models (lagged ridge, ARX simulation: the
+generic ``evaluate`` models and baselines, run by :func:`thermal_eval.evaluation_run.evaluate`) and
 adaptive models (calibrated TALC and AGP, replayed TALC/AGP) scored by MAE on the test and
 validation rows, beside the published numbers. Protocol, models and figure keys: docs/fl_thermal.md.
 """
