@@ -135,7 +135,10 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print) 
         d = diagnose(ablated, r)
         wall = time.perf_counter() - t1
         after = d.augmented_spec or ablated
-        sse = {"calibrated": sse_c, "ablated": _holdout_sse(problem, ablated), "after": _holdout_sse(problem, after)}
+        # scored on the recording the finder saw (with the estimated speed in the last row)
+        prob = problem if r is rec else FitProblem(r, chans, n_train, resolution=res)
+        sse = {"calibrated": sse_c if r is rec else _holdout_sse(prob, spec_c),
+               "ablated": _holdout_sse(prob, ablated), "after": _holdout_sse(prob, after)}
         row = _row(mech, ref, d.report, sse, wall)
         row["recording"] = "speed deleted, estimated" if note else "FL_THERMAL"
         row["note"] = note
