@@ -56,7 +56,7 @@ from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelop
 from cnc_bridge.credentials import SECRET_NAMES, load_credentials
 from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, HtmGeometry,
                                         LatheToolOffsets, TransformInputError, offsets_from_errors)
-from cnc_bridge.offset_backend import TwinBackend
+from cnc_bridge.offset_backend import TwinBackend, adopt_held_state
 from cnc_bridge.safety_envelope import (LIMIT_WRITE_FAILED, EnvelopeConfigError, SafetyEnvelope,
                                         flag_names)
 
@@ -143,11 +143,7 @@ class CncBridgeNode(LifecycleNode):
             self.get_logger().error(f"configure failed, nothing written: {exc}")
             self._release()
             return FAILURE
-        held = self.backend.held_state() if hasattr(self.backend, "held_state") else {}
-        self.adopted = self.envelope.adopt_held({a: v for a, (v, _) in held.items()},
-                                                {a: on for a, (_, on) in held.items()})
-        if hasattr(self.backend, "adopt"):
-            self.backend.adopt({a.axis: a.adopted_um for a in self.adopted})
+        self.adopted = adopt_held_state(self.envelope, self.backend)
         # the first offsets message after activation carries what the adoption limited
         self._adoption_flags = {a.axis: a.flags for a in self.adopted if a.flags}
         for a in self.adopted:

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 from asyncua import ua
 
 from cnc_bridge.cnc_emulator import CncEmulatorThread, EmulatorConfig
+from cnc_bridge.offset_backend import adopt_held_state
 from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map
 from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
 from thermal_eval.offset_safety_checks import OffsetViolation, step_violations, written_offsets_um
@@ -83,6 +84,7 @@ def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: 
             backend = make_backend()
             backend.wait_connected(10.0)
             env = SafetyEnvelope(env_cfg)
+            adopt_held_state(env, backend)      # what a restarted bridge does at configure
         for _ in range(steps_during):
             step(True)
         _end_fault(fault, emu, node_map["X"].offset, backend)
