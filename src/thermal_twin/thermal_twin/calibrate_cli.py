@@ -10,7 +10,6 @@ import argparse
 import pathlib
 import sys
 
-import numpy as np
 import yaml
 
 from thermal_twin.calibrate_report import plot_input_estimate, write_report
@@ -18,7 +17,8 @@ from thermal_twin.calibration import CalibrationError, calibrate, pick_channels
 from thermal_twin.input_estimation import InputEstimationError, fill_missing_inputs, missing_inputs
 from thermal_twin.calibration_bounds import CalibrationSpecError
 from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
-from thermal_twin.column_mapping import MappingError, name_mismatches, parse_mapping, read_real_recording
+from thermal_twin.column_mapping import (MappingError, empty_columns, name_mismatches, parse_mapping,
+                                        read_real_recording)
 from thermal_comp_common.recording_csv import RecordingError
 
 
@@ -44,11 +44,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     return p
-
-
-def empty_columns(rec) -> list[str]:
-    """Columns of the recording without a single finite value."""
-    return [c for c, v in rec.columns.items() if not np.isfinite(np.asarray(v, dtype=float)).any()]
 
 
 def main(argv: list[str] | None = None) -> int:

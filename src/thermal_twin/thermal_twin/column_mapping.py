@@ -175,3 +175,8 @@ def name_mismatches(machine, rec: Recording) -> list[str]:
                                       and f"{machine.inputs[c].from_sensor}_c" in rec_cols):
             out.append(f"twin column '{c}' is not in the recording" + _closest(c, rec_cols))
     return out
+
+
+def empty_columns(rec) -> list[str]:
+    """Columns of the recording without a single finite value (named in reports, never dropped silently)."""
+    return [c for c, v in rec.columns.items() if not np.isfinite(np.asarray(v, dtype=float)).any()]

@@ -22,7 +22,8 @@ from thermal_twin.machine_schema import MachineSpecError, load_machine, save_mac
 from thermal_twin.mismatch_diagnosis import DiagnosisError, diagnose
 from thermal_twin.mismatch_effects import EFFECTS
 from thermal_twin.mismatch_report import write_report
-from thermal_twin.column_mapping import MappingError, name_mismatches, parse_mapping, read_real_recording
+from thermal_twin.column_mapping import (MappingError, empty_columns, name_mismatches, parse_mapping,
+                                        read_real_recording)
 from thermal_comp_common.recording_csv import RecordingError
 
 
@@ -41,7 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--errors-topic", default="errors/ground_truth",
                    help="bag only: ThermalErrors topic of the error channels (default errors/ground_truth; "
                         "errors/measured for probed errors)")
-    p.add_argument("--out", required=True, help="output directory (created)")
+    p.add_argument("--out", required=True, help="output directory (must be new or empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
     p.add_argument("--holdout-fraction", type=float, default=1 / 3,
                    help="last fraction of the recording kept out of every fit (default 1/3)")
     p.add_argument("--max-effects", type=int, default=2, help="at most this many effects adopted (default 2)")
@@ -77,11 +79,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp diagnose: --recording: {rec_path} is neither a CSV nor a bag "
               f"(folder or .mcap)", file=sys.stderr)
         return 2
+    out = pathlib.Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
+        print(f"thermal-comp diagnose: --out: {out} exists and is not empty (use --force)", file=sys.stderr)
+        return 2
     try:
         machine = load_machine(args.twin)
         rec = read_real_recording(rec_path, parse_mapping(args.map_file, args.map),
                                   args.temperatures_topic, args.errors_topic)
         rec.warnings += name_mismatches(machine, rec)
+        empty = empty_columns(rec)
+        if empty:     # named, never dropped silently
+            rec.warnings.append(f"columns without any value (not used): {', '.join(empty)}")
         for w in rec.warnings:
             print(f"warning: {w}", file=sys.stderr)
         section = None
@@ -98,7 +107,6 @@ def main(argv: list[str] | None = None) -> int:
             CalibrationError, ValueError, OSError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
         return 1
-    out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     if d.augmented_spec is not None:
         save_machine(d.augmented_spec, out / "twin_augmented.yaml")

@@ -108,3 +108,23 @@ def test_failed_readings_and_a_truncated_last_line_lose_nothing_else(recording_c
     assert [(s["effect"], s["target"]) for s in rep["selected"]] == [("door_event", "head")]
     assert any("truncated" in n for n in rep["notes"])
     assert rep["channels"]["head_c"]["holdout_rmse_after"] < 0.5 * rep["channels"]["head_c"]["holdout_rmse_before"]
+
+
+def test_an_existing_output_folder_is_refused_and_an_empty_column_named(recording_csv, tmp_path, capsys):
+    """A second diagnosis over the first one's folder is refused (nothing overwritten) unless
+    --force; a column without any value is named in the report's notes, not dropped silently."""
+    import numpy as np
+
+    from thermal_comp_common.recording_csv import read_recording_csv
+    from thermal_twin.diagnose_cli import main
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "report.md").write_text("the first run's report")
+    assert main(["--twin", "spindle-stand", "--recording", str(tmp_path / "missing.csv"),
+                 "--out", str(out), "--quiet"]) == 2
+    assert "exists and is not empty (use --force)" in capsys.readouterr().err
+    assert (out / "report.md").read_text() == "the first run's report"
+    from thermal_twin.column_mapping import empty_columns
+    rec = read_recording_csv(recording_csv)
+    rec.columns["dead_c"] = np.full(len(rec), np.nan)
+    assert empty_columns(rec) == ["dead_c"]
