@@ -104,7 +104,7 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
          "parameters": {"machine": plant_machine(cfg, out), "scenario": cfg.scenario, "seed": cfg.seed,
                         "hours": float(cfg.hours or 0.0), "step_s": float(step),
                         "lockstep_participants": participants, "shutdown_when_done": True,
-                        # the recorder is no lock-step participant; the first instant waits for it
+                        # the first instant waits until the recorder (a participant) subscribes
                         "wait_for_subscribers": ["recorder"],
                         "state_path": str(out / "twin_state.pkl")}},
         {"name": "sensors", "module": "thermal_sensors.temperature_publisher_node",
