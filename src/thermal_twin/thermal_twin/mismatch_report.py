@@ -138,6 +138,17 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
          f"- training window: 0 - {report['split']['train_end_s'] / 3600:.1f} h, held out: "
          f"{report['split']['holdout_start_s'] / 3600:.1f} - {report['split']['end_s'] / 3600:.1f} h",
          "", "## Verdict", ""]
+    L += _verdict_lines(report)
+    L += _channel_lines(report)
+    L += _residual_lines(report, has_ccf)
+    path = out_dir / "report.md"
+    path.write_text("\n".join(L) + "\n")
+    return path
+
+
+def _verdict_lines(report: dict) -> list[str]:
+    """Mis-calibrated / missing / unnamed / none, the adoption tests and the notes."""
+    L: list[str] = []
     sel = report.get("selected")
     cal = report.get("calibration")
     if cal:
@@ -176,7 +187,12 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
         L.append(f"\nAdoption test: {report['criteria']['multiple_testing']}.")
     for note in report.get("notes", []):
         L.append(f"\n> {note}")
-    L += ["", "## Channels (RMSE, before -> after; held-out before -> after)", "",
+    return L
+
+
+def _channel_lines(report: dict) -> list[str]:
+    """The channel table, the located windows and the regime effects."""
+    L = ["", "## Channels (RMSE, before -> after; held-out before -> after)", "",
           "| channel | unit | RMSE before | RMSE after | held-out before | held-out after | Ljung-Box p | drift /h |",
           "| --- | --- | --- | --- | --- | --- | --- | --- |"]
     for ch, d in report["channels"].items():
@@ -199,7 +215,12 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
         for r in report["regime_effects"][:12]:
             L.append(f"| {r['regime']} | {r['channel']} | {_fmt(r['effect'])} {r['unit']} | "
                      f"{r['share_of_time']:.2f} |")
-    L += ["", "## Residual diagnostics", ""]
+    return L
+
+
+def _residual_lines(report: dict, has_ccf: bool) -> list[str]:
+    """Residual diagnostics per channel and the ranked hypotheses."""
+    L = ["", "## Residual diagnostics", ""]
     for ch, d in report["channels"].items():
         peaks = "; ".join(f"{p['period_h']:.1f} h ({p['power_share'] * 100:.0f} %){' ' + p['label'] if p['label'] else ''}"
                           for p in d.get("spectral_peaks", []))
@@ -217,9 +238,7 @@ def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path)
         L.append(f"| {i} | {h['effect']} | {h['target']} | {h.get('driver') or '-'} | {ps} | "
                  f"{_fmt(h['score'])} | {h['holdout_improvement_pct']:.1f} % | "
                  f"{'yes' if h.get('plausible', True) else 'no: ' + h.get('reason', '')} |")
-    path = out_dir / "report.md"
-    path.write_text("\n".join(L) + "\n")
-    return path
+    return L
 
 
 def write_rerun(series: DiagnosisSeries, out_dir: pathlib.Path) -> pathlib.Path:
