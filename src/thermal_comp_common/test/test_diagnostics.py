@@ -84,6 +84,10 @@ def test_python_logging_reaches_rosout(ros_context):
     ex.add_node(node)
     ex.add_node(listener)
     handler = install_rosout_handler(node)
+    # other test modules quiet asyncua (setLevel at import): this test sets the levels it relies on
+    saved = {name: logging.getLogger(name).level for name in ("asyncua", "asyncua.client")}
+    for name in saved:
+        logging.getLogger(name).setLevel(logging.NOTSET)
     try:
         assert _spin_until(ex, lambda: node.count_subscribers("/rosout") >= 1)
         logging.getLogger("asyncua.client").warning("link to %s lost", "opc.tcp://cnc:4840")
@@ -94,6 +98,8 @@ def test_python_logging_reaches_rosout(ros_context):
         assert m.msg == "[asyncua.client] link to opc.tcp://cnc:4840 lost"
         assert not any("not forwarded" in m.msg for m in got)
     finally:
+        for name, level in saved.items():
+            logging.getLogger(name).setLevel(level)
         logging.getLogger().removeHandler(handler)
         ex.shutdown()
         node.destroy_node()

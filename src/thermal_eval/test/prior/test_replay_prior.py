@@ -35,9 +35,12 @@ def test_replay_with_prior_prints_probe_and_hold(tmp_path, capsys):
     assert "probe-and-hold P99" in capsys.readouterr().out
 
 
-def test_prior_refused_for_other_models(tmp_path, capsys):
+def test_an_unreadable_prior_is_refused_in_one_line(tmp_path, capsys):
+    """TALC and the AGP take a prior (talc_model.prior_agp.model_from_prior picks the kind);
+    a prior file that cannot be read stops the replay with one line naming it, and writes nothing."""
     _csv(tmp_path / "run.csv", "nmv5000", "load-case-A", 0, 6.0)
     rc = main([str(tmp_path / "run.csv"), "--model", "agp", "--prior", "x.json", "--json", str(tmp_path / "o.json")])
     assert rc == 2
-    assert "--prior" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "prior 'x.json'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o.json").exists()
