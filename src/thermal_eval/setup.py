@@ -46,5 +46,7 @@ setup(
             "sensors = thermal_eval.bench_sensors:run",
             "twin = thermal_eval.bench_twin:run",
         ],
+        # twin scenarios a dataset owns: "name = module:SCENARIO" (thermal_twin.scenarios.PLUGIN_GROUP)
+        "thermal_twin.scenarios": ["fl-thermal-programme = thermal_eval.fl_thermal_scenario:SCENARIO"],
     },
 )

@@ -3,8 +3,9 @@
 Each scenario belongs to one or more machines and has a default duration and step. The same
 (machine, scenario, hours, seed, step) always gives the same time line. Sources of the
 numbers: the TALC thesis (talc-*, load-case-*, fe-two-source: spec §2.6, §4.7-4.9), the
-Swiss-lathe thesis (lathe-*: spec §4.2, §6, §10) and the FL_THERMAL README
-(fl-thermal-programme).
+Swiss-lathe thesis (lathe-*: spec §4.2, §6, §10). A dataset's own programme lives with the
+dataset and joins through the entry-point group ``thermal_twin.scenarios`` ("name = module:SCENARIO",
+e.g. thermal_eval's ``fl-thermal-programme``); plug-ins are loaded on the first look-up.
 """
 from __future__ import annotations
 
@@ -166,19 +167,6 @@ def lathe_test_piece(t, rng):
             "ambient_degc": _lathe_ambient(t, rng)}
 
 
-# ---------------------------------------------------------------- spindle stand (FL_THERMAL)
-#: The FL_THERMAL spindle programme (start s, 1/min), from shared/data/fl_thermal/README.md.
-FL_THERMAL_PROGRAMME = [(0, 0), (465, 1250), (14865, 0), (29265, 2500), (43665, 0), (58065, 3750),
-                        (72465, 0), (86865, 5000), (101265, 0), (115665, 3500), (130065, 0),
-                        (144465, 500), (151665, 1500), (158865, 2500), (162465, 4500), (166065, 0)]
-FL_THERMAL_DURATION_S = 11115 * 15.0
-
-
-def fl_thermal_programme(t, rng):
-    amb = hall_ambient(t, rng, mean=26.0, day_amplitude=0.6, drift_per_day=0.3)
-    return {"spindle_rpm": step_programme(t, FL_THERMAL_PROGRAMME), "ambient_degc": amb}
-
-
 # ---------------------------------------------------------------- FE three-body (§2.6)
 def _two_source_draw(t, rng):
     """Random heat-flux patterns for Q1 and Q2: levels 0-100 W held 1-6 h."""
@@ -199,7 +187,62 @@ def fe_two_source_swapped(t, rng):
 
 
 # ---------------------------------------------------------------- registry
-SCENARIOS: dict[str, Scenario] = {}
+#: entry-point group of scenarios other packages add ("name = module:SCENARIO", a Scenario)
+PLUGIN_GROUP = "thermal_twin.scenarios"
+
+
+class _Registry(dict):
+    """The scenarios by name; the plug-ins of :data:`PLUGIN_GROUP` join on the first look-up (not
+    at import: a plug-in module imports this one)."""
+
+    _loaded = False
+
+    def _load(self) -> None:
+        if self._loaded:
+            return
+        self._loaded = True
+        from importlib.metadata import entry_points
+        for ep in entry_points(group=PLUGIN_GROUP):
+            s = ep.load()
+            if not isinstance(s, Scenario) or s.name != ep.name:
+                raise ScenarioError(f"{PLUGIN_GROUP} entry point {ep.name!r} ({ep.value}) is not a Scenario "
+                                    f"named {ep.name!r}")
+            dict.setdefault(self, s.name, s)
+
+    def __getitem__(self, k):
+        self._load()
+        return dict.__getitem__(self, k)
+
+    def __contains__(self, k) -> bool:
+        self._load()
+        return dict.__contains__(self, k)
+
+    def __iter__(self):
+        self._load()
+        return dict.__iter__(self)
+
+    def __len__(self) -> int:
+        self._load()
+        return dict.__len__(self)
+
+    def get(self, k, default=None):
+        self._load()
+        return dict.get(self, k, default)
+
+    def items(self):
+        self._load()
+        return dict.items(self)
+
+    def keys(self):
+        self._load()
+        return dict.keys(self)
+
+    def values(self):
+        self._load()
+        return dict.values(self)
+
+
+SCENARIOS: dict[str, Scenario] = _Registry()
 
 
 def _register(s: Scenario) -> None:
@@ -238,9 +281,6 @@ _register(Scenario("lathe-oil-steps", "random S1/S11 speeds with cutting-oil set
 _register(Scenario("lathe-test-piece", "thermal test piece run: 8 h of 6 min part cycles, S1 4000 and "
                    "driven tools 3000 1/min, lunch stop with the door open (lathe thesis ch. 7)", 8.0, 30.0,
                    {"swiss_lathe": lathe_test_piece}))
-_register(Scenario("fl-thermal-programme", "the FL_THERMAL spindle programme (4 h run / 4 h rest blocks at "
-                   "1250-5000 1/min, then mixed steps), 15 s steps, 46.3 h", FL_THERMAL_DURATION_S / H - 15.0 / H,
-                   15.0, {"spindle_stand": fl_thermal_programme}))
 _register(Scenario("fe-two-source", "48 h random heat fluxes Q1 (base front) and Q2 (spindle top), "
                    "5 min steps (TALC thesis §4.2 FE study, training set)", 48.0, 300.0,
                    {"fe_three_body": fe_two_source}))
