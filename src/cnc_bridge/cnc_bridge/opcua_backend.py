@@ -36,6 +36,7 @@ import logging
 import math
 import pathlib
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Mapping
 
@@ -184,6 +185,10 @@ class OpcUaBackend:
     def __init__(self, config: OpcUaConfig):
         self.config = config
         self._offset_axes = [a for a, n in config.node_map.items() if n.offset]
+        self._offset_ids = {a: ua.NodeId.from_string(config.node_map[a].offset) for a in self._offset_axes}
+        #: the last update's write + read-back, as the client's loop saw it (for the profile)
+        self.last_round_trip_s = 0.0
+        self.last_round_trips = 0
         self._positions: dict[str, float] = {}
         self._confirmed_um: dict[str, float] = {}
         self.connections = 0                  # successful (re)connections so far
@@ -347,27 +352,53 @@ class OpcUaBackend:
                     log.warning("%s", self.last_error)
                     return {a: None for a in axes}
                 self._armed = True
-            nodes = [client.get_node(self.config.node_map[a].offset) for a in axes]
+            nodeids = [self._offset_ids[a] for a in axes]
             values = [float(offsets_um[a]) * scale for a in axes]
+            t0 = time.perf_counter()
             try:
-                await asyncio.wait_for(client.write_values(
-                    nodes, [ua.DataValue(ua.Variant(v, ua.VariantType.Double)) for v in values]),
-                    self.config.timeout_s)
-                back = await asyncio.wait_for(client.read_values(nodes), self.config.timeout_s)
+                written, back = await asyncio.wait_for(
+                    self._write_and_read(client, nodeids, values), self.config.timeout_s)
             except (Exception, asyncio.TimeoutError) as exc:
                 self.last_error = f"write failed: {exc!r}"
                 log.warning("%s", self.last_error)
                 self._mark_lost()
                 return {a: None for a in axes}
+            self.last_round_trip_s = time.perf_counter() - t0
             out: dict[str, float | None] = {}
-            for a, want, got in zip(axes, values, back):
-                if _equal(want, got, self.config.readback_tolerance):
-                    out[a] = float(got) / scale
+            for a, want, status, got in zip(axes, values, written, back):
+                if status.is_good() and _read_equal(want, got, self.config.readback_tolerance):
+                    out[a] = float(got.Value.Value) / scale
                     self._confirmed_um[a] = out[a]
                 else:
-                    self.last_error = f"read-back of axis {a}: wrote {want!r}, read {got!r}"
+                    self.last_error = (f"axis {a}: wrote {want!r} ({status.name}), "
+                                       f"read back {_read_text(got)}")
                     out[a] = None
             return out
+
+    async def _write_and_read(self, client: Client, nodeids: list, values: list[float]):
+        """One WriteRequest of every axis and, pipelined behind it on the same channel, one
+        ReadRequest of the same nodes: one round trip. (write statuses, read DataValues)
+
+        OPC UA does not promise that a server answers requests in the order they were sent
+        (asyncua's server, like most, does): an axis whose write was accepted but whose
+        pipelined read disagrees is read once more, after the write's response, before it
+        counts as not confirmed. So an axis is confirmed only by a read that the server
+        answered with the value written, and never on the write's status alone."""
+        uac = client.uaclient
+        dvs = [ua.DataValue(ua.Variant(v, ua.VariantType.Double)) for v in values]
+        self.last_round_trips = 1
+        # the write is sent first: asyncio runs the two tasks in the order they were created
+        written, back = await asyncio.gather(uac.write_attributes(nodeids, dvs, ua.AttributeIds.Value),
+                                             uac.read_attributes(nodeids, ua.AttributeIds.Value))
+        again = [i for i, (want, status, got) in enumerate(zip(values, written, back))
+                 if status.is_good() and not _read_equal(want, got, self.config.readback_tolerance)]
+        if again:
+            self.last_round_trips = 2
+            reread = await uac.read_attributes([nodeids[i] for i in again], ua.AttributeIds.Value)
+            back = list(back)
+            for i, dv in zip(again, reread):
+                back[i] = dv
+        return written, back
 
     def _mark_lost(self) -> None:
         self._connected.clear()
@@ -423,6 +454,18 @@ def _as_int(v) -> int:
         return int(v)
     except (TypeError, ValueError):
         return 1      # unreadable: assume compensation on (the held value is then clamped)
+
+
+def _read_equal(want: float, got: ua.DataValue, tol: float) -> bool:
+    """A read answered Good with ``want`` (within ``tol``)."""
+    status = got.StatusCode if got.StatusCode is not None else ua.StatusCode()
+    return status.is_good() and got.Value is not None and _equal(want, got.Value.Value, tol)
+
+
+def _read_text(got: ua.DataValue) -> str:
+    status = got.StatusCode if got.StatusCode is not None else ua.StatusCode()
+    value = got.Value.Value if got.Value is not None else None
+    return f"{value!r}" if status.is_good() else f"{value!r} ({status.name})"
 
 
 def _equal(want, got, tol: float) -> bool:

@@ -246,3 +246,54 @@ def test_a_restarted_bridge_continues_from_the_offsets_the_cnc_holds(emulator, p
         assert step["Z"] == pytest.approx(7.5), "the move away from the held offset is rate limited"
     finally:
         second.close()
+
+
+def test_one_round_trip_confirms_and_a_refused_axis_is_not_confirmed(emulator, port):
+    """Write and read-back go out together (one round trip); an axis the CNC refuses
+    (BadOutOfRange) is not confirmed, the others are, and the session stays up."""
+    be = backend(port)
+    try:
+        assert be.wait_connected(10), be.last_error
+        assert be.write_offsets({"X": 1.0, "Y": 2.0, "Z": 3.0}) == pytest.approx({"X": 1.0, "Y": 2.0, "Z": 3.0})
+        assert be.last_round_trips == 1
+        back = be.write_offsets({"X": 2000.0, "Y": 2.5, "Z": 3.5})      # 2 mm: above what the CNC takes
+        assert back["X"] is None and back["Y"] == pytest.approx(2.5) and back["Z"] == pytest.approx(3.5)
+        assert "BadOutOfRange" in be.last_error and "axis X" in be.last_error
+        assert emulator.applied_um() == pytest.approx({"X": 1.0, "Y": 2.5, "Z": 3.5})
+        assert be.connected and be.connections == 1
+    finally:
+        be.close()
+
+
+class _ReorderingServer:
+    """A uaclient whose server answers the pipelined read before it applies the write (OPC UA
+    allows it), or never applies it (``applies=False``)."""
+
+    def __init__(self, held: float, applies: bool = True):
+        self.held, self.applies, self.reads = held, applies, 0
+
+    async def write_attributes(self, nodeids, dvs, attr):
+        from asyncua import ua
+        await asyncio.sleep(0)              # the read is answered first
+        if self.applies:
+            self.held = dvs[0].Value.Value
+        return [ua.StatusCode() for _ in nodeids]
+
+    async def read_attributes(self, nodeids, attr):
+        from asyncua import ua
+        self.reads += 1
+        return [ua.DataValue(ua.Variant(self.held, ua.VariantType.Double)) for _ in nodeids]
+
+
+@pytest.mark.parametrize("applies", [True, False])
+def test_a_read_answered_before_the_write_is_read_again_never_confirmed_on_status_alone(emulator, port, applies):
+    from asyncua import ua
+    be = backend(port)
+    try:
+        server = _ReorderingServer(held=0.001, applies=applies)
+        client = type("FakeClient", (), {"uaclient": server})()
+        written, back = be._io.run(be._write_and_read(client, [ua.NodeId(1, 2)], [0.004]), 5.0)
+        assert written[0].is_good() and server.reads == 2 and be.last_round_trips == 2
+        assert back[0].Value.Value == (0.004 if applies else 0.001)
+    finally:
+        be.close()

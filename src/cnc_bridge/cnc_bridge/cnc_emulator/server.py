@@ -216,8 +216,9 @@ class CncEmulator:
         """Compensation the CNC applies now, axis -> um."""
         return {a: self._applied_mm(a) * UM_PER_MM for a in self.state.compensation}
 
-    async def _refresh_applied(self) -> None:
-        for a in self.state.compensation:
+    async def _refresh_applied(self, axes=None) -> None:
+        """Update the ``Applied`` node of ``axes`` (default: every axis), then tell the hook."""
+        for a in self.state.compensation if axes is None else axes:
             await self._write_internal(compensation_node_id(a, "Applied"), self._applied_mm(a))
         if self.on_compensation is not None:
             self.on_compensation(self.applied_um())
@@ -229,7 +230,7 @@ class CncEmulator:
     async def _after_write(self, event, _dispatcher) -> None:
         if not event.is_external:       # the server's own updates of Applied/Position
             return
-        changed = False
+        changed: list[str] = []
         for wv, status in zip(event.request_params.NodesToWrite, event.response_params):
             if not status.is_good() or wv.AttributeId != ua.AttributeIds.Value:
                 continue
@@ -239,9 +240,10 @@ class CncEmulator:
             if nid.startswith("ns=2;s=TempComp."):
                 _, axis, item = wv.NodeId.Identifier.split(".")
                 self.state.compensation[axis][item] = float(value)
-                changed = True
-        if changed:
-            await self._refresh_applied()
+                if axis not in changed:
+                    changed.append(axis)
+        if changed:      # only the written axes: a position change refreshes them all
+            await self._refresh_applied(changed)
 
     async def set_position(self, axis: str, value: float) -> None:
         """Move an axis (the machine's own motion; clients only read positions)."""
