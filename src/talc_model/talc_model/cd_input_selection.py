@@ -30,14 +30,16 @@ def _holdout_split(k: int, test_fraction: float, seed: int) -> tuple[np.ndarray,
 
 def forward_selection(m, y, *, max_inputs: int = 4, make_cd: Callable[[], CharacteristicDiagram] | None = None,
                       test_fraction: float = 0.2, seed: int = 0,
-                      min_relative_gain: float = 0.0) -> list[SelectionStep]:
+                      min_relative_gain: float = 0.0,
+                      split: tuple[np.ndarray, np.ndarray] | None = None) -> list[SelectionStep]:
     """Sequential forward heuristic (variant 1 of [003 §4]).
 
     At each size L every free candidate is added to the previous best subset, a CD with the
     same settings is fitted and scored; the best becomes S_L. The paper leaves the norm and
     "tested using training data" open; we score by the RMSE on a fixed random hold-out part
     of the data (``test_fraction``, ``seed``), which penalises over-fitting grids. Stops early
-    when the best score improves by less than ``min_relative_gain``.
+    when the best score improves by less than ``min_relative_gain``. ``split`` = (train rows,
+    test rows) replaces the random hold-out (a prior holds out a whole load programme).
     Returns the best subset (column indices) and its score for each size.
     """
     m = as_2d(m, "m")
@@ -45,7 +47,7 @@ def forward_selection(m, y, *, max_inputs: int = 4, make_cd: Callable[[], Charac
     if y.shape[0] != m.shape[0]:
         raise CharacteristicDiagramError(f"y: {y.shape[0]} values for {m.shape[0]} samples")
     make_cd = make_cd or (lambda: CharacteristicDiagram(n_intervals=4, smoothing=1e-4))
-    train, test = _holdout_split(m.shape[0], test_fraction, seed)
+    train, test = split if split is not None else _holdout_split(m.shape[0], test_fraction, seed)
     chosen: list[int] = []
     steps: list[SelectionStep] = []
     for _ in range(min(max_inputs, m.shape[1])):

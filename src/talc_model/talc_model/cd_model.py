@@ -52,6 +52,8 @@ class CdConfig:
     update_probe_interval_s: float = 4 * 3600.0
     update_batch: int = 6
     uncertainty_window: int = 10
+    #: RMSE floor of the load-case update's stop rule (about the probe noise; 0 = the paper's rule)
+    update_rmse_floor: float = 0.0
     probe_duration_s: float = 95.0
     seed: int = 0
 
@@ -73,6 +75,9 @@ class CdConfig:
             v = getattr(cfg, name)
             if not (isinstance(v, int) and v >= 1):
                 raise CdModelError(f"cd config: '{name}' must be an integer >= 1, got {v!r}")
+        if not (isinstance(cfg.update_rmse_floor, (int, float)) and math.isfinite(cfg.update_rmse_floor)
+                and cfg.update_rmse_floor >= 0):
+            raise CdModelError(f"cd config: 'update_rmse_floor' must be a number >= 0, got {cfg.update_rmse_floor!r}")
         if not (isinstance(cfg.min_calibration_s, (int, float)) and cfg.min_calibration_s >= 0):
             raise CdModelError(f"cd config: 'min_calibration_s' must be >= 0, got {cfg.min_calibration_s!r}")
         return cfg
@@ -250,7 +255,7 @@ class CharacteristicDiagramModel:
         for c in self.component_names:
             cols = self.inputs[c]
             res = load_case_update(self.base[c].predict, u0[:, cols], self.base_y[c], u1[:, cols],
-                                   self.new_y[c], make_cd=self._make_cd)
+                                   self.new_y[c], make_cd=self._make_cd, rmse_floor=self.config.update_rmse_floor)
             self.update[c] = res.update
         self.pending_since_update = 0
         self.parameter_updates += 1
@@ -287,6 +292,9 @@ class CharacteristicDiagramModel:
     def from_state(cls, state: dict) -> "CharacteristicDiagramModel":
         if state.get("kind") != cls.kind:
             raise CdModelError(f"model state: kind {state.get('kind')!r}, expected {cls.kind!r}")
+        if cls is CharacteristicDiagramModel and state.get("prior") is not None:   # resumes with its prior
+            from talc_model.prior_cd import CdPriorModel
+            return CdPriorModel.from_state(state)
         try:
             m = cls(state["config"])
             for key in ("phase", "sensor_names", "held", "excluded", "base_u", "base_y", "new_u", "new_y",

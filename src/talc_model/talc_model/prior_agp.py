@@ -51,10 +51,12 @@ def agp_inputs(recording, config: AgpConfig) -> tuple[list[str], np.ndarray]:
     return list(probe.input_names), x - (x[ok][0] if ok.any() else 0.0)
 
 
-def _errors(recording, component: str) -> np.ndarray:
+def error_deltas(recording, component: str) -> np.ndarray:
+    """The error of ``component`` in a training recording as deltas from its first finite
+    value (the run's errors are deltas from its start); shared by the AGP and CD priors."""
     col = component if component in recording.columns else f"{component}_um"
     if col not in recording.columns:
-        raise PriorError(f"agp prior: component {component!r} has no error column in the training recording")
+        raise PriorError(f"prior: component {component!r} has no error column in the training recording")
     e = np.asarray(recording.columns[col], float)
     ok = np.isfinite(e)
     return e - (e[ok][0] if ok.any() else 0.0)      # the run's errors are deltas from its start too
@@ -67,7 +69,7 @@ def training_set(recordings: Sequence[Any], config: AgpConfig, every_s: float):
         names, x = agp_inputs(rec, config)
         t = np.asarray(rec.time_s, float)
         pick = np.unique(np.searchsorted(t, np.arange(t[0], t[-1] + 1e-9, every_s)).clip(0, t.size - 1))
-        e = {c: _errors(rec, c)[pick] for c in config.components}
+        e = {c: error_deltas(rec, c)[pick] for c in config.components}
         ok = np.all(np.isfinite(x[pick]), axis=1) & np.all([np.isfinite(v) for v in e.values()], axis=0)
         out.append((names, x[pick][ok], {c: v[ok] for c, v in e.items()}))
     if len({tuple(n) for n, _, _ in out}) > 1:
@@ -266,8 +268,8 @@ def agp_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs
 
 
 def model_from_prior(kind: str, config: Mapping[str, Any], prior: Mapping[str, Any]):
-    """The run's model of ``kind`` started from ``prior`` (TALC or AGP; its ``model_kind`` must
-    match): the one place the node and ``replay --prior`` dispatch on the prior's kind."""
+    """The run's model of ``kind`` started from ``prior`` (TALC, AGP or CD; its ``model_kind``
+    must match): the one place the node, ``replay --prior`` and the benches dispatch on it."""
     from talc_model.prior import talc_with_prior
     prior_kind = prior.get("model_kind", "talc")
     if prior_kind != kind:
@@ -276,4 +278,7 @@ def model_from_prior(kind: str, config: Mapping[str, Any], prior: Mapping[str, A
         return talc_with_prior(config, prior)
     if kind == "agp":
         return agp_with_prior(config, prior)
-    raise PriorError(f"prior: no prior for model kind {kind!r} (talc, agp)")
+    if kind == "cd":
+        from talc_model.prior_cd import cd_with_prior
+        return cd_with_prior(config, prior)
+    raise PriorError(f"prior: no prior for model kind {kind!r} (talc, agp, cd)")

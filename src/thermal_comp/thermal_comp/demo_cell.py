@@ -46,7 +46,7 @@ class DemoConfig:
     restart: dict[str, Any] | None = None
     #: the plant: unit ``unit`` of the machine type (thermal_twin.machine_instance); None = nominal
     unit: int | None = None
-    #: TALC prior file (thermal-comp prior) the model starts from; None = the thesis's start
+    #: prior file (thermal-comp prior: TALC or AGP, the machine's model) the model starts from; None = the thesis's start
     prior: str | None = None
 
 

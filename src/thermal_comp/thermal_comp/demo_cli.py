@@ -68,30 +68,37 @@ DEFAULT_PRIOR = "default"
 
 def _no_default_prior_reason(cfg: DemoConfig) -> str | None:
     """Why the default run has no prior (None: it has one)."""
-    from thermal_comp.prior_cli import TRAINING_SCENARIOS
-    if MACHINES[cfg.machine]["model_kind"] != "talc" or cfg.machine not in TRAINING_SCENARIOS:
-        return (f"machine {cfg.machine!r} runs {MACHINES[cfg.machine]['model_kind'].upper()}, which has no "
-                f"prior of the type yet (TALC machines: {sorted(TRAINING_SCENARIOS)})")
-    if cfg.scenario in TRAINING_SCENARIOS[cfg.machine]:
+    from thermal_comp.prior_cli import TRAINING_SCENARIOS, training_scenarios
+    kind = MACHINES[cfg.machine]["model_kind"]
+    scenarios = training_scenarios(kind, cfg.machine)
+    if not scenarios:
+        with_prior = sorted(m for m, spec in MACHINES.items() if training_scenarios(spec["model_kind"], m))
+        return (f"machine {cfg.machine!r} runs {kind.upper()}, which has no prior of the type yet "
+                f"(priors: {', '.join(f'{k} {sorted(d)}' for k, d in TRAINING_SCENARIOS.items())}; "
+                f"demo machines with one: {with_prior})")
+    if cfg.scenario in scenarios:
         return (f"the scenario {cfg.scenario!r} is one of the prior's training programmes (a prior never "
                 "sees the evaluated run); give --prior FILE built without it")
     return None
 
 
 def _build_prior(cfg: DemoConfig) -> pathlib.Path:
-    """The nominal type's TALC prior (thermal-comp prior's defaults), from the cache or built
-    (about 20 s) on a miss, copied into the output folder so the run's folder is complete."""
+    """The nominal type's prior of the machine's model (TALC on nmv5000, AGP on swiss-lathe;
+    thermal-comp prior's defaults), from the cache or built on a miss (TALC about 20 s, AGP a
+    few minutes), copied into the output folder so the run's folder is complete."""
     import shutil
 
-    import yaml
-    from thermal_comp.prior_cli import TRAINING_SCENARIOS, cached_prior, default_config_path
+    from thermal_comp.prior_cli import cached_prior, default_config, training_scenarios
     reason = _no_default_prior_reason(cfg)
     if reason:
         raise DemoError(f"--prior: {reason}")
-    config = yaml.safe_load(default_config_path(cfg.machine).read_text())
-    path, built = cached_prior(cfg.machine, config, TRAINING_SCENARIOS[cfg.machine])
-    print(f"{'built' if built else 'cached'} prior of the machine type {cfg.machine} (nominal twin, "
-          f"{', '.join(TRAINING_SCENARIOS[cfg.machine])}): {path}", flush=True)
+    kind = MACHINES[cfg.machine]["model_kind"]
+    scenarios = training_scenarios(kind, cfg.machine)
+    print(f"{kind.upper()} prior of the machine type {cfg.machine} (nominal twin, {', '.join(scenarios)}): "
+          "from the cache, or built now ...", flush=True)
+    path, built = cached_prior(cfg.machine, default_config(cfg.machine, kind), scenarios, kind=kind)
+    print(f"{'built' if built else 'cached'} {kind.upper()} prior of the machine type {cfg.machine}: {path}",
+          flush=True)
     out = cfg.out_dir.resolve()
     out.mkdir(parents=True, exist_ok=True)
     return pathlib.Path(shutil.copyfile(path, out / "prior.json"))
@@ -128,9 +135,10 @@ def _parser() -> argparse.ArgumentParser:
                          "tolerances of thermal_twin.machine_instance, seed N) or 'nominal' (default 1)")
     prior = ap.add_mutually_exclusive_group()
     prior.add_argument("--prior", nargs="?", const=BUILD_PRIOR, default=DEFAULT_PRIOR, metavar="PRIOR",
-                       help="start TALC from a prior of the machine type: a file from `thermal-comp prior`, or "
-                            "without a file (the default) the nominal type's prior, cached (built once, about "
-                            "20 s); the default run has none where no prior applies and says why")
+                       help="start the model (TALC on nmv5000, AGP on swiss-lathe) from a prior of the machine "
+                            "type: a file from `thermal-comp prior`, or without a file (the default) the nominal "
+                            "type's prior, cached (built once: TALC about 20 s, AGP a few minutes); the default "
+                            "run has none where no prior applies and says why")
     prior.add_argument("--no-prior", dest="prior", action="store_const", const=None,
                        help="start from zero, the thesis's protocol (calibration phase, order growth)")
     ap.add_argument("--compare-no-prior", action="store_true",

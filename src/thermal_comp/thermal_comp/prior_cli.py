@@ -1,8 +1,9 @@
-"""``thermal-comp prior --machine M --out PRIOR``: a prior for TALC from the machine TYPE.
+"""``thermal-comp prior --machine M [--model talc|agp|cd] --out PRIOR``: a prior from the machine TYPE.
 
 Simulates the nominal twin of ``M`` on training load programmes (never the run a prior is later
-used on: other scenarios and seeds) and fits the prior's ARX models (talc_model.prior); or,
-with ``--from-state``, turns the persisted TALC model of another machine into a prior. On a real
+used on: other scenarios and seeds) and fits the prior of the model (TALC: talc_model.prior,
+AGP: prior_agp, characteristic diagrams: prior_cd); or, with ``--from-state``, turns the
+persisted TALC or AGP model of another machine into a prior. On a real
 machine this costs no probing: it is simulation. docs/prior.md.
 """
 from __future__ import annotations
@@ -21,30 +22,46 @@ from thermal_twin.machine_spec import MachineSpecError
 from thermal_twin.scenarios import make_timeline
 from thermal_twin.simulate import simulate
 
-#: Training load programmes per machine type; the LAST one is held out to choose the orders.
-TRAINING_SCENARIOS = {"nmv5000": ["load-case-A", "load-case-B", "load-case-D", "talc-144h-mwf", "load-case-C"]}
+#: Training load programmes of the prior, per model kind and machine type (the twin's name);
+#: the LAST one is held out (TALC: to choose the orders; AGP: validation RMS; CD: input choice).
+#: The demo's runs (talc-178h-dry, lathe-random-speed) are not among them.
+TRAINING_SCENARIOS = {
+    "talc": {"nmv5000": ["load-case-A", "load-case-B", "load-case-D", "talc-144h-mwf", "load-case-C"]},
+    "cd": {"nmv5000": ["load-case-A", "load-case-B", "load-case-D", "talc-144h-mwf", "load-case-C"]},
+    "agp": {"swiss_lathe": ["lathe-oil-steps", "lathe-door-openings", "lathe-test-piece"]},
+}
 #: Seeds of the training runs: 101, 102, ... (the demo's runs use seeds 0-99).
 SEED_BASE = 101
-#: AGP machines: training programmes of the AGP prior (the demo's lathe-random-speed is not
-#: among them); the LAST one is held out for the validation RMS.
-AGP_TRAINING_SCENARIOS = {"swiss_lathe": ["lathe-oil-steps", "lathe-door-openings", "lathe-test-piece"]}
+#: the modules each kind's prior is fitted and run by (their source is part of the cache key)
+PRIOR_MODULES = {"talc": ["talc_model.prior", "talc_model.talc"],
+                 "agp": ["talc_model.prior_agp", "talc_model.agp", "talc_model.gaussian_process"],
+                 "cd": ["talc_model.prior_cd", "talc_model.cd_model", "talc_model.characteristic_diagram",
+                        "talc_model.cd_input_selection"]}
 
 
-def build_agp_prior_of(machine: str, config: dict, scenarios: list[str], seed_base: int = SEED_BASE,
-                       progress=None) -> dict:
-    """Simulate the nominal ``machine`` on ``scenarios`` and fit the AGP prior (talc_model.prior_agp)."""
-    from talc_model.prior_agp import build_agp_prior
-    nominal = load_machine(machine)
-    recs, used = [], []
-    for i, scenario in enumerate(scenarios):
-        seed = seed_base + i
-        recs.append(simulate(nominal, make_timeline(nominal.name, scenario, seed=seed), seed=seed).to_recording())
-        used.append((scenario, seed))
-        if progress:
-            progress(f"simulated {scenario} (seed {seed})")
-    prior = build_agp_prior(recs, config, machine=nominal.name, sources=training_labels(used))
-    prior["held_out"] = training_labels(used[-1:])
-    return prior
+def type_name(machine: str) -> str:
+    """The twin's name of a machine (``swiss-lathe`` -> ``swiss_lathe``)."""
+    return load_machine(machine).name
+
+
+def default_model_kind(machine: str) -> str:
+    """The model the demo runs on ``machine`` (MACHINES), else TALC."""
+    name = type_name(machine)
+    return next((m["model_kind"] for k, m in MACHINES.items() if k.replace("-", "_") == name), "talc")
+
+
+def training_scenarios(kind: str, machine: str) -> list[str] | None:
+    """The default training programmes of ``kind``'s prior for ``machine`` (None: there are none)."""
+    return TRAINING_SCENARIOS.get(kind, {}).get(type_name(machine))
+
+
+def default_config(machine: str, kind: str) -> dict:
+    """The model configuration the demo runs ``machine`` with: TALC's shipped YAML; the AGP's
+    and CD's defaults ({}), as the model node uses them without a ``model_config``."""
+    if kind != "talc":
+        return {}
+    import yaml
+    return yaml.safe_load(default_config_path(machine).read_text()) or {}
 
 
 def default_config_path(machine: str) -> pathlib.Path:
@@ -56,19 +73,28 @@ def default_config_path(machine: str) -> pathlib.Path:
 
 
 def build_prior(machine: str, config: dict, scenarios: list[str], seed_base: int = SEED_BASE,
-                na_max: int = 1, nb_max: int = 8, progress=None) -> dict:
-    """Simulate the nominal ``machine`` on ``scenarios`` and fit the prior."""
+                na_max: int = 1, nb_max: int = 8, progress=None, kind: str = "talc") -> dict:
+    """Simulate the nominal ``machine`` on ``scenarios`` (seeds ``seed_base``, +1, ...) and fit
+    the prior of ``kind`` (``na_max`` / ``nb_max``: TALC's orders)."""
+    if kind not in TRAINING_SCENARIOS:
+        raise PriorError(f"--model: {kind!r} has no prior (one of {sorted(TRAINING_SCENARIOS)})")
     nominal = load_machine(machine)
     recs, used = [], []
     for i, scenario in enumerate(scenarios):
         seed = seed_base + i
-        timeline = make_timeline(nominal.name, scenario, seed=seed)
-        recs.append(simulate(nominal, timeline, seed=seed).to_recording())
+        recs.append(simulate(nominal, make_timeline(nominal.name, scenario, seed=seed), seed=seed).to_recording())
         used.append((scenario, seed))
         if progress:
             progress(f"simulated {scenario} (seed {seed})")
-    prior = build_talc_prior(recs, config, machine=nominal.name, sources=training_labels(used),
-                             na_max=na_max, nb_max=nb_max)
+    sources = training_labels(used)
+    if kind == "talc":
+        prior = build_talc_prior(recs, config, machine=nominal.name, sources=sources, na_max=na_max, nb_max=nb_max)
+    elif kind == "agp":
+        from talc_model.prior_agp import build_agp_prior
+        prior = build_agp_prior(recs, config, machine=nominal.name, sources=sources)
+    else:
+        from talc_model.prior_cd import build_cd_prior
+        prior = build_cd_prior(recs, config, machine=nominal.name, sources=sources)
     prior["held_out"] = training_labels(used[-1:])
     return prior
 
@@ -82,18 +108,18 @@ def prior_cache_dir() -> pathlib.Path:
     return pathlib.Path(root) / "priors"
 
 
-def _cache_key(machine: str, config: dict, scenarios: list[str], seed_base: int, na_max: int, nb_max: int) -> str:
-    """Everything the prior depends on: the nominal preset's text, the configuration, the training
-    programmes and seeds, the orders and the code that fits and runs it."""
+def _cache_key(machine: str, config: dict, scenarios: list[str], seed_base: int, na_max: int, nb_max: int,
+               kind: str = "talc") -> str:
+    """Everything the prior depends on: the model kind, the nominal preset's text, the
+    configuration, the training programmes and seeds, the orders and the code that fits and runs it."""
     import hashlib
-    import talc_model.prior as prior_mod
-    import talc_model.talc as talc_mod
+    import importlib
     import thermal_twin
     preset = pathlib.Path(thermal_twin.__file__).with_name("presets") / f"{machine.replace('-', '_')}.yaml"
     parts = [json.dumps({"machine": machine, "config": config, "scenarios": scenarios, "seed_base": seed_base,
-                         "na_max": na_max, "nb_max": nb_max}, sort_keys=True, default=str).encode(),
-             preset.read_bytes() if preset.is_file() else machine.encode(),
-             pathlib.Path(prior_mod.__file__).read_bytes(), pathlib.Path(talc_mod.__file__).read_bytes()]
+                         "na_max": na_max, "nb_max": nb_max, "kind": kind}, sort_keys=True, default=str).encode(),
+             preset.read_bytes() if preset.is_file() else machine.encode()]
+    parts += [pathlib.Path(importlib.import_module(m).__file__).read_bytes() for m in PRIOR_MODULES[kind]]
     h = hashlib.sha256()
     for part in parts:
         h.update(hashlib.sha256(part).digest())
@@ -102,21 +128,23 @@ def _cache_key(machine: str, config: dict, scenarios: list[str], seed_base: int,
 
 def cached_prior(machine: str, config: dict, scenarios: list[str], seed_base: int = SEED_BASE,
                  na_max: int = 1, nb_max: int = 8, cache_dir: pathlib.Path | None = None,
-                 progress=None) -> tuple[pathlib.Path, bool]:
-    """(path, built_now): the nominal type's prior from the cache, built and stored on a miss.
-    A cache file that does not read back as a prior is rebuilt."""
+                 progress=None, kind: str = "talc") -> tuple[pathlib.Path, bool]:
+    """(path, built_now): the nominal type's prior of ``kind`` from the cache, built and stored
+    on a miss. A cache file that does not read back as a prior of that kind is rebuilt."""
+    import os
+
     from talc_model.prior import load_prior
     folder = pathlib.Path(cache_dir) if cache_dir is not None else prior_cache_dir()
-    path = folder / f"{machine}-{_cache_key(machine, config, scenarios, seed_base, na_max, nb_max)}.json"
+    key = _cache_key(machine, config, scenarios, seed_base, na_max, nb_max, kind)
+    path = folder / f"{machine}-{kind}-{key}.json"
     if path.is_file():
         try:
-            load_prior(path)
-            return path, False
+            if load_prior(path).get("model_kind", "talc") == kind:
+                return path, False
         except (PriorError, OSError, ValueError):
             pass                                    # a damaged cache entry: rebuilt below
     folder.mkdir(parents=True, exist_ok=True)
-    prior = build_prior(machine, config, scenarios, seed_base, na_max, nb_max, progress)
-    import os
+    prior = build_prior(machine, config, scenarios, seed_base, na_max, nb_max, progress, kind=kind)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
     save_prior(tmp, prior)
     tmp.replace(path)                                # atomic: a concurrent reader never sees half a file
@@ -127,15 +155,43 @@ def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp prior", description=__doc__.split("\n\n")[0])
     ap.add_argument("--machine", default="nmv5000", help="the NOMINAL machine type (preset name or YAML)")
     ap.add_argument("--out", required=True, help="prior file to write (JSON)")
-    ap.add_argument("--config", help="TALC configuration YAML (default: the one the demo ships for the machine)")
-    ap.add_argument("--scenarios", help="comma-separated training scenarios, the last held out "
-                                        "(default for nmv5000: " + ",".join(TRAINING_SCENARIOS["nmv5000"]) + ")")
+    ap.add_argument("--model", choices=sorted(TRAINING_SCENARIOS),
+                    help="the model the prior is for (default: the one the demo runs on the machine: "
+                         "TALC on nmv5000, AGP on swiss-lathe)")
+    ap.add_argument("--config", help="model configuration YAML (default: the one the demo runs the machine with)")
+    ap.add_argument("--scenarios", help="comma-separated training scenarios, the last held out (default: "
+                    + "; ".join(f"{k} {m}: {','.join(v)}" for k, d in TRAINING_SCENARIOS.items() for m, v in d.items())
+                    + ")")
     ap.add_argument("--seed-base", type=int, default=SEED_BASE, help="seed of the first training run (default %(default)s)")
-    ap.add_argument("--na-max", type=int, default=1, help="largest n_a of the prior (default %(default)s)")
-    ap.add_argument("--nb-max", type=int, default=8, help="largest n_b of the prior (default %(default)s)")
+    ap.add_argument("--na-max", type=int, default=1, help="TALC: largest n_a of the prior (default %(default)s)")
+    ap.add_argument("--nb-max", type=int, default=8, help="TALC: largest n_b of the prior (default %(default)s)")
     ap.add_argument("--from-state", metavar="STATE",
-                    help="instead: the persisted TALC model state (model_state.json) of another machine")
+                    help="instead: the persisted TALC or AGP model state (model_state.json) of another machine")
     return ap
+
+
+def _from_state(a) -> dict:
+    try:
+        state = json.loads(pathlib.Path(a.from_state).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise PriorError(f"--from-state {a.from_state!r}: cannot read it ({exc})") from None
+    if isinstance(state, dict) and state.get("kind") == "agp":   # another lathe's persisted AGP
+        from talc_model.prior_agp import agp_prior_from_state
+        return agp_prior_from_state(state, machine=a.machine)
+    return prior_from_state(state, machine=a.machine)
+
+
+def _describe(prior: dict) -> list[str]:
+    """What ``thermal-comp prior`` prints about the prior it wrote."""
+    kind = prior.get("model_kind", "talc")
+    val = prior.get("validation_rms", {})
+    if kind == "talc":
+        return [f"  {c}: n_a {m['orders']['na']}, n_b {m['orders']['nb']}"
+                + (f", held-out simulation RMS {val[c]:.2f}" if val.get(c) == val.get(c) and c in val else "")
+                for c, m in prior["talc_state"]["models"].items()]
+    if kind == "agp":
+        return [f"  {c}: {prior['training_points']} training points, held-out RMS {v:.2f} um" for c, v in val.items()]
+    return [f"  {c}: inputs {', '.join(prior['input_names'][c])}, held-out RMS {v:.2f}" for c, v in val.items()]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -144,56 +200,24 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     try:
         if a.from_state:
-            try:
-                state = json.loads(pathlib.Path(a.from_state).read_text())
-            except (OSError, json.JSONDecodeError) as exc:
-                raise PriorError(f"--from-state {a.from_state!r}: cannot read it ({exc})") from None
-            if isinstance(state, dict) and state.get("kind") == "agp":   # another lathe's persisted AGP
-                from talc_model.prior_agp import agp_prior_from_state
-                prior = agp_prior_from_state(state, machine=a.machine)
-            else:
-                prior = prior_from_state(state, machine=a.machine)
-        elif load_machine(a.machine).name in AGP_TRAINING_SCENARIOS:
-            return _main_agp(a, t0)
+            prior = _from_state(a)
         else:
-            cfg_path = pathlib.Path(a.config) if a.config else default_config_path(a.machine)
-            config = yaml.safe_load(cfg_path.read_text()) or {}
-            name = load_machine(a.machine).name
-            scenarios = a.scenarios.split(",") if a.scenarios else TRAINING_SCENARIOS.get(name)
+            kind = a.model or default_model_kind(a.machine)
+            config = ((yaml.safe_load(pathlib.Path(a.config).read_text()) or {}) if a.config
+                      else default_config(a.machine, kind))
+            scenarios = a.scenarios.split(",") if a.scenarios else training_scenarios(kind, a.machine)
             if not scenarios:
-                raise PriorError(f"--scenarios: no default training scenarios for machine {name!r}")
-            prior = build_prior(a.machine, config, [s.strip() for s in scenarios], a.seed_base,
-                                a.na_max, a.nb_max, progress=lambda m: print(m, file=sys.stderr))
+                raise PriorError(f"--scenarios: no default training scenarios for a {kind} prior of "
+                                 f"{type_name(a.machine)!r}")
+            prior = build_prior(a.machine, config, [s.strip() for s in scenarios], a.seed_base, a.na_max,
+                                a.nb_max, progress=lambda m: print(m, file=sys.stderr), kind=kind)
     except (PriorError, MachineSpecError, ValueError, OSError) as exc:
         print(f"thermal-comp prior: {exc}", file=sys.stderr)
         return 2
     path = save_prior(a.out, prior)
-    orders = {c: (m["orders"]["na"], m["orders"]["nb"]) for c, m in prior["talc_state"]["models"].items()}
-    print(f"wrote {path} ({time.perf_counter() - t0:.1f} s): TALC prior of {prior['machine']} from "
-          f"{', '.join(prior['sources'])}")
-    for c, (na, nb) in orders.items():
-        v = prior["validation_rms"].get(c)
-        print(f"  {c}: n_a {na}, n_b {nb}, held-out simulation RMS {v:.2f}" if v == v else f"  {c}: n_a {na}, n_b {nb}")
-    return 0
-
-
-def _main_agp(a, t0: float) -> int:
-    """``thermal-comp prior --machine swiss-lathe``: the AGP prior of the nominal lathe."""
-    import yaml
-    config = (yaml.safe_load(pathlib.Path(a.config).read_text()) or {}) if a.config else {}
-    name = load_machine(a.machine).name
-    scenarios = [s.strip() for s in a.scenarios.split(",")] if a.scenarios else AGP_TRAINING_SCENARIOS[name]
-    try:
-        prior = build_agp_prior_of(a.machine, config, scenarios, a.seed_base,
-                                   progress=lambda m: print(m, file=sys.stderr))
-    except (PriorError, MachineSpecError, ValueError, OSError) as exc:
-        print(f"thermal-comp prior: {exc}", file=sys.stderr)
-        return 2
-    path = save_prior(a.out, prior)
-    print(f"wrote {path} ({time.perf_counter() - t0:.1f} s): AGP prior of {prior['machine']} from "
-          f"{', '.join(prior['sources'])}; inputs {', '.join(prior['input_names'])}")
-    for c, v in prior["validation_rms"].items():
-        print(f"  {c}: {prior['training_points']} training points, held-out RMS {v:.2f} um")
+    print(f"wrote {path} ({time.perf_counter() - t0:.1f} s): {prior.get('model_kind', 'talc').upper()} prior of "
+          f"{prior['machine']} from {', '.join(prior['sources'])}")
+    print("\n".join(_describe(prior)))
     return 0
 
 

@@ -5,8 +5,9 @@ import pathlib
 import pytest
 
 from talc_model.prior import build_talc_prior, load_prior
+from talc_model.prior_agp import AgpPriorModel, build_agp_prior, model_from_prior
 from thermal_comp import demo_cli, prior_cli
-from thermal_comp.demo_cell import DemoConfig
+from thermal_comp.demo_cell import DemoConfig, build_cell
 from thermal_comp.demo_summary import print_prior_gain, prior_gain
 from thermal_twin.scenarios import make_timeline
 from thermal_twin.simulate import simulate
@@ -16,13 +17,17 @@ CONFIG = {"input_names": ["ambient", "ws_mwf", "c_coolant_delta"]}
 
 @pytest.fixture
 def counted_build(monkeypatch):
-    """prior_cli.build_prior on three nominal runs (the real fit, fewer programmes and orders), counting calls."""
+    """prior_cli.build_prior on the nominal runs (the real fit; TALC: fewer programmes and orders;
+    AGP: 3 h of each programme, 60 points), counting calls."""
     calls = []
 
-    def build(machine, config, scenarios, seed_base=101, na_max=1, nb_max=8, progress=None):
-        calls.append((machine, tuple(scenarios)))
-        recs = [simulate(machine, make_timeline(machine, s, seed=seed_base + i, step_s=300.0),
+    def build(machine, config, scenarios, seed_base=101, na_max=1, nb_max=8, progress=None, kind="talc"):
+        calls.append((machine, tuple(scenarios), kind))
+        hours = 3.0 if kind == "agp" else None
+        recs = [simulate(machine, make_timeline(machine, s, seed=seed_base + i, hours=hours),
                          seed=seed_base + i).to_recording() for i, s in enumerate(scenarios)]
+        if kind == "agp":
+            return build_agp_prior(recs, config, machine=machine, max_points=60)
         return build_talc_prior(recs, config, machine=machine, na_max=na_max, nb_max=3)
     monkeypatch.setattr(prior_cli, "build_prior", build)
     return calls
@@ -57,7 +62,9 @@ def test_default_is_the_prior_and_no_prior_is_asked_for():
 def test_no_default_prior_where_none_applies(tmp_path, capsys):
     assert demo_cli._no_default_prior_reason(DemoConfig(scenario="talc-178h-dry")) is None
     assert "training programmes" in demo_cli._no_default_prior_reason(DemoConfig(scenario="load-case-A"))
-    assert "AGP" in demo_cli._no_default_prior_reason(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed"))
+    assert demo_cli._no_default_prior_reason(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed")) is None
+    assert "training programmes" in demo_cli._no_default_prior_reason(
+        DemoConfig(machine="swiss-lathe", scenario="lathe-oil-steps"))
     with pytest.raises(demo_cli.DemoError, match="training programmes"):
         demo_cli._build_prior(DemoConfig(scenario="load-case-A", out_dir=tmp_path))
     assert demo_cli.main(["--no-prior", "--compare-no-prior", "--out", str(tmp_path)]) == 1
@@ -66,7 +73,7 @@ def test_no_default_prior_where_none_applies(tmp_path, capsys):
 
 def test_build_prior_copies_the_cached_prior_into_the_run(tmp_path, monkeypatch, counted_build):
     monkeypatch.setenv("THERMAL_COMP_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setitem(prior_cli.TRAINING_SCENARIOS, "nmv5000", ["load-case-A", "load-case-D", "load-case-B"])
+    monkeypatch.setitem(prior_cli.TRAINING_SCENARIOS["talc"], "nmv5000", ["load-case-A", "load-case-D", "load-case-B"])
     cfg = DemoConfig(scenario="talc-178h-dry", out_dir=tmp_path / "run")
     path = demo_cli._build_prior(cfg)
     assert path == (tmp_path / "run" / "prior.json").resolve() and load_prior(path)["machine"] == "nmv5000"
@@ -87,3 +94,26 @@ def test_prior_gain_table(capsys):
     print_prior_gain(summary(2.0, 98.5, 0), summary(6.0, 96.9, 7))
     out = capsys.readouterr().out
     assert "with prior" in out and "no prior" in out and "4.9" in out
+
+
+def test_lathe_demo_defaults_to_the_agp_prior_of_its_type(tmp_path, monkeypatch, counted_build, capsys):
+    """swiss-lathe: the default run builds (once) and uses the AGP prior of the nominal lathe,
+    says so, and hands it to the model node, which starts the AGP from it."""
+    monkeypatch.setenv("THERMAL_COMP_CACHE", str(tmp_path / "cache"))
+    cfg = DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed", out_dir=tmp_path / "run")
+    path = demo_cli._build_prior(cfg)
+    prior = load_prior(path)
+    assert prior["model_kind"] == "agp" and prior["machine"] == "swiss-lathe"
+    assert counted_build == [("swiss-lathe", tuple(prior_cli.TRAINING_SCENARIOS["agp"]["swiss_lathe"]), "agp")]
+    assert "lathe-random-speed" not in counted_build[0][1]                # never the demo's run
+    out = capsys.readouterr().out
+    assert "built AGP prior of the machine type swiss-lathe" in out
+    demo_cli._build_prior(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed", out_dir=tmp_path / "r2"))
+    assert len(counted_build) == 1 and "cached AGP prior" in capsys.readouterr().out
+    cfg.prior = str(path)
+    model = {n["name"]: n for n in build_cell(cfg, 42, None, False)["nodes"]}["model"]["parameters"]
+    assert model["model_kind"] == "agp" and model["prior_path"] == str(path)
+    assert isinstance(model_from_prior("agp", {}, load_prior(model["prior_path"])), AgpPriorModel)
+    # the cache keeps one file per model kind: an AGP prior is never read back as another kind's
+    cached = list((tmp_path / "cache" / "priors").glob("swiss-lathe-agp-*.json"))
+    assert len(cached) == 1
