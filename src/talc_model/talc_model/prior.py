@@ -237,21 +237,9 @@ class TalcPriorModel(TalcModel):
             return self.config.cp_interval_s      # the shortened calibration phase
         return super()._interval_s()
 
-    def add_measurement(self, t_s: float, measured: Mapping[str, float],
-                        applied_compensation: Mapping[str, float]) -> None:
-        """TALC's measurement; with ``state_gain`` < 1 the output history takes only that
-        fraction of the innovation (a fixed-gain filter: probe noise is not held for hours)."""
-        if np.all(self._gain >= 1.0) or self.grid is None or self.t0 is None or self.phase == PHASE_CALIBRATION:
-            return super().add_measurement(t_s, measured, applied_compensation)
-        self._advance(max(float(t_s), self.t0))
-        k = max(0, min(int(round((float(t_s) - self.t0) / self.step)), self.grid.n - 1))
-        before, was = self.grid.y[k].copy(), self.grid.measured[k].copy()
-        super().add_measurement(t_s, measured, applied_compensation)
-        g = self.grid
-        blend = g.measured[k] & ~was & np.isfinite(before)
-        if np.any(blend):
-            g.y[k, blend] = before[blend] + self._gain[blend] * (g.y[k, blend] - before[blend])
-            self._resimulate_after(k)
+    def _gain_scale(self, j: int) -> float:
+        """``state_gain``: a fixed damping of the observer's gain (1 = the observer alone)."""
+        return float(self._gain[j])
 
     def _update(self, t_s: float, why: str) -> None:
         """WLS regularised towards the prior; without a prior, TALC's own update."""

@@ -2,7 +2,9 @@
 
 :class:`TalcModel` (kind ``"talc"``) behind the shared :class:`~talc_model.adaptive_model.AdaptiveModel`
 protocol: a calibration phase (probe every cycle, no compensation), a compensation phase
-(predictions on a 5-min grid, a measurement replaces the prediction in the output history) and
+(predictions on a 5-min grid; a measurement corrects the model's whole output state by the
+gain of an observer, :mod:`talc_model.arx_observer`, or, as in the thesis, replaces the newest
+predicted output) and
 no-good phases (dense probing after a residual beyond the action-control limit, then a
 parameter update). The state machine and prediction are here; the estimation is
 :mod:`talc_model.talc_identification`, the parameters :mod:`talc_model.talc_config`. The
@@ -19,6 +21,7 @@ from thermal_comp_common.metrics import q_prod
 from talc_model.adaptive_model import (PHASE_CALIBRATION, PHASE_COMPENSATION, PHASE_NO_GOOD, ModelStatusData,
                                        register_model)
 from talc_model.arx import ArxModel
+from talc_model.arx_observer import observer_update
 from talc_model.blas_threads import single_thread_blas
 from talc_model.talc_config import PRESETS, TalcConfig, parse_input  # noqa: F401 (PRESETS: the old import path)
 from talc_model.talc_grid import ModelGrid
@@ -56,6 +59,8 @@ class TalcModel(TalcIdentification):
         self.t_last_update: float | None = None
         self.nb_max_selected = c.nb_max            # max n_b used in the last order selection
         self.out_of_sample: dict[str, list[float]] = {n: [] for n in self.component_names}
+        #: observer covariance per component: grid index of the last probe and its posterior
+        self.observer: dict[str, tuple[int, np.ndarray]] = {}
         self.message = "calibration phase: waiting for the first measurement"
         self.events: list[dict] = []               # phase transitions and updates (for reports)
         if self.input_names:
@@ -133,33 +138,77 @@ class TalcModel(TalcIdentification):
                 self._predict_sample(k)
 
     def _predict_sample(self, k: int) -> None:
+        """Predict the state of grid sample k; a measured sample keeps its measurement as the
+        output and (re-)applies the state update to its prediction."""
         g = self.grid
         for j, name in enumerate(self.component_names):
-            if g.measured[k, j]:
-                continue
             m = self.models.get(name)
+            if g.measured[k, j]:
+                if m is not None and self.config.state_update == "observer":
+                    g.x[k, j] = self._predict_with(m, j, k)
+                    self._observe(j, k, float(g.y[k, j]))
+                else:
+                    g.x[k, j] = g.y[k, j]
+                continue
             if m is None:
                 continue
-            g.y[k, j] = self._predict_with(m, j, k)
+            g.x[k, j] = g.y[k, j] = self._predict_with(m, j, k)
 
     def _predict_with(self, m: ArxModel, j: int, k: int) -> float:
         g = self.grid
         lag = m.orders.max_lag
         if k >= lag:
-            y_hist = g.y[: k + 1, j]
+            y_hist = g.x[: k + 1, j]
             u_hist = g.u[: k + 1]
             kk = k
         else:  # before the start: outputs and input deltas were zero (steady reference state)
             pad = lag - k
-            y_hist = np.concatenate([np.zeros(pad), g.y[: k + 1, j]])
+            y_hist = np.concatenate([np.zeros(pad), g.x[: k + 1, j]])
             u_hist = np.vstack([np.zeros((pad, g.u.shape[1])), g.u[: k + 1]])
             kk = k + pad
         v = m.predict_one(y_hist, u_hist, kk)
         return v if math.isfinite(v) else 0.0
 
     def _resimulate_after(self, k: int) -> None:
+        if k < 0:   # the whole history again: the observer restarts from the start's exact state
+            self.observer = {}
         for kk in range(k + 1, self.grid.n):
             self._predict_sample(kk)
+
+    # ------------------------------------------------------------------ state update
+    def _probe_noise_var(self, name: str) -> float:
+        c = self.config
+        s = c.probe_noise_angular_um_per_m if name in c.angular_components else c.probe_noise_linear_um
+        return s * s
+
+    def _gain_scale(self, j: int) -> float:
+        """Extra damping of the observer's gain for component j (1: none; see TalcPriorModel)."""
+        return 1.0
+
+    def _observe(self, j: int, k: int, total: float) -> None:
+        """State update of component j by a measured total error at grid sample k, whose
+        prediction is in ``grid.x[k, j]`` (docstring of :mod:`talc_model.arx_observer`)."""
+        g = self.grid
+        name = self.component_names[j]
+        m = self.models[name]
+        na = m.orders.na
+        k_last, p = self.observer.get(name, (-1, np.zeros((na, na))))
+        if p.shape != (na, na):          # the orders changed at an update: lags known to the probe noise
+            p = self._probe_noise_var(name) * np.eye(na)
+        innovation = total - float(g.x[k, j])
+        # mean square of the recent innovations, this one included (covariance matching)
+        recent = self.out_of_sample.get(name, [])[-(max(1, self.config.uncertainty_window) - 1):] \
+            if self.config.uncertainty_window > 1 else []
+        ms = float(np.mean(np.square(list(recent) + [innovation])))
+        corr, p = observer_update(m.a, p, k - k_last, innovation, ms, self._probe_noise_var(name),
+                                  self._gain_scale(j))
+        for i, dx in enumerate(corr):
+            if k - i < 0:
+                break
+            g.x[k - i, j] += dx
+            if not g.measured[k - i, j]:
+                g.y[k - i, j] = g.x[k - i, j]
+        self.observer[name] = (k, p)
 
     # ------------------------------------------------------------------ prediction
     def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
@@ -174,7 +223,7 @@ class TalcModel(TalcIdentification):
             return values, stds
         k = self.grid.n - 1
         for j, n in enumerate(self.component_names):
-            v = self.grid.y[k, j]
+            v = self.grid.x[k, j]
             values[n] = float(v) if math.isfinite(v) else 0.0
             stds[n] = self._uncertainty(n)
         return values, stds
@@ -250,11 +299,21 @@ class TalcModel(TalcIdentification):
         k = int(round((t_s - self.t0) / self.step))
         k = max(0, min(k, self.grid.n - 1))
         g = self.grid
+        observer = self.phase != PHASE_CALIBRATION and self.config.state_update == "observer"
         for j, name in enumerate(self.component_names):
             if name not in total:
                 continue
-            if self.phase != PHASE_CALIBRATION and not g.measured[k, j] and math.isfinite(g.y[k, j]):
-                self.out_of_sample[name].append(total[name] - g.y[k, j])
+            innovation = None
+            if self.phase != PHASE_CALIBRATION and not g.measured[k, j] and math.isfinite(g.x[k, j]):
+                innovation = total[name] - g.x[k, j]
+            if observer and name in self.models and math.isfinite(g.x[k, j]):
+                self._observe(j, k, total[name])      # before the innovation joins the window
+            elif innovation is not None:              # the thesis's replacement (damped by _gain_scale)
+                g.x[k, j] += self._gain_scale(j) * innovation
+            else:
+                g.x[k, j] = total[name]
+            if innovation is not None:
+                self.out_of_sample[name].append(innovation)
                 del self.out_of_sample[name][:-max(1, self.config.uncertainty_window)]
             g.y[k, j] = total[name]
             g.measured[k, j] = True
@@ -328,6 +387,7 @@ class TalcModel(TalcIdentification):
             "ng_left": self.ng_left, "last_probe_t": self.last_probe_t,
             "t_last_update": self.t_last_update, "nb_max_selected": self.nb_max_selected,
             "out_of_sample": {n: list(v) for n, v in self.out_of_sample.items()},
+            "observer": {n: {"k": k, "p": p.tolist()} for n, (k, p) in self.observer.items()},
             "message": self.message, "events": list(self.events),
         }
 
@@ -363,6 +423,8 @@ class TalcModel(TalcIdentification):
         model.t_last_update = state["t_last_update"]
         model.nb_max_selected = int(state["nb_max_selected"])
         model.out_of_sample = {n: [float(x) for x in v] for n, v in state["out_of_sample"].items()}
+        model.observer = {n: (int(d["k"]), np.asarray(d["p"], float).reshape(len(d["p"]), len(d["p"])))
+                          for n, d in (state.get("observer") or {}).items()}
         model.message = state.get("message", "")
         model.events = list(state.get("events", []))
         return model

@@ -89,6 +89,14 @@ class TalcConfig:
     probe_duration_s: float = 95.0
     interval_from_cycle_end: bool = True
     uncertainty_window: int = 10
+    # --- state update by a probe (docs/talc.md "State update")
+    #: "observer": a probe corrects the whole output history by the Kalman gain of the model's
+    #: own dynamics (talc_model.arx_observer; stable for any n_a); "replace": the thesis's
+    #: §6.2.2, the probe replaces the newest output only (diverges for some n_a > 1 models)
+    state_update: str = "observer"
+    #: standard deviation of one probe (Table 5.4: U(k=2) 0.4-0.6 um, 2.3-2.6 um/m)
+    probe_noise_linear_um: float = 0.25
+    probe_noise_angular_um_per_m: float = 1.2
 
     def __post_init__(self) -> None:
         self.component_names = [str(c) for c in self.component_names]
@@ -127,6 +135,12 @@ class TalcConfig:
             raise ValueError(f"TALC config 'forgetting_factor': {self.forgetting_factor!r} must be in (0, 1]")
         if not 0.1 <= self.train_fraction <= 0.95:
             raise ValueError(f"TALC config 'train_fraction': {self.train_fraction!r} must be in [0.1, 0.95]")
+        if self.state_update not in ("observer", "replace"):
+            raise ValueError(f"TALC config 'state_update': {self.state_update!r} is not 'observer' or 'replace'")
+        for name in ("probe_noise_linear_um", "probe_noise_angular_um_per_m"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"TALC config '{name}': {v!r} must be a finite number >= 0")
         if self.cp_gap_fill not in ("predict", "interpolate"):
             raise ValueError(f"TALC config 'cp_gap_fill': {self.cp_gap_fill!r} is not 'predict' or 'interpolate'")
         if not self.component_names:

@@ -186,6 +186,10 @@ class TalcIdentification:
         for j in range(len(self.component_names)):
             y, _ = self._training_outputs(j)
             g.y[: g.n, j] = y
+            g.x[: g.n, j] = y     # the model's state: the measured (and interpolated) history
+        # the observer starts from that history, each sample known to the probe noise
+        last = self._last_measured_index()
+        self.observer = {n: (last, self._probe_noise_var(n) * np.eye(m.orders.na)) for n, m in models.items()}
         self.phase = PHASE_COMPENSATION
         self.t_last_update = t_s
         self.parameter_updates += 1

@@ -1,0 +1,114 @@
+"""The observer-style state update (talc_model.arx_observer) against the thesis's replacement of
+the newest output: stable for n_a > 1 where the replacement diverges, the same as the
+replacement for n_a = 1 with exact probes, and the covariance it keeps is a covariance."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from talc_model.adaptive_model import PHASE_COMPENSATION
+from talc_model.arx import ArxModel, ArxOrders
+from talc_model.arx_observer import K_MIN, ObserverError, companion, observer_update
+from talc_model.talc import TalcModel
+
+STEP = 300.0
+POLES = (0.995, 0.99)          # two slow thermal time constants (8.3 h and 8.3 / 2 h at 5 min)
+
+
+def _ambient(hours: float, seed: int = 3) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hours * 3600.0, STEP)
+    amb = sum(rng.uniform(0.5, 2) * np.sin(2 * np.pi * t / (rng.uniform(4, 30) * 3600) + rng.uniform(0, 6))
+              for _ in range(3))
+    return amb - amb[0]
+
+
+def _arx(poles, static_gain: float) -> ArxModel:
+    a = np.poly(poles)[1:].real
+    b0 = static_gain * (1 + a.sum())
+    return ArxModel(ArxOrders(len(poles), (1,)), np.concatenate([a, [b0]]))
+
+
+def _run(model_arx: ArxModel, plant_arx: ArxModel, state_update: str, hours: float = 96.0,
+         noise_um: float = 0.25, seed: int = 0):
+    """A TALC model holding ``model_arx`` (no parameter updates) probes a plant ``plant_arx``
+    every 2 h; returns (true error, prediction in effect)."""
+    amb = _ambient(hours)
+    true = plant_arx.simulate(amb[:, None], np.zeros(plant_arx.orders.max_lag), plant_arx.orders.max_lag)
+    true[: plant_arx.orders.max_lag] = 0.0
+    cfg = {"component_names": ["E_X0C"], "angular_components": [], "input_names": ["amb"],
+           "update_interval_h": math.inf, "acl_linear_um": math.inf, "state_update": state_update,
+           "probe_noise_linear_um": noise_um}
+    m = TalcModel(cfg)
+    m.models = {"E_X0C": model_arx}
+    m.phase = PHASE_COMPENSATION
+    rng = np.random.default_rng(seed)
+    pred = np.zeros_like(true)
+    for k in range(amb.size):
+        t = k * STEP
+        m.update_inputs(t, {"amb": float(amb[k])}, {})
+        v, _ = m.predict(t)
+        pred[k] = v["E_X0C"]
+        if m.probe_due(t):
+            meas = true[k] - v["E_X0C"] + rng.normal(0.0, noise_um)
+            m.add_measurement(t, {"E_X0C": meas}, {"E_X0C": v["E_X0C"]})
+            pred[k] = m.predict(t)[0]["E_X0C"]
+    return true, pred, m
+
+
+def test_replacing_the_newest_output_diverges_for_n_a_2_and_the_observer_does_not():
+    plant = _arx(POLES, 4.0)
+    model = _arx(POLES, 3.0)          # another unit: 25 % less gain than this one
+    true, pred_replace, _ = _run(model, plant, "replace")
+    true, pred_obs, m = _run(model, plant, "observer")
+    scale = np.max(np.abs(true))
+    assert np.max(np.abs(pred_replace)) > 100 * scale           # the switched system is unstable
+    assert np.max(np.abs(pred_obs - true)) < 0.5 * scale         # the observer stays with the plant
+    late = slice(true.size // 2, None)
+    assert np.percentile(np.abs(pred_obs - true)[late], 99) < 0.25 * scale
+    assert m.probing_cycles > 40
+    p = m.observer["E_X0C"][1]
+    assert np.allclose(p, p.T) and np.all(np.linalg.eigvalsh(p) >= -1e-12)
+
+
+def test_for_n_a_1_and_exact_probes_the_observer_is_the_replacement():
+    plant = _arx((0.99,), 4.0)
+    model = _arx((0.99,), 3.0)
+    _, pred_replace, _ = _run(model, plant, "replace", hours=24.0, noise_um=0.0)
+    _, pred_obs, _ = _run(model, plant, "observer", hours=24.0, noise_um=0.0)
+    assert np.allclose(pred_obs, pred_replace, atol=1e-9)
+
+
+def test_gain_follows_the_innovations_and_has_a_floor():
+    a = np.array([-0.99])
+    r = 0.25 ** 2
+    small, _ = observer_update(a, np.zeros((1, 1)), 24, 0.01, 0.01 ** 2, r)
+    assert small[0] / 0.01 == pytest.approx(K_MIN)                  # a model that predicts its probes
+    big, _ = observer_update(a, np.zeros((1, 1)), 24, 3.0, 9.0, r)
+    assert big[0] / 3.0 == pytest.approx(1 - r / 9.0)                # prior variance = 9 - r
+    half, _ = observer_update(a, np.zeros((1, 1)), 24, 3.0, 9.0, r, gain_scale=0.5)
+    assert half[0] == pytest.approx(0.5 * big[0])
+
+
+def test_n_a_2_correction_moves_the_whole_history_nearly_as_one():
+    a = np.poly(POLES)[1:]
+    corr, post = observer_update(a, np.zeros((2, 2)), 24, 2.0, 4.0, 0.0625)
+    assert corr[0] > 0 and corr[1] / corr[0] > 0.9                 # slow poles: a shift, not a bend
+    assert post[0, 0] < 0.0625
+
+
+def test_bad_arguments_name_themselves():
+    with pytest.raises(ObserverError, match="innovation"):
+        observer_update(np.array([-0.9]), np.zeros((1, 1)), 1, math.nan, 1.0, 0.1)
+    with pytest.raises(ObserverError, match="gain_scale"):
+        observer_update(np.array([-0.9]), np.zeros((1, 1)), 1, 1.0, 1.0, 0.1, gain_scale=0.0)
+    assert companion(np.array([0.5, -0.2])).tolist() == [[-0.5, 0.2], [1.0, 0.0]]
+
+
+def test_observer_state_round_trips():
+    _, _, m = _run(_arx(POLES, 3.0), _arx(POLES, 4.0), "observer", hours=12.0)
+    back = TalcModel.from_state(json.loads(json.dumps(m.to_state())))
+    assert back.observer["E_X0C"][0] == m.observer["E_X0C"][0]
+    assert np.allclose(back.observer["E_X0C"][1], m.observer["E_X0C"][1])
+    assert np.allclose(back.grid.x[: back.grid.n], m.grid.x[: m.grid.n], equal_nan=True)
