@@ -248,12 +248,17 @@ def time_lag_error(spec: dict, channel: str) -> Candidate:
         tau = float(v[0])
         terms = dict(s["errors"][channel]["terms"])
         new_terms = {}
+        overrides = (s.get("calibration") or {}).get("parameters") or {}
         for node, g in terms.items():
             c = 1e-3 * float(s["nodes"][node]["capacity"])
             lag = _unique(s, "nodes", f"mm_lag_{channel}_{node}")
             s["nodes"][lag] = {"capacity": c, "note": f"added by the mismatch finder (time_lag of {channel})"}
             s["links"][_unique(s, "links", f"mm_{lag}")] = {"between": [node, lag], "conductance": c / tau}
             new_terms[lag] = g
+            # the term's calibration range (if the twin states one) moves with it to the lag node
+            old = f"errors.{channel}.terms.{node}"
+            if old in overrides:
+                overrides[f"errors.{channel}.terms.{lag}"] = overrides.pop(old)
         s["errors"][channel]["terms"] = new_terms
         return s
     return Candidate("time_lag", channel, None, params, apply,
