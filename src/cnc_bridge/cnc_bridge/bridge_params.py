@@ -109,6 +109,8 @@ PARAMS = [
            "lifecycle_timeout_s", lo=0.0, hi=600.0),
     _fixed("lockstep", False, "publish SimSync after the offsets answering each prediction"),
     _fixed("audit_log_path", "", "append-only CSV of every write (empty = no audit log)"),
+    _fixed("profile_path", "", "CSV of where each prediction's time went (transform, envelope, CNC "
+           "write + read-back, publish, audit, ack), written at exit; empty = not timed (bench graph)"),
     _fixed("connect_timeout_s", 10.0, "opcua: configure fails unless connected within this time, s",
            lo=0.1, hi=600.0),
     _fixed("request_timeout_s", 2.0, "opcua: deadline of one write/read request, s", lo=0.01, hi=60.0),

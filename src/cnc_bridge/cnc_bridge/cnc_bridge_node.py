@@ -59,6 +59,7 @@ from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS
 from cnc_bridge.offset_backend import TwinBackend, adopt_held_state
 from cnc_bridge.safety_envelope import (LIMIT_WRITE_FAILED, EnvelopeConfigError, SafetyEnvelope,
                                         flag_names)
+from cnc_bridge.update_profile import UpdateProfile
 
 #: the launcher drives configure/activate/deactivate of a node module that says this
 LIFECYCLE_NODE = True
@@ -120,6 +121,8 @@ class CncBridgeNode(LifecycleNode):
         self._ramping_down = False        # deactivated, offsets still on their way to zero
         self._entities = []               # publishers, subscriptions, timer of a configured node
         self.offsets_pub = self.sync_pub = None
+        #: timed only with profile_path: between predictions (no begin) its laps do nothing
+        self.profile = UpdateProfile()
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._on_params_set)
         if self._p["autostart"]:
@@ -310,6 +313,8 @@ class CncBridgeNode(LifecycleNode):
 
     def _on_prediction(self, msg: ThermalErrors) -> None:
         t = stamp_to_s(msg.header.stamp)
+        if self._p["profile_path"]:
+            self.profile.begin(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
         try:
             self._errors = self._errors_from(msg)
             fresh = True
@@ -324,6 +329,8 @@ class CncBridgeNode(LifecycleNode):
             self.sync_pub.publish(SimSync(header=Header(stamp=msg.header.stamp),
                                           node_name=self.get_name(),
                                           processed_until=msg.header.stamp))
+        self.profile.lap("ack")
+        self.profile.end()
 
     @property
     def _writing(self) -> bool:
@@ -391,11 +398,14 @@ class CncBridgeNode(LifecycleNode):
             except TransformInputError as exc:
                 self.get_logger().error(f"offsets at t={t:.3f}: {exc}; holding", throttle_duration_sec=10.0)
                 fresh = False
+        prof = self.profile
+        prof.lap("transform")
         try:
             decisions = self.envelope.step(t, commanded, fresh)
         except ValueError as exc:
             self.get_logger().error(f"offsets at t={t:.3f}: {exc}; holding")
             return
+        prof.lap("envelope")
         self._last_update_t = t
         if not decisions:
             return
@@ -405,6 +415,9 @@ class CncBridgeNode(LifecycleNode):
             self.get_logger().error(f"offsets at t={t:.3f} not written: {exc}",
                                     throttle_duration_sec=10.0)
             readback = {d.axis: None for d in decisions}
+        prof.lap("cnc_call")
+        prof.note(round_trip_ms=getattr(self.backend, "last_round_trip_s", 0.0) * 1e3,
+                  round_trips=getattr(self.backend, "last_round_trips", 0))
         msg = AxisOffsets(header=Header(stamp=stamp), compensation_enabled=self.envelope.enabled)
         entries = []
         for d in decisions:
@@ -422,9 +435,13 @@ class CncBridgeNode(LifecycleNode):
                 self.get_logger().warning(
                     f"axis {d.axis}: write of {d.applied_um:.3f} um not confirmed "
                     f"({getattr(self.backend, 'last_error', '')})", throttle_duration_sec=5.0)
+        # what the CNC confirmed goes out first; the audit line is on disk before this returns,
+        # so before the lock-step acknowledgement that lets the simulation go on
+        self.offsets_pub.publish(msg)
+        prof.lap("publish")
         if self.audit is not None:
             self.audit.log_write(t, entries)
-        self.offsets_pub.publish(msg)
+        prof.lap("audit")
         if self._ramping_down and all(v == 0.0 for v in self.envelope.applied.values()):
             self._ramping_down = False
             self._audit_event("", "deactivated: every offset is at zero; writes stopped")
@@ -434,6 +451,8 @@ class CncBridgeNode(LifecycleNode):
     def close(self) -> None:
         """Process exit (run_node): release without writing, like shutdown."""
         self._release("exit" if self.backend is not None else "")
+        if self._p["profile_path"]:
+            self.profile.write_csv(self._p["profile_path"])
 
 
 def main(args=None) -> int:

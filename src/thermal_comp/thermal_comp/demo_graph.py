@@ -16,10 +16,11 @@ import numpy as np
 import psutil
 from tqdm import tqdm
 
+from cnc_bridge.update_profile import read_profile
 from thermal_comp.cell_config import parse_cell
 from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
 from thermal_comp.demo_monitor import DemoMonitor
-from thermal_comp.graph_profile import ack_breakdown, instant_events, stage_breakdown
+from thermal_comp.graph_profile import ack_breakdown, instant_events, latency_breakdown, stage_breakdown
 from thermal_comp.launcher import Launcher
 from thermal_comp_common import node_runtime as rt
 from thermal_comp_common.domain_ids import claim_domain_id
@@ -40,6 +41,8 @@ class RunRecord:
     #: where an instant's wall time went (thermal_comp.graph_profile), per stage and per participant
     stages: dict[str, dict[str, float]] = field(default_factory=dict)
     acks: dict[str, dict[str, float]] = field(default_factory=dict)
+    #: the temperature -> offsets latency split into its parts (with the bridge's own timing)
+    latency_parts: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def _free_port() -> int:
@@ -82,7 +85,7 @@ def _fresh_out_dir(cfg: DemoConfig) -> pathlib.Path:
     out = cfg.out_dir.resolve()
     if (out / "bag").exists():
         shutil.rmtree(out / "bag")
-    for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl"):
+    for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl", BRIDGE_PROFILE):
         (out / stale).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     return out
@@ -113,11 +116,17 @@ def _stop_emulator(emulator: subprocess.Popen) -> None:
         emulator.kill()
 
 
-def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
+#: the bridge's timing of each prediction (cnc_bridge.update_profile), in the output folder
+BRIDGE_PROFILE = "bridge_profile.csv"
+
+
+def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> RunRecord:
     """Run the demo graph until the twin's scenario ends; return what was observed.
 
     ``on_poll(launcher, sim_s)``, if given, is called on every supervision poll (about 4 Hz)
-    with the launcher and the simulated time seen so far (fault injection uses it)."""
+    with the launcher and the simulated time seen so far (fault injection uses it).
+    ``profile_bridge``: the bridge times each prediction (``profile_path``) and the record
+    gets the latency's parts (``latency_parts``)."""
     out = _fresh_out_dir(cfg)
     total_h = scenario_hours(cfg.machine, cfg.scenario, cfg.hours)
     domain_id = claim_domain_id()
@@ -132,13 +141,18 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
     log_dir.mkdir(parents=True, exist_ok=True)
     emulator, endpoint = _start_emulator(cfg, log_dir) if cfg.cnc == "opcua" else (None, None)
 
-    cell = parse_cell(build_cell(cfg, domain_id, endpoint, live_view), source="demo cell")
+    doc = build_cell(cfg, domain_id, endpoint, live_view)
+    if profile_bridge:
+        bridge = next(n for n in doc["nodes"] if n["name"] == "bridge")
+        bridge["parameters"]["profile_path"] = str(out / BRIDGE_PROFILE)
+    cell = parse_cell(doc, source="demo cell")
     print(f"demo graph: namespace /{cell.cell}, ROS_DOMAIN_ID {domain_id} (inspect with: thermal-comp topics "
           f"--domain-id {domain_id}); node logs: {log_dir / 'nodes.log'}", flush=True)
     node_log = open(log_dir / "nodes.log", "w")
     launcher = Launcher([cell], run_dir=log_dir / "run", output=node_log, grace_s=10.0)
     record = RunRecord()
     monitor = None
+    monitor_arrivals = None
     bar = None
     t_start = time.perf_counter()
     try:
@@ -160,7 +174,10 @@ def run_graph(cfg: DemoConfig, on_poll=None) -> RunRecord:
             participants = _participants(cell)
             record.stages = stage_breakdown(instant_events(monitor.arrivals, monitor.acks, participants))
             record.acks = ack_breakdown(monitor.arrivals, monitor.acks, participants)
+            monitor_arrivals = monitor.arrivals
             monitor.close()
+        if monitor_arrivals is not None and (out / BRIDGE_PROFILE).exists():
+            record.latency_parts = latency_breakdown(monitor_arrivals, read_profile(out / BRIDGE_PROFILE))
         if emulator is not None:
             record.cpu_s["cnc_emulator"] = _usage_tree(emulator.pid)[1]
             _stop_emulator(emulator)
@@ -220,7 +237,7 @@ def bench_graph(args) -> dict[str, Any]:
     out = pathlib.Path(getattr(args, "out_dir", "bench_out")) / "graph"
     cfg = DemoConfig(out_dir=out, hours=hours, view="rrd", progress=True)
     cfg.scenario = MACHINES[cfg.machine]["scenario"]
-    record = run_graph(cfg)
+    record = run_graph(cfg, profile_bridge=True)
     lat = np.array(record.latencies_s) * 1e3
     from thermal_comp.view_cli import bag_to_rrd
     (out / "graph.rrd").unlink(missing_ok=True)
@@ -240,6 +257,7 @@ def bench_graph(args) -> dict[str, Any]:
                        "messages_per_s": round(messages / rrd_s) if rrd_s > 0 else None},
         "instant_stages": record.stages,
         "acknowledgement_after_twin_ms": record.acks,
+        "latency_parts": record.latency_parts,
         "executor": os.environ.get(rt.EXECUTOR_ENV, "single"),
         "load_average_1min": round(os.getloadavg()[0], 2),
     }

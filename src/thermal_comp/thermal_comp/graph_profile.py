@@ -6,7 +6,9 @@ Per instant t_k the critical path is machine_sim -> ``twin/sensor_readings`` -> 
 ``temperatures`` -> model -> ``errors/predicted`` -> bridge (CNC write, read back) ->
 ``offsets`` -> the last ``sim_sync`` acknowledgement -> machine_sim steps the twin and
 publishes t_{k+1}. :func:`stage_breakdown` splits each instant's cycle into those stages and
-says how much of the run's wall time each took (``bench graph`` prints it). Pure: no rclpy.
+says how much of the run's wall time each took (``bench graph`` prints it);
+:func:`latency_breakdown` splits the temperature -> offsets latency further with the bridge's
+own timing of each prediction (cnc_bridge.update_profile). Pure: no rclpy.
 """
 from __future__ import annotations
 
@@ -84,3 +86,59 @@ def ack_breakdown(arrivals: dict[tuple[str, int], float], acks: dict[tuple[str, 
                 "p99_ms": round(float(np.percentile(d, 99)) * 1e3, 2),
                 "last_pct": round(100.0 * last[n] / instants, 1)}
             for n, d in delays.items() if d}
+
+
+#: The temperature-to-offsets latency of one instant, in order along its path: (name, how).
+#: From the DDS publication of ``temperatures`` to that of the answering ``offsets``; the
+#: bridge publishes them after the CNC confirmed the write (write status and read-back), and
+#: writes its audit line after that (``audit``, outside the latency, before the lock-step ack).
+LATENCY_PARTS = (
+    ("temperatures -> prediction (DDS hop, model step)", None),
+    ("prediction -> bridge callback (DDS hop, executor)", None),
+    ("parse + eq. 6.3-6.5 transform", "transform_ms"),
+    ("safety envelope step", "envelope_ms"),
+    ("CNC write + read-back (node's call)", "cnc_call_ms"),
+    ("  of which OPC UA round trip(s) on the client loop", "round_trip_ms"),
+    ("  of which thread hop node <-> client loop", None),
+    ("offsets publication", "publish_ms"),
+)
+
+
+def _figures(values_ms: list[float], total_ms: float) -> dict[str, float]:
+    d = np.maximum(np.asarray(values_ms, dtype=float), 0.0)
+    return {"median_ms": round(float(np.median(d)), 3), "p99_ms": round(float(np.percentile(d, 99)), 3),
+            "share_pct": round(100.0 * float(d.sum()) / total_ms, 1) if total_ms > 0 else 0.0}
+
+
+def latency_breakdown(arrivals: dict[tuple[str, int], float],
+                      bridge_rows: list[dict[str, float]]) -> dict[str, dict[str, float]]:
+    """Per part of the temperature -> offsets latency (:data:`LATENCY_PARTS`): median, p99 (ms)
+    and share (%) of the summed latency, over the instants the bridge profiled
+    (cnc_bridge.update_profile rows, joined by stamp); plus the whole latency, the audit line
+    (after the publication) and how many predictions needed a second OPC UA read."""
+    parts: dict[str, list[float]] = {name: [] for name, _ in LATENCY_PARTS}
+    total, audit, reread = [], [], 0
+    for row in bridge_rows:
+        s = int(row["stamp_ns"])
+        t_temp = arrivals.get(("temperatures", s))
+        t_pred = arrivals.get(("errors/predicted", s))
+        t_off = arrivals.get(("offsets", s))
+        if None in (t_temp, t_pred, t_off) or "cnc_call_ms" not in row:
+            continue
+        total.append((t_off - t_temp) * 1e3)
+        parts[LATENCY_PARTS[0][0]].append((t_pred - t_temp) * 1e3)
+        parts[LATENCY_PARTS[1][0]].append((row["received_wall_s"] - t_pred) * 1e3)
+        for name, column in LATENCY_PARTS[2:]:
+            if column is not None:
+                parts[name].append(row.get(column, 0.0))
+        parts[LATENCY_PARTS[6][0]].append(row["cnc_call_ms"] - row.get("round_trip_ms", 0.0))
+        audit.append(row.get("audit_ms", 0.0))
+        reread += row.get("round_trips", 1) > 1
+    if not total:
+        return {}
+    whole = float(np.sum(total))
+    out = {name: _figures(v, whole) for name, v in parts.items()}
+    out["temperatures -> offsets (the latency)"] = _figures(total, whole)
+    out["audit line after publication (not in the latency)"] = _figures(audit, whole)
+    out["predictions needing a second read"] = {"count": reread, "of": len(total)}
+    return out

@@ -2,7 +2,8 @@
 hand-made arrival times."""
 import pytest
 
-from thermal_comp.graph_profile import STAGES, ack_breakdown, instant_events, stage_breakdown
+from thermal_comp.graph_profile import (LATENCY_PARTS, STAGES, ack_breakdown, instant_events,
+                                       latency_breakdown, stage_breakdown)
 
 PARTS = ["sensors", "model", "bridge"]
 
@@ -49,6 +50,23 @@ def test_ack_breakdown_names_who_holds_the_graph():
 
 def test_no_instants_no_figures():
     assert stage_breakdown({}) == {}
+
+
+def test_latency_parts_join_the_bridge_profile_by_stamp():
+    """Temperatures +1 ms, prediction +3, offsets +13 (see _run); the bridge's callback starts
+    1.5 ms after the prediction's publication and spends 8 ms in the CNC call (6 on the loop)."""
+    arrivals, _ = _run()
+    rows = [{"stamp_ns": k * 300_000_000_000, "received_wall_s": k * 0.034 + 0.0045,
+             "transform_ms": 0.1, "envelope_ms": 0.05, "cnc_call_ms": 8.0, "round_trip_ms": 6.0,
+             "round_trips": 1 + (k == 2), "publish_ms": 0.2, "audit_ms": 1.5} for k in range(4)]
+    rows.append({"stamp_ns": 99, "received_wall_s": 0.0, "cnc_call_ms": 1.0})   # no such instant
+    out = latency_breakdown(arrivals, rows)
+    med = {name: out[name]["median_ms"] for name, _ in LATENCY_PARTS}
+    assert list(med.values()) == pytest.approx([2.0, 1.5, 0.1, 0.05, 8.0, 6.0, 2.0, 0.2], abs=1e-6)
+    assert out["temperatures -> offsets (the latency)"]["median_ms"] == pytest.approx(12.0)
+    assert out["audit line after publication (not in the latency)"]["median_ms"] == pytest.approx(1.5)
+    assert out["predictions needing a second read"] == {"count": 1, "of": 4}
+    assert latency_breakdown(arrivals, []) == {}
 
 
 @pytest.mark.ros
