@@ -54,6 +54,7 @@ class CncProbeBackend(ProbeBackend):
         self.call_timeout_s = float(call_timeout_s)
         self.clock = clock
         self._client: Client | None = None
+        self._stopped = False
 
     def _connect(self) -> Client:
         if self._client is not None:
@@ -75,7 +76,15 @@ class CncProbeBackend(ProbeBackend):
         self._client = client
         return client
 
+    def stop(self) -> None:
+        """Refuse further moves and drop the connection, which ends a call in progress
+        (asyncua fails its pending requests when the session closes)."""
+        self._stopped = True
+        self.close()
+
     def touch(self, move: TouchMove) -> TouchReply:
+        if self._stopped:
+            raise ProbeBackendError("stopped: the probe_cycle node is shutting down")
         client = self._connect()
         args = [ua.Variant(int(move.artefact), ua.VariantType.UInt32),
                 ua.Variant(float(move.c_axis_deg), ua.VariantType.Double),

@@ -39,6 +39,11 @@ class ProbeBackend(abc.ABC):
     def touch(self, move: TouchMove) -> TouchReply:
         """Execute one probing move; raise :class:`ProbeBackendError` if impossible."""
 
+    def stop(self) -> None:
+        """Called from another thread when the node stops: end a move in progress as soon as
+        the backend can (its ``touch`` raises :class:`ProbeBackendError`) and refuse new ones.
+        Default: nothing in progress can block (in-process backends)."""
+
     def close(self) -> None:  # pragma: no cover - default: nothing to release
         """Release connections."""
 

@@ -10,6 +10,11 @@ The probing goes to the ``twin`` backend (machine_sim's ``twin/touch_probe`` ser
 simulated time) or to the ``cnc`` backend (a ProbeMove method on the CNC over OPC UA).
 Health on ``/diagnostics``: ``probe cycle`` -- the last cycle's result (OK, WARN when it
 failed, with the message), cycles run, failures.
+
+Stop (SIGINT/SIGTERM): a cycle in flight is ended at once -- the backend's wait is
+interrupted (machine_sim may already be gone and would never answer), the goal is aborted
+-- and the node waits at most ``stop_wait_s`` for it, so the process exits within the
+launcher's grace time instead of sitting out ``touch_timeout_s`` per move.
 """
 from __future__ import annotations
 
@@ -77,6 +82,7 @@ PARAMS = [
     Param("touch_s", 2.0, "time of one sphere touch incl. positioning, s", 0.01, 600.0),
     Param("guide_bush_approach_s", 4.0, "move to and from the guide bush, s", 0.0, 600.0),
     Param("guide_bush_touch_s", 3.0, "time of one torque-limit skip, s", 0.01, 600.0),
+    Param("stop_wait_s", 2.0, "at stop: wall s to wait for the cycle in flight to end", 0.0, 60.0),
 ]
 
 
@@ -110,6 +116,8 @@ class ProbeCycleNode(Node):
             reference_path=p["reference_file"] or None)
         self.backend = self._make_backend(p)
         self._busy = threading.Lock()
+        self._stopping = threading.Event()
+        self._stop_wait_s = p["stop_wait_s"]
         self.cycles = self.failures = 0
         self.diag = DiagnosticsPublisher(self, hardware_id=f"probe ({p['backend']} backend)")
         self.diag.set("probe cycle", "OK", "no cycle yet", cycles=0, failures=0)
@@ -134,6 +142,9 @@ class ProbeCycleNode(Node):
             clock=lambda: self.get_clock().now().nanoseconds * 1e-9)
 
     def _on_goal(self, goal) -> GoalResponse:
+        if self._stopping.is_set():
+            self.get_logger().warning("goal rejected: the node is stopping")
+            return GoalResponse.REJECT
         if self._busy.locked():
             self.get_logger().warning("goal rejected: a probing cycle is already running")
             return GoalResponse.REJECT
@@ -153,7 +164,8 @@ class ProbeCycleNode(Node):
                 goal_handle.publish_feedback(fb)
 
             result = self.engine.run(spec, self.backend, on_point,
-                                     cancel_requested=lambda: goal_handle.is_cancel_requested)
+                                     cancel_requested=lambda: (goal_handle.is_cancel_requested
+                                                               or self._stopping.is_set()))
             msg = self._result_msg(result, spec)
             if result.details.get("canceled") and goal_handle.is_cancel_requested:
                 goal_handle.canceled()
@@ -201,6 +213,15 @@ class ProbeCycleNode(Node):
         return out
 
     def close(self) -> None:
+        """End a cycle in flight (its goal is aborted), wait for it at most ``stop_wait_s``,
+        then release the server and the backend: nothing holds the process at exit."""
+        self._stopping.set()
+        self.backend.stop()
+        if self._busy.acquire(timeout=self._stop_wait_s):
+            self._busy.release()
+        else:
+            self.get_logger().error(f"stop: the probing cycle in flight did not end within "
+                                    f"{self._stop_wait_s:g} s")
         self._server.destroy()
         self.backend.close()
 

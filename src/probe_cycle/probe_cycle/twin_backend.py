@@ -8,11 +8,14 @@ of the trigger.
 
 Calls block the calling thread. The node runs a multi-threaded executor, and the
 response is processed by another thread. A service that is missing, or that gives no
-answer within ``call_timeout_s`` of wall time, raises ``ProbeBackendError``.
+answer within ``call_timeout_s`` of wall time, raises ``ProbeBackendError``; so does
+:meth:`TwinProbeBackend.stop` (from another thread, at once): a node told to stop while
+machine_sim is already gone must not sit out the timeout (the launcher's SIGKILL came first).
 """
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 from rclpy.callback_groups import ReentrantCallbackGroup
@@ -35,12 +38,33 @@ class TwinProbeBackend(ProbeBackend):
         self.service_wait_s = float(service_wait_s)
         self.client = node.create_client(TouchProbe, service_name,
                                          callback_group=ReentrantCallbackGroup())
+        self._stopped = threading.Event()
+        self._wake: threading.Event | None = None     # the wait of the move in progress
+
+    def stop(self) -> None:
+        """End the move in progress (its ``touch`` raises at once) and refuse further moves."""
+        self._stopped.set()
+        wake = self._wake
+        if wake is not None:
+            wake.set()
+
+    def _check_stopped(self) -> None:
+        if self._stopped.is_set():
+            raise ProbeBackendError("stopped: the probe_cycle node is shutting down")
+
+    def _wait_for_service(self) -> None:
+        """rclpy's wait_for_service sleeps through a stop; this one polls and listens."""
+        end = time.monotonic() + self.service_wait_s
+        while not self.client.service_is_ready():
+            self._check_stopped()
+            if time.monotonic() >= end:
+                raise ProbeBackendError(f"service '{self.client.service_name}' is not available "
+                                        f"(waited {self.service_wait_s:g} s)")
+            self._stopped.wait(min(0.05, max(0.0, end - time.monotonic())))
 
     def touch(self, move: TouchMove) -> TouchReply:
-        if not self.client.service_is_ready() and \
-                not self.client.wait_for_service(timeout_sec=self.service_wait_s):
-            raise ProbeBackendError(f"service '{self.client.service_name}' is not available "
-                                    f"(waited {self.service_wait_s:g} s)")
+        self._check_stopped()
+        self._wait_for_service()
         req = TouchProbe.Request()
         req.artefact = int(move.artefact)
         req.c_axis_deg = float(move.c_axis_deg)
@@ -49,11 +73,17 @@ class TwinProbeBackend(ProbeBackend):
         req.direction = [float(v) for v in move.direction]
         req.max_travel_mm = float(move.max_travel_mm)
         req.duration_s = float(move.duration_s)
-        done = threading.Event()
-        future = self.client.call_async(req)
-        future.add_done_callback(lambda _f: done.set())
-        if not done.wait(self.call_timeout_s):
+        done = self._wake = threading.Event()
+        try:
+            self._check_stopped()       # a stop() between the check above and the line before
+            future = self.client.call_async(req)
+            future.add_done_callback(lambda _f: done.set())
+            answered = done.wait(self.call_timeout_s) and future.done()
+        finally:
+            self._wake = None
+        if not answered:
             self.client.remove_pending_request(future)
+            self._check_stopped()
             raise ProbeBackendError(f"no answer from '{self.client.service_name}' within "
                                     f"{self.call_timeout_s:g} s")
         if future.exception() is not None:
@@ -63,4 +93,5 @@ class TwinProbeBackend(ProbeBackend):
                           stamp_to_s(res.stamp), res.message)
 
     def close(self) -> None:
+        self.stop()
         self.node.destroy_client(self.client)

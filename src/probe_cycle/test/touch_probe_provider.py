@@ -3,7 +3,9 @@
 A stand-in for machine_sim in the probe tests. Its simulated clock starts at ``t0_s``,
 and each request advances it by the request's ``duration_s``; the answer is taken at the
 end of the move. The true errors are ``errors_before`` (JSON) until ``step_time_s`` and
-``errors_after`` from then on. Run: ``python touch_probe_provider.py --ros-args -p ...``.
+``errors_after`` from then on. With ``answer_first`` N >= 0 it answers the first N requests
+and leaves every later one pending for ever (a machine_sim that died mid-cycle), without
+blocking its own executor. Run: ``python touch_probe_provider.py --ros-args -p ...``.
 """
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ import sys
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.task import Future
 
 from thermal_comp_common.node_runtime import (SERVICE_TOUCH_PROBE, Param, declare_parameters,
                                        run_node, s_to_stamp)
@@ -21,8 +24,8 @@ from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, touch_trigger_posit
 
 
 class TouchProbeProvider(Node):
-    def __init__(self, context=None):
-        super().__init__("touch_probe_provider", context=context)
+    def __init__(self, context=None, **kwargs):
+        super().__init__("touch_probe_provider", context=context, **kwargs)
         p = declare_parameters(self, [
             Param("errors_before", "{}", "true errors (JSON) before step_time_s"),
             Param("errors_after", "{}", "true errors (JSON) from step_time_s on"),
@@ -30,7 +33,11 @@ class TouchProbeProvider(Node):
             Param("t0_s", 1000.0, "simulated time at start, s"),
             Param("axis_resolution_um", 1.0, "probe readout resolution, um", 0.0, 10.0),
             Param("seed", -1, "probe scatter seed; -1 = no scatter"),
+            Param("answer_first", -1, "answer only this many requests, leave the rest pending "
+                  "(-1 = answer all)"),
         ])
+        self.answer_first = p["answer_first"]
+        self._never = Future()          # never completed: what an unanswered request awaits
         self.before = json.loads(p["errors_before"])
         self.after = json.loads(p["errors_after"])
         self.step = p["step_time_s"]
@@ -43,9 +50,12 @@ class TouchProbeProvider(Node):
         self.create_service(TouchProbe, SERVICE_TOUCH_PROBE, self._serve)
         self.get_logger().info("touch probe provider ready")
 
-    def _serve(self, req, res):
-        self.t += req.duration_s
+    async def _serve(self, req, res):
         self.requests += 1
+        if 0 <= self.answer_first < self.requests:
+            self.get_logger().info(f"request {self.requests} left unanswered")
+            await self._never
+        self.t += req.duration_s
         errors = self.before if self.t < self.step else self.after
         try:
             ok, pos = touch_trigger_position(req.artefact, req.c_axis_deg, req.b_axis_deg,
