@@ -160,6 +160,12 @@ def _ambient_link(spec: dict, node: str, amb: str) -> str:
     return lname
 
 
+def _release(spec: dict, name: str) -> None:
+    """Drop the twin's stated calibration range of a parameter the finder sets: its value is
+    now a hypothesis that may lie outside that range (which would make the twin invalid)."""
+    ((spec.get("calibration") or {}).get("parameters") or {}).pop(name, None)
+
+
 def _sign_check(name: str, idx: int = 0) -> Callable[[np.ndarray], str | None]:
     def check(v: np.ndarray) -> str | None:
         return f"{name} = {v[idx]:.4g} < 0: wrong sign" if v[idx] < 0 else None
@@ -217,6 +223,7 @@ def ambient_coupling(spec: dict, node: str) -> Candidate:
 
     def apply(s: dict, v: np.ndarray) -> dict:
         ln = _ambient_link(s, node, amb)
+        _release(s, f"links.{ln}.conductance")
         s["links"][ln]["conductance"] = max(0.0, float(s["links"][ln]["conductance"]) + float(v[0]))
         return s
 
@@ -326,6 +333,7 @@ def sensor_bias(spec: dict, sensor: str) -> Candidate:
     params = [ParamSpec("bias", "K", -4 * MAX_BIAS_K, 4 * MAX_BIAS_K, 0.5)]
 
     def apply(s: dict, v: np.ndarray) -> dict:
+        _release(s, f"sensors.{sensor}.bias")
         s["sensors"][sensor]["bias"] = b0 + float(v[0])
         return s
 
@@ -344,6 +352,7 @@ def elastic_gain(spec: dict, channel: str, node: str) -> Candidate:
     params = [ParamSpec("d_gain", "um/K", -4 * MAX_ELASTIC_UM_K, 4 * MAX_ELASTIC_UM_K, 1.0)]
 
     def apply(s: dict, v: np.ndarray) -> dict:
+        _release(s, f"errors.{channel}.terms.{node}")
         s["errors"][channel]["terms"][node] = g0 + float(v[0])
         return s
     return Candidate("elastic_gain", f"{channel}/{node}", None, params, apply,

@@ -15,3 +15,12 @@ def test_a_lag_on_an_error_channel_moves_the_terms_calibration_ranges_to_the_lag
     assert "errors.ch5_um.terms.headstock" not in params
     assert params["errors.ch5_um.terms.mm_lag_ch5_um_headstock"] == before
     assert augmented["errors"]["ch5_um"]["terms"]["mm_lag_ch5_um_headstock"] == spec["errors"]["ch5_um"]["terms"]["headstock"]
+
+
+def test_a_gain_set_beyond_the_twins_stated_range_leaves_a_valid_twin():
+    from thermal_twin.mismatch_effects import elastic_gain
+    spec = load_machine("fl-thermal-rig").to_dict()
+    lo, hi = spec["calibration"]["parameters"]["errors.ch5_um.terms.base"]["bounds"]
+    augmented = load_machine(elastic_gain(spec, "ch5_um", "base").apply(spec, [hi - lo + 1.0])).to_dict()
+    assert augmented["errors"]["ch5_um"]["terms"]["base"] > hi
+    assert "errors.ch5_um.terms.base" not in augmented["calibration"]["parameters"]
