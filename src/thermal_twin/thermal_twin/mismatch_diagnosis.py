@@ -15,17 +15,19 @@ from typing import Mapping
 
 import numpy as np
 
-from thermal_twin import mismatch_locate as locate
-from thermal_twin import mismatch_statistics as stats
+from thermal_twin import mismatch_residuals as residuals
+from thermal_twin import mismatch_unnamed as unnamed_mod
 from thermal_twin.machine_schema import Machine, load_machine
-from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
-from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis, run_round
+from thermal_twin.mismatch_effects import EFFECTS, classify_driver
+from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, Hypothesis
 from thermal_twin.mismatch_report import DiagnosisSeries
+from thermal_twin.mismatch_round import RoundInputs, run_round
 from thermal_twin.mismatch_testing import PROCEDURE
 from thermal_twin.mismatch_twin_eval import single_threaded_blas
-from thermal_twin import mismatch_unnamed as unnamed_mod
-from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
+from thermal_comp_common.engine_options import held_engine
 from thermal_comp_common.metrics import rmse
+from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
+from thermal_comp_common.task_engine import EngineSpec
 
 CORRELATED_NOTE = ("Candidate effects whose fitted output changes are nearly collinear on this "
                    "recording cannot be told apart by any fit; they are listed under "
@@ -48,9 +50,11 @@ class Diagnosis:
 
 def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, channels: list[str],
             effects: tuple[str, ...], max_effects: int, shortlist: int, min_improvement_pct: float,
-            progress: bool) -> tuple[list[Hypothesis], list[Hypothesis], dict, np.ndarray, list[int]]:
-    """Greedy rounds of screening, fitting and testing; returns (adopted, all hypotheses,
-    final description, its outputs, candidates screened per round)."""
+            progress: bool, engine: EngineSpec | None = None
+            ) -> tuple[list[Hypothesis], list[Hypothesis], dict, np.ndarray, list[int]]:
+    """Greedy rounds of screening, fitting and testing (each round's candidates on the task
+    engine); returns (adopted, all hypotheses, final description, its outputs, candidates
+    screened per round)."""
     adopted: list[Hypothesis] = []
     all_hyps: list[Hypothesis] = []
     tried: list[int] = []
@@ -59,11 +63,11 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
         from tqdm import tqdm
         bar = tqdm(desc="screening candidates", unit="cand", leave=False)
     for round_no in range(1, max_effects + 1):
-        cands = candidates(base, drivers, channels, effects)
-        tried.append(len(cands))
-        hyps = run_round(problem, base, cands, y_base, shortlist=shortlist,
-                         min_improvement_pct=min_improvement_pct, round_no=round_no,
-                         progress=(bar.update if bar is not None else None))
+        inputs = RoundInputs(problem, base, y_base, drivers, channels, effects)
+        hyps, n_cands = run_round(inputs, shortlist=shortlist, min_improvement_pct=min_improvement_pct,
+                                  round_no=round_no, progress=(bar.update if bar is not None else None),
+                                  engine=engine)
+        tried.append(n_cands)
         all_hyps += hyps
         best = hyps[0] if hyps else None
         if best is None or not best.supported(min_improvement_pct):
@@ -77,7 +81,8 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
 
 
 def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: list[str], errors: set,
-             y_start: np.ndarray, y_named: np.ndarray, named: bool, min_improvement_pct: float):
+             y_start: np.ndarray, y_named: np.ndarray, named: bool, min_improvement_pct: float,
+             engine: EngineSpec | None = None):
     """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
     answers when nothing of the vocabulary was adopted, or when it leaves less than half the
     held-out weighted residual the adopted vocabulary leaves (the vocabulary then only
@@ -86,7 +91,7 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
     meas = problem._meas
     resid = {c: np.where(problem._valid[i], meas[i] - y_start[i], np.nan) for i, c in enumerate(channels)}
     lib = unnamed_mod.signal_library(rec.time_s, ccf_inputs, rec.sensors)
-    found = unnamed_mod.find_unnamed(resid, lib, nt, errors, min_improvement_pct)
+    found = unnamed_mod.find_unnamed(resid, lib, nt, errors, min_improvement_pct, engine)
     if not found:
         return [], None
     y_u = y_start.copy()
@@ -158,26 +163,77 @@ def shared_channels(machine: Machine, rec: Recording) -> list[str]:
     return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8]
 
 
-def diagnose(*args, **kwargs) -> Diagnosis:
-    """:func:`_diagnose` (its arguments) with BLAS on one thread (see ``single_threaded_blas``)."""
-    with single_threaded_blas():
-        return _diagnose(*args, **kwargs)
+@dataclass
+class _Comparison:
+    """The twin beside the recording: what every step of a diagnosis reads."""
+
+    machine: Machine
+    rec: Recording
+    channels: list[str]
+    problem: FitProblem
+    holdout_fraction: float
+    y_given: np.ndarray          # outputs of the twin as given
+    base0: dict                  # the search's base: the twin as given, or calibrated
+    y0: np.ndarray               # outputs of base0
+    cal_section: dict | None
+
+    @property
+    def n_train(self) -> int:
+        return self.problem.n_train
+
+    @property
+    def dt(self) -> float:
+        return float(np.median(np.diff(self.rec.time_s)))
+
+    def measured(self) -> dict[str, np.ndarray]:
+        return {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
+
+    def units(self) -> dict[str, str]:
+        return {c: _unit(c) for c in self.channels}
+
+
+def diagnose(*args, engine: EngineSpec | None = None, **kwargs) -> Diagnosis:
+    """:func:`_diagnose` (its arguments) with BLAS on one thread (see ``single_threaded_blas``).
+    ``engine``: where the independent tasks (channel analysis, candidate screening and fits,
+    out-of-vocabulary fits per channel) run; default serial in this process. The answer is
+    the same on every engine (results are put back in the tasks' order)."""
+    with single_threaded_blas(), held_engine(engine) as held:
+        return _diagnose(*args, engine=held, **kwargs)
 
 
 def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
               max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
               effects: tuple[str, ...] = EFFECTS, shortlist: int = 10, max_lag_s: float = 6 * 3600.0,
               progress: bool = False, calibrate: bool = False, calibration_section: Mapping | None = None,
-              calibration_nfev: int = 20, unnamed: bool = True) -> Diagnosis:
+              calibration_nfev: int = 20, unnamed: bool = True, engine: EngineSpec | None = None) -> Diagnosis:
     """Diagnose ``twin`` against ``recording``; see the module docstring. ``calibrate``:
     fit the twin's existing parameters first (:mod:`thermal_twin.mismatch_calibrated`);
     ``unnamed``: try a sparse out-of-vocabulary discrepancy (:mod:`thermal_twin.mismatch_unnamed`).
-    (Over 80 lines: one pass from the comparison to the report, each step delegated.)"""
+    Three steps: residual analysis, search rounds, report assembly."""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise DiagnosisError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
         raise DiagnosisError(f"effects: {unknown[0]!r} is not in the vocabulary {list(EFFECTS)}")
+    cmp = _compare(twin, recording, holdout_fraction, calibrate, calibration_section, calibration_nfev)
+    ccf_inputs = residuals.driver_inputs(cmp.rec, cmp.machine)
+    analysis = residuals.analyse(cmp.rec, cmp.channels, cmp.measured(), cmp.y0, cmp.units(), ccf_inputs,
+                                 max_lag_s, start_hour, engine)
+    found = _find_missing(cmp, ccf_inputs, effects, max_effects, shortlist, min_improvement_pct, progress,
+                          calibrate, calibration_section, unnamed, engine)
+    report = _report(cmp, analysis, found, start_hour, min_improvement_pct, max_effects)
+    series = DiagnosisSeries(
+        time_s=cmp.rec.time_s, measured=cmp.measured(),
+        before={c: cmp.y_given[i] for i, c in enumerate(cmp.channels)},
+        after={c: found.y_base[i] for i, c in enumerate(cmp.channels)},
+        holdout_start_s=float(cmp.rec.time_s[cmp.n_train]), ccf=analysis.ccf, dt_s=cmp.dt)
+    return Diagnosis(report, copy.deepcopy(found.base) if found.adopted else None, series, found.all_hyps,
+                     copy.deepcopy(cmp.base0) if calibrate else None)
+
+
+def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: bool,
+             calibration_section: Mapping | None, calibration_nfev: int) -> _Comparison:
+    """Check the inputs, simulate the twin as given and (with ``calibrate``) calibrate it."""
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
     rec = _clean_inputs(recording, machine)
     if len(rec) < 30:
@@ -191,131 +247,118 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
     # the description keeps its sensor model (noise, resolution): the evaluation is
     # noise-free by construction, and the plausibility checks need the resolution
     spec0 = machine.to_dict()
-    n = len(rec)
-    n_train = int(round(n * (1.0 - holdout_fraction)))
-    t = rec.time_s
-    dt = float(np.median(np.diff(t)))
+    n_train = int(round(len(rec) * (1.0 - holdout_fraction)))
     resolution = {machine.sensors[sid].column: machine.sensors[sid].resolution for sid in machine.sensors}
     problem = FitProblem(rec, channels, n_train, resolution=resolution)
     y_given = problem.outputs(spec0)
-    cal_section = None
-    base0 = spec0
+    base0, y0, cal_section = spec0, y_given, None
     if calibrate:
         from thermal_twin.mismatch_calibrated import calibrated_base
         base0, cal_section = calibrated_base(machine, problem, holdout_fraction, calibration_section,
                                              calibration_nfev)
-    y0 = problem.outputs(base0) if calibrate else y_given
-    meas = {c: np.asarray(rec.columns[c], dtype=float) for c in channels}
-    units = {c: _unit(c) for c in channels}
-    resid0 = {c: meas[c] - y0[i] for i, c in enumerate(channels)}
+        y0 = problem.outputs(base0)
+    return _Comparison(machine, rec, channels, problem, holdout_fraction, y_given, base0, y0, cal_section)
 
-    # diagnose the residuals -------------------------------------------------------------
-    ccf_inputs = dict(rec.inputs)
-    for name, ispec in machine.inputs.items():   # e.g. the ambient the twin takes from a sensor
-        col = f"{ispec.from_sensor}_c" if ispec.from_sensor else None
-        if name not in ccf_inputs and col in rec.columns:
-            ccf_inputs[name] = rec.columns[col]
-    unknown_sensors = {c: v for c, v in rec.sensors.items() if c not in channels}
-    drivers_all = stats.derived_drivers(t, ccf_inputs, rec.sensors)
-    drivers_all.update({c: stats.fill_gaps(v) for c, v in unknown_sensors.items()
-                        if np.isfinite(v).any()})
-    max_lag = int(max_lag_s / dt)
-    ccf: dict[str, list] = {}
-    chan_report: dict[str, dict] = {}
-    for c in channels:
-        r = resid0[c]
-        own = {c, f"d({c})/dt"}
-        cc = [stats.cross_correlation(r, u, max_lag, name) for name, u in drivers_all.items()
-              if name not in own and np.nanstd(u) > 0]
-        cc.sort(key=lambda x: -abs(x.peak_value) / max(x.band, 1e-12))
-        ccf[c] = [x for x in cc if x.significant][:5]
-        chan_report[c] = {
-            "unit": units[c],
-            "ljung_box": stats.ljung_box(r),
-            "drift": stats.drift(t, r),
-            "spectral_peaks": stats.spectral_peaks(r, dt),
-            "cross_correlation": [x.as_dict(dt) for x in ccf[c]],
-        }
 
-    regimes = locate.operating_regimes(t, rec.inputs, start_hour)
-    windows = locate.locate_windows(t, resid0, regimes, units)
-    reg_eff = locate.regime_effects(resid0, regimes, units)
+@dataclass
+class _Found:
+    """What the search step found (vocabulary effects, or an unnamed discrepancy)."""
 
-    # hypothesise and model -----------------------------------------------------------------
+    adopted: list[Hypothesis]
+    all_hyps: list[Hypothesis]
+    base: dict                    # final description
+    y_base: np.ndarray            # its outputs (with an unnamed discrepancy added)
+    tried: list[int]              # candidates screened per round
+    unnamed: list
+
+
+def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int, shortlist: int,
+                  min_improvement_pct: float, progress: bool, calibrate: bool,
+                  calibration_section: Mapping | None, unnamed: bool, engine: EngineSpec | None) -> _Found:
+    """Search rounds, the joint adoption test (calibrate-first), the out-of-vocabulary step."""
+    rec, problem, cal_section = cmp.rec, cmp.problem, cmp.cal_section
     drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
-    adopted, all_hyps, base, y_base, tried = _search(problem, base0, y0, drivers, channels, effects,
-                                                     max_effects, shortlist, min_improvement_pct, progress)
+    adopted, all_hyps, base, y_base, tried = _search(problem, cmp.base0, cmp.y0, drivers, cmp.channels, effects,
+                                                     max_effects, shortlist, min_improvement_pct, progress,
+                                                     engine)
     if calibrate and adopted:
         from thermal_twin.mismatch_calibrated import joint_adoption_test
-        test = joint_adoption_test(machine, problem, holdout_fraction, adopted, base0, cal_section,
+        test = joint_adoption_test(cmp.machine, problem, cmp.holdout_fraction, adopted, cmp.base0, cal_section,
                                    calibration_section, min_improvement_pct)
         joint_spec = test.pop("spec")
         cal_section["adoption_test"] = test
         if test["passed"]:
             base, y_base = joint_spec, problem.outputs(joint_spec)
         else:
-            adopted, base, y_base = [], base0, y0
+            adopted, base, y_base = [], cmp.base0, cmp.y0
     found_unnamed = []
     if unnamed:
-        found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, channels, set(machine.errors), y0, y_base,
-                                      bool(adopted), min_improvement_pct)
+        found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, cmp.channels, set(cmp.machine.errors), cmp.y0,
+                                      y_base, bool(adopted), min_improvement_pct, engine)
         if found_unnamed and calibrate:
             from thermal_twin.mismatch_calibrated import unnamed_beats_free_calibration
-            test = unnamed_beats_free_calibration(machine, problem, holdout_fraction, y_u, cal_section,
+            test = unnamed_beats_free_calibration(cmp.machine, problem, cmp.holdout_fraction, y_u, cal_section,
                                                   calibration_section, min_improvement_pct)
             cal_section["unnamed_test"] = test
             if not test["passed"]:
                 found_unnamed = []
         if found_unnamed:
-            adopted, base, y_base = [], base0, y_u
+            adopted, base, y_base = [], cmp.base0, y_u
     if cal_section is not None:
         cal_section.pop("_estimates", None)
-    y1 = y_base
-    for c in channels:
-        i = channels.index(c)
-        chan_report[c].update({
-            "rmse_before": rmse(meas[c], y_given[i]), "rmse_after": rmse(meas[c], y1[i]),
-            "holdout_rmse_calibrated": rmse(meas[c][n_train:], y0[i][n_train:]),
-            "holdout_rmse_before": rmse(meas[c][n_train:], y_given[i][n_train:]),
-            "holdout_rmse_after": rmse(meas[c][n_train:], y1[i][n_train:]),
-            "train_rmse_before": rmse(meas[c][:n_train], y_given[i][:n_train]),
-            "train_rmse_after": rmse(meas[c][:n_train], y1[i][:n_train]),
-            "noise_sigma": problem.sigma[c],
-        })
-        chan_report[c] = {k: chan_report[c][k] for k in
-                          ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_calibrated",
-                           "holdout_rmse_after",
-                           "train_rmse_before", "train_rmse_after", "noise_sigma", "ljung_box", "drift",
-                           "spectral_peaks", "cross_correlation")}
+    return _Found(adopted, all_hyps, base, y_base, tried, found_unnamed)
 
+
+REPORT_CHANNEL_KEYS = ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_calibrated",
+                       "holdout_rmse_after", "train_rmse_before", "train_rmse_after", "noise_sigma", "ljung_box",
+                       "drift", "spectral_peaks", "cross_correlation")
+
+
+def _channel_scores(cmp: _Comparison, analysis: "residuals.ResidualAnalysis", y1: np.ndarray) -> dict:
+    """The report's ``channels``: fit scores before/after beside the residual statistics."""
+    meas, k = cmp.measured(), cmp.n_train
+    out = {}
+    for i, c in enumerate(cmp.channels):
+        m, yg, y0 = meas[c], cmp.y_given[i], cmp.y0[i]
+        entry = dict(analysis.channels[c])
+        entry.update({
+            "rmse_before": rmse(m, yg), "rmse_after": rmse(m, y1[i]),
+            "holdout_rmse_calibrated": rmse(m[k:], y0[k:]),
+            "holdout_rmse_before": rmse(m[k:], yg[k:]), "holdout_rmse_after": rmse(m[k:], y1[i][k:]),
+            "train_rmse_before": rmse(m[:k], yg[:k]), "train_rmse_after": rmse(m[:k], y1[i][:k]),
+            "noise_sigma": cmp.problem.sigma[c],
+        })
+        out[c] = {key: entry[key] for key in REPORT_CHANNEL_KEYS}
+    return out
+
+
+def _report(cmp: _Comparison, analysis: "residuals.ResidualAnalysis", found: _Found, start_hour: float,
+            min_improvement_pct: float, max_effects: int) -> dict:
+    """The JSON-ready report (keys as issue 9 lists them)."""
+    t, nt = cmp.rec.time_s, cmp.n_train
     notes = [f"Day/night regimes assume time_s = 0 at {start_hour:g} h clock time (--start-hour)."]
-    if any(h.indistinguishable_from for h in all_hyps if h.plausible):
+    if any(h.indistinguishable_from for h in found.all_hyps if h.plausible):
         notes.append(CORRELATED_NOTE)
-    notes += rec.warnings
-    ranked = sorted(all_hyps, key=lambda h: (h.round, h.rank_key(min_improvement_pct)))
-    report = {
-        "twin": machine.source_path or machine.name,
-        "recording": rec.source,
-        "split": {"train_end_s": float(t[n_train - 1]), "holdout_start_s": float(t[n_train]),
-                  "end_s": float(t[-1]), "holdout_fraction": holdout_fraction},
-        "channels": chan_report,
-        "windows": windows,
-        "regime_effects": reg_eff[:20],
+    notes += cmp.rec.warnings
+    ranked = sorted(found.all_hyps, key=lambda h: (h.round, h.rank_key(min_improvement_pct)))
+    units = cmp.units()
+    return {
+        "twin": cmp.machine.source_path or cmp.machine.name,
+        "recording": cmp.rec.source,
+        "split": {"train_end_s": float(t[nt - 1]), "holdout_start_s": float(t[nt]),
+                  "end_s": float(t[-1]), "holdout_fraction": cmp.holdout_fraction},
+        "channels": _channel_scores(cmp, analysis, found.y_base),
+        "windows": analysis.windows,
+        "regime_effects": analysis.regime_effects[:20],
         "hypotheses": [h.as_dict() for h in ranked],
-        "selected": [h.as_dict() for h in adopted] if adopted else "none",
-        "unnamed": [d.as_dict(units[d.channel]) for d in found_unnamed],
-        "answer": _answer(found_unnamed, adopted, cal_section, min_improvement_pct),
-        "calibration": cal_section,
+        "selected": [h.as_dict() for h in found.adopted] if found.adopted else "none",
+        "unnamed": [d.as_dict(units[d.channel]) for d in found.unnamed],
+        "answer": _answer(found.unnamed, found.adopted, cmp.cal_section, min_improvement_pct),
+        "calibration": cmp.cal_section,
         "augmented_twin": None,
         "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": BIC_THRESHOLD,
                      "max_effects": max_effects, "multiple_testing": PROCEDURE,
-                     "candidates_screened_per_round": tried},
-        "simulations": problem.n_evals,
+                     "candidates_screened_per_round": found.tried},
+        "simulations": cmp.problem.n_evals,
         "notes": notes,
     }
-    series = DiagnosisSeries(
-        time_s=t, measured=meas, before={c: y_given[i] for i, c in enumerate(channels)},
-        after={c: y1[i] for i, c in enumerate(channels)}, holdout_start_s=float(t[n_train]),
-        ccf=ccf, dt_s=dt)
-    return Diagnosis(report, copy.deepcopy(base) if adopted else None, series, all_hyps,
-                     copy.deepcopy(base0) if calibrate else None)

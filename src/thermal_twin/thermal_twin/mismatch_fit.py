@@ -1,6 +1,7 @@
 """Fitting and ranking the effect library against a recording.
 
-Procedure (one round; the finder repeats it greedily on the augmented twin):
+Procedure (one round, run by :func:`thermal_twin.mismatch_round.run_round` on the task
+engine; the finder repeats it greedily on the augmented twin):
 
 1. **Weights.** Every shared channel is scaled by its measurement noise (robust estimate
    from the second differences, see :func:`channel_sigma`), so degC and um become
@@ -29,17 +30,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.signal import lfilter
 
 from thermal_twin.inputs_timeline import timeline_from_recording
 from thermal_twin.machine_schema import MachineSpecError, load_machine
 from thermal_twin.mismatch_effects import Candidate
-from thermal_twin.mismatch_testing import holdout_p_value, holm_reject
+from thermal_twin.mismatch_testing import holdout_p_value
 from thermal_twin.mismatch_twin_eval import expected_outputs, node_states
-from scipy.signal import lfilter
 from thermal_comp_common.recording_csv import Recording
 
 BIC_THRESHOLD = -2.0
@@ -221,51 +221,43 @@ def _projection_share(S: np.ndarray, r: np.ndarray, rr: float) -> float:
     return float(fit @ fit) / rr
 
 
-def screen(problem: FitProblem, base_spec: dict, cands: list[Candidate],
-           y0_train: np.ndarray, progress: Callable[[], None] | None = None) -> list[tuple[float, Candidate]]:
-    """Linearised screening, best first: the share of the training residual that lies in
-    the span of a candidate's output changes (the change at each start value of
-    :func:`_starts`, and a finite-difference step of every further parameter at x0), i.e.
-    the residual's projection on the candidate's local Jacobian (an error-reduction ratio
-    that a badly placed start value of a time constant or a phase cannot hide)."""
-    r0 = problem.train_residual(y0_train).ravel()
+def screen_one(problem: FitProblem, base_spec: dict, c: Candidate, y0_train: np.ndarray,
+               r0: np.ndarray, cache: dict) -> float:
+    """Linearised screening of one candidate: the share of the training residual ``r0``
+    (weighted, strided, raveled) that lies in the span of the candidate's output changes (the
+    change at each start value of :func:`_starts`, and a finite-difference step of every further
+    parameter at x0), i.e. the residual's projection on the candidate's local Jacobian (an
+    error-reduction ratio that a badly placed start value of a time constant or a phase cannot
+    hide). ``cache``: the base twin's node states, shared by the round's candidates
+    (:func:`linear_change`)."""
     rr = float(r0 @ r0) or 1.0
     st = problem.stride
-    out = []
-    cache: dict = {}
-    for c in cands:
-        starts = _starts(c)
-        x0 = starts[0]
-        probes = list(starts)
-        for j in range(1, len(c.params)):
-            step = x0.copy()
-            p = c.params[j]
-            h = 0.05 * (p.hi - p.lo)
-            step[j] = x0[j] + h if x0[j] + h <= p.hi else x0[j] - h
-            probes.append(step)
-        cols = []
-        try:
-            for v in probes:
-                dy = linear_change(problem, base_spec, c, v, y0_train, cache)
-                if dy is None:
-                    dy = problem.outputs(c.apply(base_spec, v), stop=problem.n_train) - y0_train
-                cols.append(problem.weighted(dy)[:, ::st].ravel())
-        except MachineSpecError:
-            pass
-        finally:
-            if progress:
-                progress()
-        if not cols:
-            out.append((0.0, c))
-            continue
-        # one start's direction at a time with the steps of the further parameters, so
-        # that several starts of one time constant do not add up to a flexible basis
-        ns = len(starts)
-        steps = cols[ns:] if len(cols) == len(probes) else []
-        err = max(_projection_share(np.column_stack([d] + steps), r0, rr) for d in cols[:ns])
-        out.append((min(err, 1.0), c))
-    out.sort(key=lambda e: -e[0])
-    return out
+    starts = _starts(c)
+    x0 = starts[0]
+    probes = list(starts)
+    for j in range(1, len(c.params)):
+        step = x0.copy()
+        p = c.params[j]
+        h = 0.05 * (p.hi - p.lo)
+        step[j] = x0[j] + h if x0[j] + h <= p.hi else x0[j] - h
+        probes.append(step)
+    cols = []
+    try:
+        for v in probes:
+            dy = linear_change(problem, base_spec, c, v, y0_train, cache)
+            if dy is None:
+                dy = problem.outputs(c.apply(base_spec, v), stop=problem.n_train) - y0_train
+            cols.append(problem.weighted(dy)[:, ::st].ravel())
+    except MachineSpecError:
+        pass
+    if not cols:
+        return 0.0
+    # one start's direction at a time with the steps of the further parameters, so
+    # that several starts of one time constant do not add up to a flexible basis
+    ns = len(starts)
+    steps = cols[ns:] if len(cols) == len(probes) else []
+    err = max(_projection_share(np.column_stack([d] + steps), r0, rr) for d in cols[:ns])
+    return min(err, 1.0)
 
 
 def linear_change(problem: FitProblem, base_spec: dict, c: Candidate, v: np.ndarray,
@@ -378,52 +370,3 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
                       delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v),
                       n_eff_holdout=effective_samples(r1h),
                       change=problem.weighted(y1[:, :nt:problem.stride] - y0_full[:, :nt:problem.stride]).ravel())
-
-
-def mark_indistinguishable(hyps: list[Hypothesis], corr_threshold: float = 0.95,
-                           margin_pct: float = 5.0) -> None:
-    """Flag plausible hypotheses whose fitted output changes are nearly collinear and whose
-    held-out improvements are within ``margin_pct`` points: this data cannot tell them apart."""
-    good = [h for h in hyps if h.plausible and h.change is not None and np.any(h.change)]
-    for i, a in enumerate(good):
-        for b in good[i + 1:]:
-            if abs(a.holdout_improvement_pct - b.holdout_improvement_pct) > margin_pct:
-                continue
-            na, nb = np.linalg.norm(a.change), np.linalg.norm(b.change)
-            if na == 0 or nb == 0:
-                continue
-            if float(a.change @ b.change) / (na * nb) >= corr_threshold:
-                a.indistinguishable_from.append(b.candidate.key)
-                b.indistinguishable_from.append(a.candidate.key)
-
-
-def run_round(problem: FitProblem, base_spec: dict, cands: list[Candidate], y0_full: np.ndarray,
-              shortlist: int = 10, min_improvement_pct: float = 5.0, round_no: int = 1,
-              progress: Callable[[], None] | None = None, keep_share: float = 0.2) -> list[Hypothesis]:
-    """Screen, fit the shortlist (every candidate whose screening share is at least
-    ``keep_share`` of the best, at most ``shortlist`` of them, plus the best of every
-    effect type and of every target), test on held-out data with Holm's correction over
-    all candidates screened, rank. Returns hypotheses best first."""
-    nt = problem.n_train
-    ranked = screen(problem, base_spec, cands, y0_full[:, :nt], progress)
-    best_err = ranked[0][0] if ranked else 0.0
-    chosen: dict[str, tuple[float, Candidate]] = {}
-    for err, c in ranked[:shortlist]:
-        if err >= keep_share * best_err or len(chosen) < 3:
-            chosen[c.key] = (err, c)
-    seen: set = set()
-    for err, c in ranked:
-        if err > 0 and c.effect not in seen:
-            seen.add(c.effect)
-            chosen.setdefault(c.key, (err, c))
-    hyps = []
-    for err, c in chosen.values():
-        h = fit_candidate(problem, base_spec, c, y0_full, err)
-        if h is not None:
-            h.round = round_no
-            hyps.append(h)
-    for h, ok in zip(hyps, holm_reject([h.p_value for h in hyps], len(cands))):
-        h.holm_pass = ok
-    hyps.sort(key=lambda h: h.rank_key(min_improvement_pct))
-    mark_indistinguishable(hyps)
-    return hyps

@@ -175,12 +175,21 @@ def fit_channel(channel: str, resid: np.ndarray, lib: list[Term], n_train: int, 
                        full - coef[0])
 
 
+def _channel_task(shared: tuple, channel: str) -> Discrepancy | None:
+    residuals, lib, n_train, errors = shared
+    return fit_channel(channel, residuals[channel], lib, n_train, channel in errors)
+
+
 def find_unnamed(residuals: dict[str, np.ndarray], lib: list[Term], n_train: int, errors: set[str],
-                 min_improvement_pct: float = 5.0) -> list[Discrepancy]:
+                 min_improvement_pct: float = 5.0, engine=None) -> list[Discrepancy]:
     """Discrepancies of the channels whose held-out improvement passes Holm over the
-    channels tried and ``min_improvement_pct``; best first."""
-    found = [d for c, r in residuals.items()
-             if (d := fit_channel(c, r, lib, n_train, c in errors)) is not None]
+    channels tried and ``min_improvement_pct``; best first. The channels are tasks of
+    :func:`thermal_comp_common.task_engine.map_tasks` on ``engine`` (default serial)."""
+    from thermal_comp_common.task_engine import map_tasks
+    fits: list = [None] * len(residuals)
+    for i, d in map_tasks(_channel_task, (residuals, lib, n_train, errors), list(residuals), engine):
+        fits[i] = d
+    found = [d for d in fits if d is not None]
     for d, ok in zip(found, holm_reject([d.p_value for d in found], len(residuals))):
         d.holm_pass = ok
     good = [d for d in found if d.holm_pass and d.holdout_improvement_pct >= min_improvement_pct]
