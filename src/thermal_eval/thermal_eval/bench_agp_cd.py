@@ -21,6 +21,10 @@ Everything runs on the twin's scenarios (``thermal_twin.scenarios``), simulated 
   unseen second half; ``cd.load_case_update_s`` the time of one full update (7 components).
 * ``cd_model.<case>.*``: the adaptive CD model (kind "cd") replayed on load-case-A..D, P99_lin
   and Q_prod (comparable with the TALC figures).
+* ``cd_prior.<case>.*``: the CD model with and without the prior of the machine type
+  (``thermal-comp prior --model cd``: the nominal twin on the training programmes other than the
+  case, seeds 101-) on unit #1 of the type, Table 5.4 probe noise: whole-run and first-8 h
+  P99_lin / P99_ang, probes and Q_prod (talc-178h-dry, which no prior trains on, and load-case-B/D).
 * ``cd.selection.*``: how often each stability-index variant finds the true input pair.
 
 The prior expected maximum error of the lathe is 40 um ("several tens of micrometres", thesis
@@ -40,6 +44,7 @@ from talc_model.cd_input_selection import StabilityIndex, forward_selection
 from talc_model.characteristic_diagram import CharacteristicDiagram, load_case_update
 from talc_model.gaussian_process import ArdGaussianProcess
 from talc_model.offset_model import OffsetModel
+from thermal_comp_common.components import ANGULAR_COMPONENTS
 from thermal_comp_common.metrics import p99, p99_group, rms_reduction, rmse
 from thermal_twin.scenarios import make_timeline
 from thermal_twin.simulate import simulate
@@ -244,6 +249,49 @@ def cd_model_cases(quick: bool, progress) -> dict[str, Any]:
     return out
 
 
+CD_PRIOR_CASES = ("talc-178h-dry", "load-case-B", "load-case-D")
+#: Table 5.4 probe noise (um, um/m) and resolution of the 5-axis sphere probe
+CD_PROBE_NOISE = {"linear": 0.25, "angular": 1.2, "resolution": 0.25}
+
+
+def _cd_replay_figures(rec, model) -> dict[str, Any]:
+    """Whole-run and first-8 h P99_lin / P99_ang, probes and Q_prod of one replay."""
+    noise = {c: CD_PROBE_NOISE["angular" if c in ANGULAR_COMPONENTS else "linear"] for c in model.component_names}
+    res = run_virtual_experiment(rec, model, probe_noise_um=noise, probe_resolution_um=CD_PROBE_NOISE["resolution"],
+                                 seed=0, compute_metrics=False)
+    comp = {c: np.where(np.isfinite(res.predicted[c]), res.predicted[c], 0.0) for c in res.components}
+    first = res.time_s <= res.time_s[0] + 8 * 3600.0
+    lin = [c for c in res.components if c not in ANGULAR_COMPONENTS]
+    ang = [c for c in res.components if c in ANGULAR_COMPONENTS]
+    out = {}
+    for label, rows in (("", slice(None)), ("first_8h_", first)):
+        per = {c: p99(res.true[c][rows], comp[c][rows]) for c in res.components}
+        out[f"{label}p99_lin_um"] = _round(p99_group(per, lin))
+        out[f"{label}p99_ang_um_per_m"] = _round(p99_group(per, ang))
+    st = res.final_status
+    return {**out, "probing_cycles": st["probing_cycles"], "q_prod_pct": _round(st["q_prod_pct"], 2)}
+
+
+def cd_prior_cases(quick: bool, progress) -> dict[str, Any]:
+    """The CD model on unit #1 with and without the machine type's CD prior (module docstring)."""
+    from talc_model.prior_agp import model_from_prior
+    from thermal_comp.prior_cli import TRAINING_SCENARIOS, build_prior
+    from thermal_twin.machine_instance import machine_instance
+    out: dict[str, Any] = {}
+    unit = machine_instance("nmv5000", 1)
+    for case in CD_PRIOR_CASES[:1] if quick else CD_PRIOR_CASES:
+        scenarios = [s for s in TRAINING_SCENARIOS["cd"]["nmv5000"] if s != case]
+        t0 = time.perf_counter()
+        prior = build_prior("nmv5000", {}, scenarios, kind="cd")
+        out[f"cd_prior.{case}.prior_build_s"] = _round(time.perf_counter() - t0, 1)
+        out[f"cd_prior.{case}.prior_sources"] = prior["sources"]
+        rec = simulate(unit, make_timeline("nmv5000", case, hours=48.0 if quick else None, seed=0), seed=0).to_recording()
+        for label, model in (("no_prior", CharacteristicDiagramModel({})), ("prior", model_from_prior("cd", {}, prior))):
+            out.update({f"cd_prior.{case}.{label}.{k}": v for k, v in _cd_replay_figures(rec, model).items()})
+        progress()
+    return out
+
+
 def stability_variants(quick: bool, progress) -> dict[str, Any]:
     """Hit rate of the true pair (v0, v1) among all pairs of 8 candidates, y = sin(3 v0) + v1^2
     + noise, K = 100 (the digest's check, measured here)."""
@@ -268,7 +316,7 @@ def figures(args) -> dict[str, Any]:
     out_dir = pathlib.Path(out_dir) if out_dir else None
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-    total = 3 * len(AGP_CASES) + 1 + 2 + 1 + len(CD_CASES) + 1 + 1 + len(CD_CASES)
+    total = 3 * len(AGP_CASES) + 1 + 2 + 1 + len(CD_CASES) + 1 + 1 + len(CD_CASES) + (1 if quick else len(CD_PRIOR_CASES))
     bar = tqdm(total=total, desc="bench agp/cd", unit="part")
     step = lambda: bar.update(1)
     out: dict[str, Any] = {}
@@ -278,6 +326,7 @@ def figures(args) -> dict[str, Any]:
         out.update(gp_refit_speed(quick, step))
         out.update(cd_load_cases(quick, step))
         out.update(cd_model_cases(quick, step))
+        out.update(cd_prior_cases(quick, step))
         out.update(stability_variants(quick, step))
     finally:
         bar.close()
