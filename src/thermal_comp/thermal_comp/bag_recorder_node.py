@@ -9,6 +9,13 @@ Bag log time is the receive time on the node's clock (simulated time with use_si
 ``ros2 bag record`` writes it; the header stamp stays in the message, and readers key instants
 by it (``BagMessage.stamp_ns``). ``timestamps:=header`` keeps the old header-stamp log time.
 
+A re-send is written once: a stamped message byte-identical to the last one written on its
+topic (machine_sim re-sends an instant whose acknowledgements are late, and the sensors, the
+model and the bridge repeat theirs for it) is counted (``resends_skipped`` on ``/diagnostics``
+and in the closing line), not written again; ``keep_resends:=true`` writes every copy. So each
+topic holds each instant once (before, a cell under load held 160 copies of 59 instants on
+every topic but the ground truth, which machine_sim did not re-send).
+
 As a lock-step participant (``lockstep_participant``) the recorder loses nothing across a crash
 and restart: it acknowledges instant t_k on ``sim_sync`` only once it has written a message
 stamped t_k on every one of ``ack_topics`` and handed the file to the OS (fsynced with
@@ -133,6 +140,8 @@ class BagRecorderNode(Node):
                      "machine_sim re-sends; ones not recorded are ignored)"),
             rt.Param("health", False, "also record the graph's health: /diagnostics and /rosout "
                      "(with the default topics; the demo's recorder does)"),
+            rt.Param("keep_resends", False, "write every copy of a re-sent message (same topic, same "
+                     "stamp, same bytes as the last one written on the topic); default: write it once"),
             rt.Param("ack_fsync", False, "lock-step: fsync the bag before each acknowledgement (survives a "
                      "power loss, a few ms per instant); without, the written chunk is handed to the OS "
                      "first, which survives a crash or kill of this process"),
@@ -154,6 +163,9 @@ class BagRecorderNode(Node):
         if p["health"]:
             specs += [(n, t, q) for n, (t, q) in HEALTH_TOPICS.items() if n not in {s[0] for s in specs}]
         self._use_header = p["timestamps"] == "header"
+        self._keep_resends = bool(p["keep_resends"])
+        self._last_written: dict[str, bytes] = {}     # topic -> the last stamped message written
+        self.resends_skipped = 0
         self._subs = []
         infos = []
         for name, type_name, qos in specs:
@@ -192,8 +204,13 @@ class BagRecorderNode(Node):
             _, topic, stamped = self._subs[index]
             now = self.get_clock().now().nanoseconds
             stamp = stamp_from_cdr(data) if stamped else None
-            t = stamp if self._use_header else None
-            self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
+            if stamp is not None and not self._keep_resends and self._last_written.get(topic) == data:
+                self.resends_skipped += 1      # a re-sent instant: written once, acknowledged again
+            else:
+                t = stamp if self._use_header else None
+                self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
+                if stamp is not None:
+                    self._last_written[topic] = bytes(data)
             if stamp is not None and topic in self._ack_topics:
                 self._written(topic, stamp)
         return on_message
@@ -214,7 +231,7 @@ class BagRecorderNode(Node):
 
     def _periodic(self) -> None:
         self.writer.flush()
-        values = {"messages": self.writer.message_count}
+        values = {"messages": self.writer.message_count, "resends_skipped": self.resends_skipped}
         if self.acked_ns is not None:
             values["acknowledged_until_s"] = self.acked_ns / 1e9
         self.diag.update_values("recorder", **values)
@@ -226,7 +243,8 @@ class BagRecorderNode(Node):
 
     def close(self) -> None:
         self.writer.close()
-        self.get_logger().info(f"bag {self.writer.path} closed: {self.writer.message_count} messages")
+        self.get_logger().info(f"bag {self.writer.path} closed: {self.writer.message_count} messages"
+                               f" ({self.resends_skipped} re-sent copies not written again)")
 
 
 def main(args=None) -> int:

@@ -4,8 +4,10 @@ Every step it publishes /clock, ``machine_state``, ``twin/sensor_readings`` and 
 ``errors/ground_truth`` for the new instant t_k, then advances to t_{k+1}
 - in lock-step, once every node in ``lockstep_participants`` has published a SimSync with
   ``processed_until >= t_k`` (docs/architecture.md); it starts once all of them publish on
-  ``sim_sync`` and re-sends the current instant if no acknowledgement arrives within
-  ``resend_after_s`` wall seconds (a subscriber that matched late);
+  ``sim_sync`` and re-sends the current instant (every topic of it, ground truth included)
+  when acknowledgements are missing and neither a publish nor a touch probe happened for
+  ``resend_after_s`` wall seconds (a subscriber that matched late, a restarted participant;
+  a model busy with a probing cycle is alive and is not flooded with copies);
   nothing waits forever: when a participant has not joined, or not acknowledged the current
   instant, within ``lockstep_deadline_s`` wall seconds -- or acknowledges an instant the graph
   has not reached (its state is from another run) -- it is named, with the instant, on the
@@ -102,7 +104,7 @@ class MachineSimNode(Node):
             self.runner, self.probe_rng, self.applied_offsets = resumed
         self.acks: dict[str, float] = {}
         self.started = False
-        self.last_publish_wall = 0.0
+        self.last_publish_wall = 0.0        # wall time of the last publish or touch probe (re-send timer)
         self.wait_since = time.monotonic()   # wall time the current wait (start, instant) began
         self.ahead: dict[str, float] = {}    # participant -> an acknowledged instant ahead of the graph
         self.published_t = -math.inf
@@ -153,26 +155,30 @@ class MachineSimNode(Node):
                                  status=[TemperatureArray.STATUS_OK] * len(readings))
         temps.header.stamp = stamp
         self.pub_sensors.publish(temps)
+        truth = None
         if self.publish_truth:
             names, values, codes = error_components(r.errors(), self.units)
-            msg = ThermalErrors(source=ThermalErrors.SOURCE_GROUND_TRUTH, model_kind="twin",
-                                component_names=names, values=values, units=codes,
-                                uncertainties=[0.0] * len(values))
-            msg.header.stamp = stamp
-            self.pub_truth.publish(msg)
+            truth = ThermalErrors(source=ThermalErrors.SOURCE_GROUND_TRUTH, model_kind="twin",
+                                  component_names=names, values=values, units=codes,
+                                  uncertainties=[0.0] * len(values))
+            truth.header.stamp = stamp
+            self.pub_truth.publish(truth)
         self.last_publish_wall = self.wait_since = time.monotonic()
         self.published_t = r.t_s
         self.diag.update_values("lock-step", instant_s=r.t_s)
-        self._last_published = (stamp, state, temps)
+        self._last_published = (stamp, state, temps, truth)
 
     def _republish(self) -> None:
-        """Send the current instant again (same stamps, same readings) to late subscribers.
-        /clock is re-sent at the current simulated time, which probing may have moved on:
-        the clock never runs backwards."""
-        stamp, state, temps = self._last_published
+        """Send the current instant again (same stamps, same bytes) to late subscribers, on
+        every topic of the instant: a restarted recorder gets the ground truth it missed too
+        (the recorder keeps one copy). /clock is re-sent at the current simulated time, which
+        probing may have moved on: the clock never runs backwards."""
+        stamp, state, temps, truth = self._last_published
         self.pub_clock.publish(Clock(clock=s_to_stamp(self.runner.t_s)))
         self.pub_state.publish(state)
         self.pub_sensors.publish(temps)
+        if truth is not None:
+            self.pub_truth.publish(truth)
         self.last_publish_wall = time.monotonic()
 
     def _finish_if_done(self) -> bool:
@@ -341,6 +347,7 @@ class MachineSimNode(Node):
             r.resume()
             r.busy_probing = False
         self._save_checkpoint()   # probing moved simulated time on
+        self.last_publish_wall = time.monotonic()   # a probing participant is alive: no re-send yet
         response.triggered = bool(triggered)
         response.trigger_position_mm = [float(x) for x in pos]
         response.message = "" if triggered else f"no trigger within {request.max_travel_mm} mm"
