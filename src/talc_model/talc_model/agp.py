@@ -394,6 +394,9 @@ class AdaptiveGaussianProcess:
     def from_state(cls, state: dict) -> "AdaptiveGaussianProcess":
         if state.get("kind") != cls.kind:
             raise AgpConfigError(f"model state: kind {state.get('kind')!r}, expected {cls.kind!r}")
+        if cls is AdaptiveGaussianProcess and state.get("prior") is not None:   # resumes with its prior
+            from talc_model.prior_agp import AgpPriorModel
+            return AgpPriorModel.from_state(state)
         try:
             model = cls(state["config"])
             for key in ("phase", "input_names", "held", "excluded", "current_temperatures", "history",

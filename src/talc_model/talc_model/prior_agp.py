@@ -253,7 +253,7 @@ class AgpPriorModel(AdaptiveGaussianProcess):
     def from_state(cls, state: Mapping[str, Any]) -> "AgpPriorModel":
         if "prior" not in state:
             raise PriorError("agp prior: model state has no 'prior'")
-        base = AdaptiveGaussianProcess.from_state(dict(state))
+        base = AdaptiveGaussianProcess.from_state({k: v for k, v in state.items() if k != "prior"})
         model = cls(state["config"], state["prior"], state["check_s"], state["agree_um"], state["residual_std_um"])
         for key, value in vars(base).items():
             if key != "config":
