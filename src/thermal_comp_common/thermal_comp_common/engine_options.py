@@ -14,7 +14,7 @@ import argparse
 import contextlib
 from typing import Iterator
 
-from thermal_comp_common.task_engine import ENGINES, EngineSpec, TaskEngineError
+from thermal_comp_common.task_engine import ENGINES, EngineSpec, TaskEngineError, start_local_cluster
 
 
 def add_engine_arguments(ap: argparse.ArgumentParser, default_jobs: int = 1, what: str = "tasks") -> None:
@@ -46,14 +46,7 @@ def held_engine(spec: EngineSpec | None) -> Iterator[EngineSpec]:
     if spec.kind != "dask" or spec.address is not None:
         yield spec
         return
-    try:
-        import dask
-        from distributed import LocalCluster
-    except ImportError as exc:
-        raise TaskEngineError("engine 'dask' needs the 'distributed' package (requirements/python.txt)") from exc
-    with dask.config.set({"distributed.scheduler.allowed-failures": spec.retries}):
-        cluster = LocalCluster(n_workers=spec.workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None)
+    cluster = start_local_cluster(spec.workers, spec.retries)
     try:
         yield EngineSpec("dask", cluster.scheduler_address, spec.workers, spec.retries, spec.timeout_s)
     finally:

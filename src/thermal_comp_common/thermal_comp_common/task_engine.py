@@ -154,17 +154,10 @@ def _local_pool_map(fn, shared, items: list, spec: EngineSpec) -> Iterator[tuple
 # ------------------------------------------------------------------ dask
 def _dask_map(fn, shared, items: list, spec: EngineSpec) -> Iterator[tuple[int, Any]]:
     try:
-        from distributed import Client, LocalCluster, as_completed
+        from distributed import Client, as_completed
     except ImportError as exc:
         raise TaskEngineError("engine 'dask' needs the 'distributed' package (requirements/python.txt)") from exc
-    import dask
-    cluster = None
-    if spec.address is None:
-        # a task on workers that died more than ``retries`` times is given up (KilledWorker);
-        # a cluster given by address applies its own scheduler's setting (dask default 3)
-        with dask.config.set({"distributed.scheduler.allowed-failures": spec.retries}):
-            cluster = LocalCluster(n_workers=spec.workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None)
+    cluster = None if spec.address is not None else start_local_cluster(spec.workers, spec.retries)
     try:
         try:
             client = Client(spec.address or cluster, timeout=spec.timeout_s)
@@ -178,6 +171,31 @@ def _dask_map(fn, shared, items: list, spec: EngineSpec) -> Iterator[tuple[int, 
     finally:
         if cluster is not None:
             cluster.close()
+
+
+# Dask's defaults for the worker processes a LocalCluster spawns, changed for replay-like tasks:
+# - MALLOC_TRIM_THRESHOLD_=65536 (set by the nanny before spawning, so that freed memory goes back
+#   to the OS) also switches off glibc's dynamic mmap threshold: every numpy array above 128 KiB is
+#   then mmap'ed and page-faulted afresh. A sweep replay took ~200,000 minor page faults and 1.4-1.6x
+#   the CPU time of the same replay in the local pool (~12,000 faults); unset, the two are equal.
+# - the statistical profiler samples every worker thread each 10 ms for the dashboard, which this
+#   cluster does not serve; it cost ~0.1 s CPU per ~1 s replay. (docs/distributed.md, "Scale figures")
+LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                        "distributed.worker.profile.enabled": False}
+
+
+def start_local_cluster(workers: int, retries: int):
+    """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes, no dashboard, set for
+    CPU-bound numpy tasks (:data:`LOCAL_CLUSTER_CONFIG`); a task on workers that died more than
+    ``retries`` times is given up (KilledWorker). The caller closes it."""
+    try:
+        import dask
+        from distributed import LocalCluster
+    except ImportError as exc:
+        raise TaskEngineError("engine 'dask' needs the 'distributed' package (requirements/python.txt)") from exc
+    # a cluster given by address applies its own scheduler's allowed-failures (dask default 3)
+    with dask.config.set({**LOCAL_CLUSTER_CONFIG, "distributed.scheduler.allowed-failures": retries}):
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
 
 
 def _dask_run(client, as_completed, fn, shared, items, spec) -> Iterator[tuple[int, Any]]:
