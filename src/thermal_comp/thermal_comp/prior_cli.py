@@ -178,6 +178,8 @@ def _from_state(a) -> dict:
     if isinstance(state, dict) and state.get("kind") == "agp":   # another lathe's persisted AGP
         from talc_model.prior_agp import agp_prior_from_state
         return agp_prior_from_state(state, machine=a.machine)
+    if isinstance(state, dict) and state.get("kind") == "cd":
+        raise PriorError(f"--from-state {a.from_state!r}: a CD model state is not a prior source yet (TALC, AGP)")
     return prior_from_state(state, machine=a.machine)
 
 
