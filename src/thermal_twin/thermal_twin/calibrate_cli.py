@@ -2,7 +2,10 @@
 
 Fits the twin's existing parameters (ranges from the machine's ``calibration`` section or
 ``--bounds``) on the training window, scores the held-out rest, and writes
-``DIR/twin_calibrated.yaml``, ``DIR/report.md``, ``DIR/report.json`` and PNG plots.
+``DIR/twin_calibrated.yaml``, ``DIR/report.md``, ``DIR/report.json`` and PNG plots. The
+Jacobian's finite-difference columns run on a local process pool of ``--jobs`` processes
+(default: the cores) or a Dask cluster (``--engine dask [--address tcp://HOST:8786]``); the
+answer is the same on every engine (docs/distributed.md).
 """
 from __future__ import annotations
 
@@ -19,7 +22,9 @@ from thermal_twin.calibration_bounds import CalibrationSpecError
 from thermal_twin.machine_schema import MachineSpecError, load_machine, save_machine
 from thermal_twin.column_mapping import (MappingError, empty_columns, name_mismatches, parse_mapping,
                                         read_real_recording)
+from thermal_comp_common.engine_options import add_engine_arguments, engine_from_args
 from thermal_comp_common.recording_csv import RecordingError
+from thermal_comp_common.task_engine import TaskEngineError, default_workers
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -43,6 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_engine_arguments(p, default_workers(), "Jacobian columns")
     return p
 
 
@@ -53,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp calibrate: --out: {out} exists and is not empty (use --force)", file=sys.stderr)
         return 2
     try:
+        engine = engine_from_args(args)
         machine = load_machine(args.twin)
         section = None
         if args.bounds:
@@ -71,8 +78,9 @@ def main(argv: list[str] | None = None) -> int:
             rec, estimates, found = fill_missing_inputs(machine, rec, chans, block_s=args.block_min * 60.0)
             notes = found + notes
         r = calibrate(machine, rec, holdout_fraction=args.holdout_fraction, section=section,
-                      max_nfev=args.max_nfev, progress=say)
-    except (MachineSpecError, MappingError, CalibrationSpecError, RecordingError, CalibrationError, InputEstimationError, ValueError, OSError) as exc:
+                      max_nfev=args.max_nfev, progress=say, engine=engine)
+    except (MachineSpecError, MappingError, CalibrationSpecError, RecordingError, CalibrationError,
+            InputEstimationError, TaskEngineError, ValueError, OSError) as exc:
         print(f"thermal-comp calibrate: {exc}", file=sys.stderr)
         return 1
     out.mkdir(parents=True, exist_ok=True)

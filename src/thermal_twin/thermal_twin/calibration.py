@@ -26,8 +26,10 @@ from thermal_twin.inputs_timeline import timeline_from_recording
 from thermal_twin.machine_schema import Machine, load_machine
 from thermal_twin.mismatch_fit import FitProblem, effective_samples
 from thermal_twin.mismatch_twin_eval import node_states, outputs_from_states, single_threaded_blas
-from thermal_comp_common.recording_csv import Recording
+from thermal_comp_common.engine_options import held_engine
 from thermal_comp_common.metrics import rmse
+from thermal_comp_common.recording_csv import Recording
+from thermal_comp_common.task_engine import EngineSpec, map_tasks
 
 LINEAR_KINDS = ("bias", "gain")
 CORR_LIMIT = 0.95
@@ -151,24 +153,27 @@ def _relevant(params: list[Param], machine, channels: list[str]) -> tuple[list[P
 def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
               section: Mapping | None = None, max_nfev: int = 30,
               progress: Callable[[str], None] | None = None, prior: bool = True,
-              start: Mapping[str, float] | None = None) -> CalibrationResult:
-    """:func:`_calibrate` with BLAS on one thread (see ``single_threaded_blas``)."""
-    with single_threaded_blas():
-        return _calibrate(twin, recording, holdout_fraction, section, max_nfev, progress, prior, start)
-
-
-def _calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
-               section: Mapping | None = None, max_nfev: int = 30,
-               progress: Callable[[str], None] | None = None, prior: bool = True,
-               start: Mapping[str, float] | None = None) -> CalibrationResult:
+              start: Mapping[str, float] | None = None, engine: EngineSpec | None = None) -> CalibrationResult:
     """Fit the free parameters of ``twin`` (path, preset, mapping or Machine) to
     ``recording``; ``section`` overrides the machine's own ``calibration`` section.
     ``prior``: pull every parameter toward its nominal value (a Gaussian prior whose 95 %
     range is the parameter's tolerance), the data weighted by their discrepancy variance
     and autocorrelation time (see docs/calibrate.md); False: plain bounded least squares.
     ``start``: values (by parameter name) to start the fit from; the prior stays at the
-    twin's own values.
-    (Over 80 lines: the residual and Jacobian closures share one cache of the last twin run.)"""
+    twin's own values. ``engine``: where the Jacobian's finite-difference columns run
+    (default serial; the same answer on every engine). BLAS runs on one thread
+    (``single_threaded_blas``)."""
+    with single_threaded_blas(), held_engine(engine) as held:
+        t_start = time.perf_counter()
+        jacobian = _setup(twin, recording, holdout_fraction, section, progress)
+        jacobian.engine = held
+        theta, status = _fit(jacobian, max_nfev, prior, start)
+        return _result(jacobian, recording, theta, status, prior, t_start)
+
+
+def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping | None,
+           progress: Callable[[str], None] | None) -> "Jacobian":
+    """Check twin and recording, choose the free parameters; the residual and its Jacobian."""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise CalibrationError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
@@ -182,54 +187,70 @@ def _calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
     params, fixed = _relevant(free_parameters(spec0, section), machine, channels)
     if not params:
         raise CalibrationError("no free parameter: the calibration section fixes everything")
-    n = len(recording)
-    n_train = int(round(n * (1.0 - holdout_fraction)))
+    n_train = int(round(len(recording) * (1.0 - holdout_fraction)))
     if n_train < 30:
         raise CalibrationError(f"recording {recording.source}: {n_train} training rows, need at least 30")
-    t_start = time.perf_counter()
     res = {c: machine.sensors[s].resolution for s in machine.sensors
            for c in [machine.sensors[s].column]}
     fp = FitProblem(recording, channels, n_train, resolution=res)
-    model = _Model(spec0, params, recording, channels)
-    jacobian = Jacobian(model, fp, machine, progress)
-    lb = np.array([p.theta_bounds[0] for p in params])
-    ub = np.array([p.theta_bounds[1] for p in params])
+    jacobian = Jacobian(_Model(spec0, params, recording, channels), fp, machine, progress)
+    jacobian.fixed = fixed
+    return jacobian
+
+
+def _fit(jacobian: "Jacobian", max_nfev: int, prior: bool, start: Mapping[str, float] | None
+         ) -> tuple[np.ndarray, str]:
+    """(theta at the optimum, optimiser status). Two passes with the prior: the data weight
+    1/(s2 tau) of the first comes from the start's residual, of the second from the first
+    optimum's (the discrepancy that is left)."""
+    params = jacobian.model.params
+    lb, ub = jacobian.theta_bounds()
     prior_sd = (ub - lb) / 4.0 if prior else None      # tolerance = 95 % range = +-2 sd
     theta = np.zeros(len(params))
-    r_start = jacobian.resid(theta)
+    jacobian.r_start = jacobian.resid(theta)
     for i, p in enumerate(params):
         if start and p.name in start:
             theta[i] = np.clip(p.theta(float(start[p.name])), lb[i], ub[i])
-    # two passes: the data weight 1/(s2 tau) of the first comes from the start's residual,
-    # of the second from the first optimum's (the discrepancy that is left)
     passes = 2 if prior else 1
     weight = 1.0
     status = ""
     for k in range(passes):
         if prior:
-            weight = data_weight(jacobian.resid(theta), len(channels))
+            weight = data_weight(jacobian.resid(theta), len(jacobian.model.channels))
         fun, jac = _objective(jacobian, weight, prior_sd)
         sol = least_squares(fun, theta, jac=jac, bounds=(lb, ub), method="trf", x_scale="jac",
                             max_nfev=max(max_nfev // passes if k == 0 else max_nfev - sol.nfev, 3))
         theta, status = sol.x, sol.message
+    return theta, status
+
+
+def _result(jacobian: "Jacobian", recording: Recording, theta: np.ndarray, status: str, prior: bool,
+            t_start: float) -> CalibrationResult:
+    """Intervals at the optimum, outputs before/after, the calibrated description."""
+    model, channels = jacobian.model, jacobian.model.channels
+    params = model.params
+    lb, ub = jacobian.theta_bounds()
     r = jacobian.resid(theta)
     J = jacobian(theta)
-    estimates, correlated, tau = _intervals(params, theta, r, J, len(channels), lb, ub, prior_sd)
+    estimates, correlated, tau = _intervals(params, theta, r, J, len(channels), lb, ub,
+                                            (ub - lb) / 4.0 if prior else None)
     y_before, _, _ = model.run(np.zeros(len(params)))
     y_after, _, _ = model.run(theta)
     meas = {c: np.asarray(recording.columns[c], dtype=float) for c in channels}
     spec1 = model.spec(theta)
     wall = time.perf_counter() - t_start
+    n = len(recording)
     dur_h = float(recording.time_s[-1] - recording.time_s[0]) / 3600.0
     sim_h = model.sim_steps / max(n - 1, 1) * dur_h
+    r_start = jacobian.r_start
     return CalibrationResult(
         spec=spec1, estimates=estimates, correlated=correlated, channels=channels,
         time_s=recording.time_s, measured=meas,
         before={c: y_before[j] for j, c in enumerate(channels)},
-        after={c: y_after[j] for j, c in enumerate(channels)}, n_train=n_train,
+        after={c: y_after[j] for j, c in enumerate(channels)}, n_train=jacobian.fp.n_train,
         cost_before=0.5 * float(r_start @ r_start), cost_after=0.5 * float(r @ r),
         n_evals=model.n_evals, wall_s=wall, simulated_h=sim_h, status=status, tau=tau,
-        fixed=fixed)
+        fixed=jacobian.fixed)
 
 
 def data_weight(r: np.ndarray, n_channels: int) -> float:
@@ -280,6 +301,27 @@ class Jacobian:
             else:
                 self.lin_where[i] = (chan_idx[p.path[1]], node_idx[p.path[3]])
         self.cache: dict = {}
+        self.engine: EngineSpec | None = None
+        self.fixed: list[str] = []            # parameters left out, with the reason
+        self.r_start: np.ndarray | None = None
+
+    def theta_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        ps = self.model.params
+        return np.array([p.theta_bounds[0] for p in ps]), np.array([p.theta_bounds[1] for p in ps])
+
+    def __getstate__(self) -> dict:      # what a worker needs for its columns
+        state = dict(self.__dict__)
+        state["progress"], state["cache"], state["engine"] = None, {}, None
+        return state
+
+    def column(self, theta: np.ndarray, r0: np.ndarray, i: int) -> np.ndarray:
+        """Forward difference of the residual in parameter ``i`` (one twin run)."""
+        th = theta.copy()
+        lo, hi = self.model.params[i].theta_bounds
+        h = FD_STEP if th[i] + FD_STEP <= hi else -FD_STEP
+        th[i] += h
+        y, _, _ = self.model.run(th, self.fp.n_train)
+        return (self.fp.train_residual(y).ravel() - r0) / h
 
     def resid(self, theta: np.ndarray) -> np.ndarray:
         key = theta.tobytes()
@@ -300,16 +342,23 @@ class Jacobian:
             d = np.zeros((len(self.w), ns))
             d[j] = -self.w[j] if k is None else -self.w[j] * (X[:, k] - X[0, k])
             J[:, i] = np.where(self.valid, d, 0.0).ravel()
-        for i in self.nonlin:
-            th = theta.copy()
-            lo, hi = params[i].theta_bounds
-            h = FD_STEP if th[i] + FD_STEP <= hi else -FD_STEP
-            th[i] += h
-            y, _, _ = self.model.run(th, self.fp.n_train)
-            J[:, i] = (self.fp.train_residual(y).ravel() - r0) / h
+        n0, steps0 = self.model.n_evals, self.model.sim_steps
+        runs = steps = 0
+        for k, (col, n, st) in map_tasks(_fd_column, (self, theta, r0), self.nonlin, self.engine):
+            J[:, self.nonlin[k]] = col
+            runs, steps = runs + n, steps + st
+        self.model.n_evals, self.model.sim_steps = n0 + runs, steps0 + steps
         if self.progress is not None:
             self.progress(f"jacobian {len(params)} parameters, cost {0.5 * float(r0 @ r0):.4g}")
         return J
+
+
+def _fd_column(shared: tuple, i: int) -> tuple[np.ndarray, int, int]:
+    """Task of the engine: one finite-difference column (and the twin runs and steps it took)."""
+    jac, theta, r0 = shared
+    n0, s0 = jac.model.n_evals, jac.model.sim_steps
+    col = jac.column(theta, r0, i)
+    return col, jac.model.n_evals - n0, jac.model.sim_steps - s0
 
 
 def _intervals(params, theta, r, J, n_channels, lb, ub, prior_sd=None):

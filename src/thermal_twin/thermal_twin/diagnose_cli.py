@@ -8,7 +8,10 @@ library on a training window, adopts what improves the held-out window, and writ
 and, when an effect is adopted, ``DIR/twin_augmented.yaml``. With ``--calibrate`` the twin's
 existing parameters are fitted first (``DIR/twin_calibrated.yaml``; the report separates
 mis-calibrated parameters from missing mechanisms); physics outside the vocabulary is
-answered ``unnamed`` with a sparse formula.
+answered ``unnamed`` with a sparse formula. The independent tasks (channel analyses, candidate
+screening and fits, out-of-vocabulary fits) run on a local process pool of ``--jobs`` processes
+(default: the cores) or a Dask cluster (``--engine dask [--address tcp://HOST:8786]``); the
+answer is the same on every engine (docs/distributed.md).
 """
 from __future__ import annotations
 
@@ -24,7 +27,9 @@ from thermal_twin.mismatch_effects import EFFECTS
 from thermal_twin.mismatch_report import write_report
 from thermal_twin.column_mapping import (MappingError, empty_columns, name_mismatches, parse_mapping,
                                         read_real_recording)
+from thermal_comp_common.engine_options import add_engine_arguments, engine_from_args
 from thermal_comp_common.recording_csv import RecordingError
+from thermal_comp_common.task_engine import TaskEngineError, default_workers
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-unnamed", action="store_true", help="do not fit an out-of-vocabulary discrepancy")
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_engine_arguments(p, default_workers(), "channel analyses and candidate fits")
     return p
 
 
@@ -84,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp diagnose: --out: {out} exists and is not empty (use --force)", file=sys.stderr)
         return 2
     try:
+        engine = engine_from_args(args)
         machine = load_machine(args.twin)
         rec = read_real_recording(rec_path, parse_mapping(args.map_file, args.map),
                                   args.temperatures_topic, args.errors_topic)
@@ -102,9 +109,9 @@ def main(argv: list[str] | None = None) -> int:
                      min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
                      effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet,
                      calibrate=args.calibrate, calibration_section=section, calibration_nfev=args.max_nfev,
-                     unnamed=not args.no_unnamed)
+                     unnamed=not args.no_unnamed, engine=engine)
     except (MachineSpecError, MappingError, RecordingError, DiagnosisError, CalibrationSpecError,
-            CalibrationError, ValueError, OSError) as exc:
+            CalibrationError, TaskEngineError, ValueError, OSError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
         return 1
     out.mkdir(parents=True, exist_ok=True)

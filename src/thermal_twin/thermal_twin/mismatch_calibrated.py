@@ -20,6 +20,7 @@ from typing import Mapping
 
 import numpy as np
 
+from thermal_comp_common.task_engine import EngineSpec
 from thermal_twin.calibration import CalibrationResult, calibrate
 from thermal_twin.machine_schema import Machine
 from thermal_twin.mismatch_fit import FitProblem
@@ -39,11 +40,13 @@ def moved(res: CalibrationResult) -> list[dict]:
 
 
 def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: float,
-                    section: Mapping | None = None, max_nfev: int = 20) -> tuple[dict, dict]:
-    """(base description for the search, report section ``calibration``)."""
+                    section: Mapping | None = None, max_nfev: int = 20,
+                    engine: EngineSpec | None = None) -> tuple[dict, dict]:
+    """(base description for the search, report section ``calibration``); ``engine``: where
+    the calibration's Jacobian columns run (the same answer on every engine)."""
     spec0 = machine.to_dict()
     res = calibrate(machine, problem.recording, holdout_fraction=holdout_fraction, section=section,
-                    max_nfev=max_nfev)
+                    max_nfev=max_nfev, engine=engine)
     nt = problem.n_train
     sse = {}
     for label, spec in (("given", spec0), ("calibrated", res.spec)):
@@ -73,7 +76,7 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
 
 def joint_adoption_test(machine: Machine, problem: FitProblem, holdout_fraction: float,
                         adopted: list, base_spec: dict, calibrated: dict, section: Mapping | None,
-                        min_improvement_pct: float, max_nfev: int = 20) -> dict:
+                        min_improvement_pct: float, max_nfev: int = 20, engine: EngineSpec | None = None) -> dict:
     """"Calibration + effects" against "calibration alone" on the held-out window: the
     twin as given plus the adopted effects (each at its fitted values) is calibrated
     jointly, starting from the calibrated values, with the same tolerances and priors
@@ -84,7 +87,7 @@ def joint_adoption_test(machine: Machine, problem: FitProblem, holdout_fraction:
         spec = h.candidate.apply(spec, h.values)
     start = {e.param.name: e.value for e in calibrated.get("_estimates", [])}
     res = calibrate(spec, problem.recording, holdout_fraction=holdout_fraction, section=section,
-                    max_nfev=max_nfev, start=start)
+                    max_nfev=max_nfev, start=start, engine=engine)
     nt = problem.n_train
     sse_alone = float(np.sum(problem.weighted_residual(problem.outputs(base_spec), nt) ** 2))
     sse_joint = float(np.sum(problem.weighted_residual(problem.outputs(res.spec), nt) ** 2))
@@ -98,14 +101,15 @@ def joint_adoption_test(machine: Machine, problem: FitProblem, holdout_fraction:
 
 def unnamed_beats_free_calibration(machine: Machine, problem: FitProblem, holdout_fraction: float,
                                    y_unnamed: np.ndarray, calibrated: dict, section: Mapping | None,
-                                   min_improvement_pct: float, max_nfev: int = 10) -> dict:
+                                   min_improvement_pct: float, max_nfev: int = 10,
+                                   engine: EngineSpec | None = None) -> dict:
     """The report's ``unnamed_test``: held-out weighted SSE of the calibrated twin with the
     unnamed discrepancy against the twin calibrated without the prior (within the same
     tolerances, from the calibrated values), both with each channel's training offset
     removed; ``passed`` decides."""
     start = {e.param.name: e.value for e in calibrated.get("_estimates", [])}
     res = calibrate(machine, problem.recording, holdout_fraction=holdout_fraction, section=section,
-                    max_nfev=max_nfev, prior=False, start=start)
+                    max_nfev=max_nfev, prior=False, start=start, engine=engine)
     from thermal_twin.mismatch_diagnosis import holdout_sse_with_offsets
     sse_free = holdout_sse_with_offsets(problem, problem.outputs(res.spec))
     sse_u = holdout_sse_with_offsets(problem, y_unnamed)

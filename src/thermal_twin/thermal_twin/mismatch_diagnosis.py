@@ -215,7 +215,7 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
         raise DiagnosisError(f"effects: {unknown[0]!r} is not in the vocabulary {list(EFFECTS)}")
-    cmp = _compare(twin, recording, holdout_fraction, calibrate, calibration_section, calibration_nfev)
+    cmp = _compare(twin, recording, holdout_fraction, calibrate, calibration_section, calibration_nfev, engine)
     ccf_inputs = residuals.driver_inputs(cmp.rec, cmp.machine)
     analysis = residuals.analyse(cmp.rec, cmp.channels, cmp.measured(), cmp.y0, cmp.units(), ccf_inputs,
                                  max_lag_s, start_hour, engine)
@@ -232,7 +232,8 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
 
 
 def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: bool,
-             calibration_section: Mapping | None, calibration_nfev: int) -> _Comparison:
+             calibration_section: Mapping | None, calibration_nfev: int,
+             engine: EngineSpec | None = None) -> _Comparison:
     """Check the inputs, simulate the twin as given and (with ``calibrate``) calibrate it."""
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
     rec = _clean_inputs(recording, machine)
@@ -255,7 +256,7 @@ def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: boo
     if calibrate:
         from thermal_twin.mismatch_calibrated import calibrated_base
         base0, cal_section = calibrated_base(machine, problem, holdout_fraction, calibration_section,
-                                             calibration_nfev)
+                                             calibration_nfev, engine)
         y0 = problem.outputs(base0)
     return _Comparison(machine, rec, channels, problem, holdout_fraction, y_given, base0, y0, cal_section)
 
@@ -284,7 +285,7 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
     if calibrate and adopted:
         from thermal_twin.mismatch_calibrated import joint_adoption_test
         test = joint_adoption_test(cmp.machine, problem, cmp.holdout_fraction, adopted, cmp.base0, cal_section,
-                                   calibration_section, min_improvement_pct)
+                                   calibration_section, min_improvement_pct, engine=engine)
         joint_spec = test.pop("spec")
         cal_section["adoption_test"] = test
         if test["passed"]:
@@ -298,7 +299,7 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
         if found_unnamed and calibrate:
             from thermal_twin.mismatch_calibrated import unnamed_beats_free_calibration
             test = unnamed_beats_free_calibration(cmp.machine, problem, cmp.holdout_fraction, y_u, cal_section,
-                                                  calibration_section, min_improvement_pct)
+                                                  calibration_section, min_improvement_pct, engine=engine)
             cal_section["unnamed_test"] = test
             if not test["passed"]:
                 found_unnamed = []
