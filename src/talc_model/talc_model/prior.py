@@ -113,9 +113,9 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
     """The prior (a JSON-serialisable dict) from training recordings of the nominal type.
 
     The last recording is held out to choose the orders n_a <= ``na_max``, n_b <= ``nb_max``
-    (simulation RMS), then all are fitted. n_a = 1 by default: TALC replaces a predicted output
-    by each measurement, and with n_a > 1 that jump excites the other poles (measured: an n_a = 3
-    prior crossed the action-control limit every 4.4 h; docs/prior.md).
+    (simulation RMS), then all are fitted. n_a = 1 by default: with the thesis's state update
+    (a probe replaces one predicted output) n_a > 1 diverged; with TALC's observer it is stable,
+    but an n_a <= 3 prior was better on two of the four load cases and worse on two (docs/talc.md).
     """
     for name, v in (("na_max", na_max), ("nb_max", nb_max)):
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
@@ -136,10 +136,11 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
                                                    na_max, nb_max)
     probe.models = models
     probe.phase = PHASE_COMPENSATION
-    # adaptation defaults (docs/prior.md): with the angular probe noise (1.2 um/m, Table 5.4) as
-    # large as the prior's error, a measurement moves the angular output history by half
+    # adaptation defaults (docs/prior.md). state_gain 1: TALC's observer weighs each probe by its
+    # noise (1.2 um/m angular, Table 5.4) itself; the fixed 0.5 on angular components of the
+    # replacement update over-damps it (P99_ang 2.70 -> 3.08 um/m on load-case-A; docs/talc.md)
     adaptation = {"prior_samples": 200.0, "check_h": 1.0,
-                  "state_gain": {c: 0.5 if c in cfg.angular_components else 1.0 for c in cfg.component_names}}
+                  "state_gain": {c: 1.0 for c in cfg.component_names}}
     return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "talc", "machine": machine,
             "sources": list(sources), "talc_state": probe.to_state(), "adaptation": adaptation,
             "gram": {c: g.tolist() for c, g in grams.items()},
