@@ -14,6 +14,7 @@ column names); nothing knows a dataset. No rclpy here.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -133,16 +134,36 @@ def hold_probes(y: np.ndarray, probe_rows: list[int], n: int) -> np.ndarray:
     return out
 
 
+@dataclass
+class Replay:
+    """What one replay gives: compensation per channel (0 where the model gave none), the probe
+    rows, and the virtual experiment's result (phases, final status)."""
+
+    compensation: dict[str, np.ndarray]
+    probe_rows: list[int]
+    result: Any
+
+
+def replay(data: EvaluationData, model: Any, show_progress: bool = False) -> Replay:
+    """The one replay loop of every adaptive model with its own logic (the rows here and the
+    replayed rows of ``bench fl-thermal``): every row through ``model``, which sees a displacement
+    only when it probes (all channels at once)."""
+    from thermal_eval.virtual_experiment import run_virtual_experiment
+    rec, columns = as_recording(data)
+    res = run_virtual_experiment(rec, model, columns=columns, probed_components=list(data.channels),
+                                 progress=show_progress, compute_metrics=False)
+    rows = [int(r) for r in np.searchsorted(data.time_s, np.asarray(res.probe_times_s))]
+    comp = {ch: np.where(np.isfinite(res.predicted[ch]), res.predicted[ch], 0.0) for ch in data.channels}
+    return Replay(comp, rows, res)
+
+
 def run_closed_loop(data: EvaluationData, name: str, budget: ProbingBudget) -> dict[str, Any]:
     """Replay ``data`` through the model ``name``: compensation per channel, its probe rows, the
     probings after calibration (and how many the cap refused), Q_prod after calibration."""
-    from thermal_eval.virtual_experiment import run_virtual_experiment
     kind, config = CLOSED_LOOP[name]
     model = ProbingCap(make_model(kind, config(data, budget)), budget.max_probes_per_h)
-    rec, columns = as_recording(data)
-    res = run_virtual_experiment(rec, model, columns=columns, compute_metrics=False)
-    rows = [int(r) for r in np.searchsorted(data.time_s, np.asarray(res.probe_times_s))]
-    comp = {ch: np.where(np.isfinite(res.predicted[ch]), res.predicted[ch], 0.0) for ch in data.channels}
+    run = replay(data, model)
+    res, rows, comp = run.result, run.probe_rows, run.compensation
     end = model.calibration_end_s
     after = [r for r in rows if end is not None and data.time_s[r] >= end]
     hours = (data.time_s[-1] - end) / 3600.0 if end is not None else 0.0

@@ -45,8 +45,9 @@ from talc_model.load_driven_probing import LoadDrivenProbing
 from talc_model.probe_update import ProbeSchedule
 from talc_model.sensor_selection import sensor_medoids
 
-from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits, mae
-from thermal_eval.closed_loop_rows import hold_probes
+from thermal_eval.fl_thermal_data import (CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits,
+                                          as_evaluation_data, mae)
+from thermal_eval.closed_loop_rows import hold_probes, replay
 from thermal_eval.open_loop_models import GROUP_CANDIDATES
 
 #: One probing every 2 h after calibration (issue 10); 95 s per probing for Q_prod.
@@ -159,8 +160,9 @@ LOAD_PROBING_REPLAYS = ("agp_load_probing",)
 
 def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tuple[str, dict]],
                  show_progress: bool = True) -> tuple[dict, dict[str, dict[str, np.ndarray]], dict[str, list[int]]]:
-    """Replay the whole recording through each adaptive model; MAE of the compensation per split."""
-    from thermal_eval.virtual_experiment import run_virtual_experiment
+    """Replay the whole recording through each adaptive model (the generic replay loop,
+    :func:`thermal_eval.closed_loop_rows.replay`); MAE of the compensation per split."""
+    ed = as_evaluation_data(data, splits)
     figures: dict[str, Any] = {}
     predictions: dict[str, dict[str, np.ndarray]] = {}
     probe_rows: dict[str, list[int]] = {}
@@ -169,17 +171,15 @@ def run_adaptive(data: FlThermalData, splits: Splits, configs: Mapping[str, tupl
         if name in LOAD_PROBING_REPLAYS:
             model = LoadDrivenProbing(model, load_key=SPINDLE_COLUMN, probe_duration_s=PROBE_DURATION_S)
         t0 = time.perf_counter()
-        res = run_virtual_experiment(data.recording, model, columns=_columns(), probed_components=list(CHANNELS),
-                                     progress=show_progress, compute_metrics=False)
+        run = replay(ed, model, show_progress=show_progress)
+        res = run.result
         wall = time.perf_counter() - t0
         fig: dict[str, Any] = {}
-        predictions[name] = {}
+        predictions[name] = run.compensation
         probes = np.asarray(res.probe_times_s)
-        probe_rows[name] = [int(r) for r in np.searchsorted(data.time_s, probes)]
+        probe_rows[name] = run.probe_rows
         for ch in CHANNELS:
-            comp = np.where(np.isfinite(res.predicted[ch]), res.predicted[ch], 0.0)
-            predictions[name][ch] = comp
-            true = data.displacement_um[ch]
+            comp, true = run.compensation[ch], data.displacement_um[ch]
             held = np.nan_to_num(hold_probes(true, probe_rows[name], len(data)))   # hold its own probes
             fig[ch] = {"mae_um": round(mae(true[splits.test], comp[splits.test]), 3),
                        "mae_validation_um": round(mae(true[splits.validation], comp[splits.validation]), 3),

@@ -85,6 +85,13 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f[ch]["hold_last_measurement_mae_um"])
             assert math.isfinite(f[ch]["hold_last_measurement_mae_validation_um"])
         assert 0.0 < f["q_prod_pct"] < 100.0 and f["probing_cycles"] > 0
+    for model in ("arx_subgrid", "lagged_ridge"):     # through the generic adaptive contract (adaptive_eval)
+        f = figures["adaptive"][model]
+        assert f["contract"].startswith("generic adaptive")
+        for ch in CHANNELS:
+            assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["hold_last_measurement_mae_validation_um"])
+        # 4 h after calibration: the budget caps the probings at one per hour
+        assert 0 < f["probings_after_calibration"] <= 4 and f["probings_per_h_after_calibration"] <= 1.0
     for name in ("train_mean", "hold_last_training", "static_ls", "lowpass_ridge"):   # the generic baselines
         assert all(math.isfinite(figures["baselines"][name][ch]["mae_um"]) for ch in CHANNELS)
     assert set(figures["adaptive"]["talc_own_cp"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
