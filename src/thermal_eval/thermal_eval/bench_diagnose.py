@@ -14,17 +14,23 @@ cases, ``unnamed`` on the out-of-vocabulary cases with their held-out improvemen
 diagnosis wall times, two diagnoses with ``calibrate=True`` (calibration and diagnosis wall
 time), and the twin's simulated hours per second of the finder's evaluation.
 
-Then, when the FL_THERMAL CSV is available (``$THERMAL_COMP_SHARED``), the calibration of
-the ``spindle-stand`` preset on it (46 h, 16 sensors, 5 channels; the preset's calibration
-section): wall and CPU time, twin evaluations, simulated hours per second. Every timing
-line carries the machine's load average, because the 2 cores are shared.
+Then, when the FL_THERMAL CSV is available (``$THERMAL_COMP_SHARED``), the diagnosis of the
+``spindle-stand`` preset against the real recording (what ``thermal-comp diagnose --twin
+spindle-stand --recording fl_thermal.csv`` runs) serially and on a local pool of 2 processes
+(wall, CPU of the process and its workers, twin evaluations, the twin's simulated hours per
+second on this recording, and whether the two reports are identical), and the calibration of
+``spindle-stand`` on it (46 h, 16 sensors, 5 channels; the preset's calibration section) on
+the same two engines. Every timing line carries the machine's load average, because the 2
+cores are shared.
 """
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import time
 
+from thermal_comp_common.task_engine import EngineSpec
 from thermal_eval import diagnose_suite
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.mismatch_fit import FitProblem
@@ -66,34 +72,90 @@ def run(args: argparse.Namespace | None = None) -> dict:
     figures[f"{key}.load_average_1min"] = round(os.getloadavg()[0], 1)
     for k, v in figures.items():
         print(f"{k}: {v}", flush=True)
+    figures.update(fl_thermal_diagnosis())
     figures.update(fl_thermal_calibration())
     if not quick:
         figures.update(run_suite(spec, rec))
     return figures
 
 
-def fl_thermal_calibration() -> dict:
-    """Calibration of spindle-stand on the real FL_THERMAL recording (skipped, with a line
-    saying so, when the CSV is not available)."""
+def _timed(fn):
+    """(result, wall s, CPU s of this process and of the workers it joined)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    ch0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    out = fn()
+    ch1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = time.process_time() - c0 + (ch1.ru_utime + ch1.ru_stime) - (ch0.ru_utime + ch0.ru_stime)
+    return out, time.perf_counter() - t0, cpu
+
+
+def _fl_thermal_recording():
+    """The real FL_THERMAL recording, or None (with a line saying why) when it is absent."""
     from thermal_eval.fl_thermal_data import FlThermalError, default_csv_path
-    from thermal_twin.calibration import calibrate
     from thermal_twin.column_mapping import parse_mapping, read_real_recording
-    key = "diagnose.calibrate.fl_thermal"
     try:
         csv = default_csv_path()
     except FlThermalError as exc:
-        print(f"{key}: skipped ({exc})", flush=True)
+        print(f"diagnose.fl_thermal: skipped ({exc})", flush=True)
+        return None
+    return read_real_recording(str(csv), parse_mapping(None, []), "temperatures", "errors/ground_truth")
+
+
+def _timeless(x):
+    if isinstance(x, dict):
+        return {k: _timeless(v) for k, v in x.items() if k not in ("wall_s", "simulated_h_per_s")}
+    if isinstance(x, list):
+        return [_timeless(v) for v in x]
+    return x
+
+
+ENGINES = (("serial", EngineSpec("local", workers=1)), ("local2", EngineSpec("local", workers=2)))
+
+
+def fl_thermal_diagnosis() -> dict:
+    """``diagnose --twin spindle-stand`` on the real FL_THERMAL recording, serial and on 2
+    local processes: wall, CPU (with the workers'), twin evaluations and twin h/s."""
+    rec = _fl_thermal_recording()
+    if rec is None:
         return {}
-    rec = read_real_recording(str(csv), parse_mapping(None, []), "temperatures", "errors/ground_truth")
-    t0, c0 = time.perf_counter(), time.process_time()
-    r = calibrate("spindle-stand", rec)
-    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-    figures = {f"{key}.free_parameters": len(r.estimates), f"{key}.channels": len(r.channels),
-               f"{key}.wall_s": round(wall, 2), f"{key}.cpu_s": round(cpu, 2),
-               f"{key}.twin_evaluations": r.n_evals,
-               f"{key}.twin_simulated_h_per_s": round(r.simulated_h / max(wall, 1e-9), 0),
-               f"{key}.cost_reduction_pct": round(100.0 * (1.0 - r.cost_after / max(r.cost_before, 1e-300)), 1),
-               f"{key}.status": r.status, f"{key}.load_average_1min": round(os.getloadavg()[0], 1)}
+    key = "diagnose.fl_thermal.spindle-stand"
+    figures: dict = {f"{key}.rows": len(rec)}
+    reports = []
+    for name, engine in ENGINES:
+        d, wall, cpu = _timed(lambda: diagnose("spindle-stand", rec, engine=engine))
+        reports.append(_timeless(d.report))
+        figures.update({f"{key}.{name}.wall_s": round(wall, 2), f"{key}.{name}.cpu_s": round(cpu, 2),
+                        f"{key}.{name}.load_average_1min": round(os.getloadavg()[0], 1)})
+        figures[f"{key}.twin_evaluations"] = d.report["simulations"]
+        figures[f"{key}.answer"] = d.report["answer"]
+    figures[f"{key}.identical_reports"] = reports[0] == reports[1]
+    figures[f"{key}.twin_simulated_h_per_s"] = round(
+        twin_hours_per_s(load_machine("spindle-stand").to_dict(), rec), 0)
+    for k, v in figures.items():
+        print(f"{k}: {v}", flush=True)
+    return figures
+
+
+def fl_thermal_calibration() -> dict:
+    """Calibration of spindle-stand on the real FL_THERMAL recording, serial and on 2 local
+    processes (skipped, with a line saying so, when the CSV is not available)."""
+    from thermal_twin.calibration import calibrate
+    rec = _fl_thermal_recording()
+    if rec is None:
+        return {}
+    key = "diagnose.calibrate.fl_thermal"
+    figures: dict = {}
+    answers = []
+    for name, engine in ENGINES:
+        r, wall, cpu = _timed(lambda: calibrate("spindle-stand", rec, engine=engine))
+        answers.append(([e.as_dict() for e in r.estimates], r.cost_after))
+        figures.update({f"{key}.{name}.wall_s": round(wall, 2), f"{key}.{name}.cpu_s": round(cpu, 2),
+                        f"{key}.{name}.twin_simulated_h_per_s": round(r.simulated_h / max(wall, 1e-9), 0),
+                        f"{key}.{name}.load_average_1min": round(os.getloadavg()[0], 1)})
+    figures.update({f"{key}.free_parameters": len(r.estimates), f"{key}.channels": len(r.channels),
+                    f"{key}.twin_evaluations": r.n_evals,
+                    f"{key}.cost_reduction_pct": round(100.0 * (1.0 - r.cost_after / max(r.cost_before, 1e-300)), 1),
+                    f"{key}.status": r.status, f"{key}.identical_estimates": answers[0] == answers[1]})
     for k, v in figures.items():
         print(f"{k}: {v}", flush=True)
     return figures
