@@ -1,0 +1,148 @@
+"""TALC with the machine type's prior on every load case, beside probe-and-hold (issue 22 item 4).
+
+``python -m thermal_eval.prior_cases [--case C ...] [--set key=value ...] [--json OUT]`` replays
+each case on **unit #1** (seed 0, Table 5.4 probe noise and resolution) with TALC started from a
+prior of the NOMINAL type, built from the training programmes of ``thermal-comp prior``
+(prior_cli.TRAINING_SCENARIOS, seeds 101, 102, ...) without the evaluated programme; the demo's
+talc-178h-dry is in none of them, so its prior is the demo's. Every result is printed beside
+probe-and-hold at the model's own Q_prod (ratio = P99_lin / probe-and-hold's; goal <= 0.5). The
+table of docs/talc.md ("What limits the models") is this module's output.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+import sys
+import time
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+CASES = ["load-case-A", "load-case-B", "load-case-C", "load-case-D", "talc-178h-dry", "talc-144h-mwf"]
+PLANT_UNIT = 1
+RUN_SEED = 0
+
+
+def shipped_config() -> dict[str, Any]:
+    """The demo's TALC configuration (talc_nmv5000.yaml)."""
+    from thermal_comp.prior_cli import default_config
+    return default_config("nmv5000", "talc")
+
+
+def prior_training(case: str) -> list[tuple[str, int]]:
+    """(programme, seed) of the prior for ``case``: the default training programmes without it."""
+    from thermal_comp.prior_cli import SEED_BASE, TRAINING_SCENARIOS
+    names = [s for s in TRAINING_SCENARIOS["talc"]["nmv5000"] if s != case]
+    return [(s, SEED_BASE + i) for i, s in enumerate(names)]
+
+
+def _simulate(machine, scenario: str, seed: int, cache: dict):
+    from thermal_twin.scenarios import make_timeline
+    from thermal_twin.simulate import simulate
+    key = ("nominal" if isinstance(machine, str) else f"unit {PLANT_UNIT}", scenario, seed)
+    if key not in cache:
+        cache[key] = simulate(machine, make_timeline("nmv5000", scenario, seed=seed), seed=seed).to_recording()
+    return cache[key]
+
+
+def error_location(result, components: Sequence[str], top: int = 5) -> list[dict[str, Any]]:
+    """Where the largest residuals sit: per component the hours of its ``top`` largest |residual|
+    (rows at least an hour apart), with the phase there."""
+    t_h = np.asarray(result.time_s, float) / 3600.0
+    out = []
+    for c in components:
+        r = np.abs(np.asarray(result.residual[c], float))
+        order = np.argsort(-np.where(np.isfinite(r), r, -1.0))
+        picked: list[int] = []
+        for i in order:
+            if all(abs(t_h[i] - t_h[j]) >= 1.0 for j in picked):
+                picked.append(int(i))
+            if len(picked) >= top:
+                break
+        out.append({"component": c, "peaks": [(round(float(t_h[i]), 1), round(float(r[i]), 2), result.phase[i])
+                                              for i in picked]})
+    return out
+
+
+def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
+             prior_overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """One case: build the prior (nominal type, other programmes), replay unit #1, and the
+    figures beside probe-and-hold at the same Q_prod."""
+    from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
+    from thermal_eval.baseline_beside import beside_probe_and_hold
+    from thermal_eval.replay_summary import PROBE_RESOLUTION_UM, probe_noise
+    from thermal_eval.virtual_experiment import run_virtual_experiment
+    from thermal_twin.machine_instance import machine_instance
+    cache = {} if cache is None else cache
+    train = prior_training(case)
+    recs = [_simulate("nmv5000", s, seed, cache) for s, seed in train]
+    prior = build_talc_prior(recs, config, machine="nmv5000", sources=training_labels(train),
+                             **dict(prior_overrides or {}))
+    run = _simulate(machine_instance("nmv5000", PLANT_UNIT), case, RUN_SEED, cache)
+    model = talc_with_prior(config, prior)
+    noise = probe_noise(model.component_names)
+    t0 = time.perf_counter()
+    result = run_virtual_experiment(run, model, probe_noise_um=noise, probe_resolution_um=PROBE_RESOLUTION_UM,
+                                    seed=RUN_SEED, compute_metrics=False)
+    wall = time.perf_counter() - t0
+    status = model.status(float(result.time_s[-1]))
+    figures, _ = beside_probe_and_hold(result, status.q_prod_pct, noise, PROBE_RESOLUTION_UM)
+    whole = figures["whole_run"]
+    return {"case": case, "prior_training": training_labels(train), "q_prod_pct": status.q_prod_pct,
+            "no_good_phases": status.no_good_phases, "probing_cycles": status.probing_cycles,
+            "parameter_updates": status.parameter_updates,
+            "p99_lin_um": whole["model"]["p99_lin_um"], "p99_ang_um_per_m": whole["model"]["p99_ang_um_per_m"],
+            "components": {c: v["p99"] for c, v in whole["model"]["components"].items()},
+            "probe_and_hold_p99_lin_um": whole["probe_and_hold"]["p99_lin_um"],
+            "probe_and_hold_p99_ang_um_per_m": whole["probe_and_hold"]["p99_ang_um_per_m"],
+            "ratio": whole["p99_lin_ratio"], "replay_wall_s": wall,
+            "no_good_at_h": [round(e["t_s"] / 3600.0 - result.time_s[0] / 3600.0, 1)
+                             for e in model.events if e.get("event") == "no_good"],
+            "largest_residuals": error_location(result, model.component_names)}
+
+
+def format_row(r: Mapping[str, Any]) -> str:
+    return (f"{r['case']:<15} P99_lin {r['p99_lin_um']:5.2f} um  P99_ang {r['p99_ang_um_per_m']:5.2f} um/m  "
+            f"Q_prod {r['q_prod_pct']:6.2f} %  NG {r['no_good_phases']:2d}  probe-and-hold "
+            f"{r['probe_and_hold_p99_lin_um']:5.2f} um / {r['probe_and_hold_p99_ang_um_per_m']:5.2f} um/m  "
+            f"ratio {r['ratio']:.2f}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    from thermal_eval.replay_summary import ReplayInputError, parse_overrides
+    p = argparse.ArgumentParser(prog="python -m thermal_eval.prior_cases", description=__doc__.split("\n\n")[0])
+    p.add_argument("--case", action="append", choices=CASES, help="a case (repeatable; default all six)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a key of the shipped TALC configuration (YAML value)")
+    p.add_argument("--prior-na-max", type=int, default=1, help="largest n_a of the prior (default 1)")
+    p.add_argument("--json", type=pathlib.Path, help="write every figure here")
+    p.add_argument("--detail", action="store_true", help="also print no-good times and the largest residuals")
+    args = p.parse_args(argv)
+    try:
+        overrides = parse_overrides(args.set)
+    except ReplayInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    config = shipped_config()
+    config.update(overrides)
+    cache: dict = {}
+    rows = []
+    for case in args.case or CASES:
+        r = run_case(case, config, cache, {"na_max": args.prior_na_max})
+        rows.append(r)
+        print(format_row(r), flush=True)
+        if args.detail:
+            print(f"    no-good phases at h: {r['no_good_at_h']}")
+            for loc in r["largest_residuals"]:
+                print(f"    {loc['component']}: " + ", ".join(f"{h} h {v} ({ph[:4]})" for h, v, ph in loc["peaks"]))
+    worst = max((r["ratio"] for r in rows if math.isfinite(r["ratio"])), default=math.nan)
+    print(f"worst ratio {worst:.2f} (goal <= 0.5); lowest Q_prod {min(r['q_prod_pct'] for r in rows):.2f} %")
+    if args.json:
+        args.json.write_text(json.dumps({"config_overrides": overrides, "rows": rows}, indent=1, default=str) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
