@@ -105,3 +105,59 @@ def observer_update(a: np.ndarray, p_post: np.ndarray, steps: int, innovation: f
     post = i_kh @ prior @ i_kh.T + noise_var * np.outer(k, k)   # Joseph form: any gain_scale
     post = 0.5 * (post + post.T)
     return k * innovation, post
+
+
+def observer_predictions(model, u: np.ndarray, y: np.ndarray, start: int, measured: np.ndarray,
+                         noise_var: float, window: int, gain_scale: float = 1.0,
+                         p_start: np.ndarray | None = None) -> np.ndarray:
+    """TALC's predictor with the observer state update, offline: predictions for k = start ..
+    N-1 of ``model`` (a :class:`talc_model.arx.ArxModel`) fed back on their own between the
+    ``measured`` samples; at a measured sample its prediction is recorded, then the state is
+    corrected by :func:`observer_update` (innovation window of ``window`` probes, covariance
+    matching as in ``TalcModel._observe``). ``y[:start]`` is the initial history, known to the
+    probe noise (as after TALC's first fit). NaN before ``start``. The same predictor the
+    online loop runs, so candidate models are ranked by what the loop will do with them."""
+    from scipy import signal   # the segments between probes are IIR filters, as ArxModel.simulate
+
+    u = np.asarray(u, float)
+    if u.ndim == 1:
+        u = u[:, None]
+    n = u.shape[0]
+    o = model.orders
+    if start < o.max_lag:
+        raise ObserverError(f"observer_predictions: start {start} is before the model's largest lag {o.max_lag}")
+    if window < 1:
+        raise ObserverError(f"observer_predictions: window {window!r} must be >= 1")
+    x = np.full(n, np.nan)
+    x[:start] = np.asarray(y, float)[:start]
+    bu = model.input_part(u)
+    pred = np.full(n, np.nan)
+    na = o.na
+    den = np.concatenate(([1.0], model.a))
+    meas = np.asarray(measured, bool)
+    meas_idx = [int(k) for k in np.flatnonzero(meas[start:]) + start if math.isfinite(y[k])]
+    k_last = start - 1
+    p = noise_var * np.eye(na) if p_start is None else np.array(p_start, float).reshape(na, na)
+    recent: list[float] = []
+    probes = set(meas_idx)
+    s0 = start
+    for s1 in meas_idx + ([n - 1] if not meas_idx or meas_idx[-1] != n - 1 else []):
+        if s1 < s0:
+            continue
+        if na == 0:
+            pred[s0:s1 + 1] = bu[s0:s1 + 1]
+        else:
+            zi = signal.lfiltic([1.0], den, x[s0 - na:s0][::-1])
+            pred[s0:s1 + 1], _ = signal.lfilter([1.0], den, bu[s0:s1 + 1], zi=zi)
+        x[s0:s1 + 1] = pred[s0:s1 + 1]
+        s0 = s1 + 1
+        if s1 not in probes or not math.isfinite(pred[s1]) or na == 0:
+            continue
+        innovation = float(y[s1] - pred[s1])
+        ms = float(np.mean(np.square(recent[-(window - 1):] + [innovation]))) if window > 1 else innovation ** 2
+        corr, p = observer_update(model.a, p, s1 - k_last, innovation, ms, noise_var, gain_scale)
+        lo = max(0, s1 - na + 1)
+        x[lo:s1 + 1] += corr[: s1 + 1 - lo][::-1]
+        k_last = s1
+        recent = (recent + [innovation])[-window:]
+    return pred

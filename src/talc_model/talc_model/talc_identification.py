@@ -13,6 +13,7 @@ import numpy as np
 
 from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION
 from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, check_full_rank, fit_arx, regression_matrix
+from talc_model.arx_observer import observer_predictions
 from talc_model.blas_threads import single_thread_blas
 from talc_model.order_selection import select_orders
 
@@ -257,7 +258,8 @@ class TalcIdentification:
 
     def _predictor_error(self, model: ArxModel, j: int, t_s: float) -> float:
         """Weighted RMS of the TALC predictor's residuals at the measured samples of the
-        history (between measurements the model runs on its own predictions)."""
+        history (between measurements the model runs on its own predictions; a measurement
+        updates its state as the loop does: the observer, or the thesis's replacement)."""
         g = self.grid
         y, m = self._training_outputs(j)
         finite = np.flatnonzero(np.isfinite(y))
@@ -266,7 +268,12 @@ class TalcIdentification:
         start = max(int(finite[0]) + model.orders.max_lag, model.orders.max_lag, 1)
         if start >= g.n:
             return math.inf
-        pred = model.simulate(g.u[: g.n], y, start, measured=m, y_measured=y)
+        if self.config.state_update == "observer":
+            name = self.component_names[j]
+            pred = observer_predictions(model, g.u[: g.n], y, start, m, self._probe_noise_var(name),
+                                        max(1, self.config.uncertainty_window), self._gain_scale(j))
+        else:
+            pred = model.simulate(g.u[: g.n], y, start, measured=m, y_measured=y)
         w = self._weights(t_s, m)
         sel = m.copy()
         sel[:start] = False

@@ -9,7 +9,7 @@ import pytest
 
 from talc_model.adaptive_model import PHASE_COMPENSATION
 from talc_model.arx import ArxModel, ArxOrders
-from talc_model.arx_observer import K_MIN, ObserverError, companion, observer_update
+from talc_model.arx_observer import K_MIN, ObserverError, companion, observer_predictions, observer_update
 from talc_model.talc import TalcModel
 
 STEP = 300.0
@@ -112,3 +112,45 @@ def test_observer_state_round_trips():
     assert back.observer["E_X0C"][0] == m.observer["E_X0C"][0]
     assert np.allclose(back.observer["E_X0C"][1], m.observer["E_X0C"][1])
     assert np.allclose(back.grid.x[: back.grid.n], m.grid.x[: m.grid.n], equal_nan=True)
+
+
+@pytest.mark.parametrize("poles", [(0.97,), POLES])
+def test_offline_observer_predictor_is_the_online_loop(poles):
+    """observer_predictions (what update acceptance ranks candidate models by) gives, at every
+    probe, the prediction the online loop had before that probe."""
+    model, plant = _arx(poles, 3.0), _arx(poles, 4.0)
+    _, _, m = _run(model, plant, "observer", hours=48.0)
+    g = m.grid
+    # the online loop's predictions before each probe: re-run it and read x before the update
+    online = []
+    amb = _ambient(48.0)
+    cfg = dict(m.config.as_dict())
+    twin = TalcModel(cfg)
+    twin.models = {"E_X0C": model}
+    twin.phase = PHASE_COMPENSATION
+    for k in range(amb.size):
+        twin.update_inputs(k * STEP, {"amb": float(amb[k])}, {})
+        v, _ = twin.predict(k * STEP)
+        if g.measured[k, 0]:
+            online.append(v["E_X0C"])
+            twin.add_measurement(k * STEP, {"E_X0C": float(g.y[k, 0]) - v["E_X0C"]}, {"E_X0C": v["E_X0C"]})
+    lag = model.orders.max_lag      # the loop's history before its start: zeros, known exactly
+    u = np.concatenate([np.zeros((lag, 1)), g.u[: g.n]])
+    y = np.concatenate([np.zeros(lag), g.y[: g.n, 0]])
+    meas = np.concatenate([np.zeros(lag, bool), g.measured[: g.n, 0]])
+    pred = observer_predictions(model, u, y, lag, meas, 0.25 ** 2, m.config.uncertainty_window,
+                                p_start=np.zeros((model.orders.na,) * 2))
+    assert len(online) > 20
+    assert np.allclose(pred[meas], online, atol=1e-9)
+
+
+def test_update_acceptance_ranks_by_the_observer_predictor():
+    """With the observer, the replacement predictor's ranking is not what the loop does: for an
+    n_a = 2 model the replacement's error at the probes is far larger than the observer's."""
+    model = _arx(POLES, 3.0)
+    _, _, m = _run(model, _arx(POLES, 4.0), "observer", hours=48.0)
+    m.t_last_update = None
+    err_obs = m._predictor_error(model, 0, 48.0 * 3600.0)
+    m.config.state_update = "replace"
+    err_rep = m._predictor_error(model, 0, 48.0 * 3600.0)
+    assert math.isfinite(err_obs) and err_obs < 0.5 * err_rep
