@@ -336,12 +336,20 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
     hi = np.array([p.hi for p in c.params])
     scale = np.maximum(np.abs([p.x0 for p in c.params]), 1e-3 * (hi - lo))
 
+    seen: dict[bytes, np.ndarray] = {}
+
     def fun(v):
-        try:
-            y = problem.outputs(c.apply(base_spec, v), stop=nt)
-        except MachineSpecError:
-            return np.full(problem.train_residual(y0_full).size, 1e6)
-        return problem.train_residual(y).ravel()
+        # the optimiser starts by evaluating the best start value again: one twin run saved
+        key = np.asarray(v, dtype=float).tobytes()
+        if key not in seen:
+            if len(seen) >= 8:          # the starts are what is evaluated again; keep memory small
+                seen.clear()
+            try:
+                y = problem.outputs(c.apply(base_spec, v), stop=nt)
+                seen[key] = problem.train_residual(y).ravel()
+            except MachineSpecError:
+                seen[key] = np.full(problem.train_residual(y0_full).size, 1e6)
+        return seen[key]
 
     best = None
     for s in _starts(c):
