@@ -23,6 +23,7 @@ observable model), whatever n_a. No rclpy here.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -34,6 +35,15 @@ K_MIN = 0.2
 
 class ObserverError(ValueError):
     """Bad input to the ARX observer; the message names the argument and value."""
+
+
+@dataclass(frozen=True)
+class ObserverScoring:
+    """Score candidate models with the observer predictor (:func:`observer_predictions`):
+    the probe's noise variance and TALC's innovation window."""
+
+    noise_var: float
+    window: int
 
 
 def companion(a: np.ndarray) -> np.ndarray:

@@ -43,6 +43,7 @@ from threadpoolctl import ThreadpoolController
 
 from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, as_finite_input_matrix, fit_arx, input_gains_admissible
 from talc_model.arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
+from talc_model.arx_observer import ObserverScoring, observer_predictions
 
 CRITERIA = ("mdl", "mdl_as_printed", "aic", "bic")
 
@@ -87,8 +88,10 @@ class OrderSelection:
 
 
 def _validation_residuals(model: ArxModel, y: np.ndarray, u: np.ndarray, split: int,
-                          scored: np.ndarray, state_updates: bool = False) -> np.ndarray:
-    if state_updates:   # the TALC predictor: measured outputs replace predictions
+                          scored: np.ndarray, state_updates: bool | ObserverScoring = False) -> np.ndarray:
+    if isinstance(state_updates, ObserverScoring):   # TALC's predictor with its observer update
+        pred = observer_predictions(model, u, y, split, scored, state_updates.noise_var, state_updates.window)
+    elif state_updates:   # the thesis's TALC predictor: measured outputs replace predictions
         pred = model.simulate(u, y, split, measured=scored, y_measured=y)
     else:               # pure simulation mode from the end of the training part
         pred = model.simulate(u, y, split)
@@ -135,7 +138,7 @@ class _ScoringProblem:
     start: int                   # first training row (largest lag of the largest orders)
     split: int                   # training rows [start, split), validation from split on
     scored: np.ndarray           # validation residuals are scored where True
-    state_updates: bool
+    state_updates: bool | ObserverScoring
     criterion: str
     margin: float                # poles must lie within radius 1 - margin
     real_positive_poles: bool
@@ -316,7 +319,10 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
     faster input change than any it was fitted on.
     ``state_updates``: validate with the TALC predictor (measured outputs replace the
     predictions, scored at the next measured samples) instead of pure simulation; this is
-    how the model is used between sparse measurements after the calibration phase.
+    how the model is used between sparse measurements after the calibration phase. An
+    :class:`~talc_model.arx_observer.ObserverScoring` instead corrects the state at each
+    measured sample by TALC's observer (the loop's update); those candidates are scored one
+    by one (the observer's covariance recursion is not batched).
     Raises :class:`RankDeficientError` if no candidate is identifiable.
 
     Candidates are scored in batches (:mod:`talc_model.arx_batch`, ``_batched``); the
@@ -331,6 +337,7 @@ def _select_orders(y: np.ndarray, u: np.ndarray, na_range: tuple[int, int], nb_r
                                max_input_gain_ratio=max_input_gain_ratio)
     y, u, start, margin = problem.y, problem.u, problem.start, problem.margin
     r = u.shape[1]
+    _batched = _batched and not isinstance(state_updates, ObserverScoring)
     reference = _PerCandidateScorer(problem)
     scorer = _BatchedScorer(problem) if _batched else reference
     cache: dict[tuple, float] = {}      # the candidates the search asked for, in that order

@@ -13,7 +13,7 @@ import numpy as np
 
 from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION
 from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, check_full_rank, fit_arx, regression_matrix
-from talc_model.arx_observer import observer_predictions
+from talc_model.arx_observer import ObserverScoring, observer_predictions
 from talc_model.blas_threads import single_thread_blas
 from talc_model.order_selection import select_orders
 
@@ -116,7 +116,7 @@ class TalcIdentification:
             first = int(np.flatnonzero(np.isfinite(y))[0]) if np.any(np.isfinite(y)) else 0
             w = self._weights(t_s, m)
             try:
-                sel = self._select_one(y, m, w, first, nb_max)
+                sel = self._select_one(y, m, w, first, nb_max, self._scoring(name))
             except RankDeficientError as exc:
                 if failures is None or name not in self.models:
                     raise
@@ -126,7 +126,19 @@ class TalcIdentification:
         self.nb_max_selected = nb_max
         return models
 
-    def _select_one(self, y: np.ndarray, m: np.ndarray, w: np.ndarray, first: int, nb_max: int):
+    def _scoring(self, name: str) -> bool | ObserverScoring:
+        """How order selection validates candidates of component ``name``: pure simulation in the
+        calibration phase or without ``select_with_state_updates``, else with the state update
+        the loop runs (the observer, or the thesis's replacement)."""
+        c = self.config
+        if self.phase == PHASE_CALIBRATION or not c.select_with_state_updates:
+            return False
+        if c.state_update == "observer":
+            return ObserverScoring(self._probe_noise_var(name), max(1, c.uncertainty_window))
+        return True
+
+    def _select_one(self, y: np.ndarray, m: np.ndarray, w: np.ndarray, first: int, nb_max: int,
+                    scoring: bool | ObserverScoring = False):
         """Order selection on the inputs that have varied on the training part of the split;
         the others get n_b = 0 in the returned model (see ``min_input_range``)."""
         c = self.config
@@ -136,7 +148,7 @@ class TalcIdentification:
                             nk=c.nk, intercept=c.intercept, criterion=c.criterion,
                             train_fraction=c.train_fraction, weights=w[first:],
                             measured=m[first:], exhaustive_limit=c.order_search_exhaustive_limit,
-                            state_updates=self.phase != PHASE_CALIBRATION and c.select_with_state_updates,
+                            state_updates=scoring,
                             max_pole_radius=self._max_pole_radius(),
                             real_positive_poles=c.real_positive_poles,
                             max_input_gain_ratio=c.max_input_gain_ratio)

@@ -154,3 +154,39 @@ def test_update_acceptance_ranks_by_the_observer_predictor():
     m.config.state_update = "replace"
     err_rep = m._predictor_error(model, 0, 48.0 * 3600.0)
     assert math.isfinite(err_obs) and err_obs < 0.5 * err_rep
+
+
+def test_order_selection_can_score_with_the_observer():
+    """select_with_state_updates scores candidates with the loop's observer predictor: the
+    selection equals the per-candidate reference, and its validation RMS is the observer's,
+    not the replacement's."""
+    from talc_model.arx_observer import ObserverScoring
+    from talc_model.order_selection import _select_orders_reference, select_orders
+    amb = _ambient(120.0)
+    plant = _arx(POLES, 4.0)
+    y = plant.simulate(amb[:, None], np.zeros(2), 2)
+    y[:2] = 0.0
+    y = y + np.random.default_rng(1).normal(0.0, 0.25, y.size)
+    measured = np.zeros(y.size, bool)
+    measured[::24] = True
+    kw = dict(measured=measured, max_pole_radius=0.9995)
+    obs = ObserverScoring(0.25 ** 2, 10)
+    a = select_orders(y, amb, (1, 3), (1, 4), state_updates=obs, **kw)
+    b = _select_orders_reference(y, amb, (1, 3), (1, 4), state_updates=obs, **kw)
+    rep = select_orders(y, amb, (1, 3), (1, 4), state_updates=True, **kw)
+    assert a.orders == b.orders and a.score == pytest.approx(b.score)
+    assert a.validation_rms != pytest.approx(rep.validation_rms, rel=1e-3)
+
+
+def test_talc_selects_with_the_state_update_it_runs():
+    base = {"component_names": ["E_X0C"], "angular_components": [], "input_names": ["amb"],
+            "select_with_state_updates": True}
+    from talc_model.arx_observer import ObserverScoring
+    m = TalcModel(base)
+    assert m._scoring("E_X0C") is False                 # calibration phase: pure simulation
+    m.phase = PHASE_COMPENSATION
+    assert m._scoring("E_X0C") == ObserverScoring(0.25 ** 2, m.config.uncertainty_window)
+    assert TalcModel({**base, "state_update": "replace"}, )._scoring("E_X0C") is False
+    r = TalcModel({**base, "state_update": "replace"})
+    r.phase = PHASE_COMPENSATION
+    assert r._scoring("E_X0C") is True
