@@ -80,3 +80,17 @@ def test_calibrate_first_and_calibrate_give_the_same_answer_on_two_processes(rec
     b = calibrate(SPEC, recording, max_nfev=6, engine=EngineSpec("local", workers=2))
     assert [e.as_dict() for e in a.estimates] == [e.as_dict() for e in b.estimates]
     assert (a.n_evals, a.cost_after, a.simulated_h) == (b.n_evals, b.cost_after, b.simulated_h)
+
+
+@pytest.mark.parametrize("flags, named", [(["--jobs", "0"], "--jobs: 0"),
+                                          (["--address", "tcp://host:8786"], "address: 'tcp://host:8786'"),
+                                          (["--engine", "dask", "--address", "host:8786"], "address: 'host:8786'")])
+def test_bad_engine_options_give_one_line_naming_the_option(flags, named, tmp_path, capsys):
+    from thermal_twin.calibrate_cli import main as calibrate_main
+    from thermal_twin.diagnose_cli import main as diagnose_main
+    common = ["--twin", "spindle-stand", "--recording", str(tmp_path / "rec.csv")]
+    assert diagnose_main(common + ["--out", str(tmp_path / "d"), *flags]) == 1
+    assert calibrate_main(common + ["--out", str(tmp_path / "c"), *flags]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(named in line for line in err), err
+    assert not (tmp_path / "d").exists() and not (tmp_path / "c").exists()
