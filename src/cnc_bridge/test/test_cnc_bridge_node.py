@@ -154,6 +154,8 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
             assert msg.applied[z] and msg.compensation_enabled
             applied_z.append(msg.applied_offsets_um[z])
             flags_z.append(msg.limits_hit[z])
+        # the SimSync of an instant comes after its audit lines are on disk (no waiting here)
+        assert len([r for r in read_audit_log(audit) if not r["note"]]) == 5 * 3
         # first instant: no time passed; then 0.5 um/s * 10 s per step, clamped at 15 um
         assert applied_z == pytest.approx([0.0, 5.0, 10.0, 15.0, 15.0])
         assert flags_z[1] == 3 and flags_z[4] == 1     # absolute|rate, then absolute only
@@ -175,7 +177,11 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
         msg = cell.offsets[-1]
         z = msg.axis_names.index("Z")
         assert msg.applied_offsets_um[z] == pytest.approx(5.0) and msg.limits_hit[z] == 4
-        rows = [r for r in read_audit_log(audit) if not r["note"]]      # the writes
+        # the writes: the audit line of a write follows its offsets message (it is on disk
+        # before the lock-step acknowledgement; the watchdog's write at 200 s has none)
+        writes = lambda: [r for r in read_audit_log(audit) if not r["note"]]   # noqa: E731
+        cell.spin_until(lambda: len(writes()) >= 8 * 3, 15, "the audit line of the last write")
+        rows = writes()
         assert len(rows) == 8 * 3 and {r["axis"] for r in rows} == {"X", "Y", "Z"}
     finally:
         cell.close()
