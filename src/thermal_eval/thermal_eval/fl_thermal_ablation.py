@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import copy
 import time
-from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -31,75 +30,27 @@ from thermal_twin.mismatch_diagnosis import diagnose, shared_channels
 from thermal_twin.mismatch_fit import FitProblem
 from thermal_comp_common.recording_csv import Recording
 from thermal_eval.fl_thermal_data import default_csv_path
-
-
-@dataclass(frozen=True)
-class Mechanism:
-    label: str
-    expect: str                        # effect:target the finder should name first
-    param: str                         # the fitted parameter compared with the calibrated value
-    remove: Callable[[dict], float]    # removes the mechanism in place, returns its reference value
-
-
-def _drop_override(spec: dict, name: str) -> None:
-    """A removed parameter leaves the twin's calibration section too (else the ablated
-    description names a parameter it no longer has and is invalid)."""
-    (spec.get("calibration") or {}).get("parameters", {}).pop(name, None)
-
-
-def _bearing(spec: dict, umax: float) -> float:
-    _drop_override(spec, "sources.front_bearing_friction.coefficient")
-    s = spec["sources"].pop("front_bearing_friction")
-    return float(s["coefficient"]) * umax ** float(s.get("exponent", 1.0))
-
-
-def _ambient_link(spec: dict, link: str) -> float:
-    _drop_override(spec, f"links.{link}.conductance")
-    return float(spec["links"].pop(link)["conductance"])
-
-
-def _gain(spec: dict, channel: str, node: str) -> float:
-    _drop_override(spec, f"errors.{channel}.terms.{node}")
-    return float(spec["errors"][channel]["terms"].pop(node))
-
-
-def _lag(spec: dict, sensor: str) -> float:
-    lag = float(spec["sensors"][sensor].get("lag_s", 0.0))
-    spec["sensors"][sensor]["lag_s"] = 0.0
-    return lag
+from thermal_eval.fl_thermal_mechanisms import (Mechanism, all_mechanisms, holdout_by_channel, ratios_by_channel,
+                                                screen, screen_markdown, select)
 
 
 def mechanisms(umax: float, twin: str = "fl-thermal-rig") -> list[Mechanism]:
-    """The removed mechanisms: the speed-driven bearing source, the structure's ambient
-    link, one thermo-elastic term, one sensor's lag (for ``spindle-stand``: those of the
-    first, negative table in docs/diagnose.md)."""
-    link, sensor = ("column_ambient", "t7") if twin == "spindle-stand" else ("headstock_ambient", "t5")
-    node = link.split("_")[0]
-    return [
-        Mechanism("front bearing heat (speed-driven source)", "heat_source:front_bearing", "P_max",
-                  lambda s: _bearing(s, umax)),
-        Mechanism(f"{node}-ambient link (structure)", f"ambient_coupling:{node}", "dG",
-                  lambda s: _ambient_link(s, link)),
-        Mechanism("thermo-elastic gain ch5/headstock", "elastic_gain:ch5_um/headstock", "d_gain",
-                  lambda s: _gain(s, "ch5_um", "headstock")),
-        Mechanism(f"lag of sensor {sensor}", f"time_lag:{sensor}", "tau", lambda s: _lag(s, sensor)),
-    ]
+    """For ``spindle-stand``: the removed mechanisms of the first, negative table in
+    docs/diagnose.md (the bearing source, the column's ambient link, ch5/headstock, t7's lag).
+    Other twins choose theirs by :func:`thermal_eval.fl_thermal_mechanisms.select`."""
+    spec = load_machine(twin).to_dict()
+    by = {m.label: m for m in all_mechanisms(spec, umax)}
+    return [by["source front_bearing_friction (spindle_rpm-driven)"], by["link column_ambient (column-ambient)"],
+            by["thermo-elastic term ch5_um/headstock"], by["lag of sensor t7"]]
 
 
 def _holdout_sse(problem: FitProblem, spec: dict) -> float:
-    return float(np.sum(_holdout_by_channel(problem, spec)))
-
-
-def _holdout_by_channel(problem: FitProblem, spec: dict) -> np.ndarray:
-    return np.sum(problem.weighted_residual(problem.outputs(spec), problem.n_train) ** 2, axis=1)
+    return float(np.sum(holdout_by_channel(problem, spec)))
 
 
 def most_changed(problem: FitProblem, spec_a: dict, spec_b: dict, k: int = 4) -> list[tuple[str, float]]:
-    """The k channels whose held-out weighted SSE changes most (ratio b / a, furthest from 1)
-    from ``spec_a`` to ``spec_b``: what the held-out score of a removal is made of."""
-    a, b = _holdout_by_channel(problem, spec_a), _holdout_by_channel(problem, spec_b)
-    ratio = [(c, float(b[i] / a[i])) for i, c in enumerate(problem.channels) if a[i] > 0]
-    return sorted(ratio, key=lambda x: -abs(np.log(max(x[1], 1e-12))))[:k]
+    """The k channels whose held-out weighted SSE changes most from ``spec_a`` to ``spec_b``."""
+    return ratios_by_channel(problem, holdout_by_channel(problem, spec_a), holdout_by_channel(problem, spec_b), k)
 
 
 def _row(mech: Mechanism, ref: float, rep: dict, sse: dict, wall: float) -> dict:
@@ -128,60 +79,96 @@ def _row(mech: Mechanism, ref: float, rep: dict, sse: dict, wall: float) -> dict
             "diagnosis_wall_s": wall}
 
 
-def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
-        twin: str = "fl-thermal-rig") -> dict:
-    """Calibrate ``twin``, then ablate and diagnose each mechanism; returns the table's rows
-    and the calibration's figures."""
-    rec = read_real_recording(str(csv or default_csv_path()), parse_mapping(None, []),
-                              "temperatures", "errors/ground_truth")
+def _calibrated(twin: str, rec: Recording, progress) -> tuple[dict, dict]:
+    """The calibrated twin's description and the calibration's figures."""
     t0 = time.perf_counter()
     cal = calibrate(twin, rec)
-    cal_fig = {"twin": twin, "wall_s": time.perf_counter() - t0, "evaluations": cal.n_evals,
-               "free_parameters": len(cal.estimates), "status": cal.status,
-               "at_bound": [e.param.name for e in cal.estimates if "at bound" in e.flags],
-               "holdout_rmse": {c: (v["holdout_rmse_before"], v["holdout_rmse_after"])
-                                for c, v in cal.channel_table().items()}}
+    fig = {"twin": twin, "wall_s": time.perf_counter() - t0, "evaluations": cal.n_evals,
+           "free_parameters": len(cal.estimates), "status": cal.status,
+           "at_bound": [e.param.name for e in cal.estimates if "at bound" in e.flags],
+           "holdout_rmse": {c: (v["holdout_rmse_before"], v["holdout_rmse_after"])
+                            for c, v in cal.channel_table().items()}}
     if progress:
-        progress(f"calibrated {len(cal.estimates)} parameters in {cal_fig['wall_s']:.1f} s")
-    spec_c = cal.spec
+        progress(f"calibrated {len(cal.estimates)} parameters in {fig['wall_s']:.1f} s")
+    return cal.spec, fig
+
+
+def _chosen(problem: FitProblem, spec_c: dict, umax: float, twin: str, at_bound: list[str]) -> tuple[list, list]:
+    """(the screening rows of every mechanism, the mechanisms to diagnose). For
+    ``spindle-stand`` the first table's four; otherwise the selection rule's, then the
+    ch5/headstock term if the rule left it out (it is the term the brief asks about)."""
+    every = all_mechanisms(spec_c, umax)
+    rows = screen(problem, spec_c, every, set(at_bound))
+    if twin == "spindle-stand":
+        return rows, mechanisms(umax, twin)
+    chosen = select(every, rows)
+    extra = [m for m in every if m.label == "thermo-elastic term ch5_um/headstock" and m not in chosen]
+    return rows, chosen + extra
+
+
+def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
+        twin: str = "fl-thermal-rig", only: list[int] | None = None) -> dict:
+    """Calibrate ``twin``, screen every mechanism, then ablate and diagnose the chosen ones
+    and the bearing source on the speedless recording (``only``: those case indices);
+    returns the table's rows, the screening rows and the calibration's figures."""
+    rec = read_real_recording(str(csv or default_csv_path()), parse_mapping(None, []),
+                              "temperatures", "errors/ground_truth")
+    spec_c, cal_fig = _calibrated(twin, rec, progress)
     machine = load_machine(spec_c)
     chans = shared_channels(machine, rec)
     n_train = int(round(len(rec) * (2.0 / 3.0)))
     res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
     problem = FitProblem(rec, chans, n_train, resolution=res)
     umax = float(np.nanmax(np.abs(rec.columns["spindle_rpm"])))
-    rows = []
-    sse_c = _holdout_sse(problem, spec_c)
-    cases = [(m, rec) for m in mechanisms(umax, twin)]
+    screened, chosen = _chosen(problem, spec_c, umax, twin, cal_fig["at_bound"])
     speedless = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "spindle_rpm"},
                           source=rec.source + " (spindle_rpm deleted)")
-    cases.append((mechanisms(umax, twin)[0], speedless))
-    for mech, r in cases:
-        ablated = copy.deepcopy(spec_c)
-        ref = mech.remove(ablated)
-        note = ""
-        if r is speedless:
-            am = load_machine(ablated)
-            r, _, found = fill_missing_inputs(am, r, shared_channels(am, r))
-            note = "; ".join(found)
-        t1 = time.perf_counter()
-        d = diagnose(ablated, r)
-        wall = time.perf_counter() - t1
-        after = d.augmented_spec or ablated
-        # scored on the recording the finder saw (with the estimated speed in the last row)
-        prob = problem if r is rec else FitProblem(r, chans, n_train, resolution=res)
-        sse = {"calibrated": sse_c if r is rec else _holdout_sse(prob, spec_c),
-               "ablated": _holdout_sse(prob, ablated), "after": _holdout_sse(prob, after)}
-        row = _row(mech, ref, d.report, sse, wall)
-        row["recording"] = "speed deleted, estimated" if note else "FL_THERMAL"
-        row["most_changed"] = most_changed(prob, spec_c, ablated)
-        row["note"] = note
+    bearing = next(m for m in chosen if m.expect == "heat_source:front_bearing")
+    cases = [(m, rec) for m in chosen] + [(bearing, speedless)]
+    rows = []
+    for i, (mech, r) in enumerate(cases):
+        if only is not None and i not in only:
+            continue
+        row = _case(mech, r, r is speedless, spec_c, problem, (chans, n_train, res))
+        row["selected_by_rule"] = mech in select(all_mechanisms(spec_c, umax), screened)
         rows.append(row)
         if progress:
             progress(f"{row['mechanism']} [{row['recording']}]: first {row['first']} (expected {row['expected']}), "
                      f"{row['parameter']} {row['fitted']} vs {row['reference']:.4g}, restored "
-                     f"{row['restored_pct']} %, {wall:.0f} s")
-    return {"calibration": cal_fig, "rows": rows}
+                     f"{row['restored_pct']} %, {row['diagnosis_wall_s']:.0f} s")
+    return {"calibration": cal_fig, "screen": screened, "rows": rows}
+
+
+def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: FitProblem, setup) -> dict:
+    """Ablate ``mech`` from ``spec_c``, (estimate the missing speed,) diagnose, score."""
+    chans, n_train, res = setup
+    ablated = copy.deepcopy(spec_c)
+    ref = mech.remove(ablated)
+    note = ""
+    if estimate:
+        am = load_machine(ablated)
+        r, _, found = fill_missing_inputs(am, r, shared_channels(am, r))
+        note = "; ".join(found)
+    t1 = time.perf_counter()
+    d = diagnose(ablated, r)
+    wall = time.perf_counter() - t1
+    after = d.augmented_spec or ablated
+    # scored on the recording the finder saw (with the estimated speed in the last row)
+    prob = problem if not estimate else FitProblem(r, chans, n_train, resolution=res)
+    sse = {"calibrated": _holdout_sse(prob, spec_c), "ablated": _holdout_sse(prob, ablated),
+           "after": _holdout_sse(prob, after)}
+    row = _row(mech, ref, d.report, sse, wall)
+    row["recording"] = "speed deleted, estimated" if estimate else "FL_THERMAL"
+    row["most_changed"] = most_changed(prob, spec_c, ablated)
+    row["note"] = note
+    row["indistinguishable"] = _indistinguishable(d.report)
+    return row
+
+
+def _indistinguishable(report: dict) -> list[str]:
+    """What the finder's report marks as indistinguishable from its first answer."""
+    sel = [] if report["selected"] == "none" else report["selected"]
+    return list(sel[0].get("indistinguishable_from", [])) if sel else []
 
 
 def markdown(result: dict) -> str:
@@ -210,6 +197,8 @@ def markdown(result: dict) -> str:
 if __name__ == "__main__":
     import json
     import sys
-    out = run(twin=sys.argv[1] if len(sys.argv) > 1 else "fl-thermal-rig")
+    only = [int(x) for x in sys.argv[2].split(",")] if len(sys.argv) > 2 else None
+    out = run(twin=sys.argv[1] if len(sys.argv) > 1 else "fl-thermal-rig", only=only)
+    print(screen_markdown(out["screen"]))
     print(markdown(out))
     print(json.dumps(out, indent=1, default=str))

@@ -10,6 +10,9 @@ effect                      edit of the machine description                     
 heat_source                 new ``sources`` entry on a node driven by an input          P_max [W] at the input's
                             (P = P_max (|u|/u_max)^n)                                   maximum, n [-] (speed inputs)
 ambient_coupling            new/changed ``links`` node <-> ambient boundary             dG [W/K]
+conduction                  new ``links`` entry between two nodes that have none, or    G [W/K]
+                            a node and a boundary other than the hall air (a contact,
+                            a cooling jacket the twin lacks)
 time_lag                    sensor: ``lag_s``; error channel: its nodes seen through    tau [s]
                             a small lag node (capacity 1e-3 C, G = C/tau)
 speed_dependent_convection  ``varies_with`` on the node's ambient link,                 dG_max [W/K] at max speed
@@ -36,7 +39,7 @@ from typing import Callable
 
 import numpy as np
 
-EFFECTS = ("heat_source", "ambient_coupling", "time_lag", "speed_dependent_convection", "coolant",
+EFFECTS = ("heat_source", "ambient_coupling", "conduction", "time_lag", "speed_dependent_convection", "coolant",
            "door_event", "sensor_bias", "elastic_gain", "periodic_load", "none")
 
 #: physically plausible ranges used by the plausibility checks
@@ -237,6 +240,28 @@ def ambient_coupling(spec: dict, node: str) -> Candidate:
     return Candidate("ambient_coupling", node, t_amb if isinstance(t_amb, str) else None, params, apply, check)
 
 
+def conduction(spec: dict, a: str, b: str) -> Candidate:
+    """A conduction path between node ``a`` and node or non-ambient boundary ``b`` that the
+    twin has no link for (target ``a/b``)."""
+    params = [ParamSpec("G", "W/K", 0.0, MAX_CONDUCTANCE_W_K * 2, 2.0)]
+
+    def apply(s: dict, v: np.ndarray) -> dict:
+        s["links"][_unique(s, "links", f"mm_{a}_{b}")] = {
+            "between": [a, b], "conductance": float(v[0]), "note": "added by the mismatch finder (conduction)"}
+        return s
+    return Candidate("conduction", f"{a}/{b}", None, params, apply,
+                     _range_check("G", 0, 0.0, MAX_CONDUCTANCE_W_K, "W/K"))
+
+
+def unlinked_pairs(spec: dict) -> list[tuple[str, str]]:
+    """(node, node or non-ambient boundary) pairs without a link, in the description's order."""
+    nodes = list(spec["nodes"])
+    amb = _ambient_boundary(spec)
+    others = nodes + [b for b in spec["boundaries"] if b != amb]
+    linked = {frozenset(d["between"]) for d in spec["links"].values()}
+    return [(a, b) for i, a in enumerate(nodes) for b in others[i + 1:] if frozenset((a, b)) not in linked]
+
+
 def time_lag_sensor(spec: dict, sensor: str) -> Candidate:
     lag0 = float(spec["sensors"][sensor].get("lag_s", 0.0))
     params = [ParamSpec("tau", "s", 1.0, 24 * 3600.0, 1800.0)]
@@ -418,6 +443,8 @@ def candidates(spec: dict, drivers: dict[str, DriverInfo], channels: list[str],
                     if d.kind == "switch" and _is_door(d.name)]
         if "periodic_load" in effects:
             out.append(periodic_load(spec, node))
+    if "conduction" in effects:
+        out += [conduction(spec, a, b) for a, b in unlinked_pairs(spec)]
     if "time_lag" in effects:
         out += [time_lag_sensor(spec, s) for s in sensors]
         out += [time_lag_error(spec, e) for e in errors]
