@@ -74,7 +74,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--score-from-h", type=float, default=None, metavar="H",
                     help="score only the rows from H hours after the first row (a held-out window; "
                          "default: the whole compensation part)")
-    ap.add_argument("--prior", metavar="PRIOR", help="TALC only: start from this prior (thermal-comp prior)")
+    ap.add_argument("--prior", metavar="PRIOR", help="start the model (talc, agp or cd) from this prior of its kind (thermal-comp prior --model KIND, or --from-state of another machine); its model_kind must match --model")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
 
