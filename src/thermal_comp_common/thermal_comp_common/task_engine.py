@@ -10,7 +10,8 @@ Two engines, one contract:
 
 - ``local`` (default): a process pool on this computer (one process when ``workers == 1``);
 - ``dask``: a Dask ``distributed`` cluster, given by its scheduler address (``tcp://host:8786``)
-  or, without an address, a ``LocalCluster`` of ``workers`` single-threaded processes.
+  or, without an address, a ``LocalCluster`` of ``workers`` single-threaded processes set for
+  numpy tasks (:func:`start_local_cluster`).
 
 A worker that dies (killed, out of memory) costs only the tasks it was running: the dask
 scheduler reschedules them on the other workers, the local pool is rebuilt for the unfinished
@@ -179,9 +180,14 @@ def _dask_map(fn, shared, items: list, spec: EngineSpec) -> Iterator[tuple[int, 
 #   then mmap'ed and page-faulted afresh. A sweep replay took ~200,000 minor page faults and 1.4-1.6x
 #   the CPU time of the same replay in the local pool (~12,000 faults); unset, the two are equal.
 # - the statistical profiler samples every worker thread each 10 ms for the dashboard, which this
-#   cluster does not serve; it cost ~0.1 s CPU per ~1 s replay. (docs/distributed.md, "Scale figures")
+#   cluster does not serve; it cost ~0.1 s CPU per ~1 s replay;
+# - the event-loop health tick (20 ms) and the system monitor (0.5 s, dashboard figures) wake every
+#   process of the cluster; at 1 s and 5 s an idle cluster of 2 takes ~0.02 CPU-s per s, not ~0.06.
+#   (docs/distributed.md, "Scale figures")
 LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
-                        "distributed.worker.profile.enabled": False}
+                        "distributed.worker.profile.enabled": False,
+                        "distributed.admin.tick.interval": "1s",
+                        "distributed.admin.system-monitor.interval": "5s"}
 
 
 def start_local_cluster(workers: int, retries: int):
