@@ -13,9 +13,11 @@
   that is configured but not active (lifecycle) never moves the machine. The node adopts
   the held values into its envelope (clamped) and hands the adopted values back
   (:meth:`OpcUaBackend.adopt`), which are what a re-apply writes.
-* **Read-back**: every write is followed by a read of the same nodes; an axis counts as
-  applied only if the value read equals the value written. The backend returns the
-  read-back in um, or None for an axis whose write was not confirmed.
+* **Read-back**: every write is followed by a read of the same nodes, pipelined behind it
+  on the same channel (one WriteRequest of every axis, one ReadRequest: one round trip); an
+  axis counts as applied only if its write status is Good and the value read equals the
+  value written (:meth:`OpcUaBackend._write_and_read`). The backend returns the read-back
+  in um, or None for an axis whose write was not confirmed.
 * **Reconnect**: a supervisor task checks the session, and on any failure disconnects,
   waits with exponential back-off, reconnects, re-creates the subscription on the axis
   positions and re-applies the last confirmed offsets (a CNC that restarted with its
