@@ -23,7 +23,7 @@ from talc_model.adaptive_model import (PHASE_CALIBRATION, PHASE_COMPENSATION, PH
 from talc_model.arx import ArxModel
 from talc_model.arx_observer import observer_update
 from talc_model.blas_threads import single_thread_blas
-from talc_model.talc_config import PRESETS, TalcConfig, parse_input  # noqa: F401 (PRESETS: the old import path)
+from talc_model.talc_config import PRESETS, TalcConfig, input_signal, parse_input  # noqa: F401 (PRESETS, parse_input: old import paths)
 from talc_model.talc_grid import ModelGrid
 from talc_model.talc_identification import TalcIdentification
 
@@ -72,7 +72,6 @@ class TalcModel(TalcIdentification):
         return cls(config)
 
     def _init_grid(self) -> None:
-        self._input_parts = [parse_input(n) for n in self.input_names]
         self.grid = ModelGrid(len(self.input_names), len(self.component_names))
 
     @property
@@ -102,13 +101,8 @@ class TalcModel(TalcIdentification):
         signals = dict(machine_state)
         signals.update(temperatures)
         held = []
-        for name, (a, b) in zip(self.input_names, self._input_parts):
-            va = signals.get(a, math.nan)
-            vb = signals.get(b, 0.0) if b is not None else 0.0
-            try:
-                v = float(va) - float(vb)
-            except (TypeError, ValueError):
-                raise ValueError(f"update_inputs: input '{name}': value {va!r} / {vb!r} is not a number") from None
+        for name in self.input_names:
+            v = input_signal(name, signals)
             if math.isfinite(v):
                 if name not in self.input_ref:
                     self.input_ref[name] = v

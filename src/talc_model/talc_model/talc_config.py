@@ -193,8 +193,28 @@ PRESETS: dict[str, dict[str, Any]] = {
 
 
 def parse_input(name: str) -> tuple[str, str | None]:
-    """'a - b' -> ('a', 'b'); 'a' -> ('a', None)."""
+    """'a - b' -> ('a', 'b'); 'a' -> ('a', None) (one factor of :func:`input_signal`)."""
+    name = name.strip()
+    if name.startswith("(") and name.endswith(")"):
+        name = name[1:-1]
     if " - " in name:
         a, b = name.split(" - ", 1)
         return a.strip(), b.strip()
     return name.strip(), None
+
+
+def input_signal(name: str, signals: Mapping[str, Any]) -> float:
+    """Value of the input ``name`` from the raw ``signals``: a signal ``a``, a difference
+    ``a - b``, or a product of such factors ``f * (a - b)`` (e.g. the MWF flag times the MWF
+    temperature's excess over the hall: the jets' heat flow is on x (T_MWF - T_structure)).
+    NaN if a signal is missing; a bad value raises ValueError naming the input."""
+    value = 1.0
+    for factor in name.split(" * "):
+        a, b = parse_input(factor)
+        va = signals.get(a, math.nan)
+        vb = signals.get(b, 0.0) if b is not None else 0.0
+        try:
+            value *= float(va) - float(vb)
+        except (TypeError, ValueError):
+            raise ValueError(f"update_inputs: input '{name}': value {va!r} / {vb!r} is not a number") from None
+    return value
