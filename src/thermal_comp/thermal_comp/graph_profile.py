@@ -88,19 +88,22 @@ def ack_breakdown(arrivals: dict[tuple[str, int], float], acks: dict[tuple[str, 
             for n, d in delays.items() if d}
 
 
-#: The temperature-to-offsets latency of one instant, in order along its path: (name, how).
+#: The temperature-to-offsets latency of one instant, in order along its path: (name, profile
+#: column). model: temperatures -> errors/predicted publications; DDS hop: that publication ->
+#: the bridge's callback; " of it": parts of the CNC call (round trip on the client's loop,
+#: the rest is the hop between the node's thread and that loop).
 #: From the DDS publication of ``temperatures`` to that of the answering ``offsets``; the
 #: bridge publishes them after the CNC confirmed the write (write status and read-back), and
 #: writes its audit line after that (``audit``, outside the latency, before the lock-step ack).
 LATENCY_PARTS = (
-    ("temperatures -> prediction (DDS hop, model step)", None),
-    ("prediction -> bridge callback (DDS hop, executor)", None),
-    ("parse + eq. 6.3-6.5 transform", "transform_ms"),
-    ("safety envelope step", "envelope_ms"),
-    ("CNC write + read-back (node's call)", "cnc_call_ms"),
-    ("  of which OPC UA round trip(s) on the client loop", "round_trip_ms"),
-    ("  of which thread hop node <-> client loop", None),
-    ("offsets publication", "publish_ms"),
+    ("model: DDS hop + step", None),
+    ("DDS hop into the bridge", None),
+    ("parse + transform", "transform_ms"),
+    ("envelope step", "envelope_ms"),
+    ("CNC write + read-back", "cnc_call_ms"),
+    (" of it: OPC UA round trip", "round_trip_ms"),
+    (" of it: thread hop", None),
+    ("publication", "publish_ms"),
 )
 
 
@@ -138,7 +141,7 @@ def latency_breakdown(arrivals: dict[tuple[str, int], float],
         return {}
     whole = float(np.sum(total))
     out = {name: _figures(v, whole) for name, v in parts.items()}
-    out["temperatures -> offsets (the latency)"] = _figures(total, whole)
-    out["audit line after publication (not in the latency)"] = _figures(audit, whole)
-    out["predictions needing a second read"] = {"count": reread, "of": len(total)}
+    out["latency (sum)"] = _figures(total, whole)
+    out["audit line (after it)"] = _figures(audit, whole)
+    out["second reads"] = {"count": reread, "of": len(total)}
     return out

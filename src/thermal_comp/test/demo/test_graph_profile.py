@@ -63,9 +63,9 @@ def test_latency_parts_join_the_bridge_profile_by_stamp():
     out = latency_breakdown(arrivals, rows)
     med = {name: out[name]["median_ms"] for name, _ in LATENCY_PARTS}
     assert list(med.values()) == pytest.approx([2.0, 1.5, 0.1, 0.05, 8.0, 6.0, 2.0, 0.2], abs=1e-6)
-    assert out["temperatures -> offsets (the latency)"]["median_ms"] == pytest.approx(12.0)
-    assert out["audit line after publication (not in the latency)"]["median_ms"] == pytest.approx(1.5)
-    assert out["predictions needing a second read"] == {"count": 1, "of": 4}
+    assert out["latency (sum)"]["median_ms"] == pytest.approx(12.0)
+    assert out["audit line (after it)"]["median_ms"] == pytest.approx(1.5)
+    assert out["second reads"] == {"count": 1, "of": 4}
     assert latency_breakdown(arrivals, []) == {}
 
 
