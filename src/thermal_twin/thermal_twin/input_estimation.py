@@ -8,14 +8,19 @@ regularised linear inverse: the twin is linear in its source powers, so every bl
 ``y - y_base = sum_b G_b p_b + offsets``. Each channel is scaled by its misfit's spread,
 ``p >= 0``, and a first-difference (Tikhonov) penalty lam ||D p||^2 is chosen by blocked
 cross-validation over contiguous time chunks (thermal residuals are autocorrelated, so
-chunks, not single rows, are left out). The heat is split over the sources in the ratio of
-their powers at half the input's range; the input equivalent to P(t) is
-found by inverting sum c_i u^n_i. Details and limits: docs/calibrate.md.
+chunks, not single rows, are left out). The heat is first split over the sources in the
+ratio of their powers at half the input's range; then it is *located*: the estimated profile
+is placed on each node in turn and non-negative weights say which nodes the temperatures
+put it on (a twin that lacks the bearing source would otherwise have all the heat put on
+the motor, its only speed-driven source left), and the profile is estimated again with that
+split. The input equivalent to the heat on the nodes of the twin's own sources is found by
+inverting sum c_i u^n_i; heat located elsewhere is reported as such (a heat input at that
+node the twin lacks). Details and limits: docs/calibrate.md.
 """
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import lsq_linear
@@ -28,6 +33,8 @@ from thermal_comp_common.recording_csv import Recording
 
 HEAT_INPUT = "estimated_heat_w"      # auxiliary input of the twin during the estimation
 LAMBDAS = np.logspace(-4, 4, 17)     # relative to trace(A'A)/trace(D'D)
+REWEIGHT = 0                         # default re-weightings of the channels by the fit's residual spread
+MIN_OWN_SHARE = 0.1                  # below: the twin's own sources cannot carry the located heat
 
 
 class InputEstimationError(ValueError):
@@ -46,6 +53,8 @@ class InputEstimate:
     cv_curve: list[tuple[float, float]]  # (lambda, cross-validated SSE)
     channels: list[str]
     tau: float
+    located: dict[str, float] = field(default_factory=dict)   # node -> share the temperatures point to
+    own_share: float = 1.0              # share of the heat on the nodes of the twin's own sources
 
     def input_series(self, time_s: np.ndarray) -> np.ndarray:
         """The equivalent input at every instant (block value)."""
@@ -54,7 +63,8 @@ class InputEstimate:
 
     def as_dict(self) -> dict:
         return {"input": self.input, "sources": self.sources, "block_s": float(np.diff(self.block_edges_s)[0]),
-                "lambda": self.lam, "channels": self.channels,
+                "lambda": self.lam, "channels": self.channels, "located": self.located,
+                "own_share": self.own_share,
                 "mean_power_w": float(np.mean(self.power_w)), "max_power_w": float(np.max(self.power_w)),
                 "profile": [{"start_s": float(a), "power_w": float(p), "ci95_w": [float(lo), float(hi)],
                              "equivalent_input": float(u)}
@@ -100,62 +110,138 @@ def _outputs(spec: dict, rec: Recording, channels: list[str], extra: dict | None
 
 
 def estimate_input(machine: Machine, rec: Recording, name: str, channels: list[str],
-                   block_s: float = 1800.0, folds: int = 5, stride: int = 0) -> InputEstimate:
-    """Estimate the heat of the sources driven by ``name`` from ``channels`` of ``rec``."""
+                   block_s: float = 1800.0, folds: int = 5, stride: int = 0, locate: bool = True,
+                   reweight: int = REWEIGHT) -> InputEstimate:
+    """Estimate the heat of the sources driven by ``name`` from ``channels`` of ``rec``.
+    ``locate``: then find which nodes the temperatures put that heat on (:func:`locate_heat`)
+    and estimate the profile again with that split. ``reweight``: see :func:`_profile`
+    (measured on the mini_mill test twin: block-heat correlation 0.9955 -> 0.9979 with 2, but
+    the 95 % band covers 81 % of the blocks instead of 100 %; hence 0 by default)."""
     if not any(s.input == name for s in machine.sources.values()):
         raise InputEstimationError(f"input '{name}': no source of twin '{machine.name}' is driven by it")
     base, pulse, share = _heat_spec(machine, name)
     t = rec.time_s
     edges = np.arange(t[0], t[-1] + block_s, block_s)
-    nb = len(edges) - 1
     y_meas = np.stack([np.asarray(rec.columns[c], dtype=float) for c in channels])
     y_base = _outputs(base, rec, channels)
     stride = stride or max(1, len(t) // 2000)
     rows = np.arange(0, len(t), stride)
     miss = (y_meas - y_base)[:, rows]
     valid = np.isfinite(miss)
-    scale = np.array([np.nanstd(m) if np.nanstd(m) > 0 else 1.0 for m in miss])
-    nc = len(channels)
+    prob = {"rec": rec, "channels": channels, "rows": rows, "valid": valid, "miss": np.where(valid, miss, 0.0),
+            "y_base": y_base, "edges": edges, "folds": folds,
+            "scale": np.array([np.nanstd(m) if np.nanstd(m) > 0 else 1.0 for m in miss])}
+    scale0 = prob["scale"]
+    sol = _profile(pulse, prob, reweight)
+    located: dict[str, float] = {}
+    if locate:
+        located = locate_heat(base, _block_series(t, edges, sol[0]), prob)
+        if located:
+            pulse = _located_pulse(base, located)
+            prob["scale"] = scale0
+            sol = _profile(pulse, prob, reweight)
+    power, ci, lam, curve, tau = sol
+    own = _own_share(machine, name, located)
+    return InputEstimate(name, share, edges, power, ci, equivalent_input(machine, name, power * own),
+                         float(lam), curve, list(channels), float(tau), located, own)
+
+
+def _block_series(t: np.ndarray, edges: np.ndarray, power: np.ndarray) -> np.ndarray:
+    k = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, len(power) - 1)
+    return power[k]
+
+
+def _located_pulse(base: dict, located: dict[str, float]) -> dict:
+    """The ablated description with the auxiliary heat input split over ``located`` nodes."""
+    pulse = copy.deepcopy(base)
+    pulse["inputs"][HEAT_INPUT] = {"kind": "machine", "unit": "W", "default": 0.0, "min": 0.0, "max": 1e12}
+    for node, w in located.items():
+        pulse["sources"][f"est_{node}"] = {"node": node, "input": HEAT_INPUT, "coefficient": w, "exponent": 1.0}
+    return pulse
+
+
+def _own_share(machine: Machine, name: str, located: dict[str, float]) -> float:
+    """The share of the located heat on nodes that carry a source driven by ``name`` (what
+    the twin's own sources turn into the equivalent input); 1 without a location. Below
+    MIN_OWN_SHARE the twin's sources cannot carry the heat and the whole heat is inverted."""
+    if not located:
+        return 1.0
+    nodes = {s.node for s in machine.sources.values() if s.input == name}
+    own = sum(w for n, w in located.items() if n in nodes)
+    return own if own >= MIN_OWN_SHARE else 1.0
+
+
+def locate_heat(base: dict, heat: np.ndarray, prob: tuple, min_share: float = 0.05) -> dict[str, float]:
+    """Which nodes the temperatures put an estimated heat profile ``heat`` (W, per row) on:
+    the profile is placed on each node in turn (one twin run per node), and non-negative
+    weights (plus a free offset per channel) fit the channels' misfit. Returns node -> share
+    of the heat (shares below ``min_share`` dropped, the rest renormalised); {} if no node
+    takes any."""
+    rec, channels, rows, valid, y_base, scale = (prob[k] for k in ("rec", "channels", "rows", "valid",
+                                                                    "y_base", "scale"))
+    yv = prob["miss"] / scale[:, None]
+    nodes = list(base["nodes"])
+    nc, nr = len(channels), len(rows)
+    cols = []
+    for node in nodes:
+        spec = _located_pulse(base, {node: 1.0})
+        dy = _outputs(spec, rec, channels, {HEAT_INPUT: heat})[:, rows] - y_base[:, rows]
+        cols.append((np.where(valid, dy, 0.0) / scale[:, None]).ravel())
+    off = np.zeros((nc * nr, nc))
+    for c in range(nc):
+        off[c * nr:(c + 1) * nr, c] = valid[c]
+    A = np.column_stack(cols + [off])
+    lb = np.concatenate([np.zeros(len(nodes)), np.full(nc, -np.inf)])
+    w = lsq_linear(A, yv.ravel(), bounds=(lb, np.full(len(lb), np.inf))).x[:len(nodes)]
+    if w.sum() <= 0:
+        return {}
+    keep = {n: float(x) for n, x in zip(nodes, w / w.sum()) if x / w.sum() >= min_share}
+    tot = sum(keep.values())
+    return {n: x / tot for n, x in keep.items()}
+
+
+def _profile(pulse: dict, prob: dict, reweight: int = REWEIGHT):
+    """The regularised, non-negative block profile of the heat of ``pulse``'s auxiliary
+    sources: (power per block, its 95 % band, lambda, the CV curve, the residual's
+    correlation time in samples). Channels are weighted by the spread of what the heat does
+    *not* explain (iteratively: first the misfit's spread, then ``reweight`` times the fit's
+    residual spread; the misfit's own spread would down-weight exactly the channels the
+    missing heat moves most); the final weights are left in ``prob["scale"]``."""
+    rec, channels, rows, valid, y_base, edges = (prob[k] for k in ("rec", "channels", "rows", "valid",
+                                                                   "y_base", "edges"))
+    t = rec.time_s
+    nb, nc = len(edges) - 1, len(channels)
     # design: one column per block (1 W pulse), then one offset per channel
-    A = np.zeros((nc, len(rows), nb + nc))
+    A0 = np.zeros((nc, len(rows), nb + nc))
     for b in range(nb):
         u = ((t >= edges[b]) & (t < edges[b + 1])).astype(float)
-        A[:, :, b] = _outputs(pulse, rec, channels, {HEAT_INPUT: u})[:, rows] - y_base[:, rows]
+        A0[:, :, b] = _outputs(pulse, rec, channels, {HEAT_INPUT: u})[:, rows] - y_base[:, rows]
     for c in range(nc):
-        A[c, :, nb + c] = 1.0
-    A /= scale[:, None, None]
-    yv = np.where(valid, miss, 0.0) / scale[:, None]
-    A = np.where(valid[:, :, None], A, 0.0)
+        A0[c, :, nb + c] = 1.0
+    A0 = np.where(valid[:, :, None], A0, 0.0)
     D = np.zeros((nb - 1, nb + nc))
     D[np.arange(nb - 1), np.arange(nb - 1)] = -1.0
     D[np.arange(nb - 1), np.arange(1, nb)] = 1.0
-    # folds of interleaved chunks one block long: a left-out chunk's heat is still seen by
-    # the rows after it (thermal memory), as it would be at a new time
-    chunk = (np.searchsorted(edges, t[rows], side="right") - 1) % folds
-    AtA = np.einsum("cri,crj->ij", A, A)
-    Aty = np.einsum("cri,cr->i", A, yv)
     DtD = D.T @ D
-    ref = np.trace(AtA[:nb, :nb]) / max(np.trace(DtD), 1e-300)
-    curve = []
-    for lam in LAMBDAS * ref:
-        sse = 0.0
-        for f in range(folds):
-            sel = chunk == f
-            Af, yf = A[:, sel, :], yv[:, sel]
-            M = AtA - np.einsum("cri,crj->ij", Af, Af) + lam * DtD + 1e-12 * np.eye(nb + nc)
-            p = np.linalg.solve(M, Aty - np.einsum("cri,cr->i", Af, yf))
-            sse += float(np.sum((yf - Af @ p) ** 2))
-        curve.append((float(lam), sse))
-    lam = min(curve, key=lambda x: x[1])[0]
-    # constrained solve p >= 0 on the small equivalent system [chol(A'A); sqrt(lam) D]
-    M = AtA + 1e-12 * np.eye(nb + nc)
-    R = np.linalg.cholesky(M).T
-    z = np.linalg.solve(R.T, Aty)
-    lb = np.concatenate([np.zeros(nb), np.full(nc, -np.inf)])
-    sol = lsq_linear(np.vstack([R, np.sqrt(lam) * D]), np.concatenate([z, np.zeros(nb - 1)]),
-                     bounds=(lb, np.full(nb + nc, np.inf)))
-    p = sol.x
-    r = yv - A @ p
+    chunk = (np.searchsorted(edges, t[rows], side="right") - 1) % prob["folds"]
+    for it in range(reweight + 1):
+        scale = prob["scale"]
+        A = A0 / scale[:, None, None]
+        yv = prob["miss"] / scale[:, None]
+        AtA = np.einsum("cri,crj->ij", A, A)
+        Aty = np.einsum("cri,cr->i", A, yv)
+        lam, curve = _cv_lambda(A, yv, AtA, Aty, DtD, chunk, nb)
+        # constrained solve p >= 0 on the small equivalent system [chol(A'A); sqrt(lam) D]
+        R = np.linalg.cholesky(AtA + 1e-12 * np.eye(nb + nc)).T
+        z = np.linalg.solve(R.T, Aty)
+        lb = np.concatenate([np.zeros(nb), np.full(nc, -np.inf)])
+        p = lsq_linear(np.vstack([R, np.sqrt(lam) * D]), np.concatenate([z, np.zeros(nb - 1)]),
+                       bounds=(lb, np.full(nb + nc, np.inf))).x
+        r = yv - A @ p
+        if it < reweight:
+            n_valid = np.maximum(valid.sum(axis=1), 1)
+            rms = np.sqrt(np.sum(r ** 2, axis=1) / n_valid) * scale
+            prob["scale"] = np.maximum(rms, 1e-6 * max(float(np.max(rms)), 1e-12))
     tau = max(1.0, r.size / effective_samples(r))
     s2 = float(np.sum(r ** 2)) / max(r.size - nb - nc, 1)
     Hinv = np.linalg.inv(AtA + lam * DtD + 1e-12 * np.eye(nb + nc))
@@ -163,8 +249,25 @@ def estimate_input(machine: Machine, rec: Recording, name: str, channels: list[s
     sd = np.sqrt(np.clip(np.diag(cov)[:nb], 0, None))
     power = p[:nb]
     ci = np.column_stack([np.maximum(power - 1.96 * sd, 0.0), power + 1.96 * sd])
-    return InputEstimate(name, share, edges, power, ci, equivalent_input(machine, name, power),
-                         float(lam), curve, list(channels), float(tau))
+    return power, ci, lam, curve, tau
+
+
+def _cv_lambda(A, yv, AtA, Aty, DtD, chunk, nb: int) -> tuple[float, list[tuple[float, float]]]:
+    """Lambda by blocked cross-validation: folds of interleaved chunks one block long (a
+    left-out chunk's heat is still seen by the rows after it, as it would be at a new time)."""
+    n = AtA.shape[0]
+    ref = np.trace(AtA[:nb, :nb]) / max(np.trace(DtD), 1e-300)
+    curve = []
+    for lam in LAMBDAS * ref:
+        sse = 0.0
+        for f in range(int(chunk.max()) + 1):
+            sel = chunk == f
+            Af, yf = A[:, sel, :], yv[:, sel]
+            M = AtA - np.einsum("cri,crj->ij", Af, Af) + lam * DtD + 1e-12 * np.eye(n)
+            p = np.linalg.solve(M, Aty - np.einsum("cri,cr->i", Af, yf))
+            sse += float(np.sum((yf - Af @ p) ** 2))
+        curve.append((float(lam), sse))
+    return min(curve, key=lambda x: x[1])[0], curve
 
 
 def source_power(machine: Machine, name: str, u: np.ndarray) -> np.ndarray:
@@ -192,10 +295,14 @@ def fill_missing_inputs(machine: Machine, rec: Recording, channels: list[str],
         e = estimate_input(machine, rec, name, channels, block_s=block_s)
         cols[name] = e.input_series(rec.time_s)
         ests.append(e)
-        srcs = ", ".join(f"{k} {100 * v:.0f} %" for k, v in e.sources.items())
+        split = e.located or e.sources
+        srcs = ", ".join(f"{k} {100 * v:.0f} %" for k, v in split.items())
+        where = "located by the temperatures on" if e.located else "split"
         notes.append(f"input '{name}' is not in the recording: estimated from the temperatures as a heat "
                      f"input of {np.mean(e.power_w):.0f} W on average (max {np.max(e.power_w):.0f} W, "
-                     f"{block_s / 60:.0f}-min blocks, split {srcs}), i.e. {name} of "
-                     f"{np.mean(e.equivalent_input):.0f} {machine.inputs[name].unit} on average; "
+                     f"{block_s / 60:.0f}-min blocks, {where} {srcs}), i.e. {name} of "
+                     f"{np.mean(e.equivalent_input):.0f} {machine.inputs[name].unit} on average"
+                     + (f" from the {100 * e.own_share:.0f} % on the nodes of its sources" if e.own_share < 1 else "")
+                     + "; "
                      f"profile and 95 % band in input_estimate_{name}.png")
     return Recording(rec.time_s, cols, source=rec.source, warnings=list(rec.warnings)), ests, notes
