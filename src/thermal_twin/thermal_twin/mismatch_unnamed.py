@@ -102,7 +102,7 @@ def _stability(X: np.ndarray, y: np.ndarray, rng: np.random.Generator, n_blocks:
         for _ in range(N_SUBSAMPLES):
             pick = rng.choice(n_blocks, n_blocks // 2, replace=False)
             idx = np.concatenate([blocks[i] for i in sorted(pick)])
-            coef = Lasso(alpha=alpha, max_iter=3000, tol=1e-3).fit(X[idx], y[idx]).coef_
+            coef = Lasso(alpha=alpha, max_iter=3000, tol=1e-3, precompute=True).fit(X[idx], y[idx]).coef_
             freq += np.abs(coef) > 1e-10
     return freq / N_SUBSAMPLES
 
