@@ -390,8 +390,13 @@ class OpcUaBackend:
         dvs = [ua.DataValue(ua.Variant(v, ua.VariantType.Double)) for v in values]
         self.last_round_trips = 1
         # the write is sent first: asyncio runs the two tasks in the order they were created
-        written, back = await asyncio.gather(uac.write_attributes(nodeids, dvs, ua.AttributeIds.Value),
-                                             uac.read_attributes(nodeids, ua.AttributeIds.Value))
+        answers = await asyncio.gather(uac.write_attributes(nodeids, dvs, ua.AttributeIds.Value),
+                                       uac.read_attributes(nodeids, ua.AttributeIds.Value),
+                                       return_exceptions=True)     # both settle: no orphan task
+        for answer in answers:
+            if isinstance(answer, BaseException):
+                raise answer
+        written, back = answers
         again = [i for i, (want, status, got) in enumerate(zip(values, written, back))
                  if status.is_good() and not _read_equal(want, got, self.config.readback_tolerance)]
         if again:
