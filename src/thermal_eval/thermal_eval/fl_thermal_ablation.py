@@ -123,6 +123,7 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
     screened, chosen = _chosen(problem, spec_c, umax, twin, cal_fig["at_bound"])
     speedless = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "spindle_rpm"},
                           source=rec.source + " (spindle_rpm deleted)")
+    rule = {m.label for m in select(all_mechanisms(spec_c, umax), screened)}
     bearing = next(m for m in chosen if m.expect == "heat_source:front_bearing")
     cases = [(m, rec) for m in chosen] + [(bearing, speedless)]
     rows = []
@@ -130,7 +131,7 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
         if only is not None and i not in only:
             continue
         row = _case(mech, r, r is speedless, spec_c, problem, (chans, n_train, res))
-        row["selected_by_rule"] = mech in select(all_mechanisms(spec_c, umax), screened)
+        row["selected_by_rule"] = mech.label in rule
         rows.append(row)
         if progress:
             progress(f"{row['mechanism']} [{row['recording']}]: first {row['first']} (expected {row['expected']}), "
@@ -175,8 +176,8 @@ def markdown(result: dict) -> str:
     """The docs table."""
     L = ["| removed mechanism | recording | held-out SSE ablated / calibrated | named first | effect | target "
          "| parameter: fitted / calibrated | held-out fit restored | removed mechanism's rank, its fit "
-         "| channels the removal changes most (held-out SSE x) |",
-         "|---|---|---|---|---|---|---|---|---|---|"]
+         "| marked indistinguishable from the first | channels the removal changes most (held-out SSE x) |",
+         "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["rows"]:
         par = (f"{r['parameter']}: {r['fitted']:.4g} / {r['reference']:.4g} ({r['rel_error_pct']:.0f} %)"
                if r["fitted"] is not None else f"{r['parameter']}: - / {r['reference']:.4g}")
@@ -190,6 +191,7 @@ def markdown(result: dict) -> str:
         ratio = r["holdout_sse_ablated"] / r["holdout_sse_calibrated"]
         L.append(f"| {r['mechanism']} | {r['recording']} | {ratio:.3f} | {r['first']} | {'yes' if r['effect_ok'] else 'no'} "
                  f"| {'yes' if r['target_ok'] else 'no'} | {par} | {rest} | {exp} "
+                 f"| {', '.join(r.get('indistinguishable') or []) or '-'} "
                  f"| {', '.join(f'{c} {x:.2f}' for c, x in r.get('most_changed', []))} |")
     return "\n".join(L)
 

@@ -1,13 +1,14 @@
 """Issue 19 item 6 on the real FL_THERMAL recording (slow: one calibration of the
-``fl-thermal-rig`` preset and five diagnoses of the 46 h recording, 8-10 min on a loaded
-2-core machine).
+``fl-thermal-rig`` preset, a screen of its 54 mechanisms and eight diagnoses of the 46 h
+recording, 15-25 min on a loaded 2-core machine).
 
-What holds is asserted: every ablation is diagnosed, and the speed-driven front-bearing heat
-source, removed from the calibrated twin, is named first (effect and node), with its power
-within 30 % of the calibrated value, and the held-out fit is restored. What the issue asks
-and does not hold on this recording is an ``xfail(strict=True)`` with the measured reason,
-so that it turns into a failure the day it starts to hold (then drop the mark). The table is
-printed and is the one in docs/diagnose.md.
+The mechanisms are chosen by the recording, not by the finder: every mechanism of the
+calibrated twin is removed and scored with the calibrated twin alone, and the rule of
+:func:`thermal_eval.fl_thermal_mechanisms.select` (named by a word of the vocabulary, held-out
+SSE x1.2 or more, calibrated value not at a bound) picks the ones diagnosed. What holds is
+asserted; what the issue asks and does not hold on this recording is an
+``xfail(strict=True)`` with the measured reason, so that it turns into a failure the day it
+starts to hold (then drop the mark). The tables are printed and are those of docs/diagnose.md.
 """
 from __future__ import annotations
 
@@ -16,29 +17,51 @@ import json
 import pytest
 
 from thermal_eval.fl_thermal_ablation import markdown, run
+from thermal_eval.fl_thermal_mechanisms import screen_markdown
+
+BEARING = "source front_bearing_friction (spindle_rpm-driven)"
+JACKET = "link motor_coolant (motor-coolant)"
 
 
 @pytest.fixture(scope="module")
 def table(shared_dir):
     out = run(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", progress=None)
+    print(screen_markdown(out["screen"]))
     print(markdown(out))
-    print(json.dumps(out, default=str))
+    print(json.dumps(out["rows"], default=str))
     return out
+
+
+def _row(table, label, recording="FL_THERMAL"):
+    return next(r for r in table["rows"] if r["mechanism"] == label and r["recording"] == recording)
+
+
+@pytest.mark.slow
+def test_the_recording_supports_the_bearing_source_and_the_conduction_paths(table):
+    # the screen uses the calibrated twin only; measured ratios 2.56 (bearing), 31.2 (motor jacket)
+    chosen = [r["mechanism"] for r in table["rows"] if r["selected_by_rule"] and r["recording"] == "FL_THERMAL"]
+    assert BEARING in chosen and JACKET in chosen and len(chosen) >= 4, chosen
+    ratio = {r["mechanism"]: r["ratio"] for r in table["screen"]}
+    assert ratio[JACKET] > 10 and ratio[BEARING] > 2, ratio
+    # no ambient link and no sensor lag is supported on this recording (measured <= 1.07, 1.00)
+    assert all(r["ratio"] < 1.2 for r in table["screen"]
+               if (r["expected"] or "").startswith(("ambient_coupling", "time_lag"))), ratio
 
 
 @pytest.mark.slow
 def test_every_ablation_is_diagnosed_and_what_is_adopted_improves_the_held_out_fit(table):
     # on the recording the finder saw (the speedless row: with the estimated speed)
     rows = table["rows"]
-    assert len(rows) == 5 and table["calibration"]["free_parameters"] > 0
+    assert len(rows) == 8 and table["calibration"]["free_parameters"] > 0
     for r in rows:
         assert r["holdout_sse_ablated"] > 0 and r["holdout_sse_after"] <= r["holdout_sse_ablated"] * 1.0001, r
 
 
 @pytest.mark.slow
-def test_the_removed_bearing_heat_source_is_named_first_recovered_within_30_pct_and_the_fit_restored(table):
-    r = table["rows"][0]
-    assert r["expected"] == "heat_source:front_bearing" and r["recording"] == "FL_THERMAL"
+@pytest.mark.parametrize("label", [BEARING, JACKET])
+def test_a_supported_mechanism_is_named_first_recovered_within_30_pct_and_the_fit_restored(table, label):
+    # measured: bearing 227 / 275 W (17 %), restored 107 %; jacket 30.5 / 31.7 W/K (4 %), 100 %
+    r = _row(table, label)
     assert r["holdout_sse_ablated"] > 1.5 * r["holdout_sse_calibrated"], r     # the recording sees it
     assert r["target_ok"], r
     assert r["rel_error_pct"] is not None and r["rel_error_pct"] <= 30.0, r
@@ -46,14 +69,34 @@ def test_the_removed_bearing_heat_source_is_named_first_recovered_within_30_pct_
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6 table): removing the headstock's "
-                                       "ambient link or t5's 60 s lag loses no held-out fit on FL_THERMAL (the "
-                                       "recording gives no evidence for them), and without the ch5/headstock "
-                                       "gain the finder restores the tilt channel through the collinear "
-                                       "housing node instead; with the speed deleted, the estimated input goes "
-                                       "to the motor source the ablated twin still has and the finder names a "
-                                       "periodic load on the headstock")
-def test_every_removed_mechanism_is_named_first_with_its_parameter_within_30_pct(table):
+def test_without_the_ch5_headstock_term_the_finder_names_a_ch5_gain(table):
+    # the right effect on the right channel; the node it picks (measured: housing) is not
+    # claimed, and the finder's report does not mark the two as indistinguishable
+    r = _row(table, "thermo-elastic term ch5_um/headstock")
+    assert r["effect_ok"] and r["first"].startswith("elastic_gain:ch5_um/"), r
+    assert not r["selected_by_rule"]          # at its x4 calibration bound
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6): of the conduction paths the "
+                                       "recording supports, only the motor jacket's is named back; without "
+                                       "the bearing-housing, housing-headstock or motor-shaft path the finder "
+                                       "names another conduction path of the same heat (to the column, the "
+                                       "headstock, the coolant), the supported one 2nd-3rd; without "
+                                       "headstock-column a speed-dependent convection")
+def test_every_selected_mechanism_is_named_first_with_its_parameter_within_30_pct(table):
     for r in table["rows"]:
-        assert r["target_ok"], r
-        assert r["rel_error_pct"] is not None and r["rel_error_pct"] <= 30.0, r
+        if r["selected_by_rule"] and r["recording"] == "FL_THERMAL":
+            assert r["target_ok"], r
+            assert r["rel_error_pct"] is not None and r["rel_error_pct"] <= 30.0, r
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6): with the speed column deleted, "
+                                       "the heat estimated from the temperatures does not follow the deleted "
+                                       "speed on this recording (the coolant return t4 is the jacket's "
+                                       "boundary and already carries most of the speed's signal)")
+def test_with_the_speed_deleted_the_bearing_source_is_named_first_within_30_pct(table):
+    r = _row(table, BEARING, "speed deleted, estimated")
+    assert r["target_ok"], r
+    assert r["rel_error_pct"] is not None and r["rel_error_pct"] <= 30.0, r
