@@ -117,6 +117,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a key of the shipped TALC configuration (YAML value)")
     p.add_argument("--prior-na-max", type=int, default=1, help="largest n_a of the prior (default 1)")
+    p.add_argument("--prior-nb-max", type=int, default=8, help="largest n_b of the prior (default 8)")
     p.add_argument("--json", type=pathlib.Path, help="write every figure here")
     p.add_argument("--detail", action="store_true", help="also print no-good times and the largest residuals")
     args = p.parse_args(argv)
@@ -130,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cache: dict = {}
     rows = []
     for case in args.case or CASES:
-        r = run_case(case, config, cache, {"na_max": args.prior_na_max})
+        r = run_case(case, config, cache, {"na_max": args.prior_na_max, "nb_max": args.prior_nb_max})
         rows.append(r)
         print(format_row(r), flush=True)
         if args.detail:
