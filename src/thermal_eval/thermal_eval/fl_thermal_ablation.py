@@ -3,16 +3,17 @@
 The twin (default the ``fl-thermal-rig`` preset, built for this rig; its sensor placement is
 an assumption stated in the preset's header) is calibrated on the training rows of FL_THERMAL
 (``thermal_twin.calibration.calibrate``, the preset's ranges and prior). That calibrated twin
-is the reference. For each mechanism of :func:`mechanisms` the mechanism is removed from the
-calibrated twin and the ablated twin is diagnosed against the real recording; a row says
-whether the finder names the removed mechanism first (effect and target), how close its
-fitted parameter comes to the calibrated value, and how much of the held-out fit the removal
-lost it restores (``restored_pct``: 100 = back to the calibrated twin's held-out weighted
-SSE), with the channels the removal changes most. The last row repeats the bearing case with
-the speed column deleted: the speed is first estimated from the temperatures
-(``input_estimation.fill_missing_inputs``) with the ablated twin.
-``thermal-comp bench diagnose`` does not run this (minutes); the slow test and
-docs/diagnose.md do.
+is the reference. Every mechanism of it is screened (:mod:`thermal_eval.fl_thermal_mechanisms`:
+held-out SSE without it, calibrated twin only) and the selection rule picks those the recording
+supports; each is removed from the calibrated twin and the ablated twin is diagnosed against
+the real recording. A row says whether the finder names the removed mechanism first (effect
+and target), how close its fitted parameter comes to the calibrated value, how much of the
+lost held-out fit it restores (``restored_pct``: 100 = back to the calibrated twin's held-out
+weighted SSE), what the finder marks indistinguishable from its answer, and the channels the
+removal changes most. The last row repeats the bearing case with the speed column deleted: the
+speed is first estimated from the temperatures (``input_estimation.fill_missing_inputs``) with
+the ablated twin. ``thermal-comp bench diagnose`` does not run this (minutes); the slow test
+and docs/diagnose.md do.
 """
 from __future__ import annotations
 
