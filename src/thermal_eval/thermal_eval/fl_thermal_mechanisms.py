@@ -13,6 +13,7 @@ held-out SSE ratio with the calibrated twin alone (one simulation each, no diagn
 """
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import Callable
 
@@ -134,7 +135,6 @@ def screen(problem: FitProblem, spec_c: dict, mechs: list[Mechanism],
     """Each mechanism's removal scored with the calibrated twin ``spec_c`` alone: held-out
     SSE ratio ablated / calibrated, the channels it changes most, whether its calibrated
     value sits at a calibration bound (``at_bound``: parameter names)."""
-    import copy
     base = holdout_by_channel(problem, spec_c)
     rows = []
     for m in mechs:
