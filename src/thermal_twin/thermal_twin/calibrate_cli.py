@@ -3,9 +3,10 @@
 Fits the twin's existing parameters (ranges from the machine's ``calibration`` section or
 ``--bounds``) on the training window, scores the held-out rest, and writes
 ``DIR/twin_calibrated.yaml``, ``DIR/report.md``, ``DIR/report.json`` and PNG plots. The
-Jacobian's finite-difference columns run on a local process pool of ``--jobs`` processes
-(default: the cores) or a Dask cluster (``--engine dask [--address tcp://HOST:8786]``); the
-answer is the same on every engine (docs/distributed.md).
+Jacobian's finite-difference columns can run on a local process pool (``--jobs N``) or a Dask
+cluster (``--engine dask [--address tcp://HOST:8786]``); the answer is the same on every engine
+(docs/distributed.md). Default serial: a Jacobian is ~40 twin runs of a few ms, and a pool per
+Jacobian cost more CPU than it saved on FL_THERMAL (docs/diagnose.md, Speed).
 """
 from __future__ import annotations
 
@@ -24,7 +25,7 @@ from thermal_twin.column_mapping import (MappingError, empty_columns, name_misma
                                         read_real_recording)
 from thermal_comp_common.engine_options import add_engine_arguments, engine_from_args
 from thermal_comp_common.recording_csv import RecordingError
-from thermal_comp_common.task_engine import TaskEngineError, default_workers
+from thermal_comp_common.task_engine import TaskEngineError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -48,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    add_engine_arguments(p, default_workers(), "Jacobian columns")
+    add_engine_arguments(p, 1, "Jacobian columns")
     return p
 
 
