@@ -80,11 +80,19 @@ def _sim_rms(model: ArxModel, u: np.ndarray, y: np.ndarray) -> float:
 
 def _fit_component(train, held_out, config: TalcConfig, n_inputs: int, max_radius: float,
                    na_max: int, nb_max: int):
-    """Best (by simulation RMS on ``held_out``) admissible orders, refitted on all data."""
+    """Best (by simulation RMS on ``held_out``) admissible orders, refitted on all data.
+
+    An input that never varies in ``train`` (e.g. the MWF flag when only dry programmes train)
+    gets n_b = 0 in the search and n_b = 1 in the refit on all data if it varies there (as
+    TALC's ``min_input_range``): otherwise every candidate would be rank-deficient."""
+    def varies(grids):
+        return np.array([any(np.ptp(u[:, i]) > config.min_input_range for u, _ in grids)
+                         for i in range(n_inputs)], bool)
+    active, active_all = varies(train), varies(list(train) + list(held_out))
     best = None
     for na in range(1, na_max + 1):
         for nb in range(1, nb_max + 1):
-            orders = ArxOrders(na, (nb,) * n_inputs, config.nk, config.intercept)
+            orders = ArxOrders(na, tuple(nb if a else 0 for a in active), config.nk, config.intercept)
             try:
                 phi, target = _stack(train, orders)
                 theta = solve_wls(phi, target, what="prior regression matrix")
@@ -98,6 +106,11 @@ def _fit_component(train, held_out, config: TalcConfig, n_inputs: int, max_radiu
                 best = (score, orders)
     if best is None:
         raise PriorError("prior: no stable ARX candidate fits the training recordings")
+    orders = best[1]
+    if np.any(active_all & ~active):
+        orders = ArxOrders(orders.na, tuple(1 if (aa and not a) else nb for a, aa, nb in
+                                            zip(active, active_all, orders.nb)), config.nk, config.intercept)
+        best = (best[0], orders)
     phi, target = _stack(list(train) + list(held_out), best[1])
     theta = solve_wls(phi, target, what="prior regression matrix")
     res = target - phi @ theta
