@@ -1,12 +1,12 @@
 """TALC with the machine type's prior on every load case, beside probe-and-hold (issue 22 item 4).
 
 ``python -m thermal_eval.prior_cases [--case C ...] [--set key=value ...] [--json OUT]`` replays
-each case on **unit #1** (seed 0, Table 5.4 probe noise and resolution) with TALC started from a
-prior of the NOMINAL type, built from the training programmes of ``thermal-comp prior``
+each case on **unit #1** (seed 0 unless ``--seed``, Table 5.4 probe noise and resolution) with
+TALC started from a prior of the NOMINAL type, built from the training programmes of ``thermal-comp prior``
 (prior_cli.TRAINING_SCENARIOS, seeds 101, 102, ...) without the evaluated programme; the demo's
 talc-178h-dry is in none of them, so its prior is the demo's. Every result is printed beside
 probe-and-hold at the model's own Q_prod (ratio = P99_lin / probe-and-hold's; goal <= 0.5). The
-table of docs/talc.md ("What limits the models") is this module's output.
+tables of docs/talc.md (section "Selection consistent with the loop, ...") are its output.
 """
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def error_location(result, components: Sequence[str], top: int = 5) -> list[dict
 
 
 def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
-             prior_overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+             prior_overrides: Mapping[str, Any] | None = None, seed: int = RUN_SEED) -> dict[str, Any]:
     """One case: build the prior (nominal type, other programmes), replay unit #1, and the
     figures beside probe-and-hold at the same Q_prod."""
     from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
@@ -80,12 +80,12 @@ def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
     recs = [_simulate("nmv5000", s, seed, cache) for s, seed in train]
     prior = build_talc_prior(recs, config, machine="nmv5000", sources=training_labels(train),
                              **dict(prior_overrides or {}))
-    run = _simulate(machine_instance("nmv5000", PLANT_UNIT), case, RUN_SEED, cache)
+    run = _simulate(machine_instance("nmv5000", PLANT_UNIT), case, seed, cache)
     model = talc_with_prior(config, prior)
     noise = probe_noise(model.component_names)
     t0 = time.perf_counter()
     result = run_virtual_experiment(run, model, probe_noise_um=noise, probe_resolution_um=PROBE_RESOLUTION_UM,
-                                    seed=RUN_SEED, compute_metrics=False)
+                                    seed=seed, compute_metrics=False)
     wall = time.perf_counter() - t0
     status = model.status(float(result.time_s[-1]))
     figures, _ = beside_probe_and_hold(result, status.q_prod_pct, noise, PROBE_RESOLUTION_UM)
@@ -118,6 +118,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="override a key of the shipped TALC configuration (YAML value)")
     p.add_argument("--prior-na-max", type=int, default=1, help="largest n_a of the prior (default 1)")
     p.add_argument("--prior-nb-max", type=int, default=8, help="largest n_b of the prior (default 8)")
+    p.add_argument("--seed", type=int, default=RUN_SEED, help="seed of the run and its probe noise (default 0; "
+                   "the priors' training runs use 101 on)")
     p.add_argument("--json", type=pathlib.Path, help="write every figure here")
     p.add_argument("--detail", action="store_true", help="also print no-good times and the largest residuals")
     args = p.parse_args(argv)
@@ -131,7 +133,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     cache: dict = {}
     rows = []
     for case in args.case or CASES:
-        r = run_case(case, config, cache, {"na_max": args.prior_na_max, "nb_max": args.prior_nb_max})
+        r = run_case(case, config, cache, {"na_max": args.prior_na_max, "nb_max": args.prior_nb_max},
+                     args.seed)
         rows.append(r)
         print(format_row(r), flush=True)
         if args.detail:
