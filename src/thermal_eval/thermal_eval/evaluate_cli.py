@@ -16,7 +16,8 @@ import pathlib
 import sys
 
 from thermal_comp_common.recording_csv import RecordingError
-from thermal_comp_common.task_engine import EngineSpec, TaskEngineError
+from thermal_comp_common.engine_options import add_engine_arguments, engine_from_args
+from thermal_comp_common.task_engine import TaskEngineError
 from thermal_twin.column_mapping import MappingError
 
 from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget
@@ -54,13 +55,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--probe-resolution-um", type=float, default=0.0,
                     help="your probe's resolution: a predicted change below it (or below twice the noise of "
                          "a reading difference measured on the training rows) is not acted on (default 0)")
-    ap.add_argument("--jobs", type=int, default=1, metavar="N",
-                    help="model rows in parallel: local processes, or the LocalCluster's size with "
-                         "--engine dask and no --address (default 1: serial)")
-    ap.add_argument("--engine", choices=("local", "dask"), default="local",
-                    help="where the model rows run (docs/distributed.md)")
-    ap.add_argument("--address", default=None, metavar="tcp://HOST:PORT",
-                    help="the dask scheduler of a running cluster (with --engine dask)")
+    add_engine_arguments(ap, default_jobs=1, what="model rows")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     return ap
@@ -119,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
                                probe_resolution_um=args.probe_resolution_um)
         data = load_evaluation_data(args.recording, spec_from_args(args), args.map_file, args.map)
         models = available_models(data, args.models, args.also)
-        engine = EngineSpec(args.engine, args.address, args.jobs)
+        engine = engine_from_args(args)
     except (SpecError, MappingError, RecordingError, AdaptiveSettingsError, TaskEngineError, FileNotFoundError,
             ValueError) as exc:
         print(f"thermal-comp evaluate: {exc}", file=sys.stderr)

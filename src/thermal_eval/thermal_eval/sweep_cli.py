@@ -16,7 +16,8 @@ import pathlib
 import sys
 import time
 
-from thermal_comp_common.task_engine import EngineSpec, TaskEngineError, default_workers
+from thermal_comp_common.engine_options import add_engine_arguments, engine_from_args
+from thermal_comp_common.task_engine import TaskEngineError, default_workers
 
 from thermal_eval.replay_summary import (PROBE_NOISE_ANGULAR_UM_PER_M, PROBE_NOISE_LINEAR_UM, PROBE_RESOLUTION_UM,
                              ReplayInputError, build_model, load_config_file, load_replay_recording,
@@ -29,15 +30,7 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp sweep", description=__doc__.split("\n\n")[0])
     ap.add_argument("recording", metavar="REC", help="twin CSV, bag folder or .mcap file (one load case)")
     ap.add_argument("--out", required=True, metavar="DIR", help="folder for results.jsonl, table, plots")
-    ap.add_argument("--jobs", type=int, default=default_workers(),
-                    help="parallel replays of the local pool, or the size of a dask LocalCluster started "
-                         "when --engine dask has no --address (default: cores)")
-    ap.add_argument("--engine", choices=("local", "dask"), default="local",
-                    help="where the replays run (default: a local process pool)")
-    ap.add_argument("--address", default=None, metavar="tcp://HOST:PORT",
-                    help="the dask scheduler of a running cluster (with --engine dask)")
-    ap.add_argument("--retries", type=int, default=2,
-                    help="resubmissions of a replay whose worker died (default %(default)s)")
+    add_engine_arguments(ap, default_jobs=default_workers(), what="replays")
     ap.add_argument("--limit", type=int, default=None, help="only N combinations, spread evenly over the grid")
     ap.add_argument("--grid-subset", default="", metavar="SPEC",
                     help="restrict the grid, e.g. 'cp_length_h=8.5,12;post_cp_interval_h=2,10'; "
@@ -63,9 +56,7 @@ def main(argv: list[str] | None = None) -> int:
         if not (math.isfinite(args.update_interval_h) or math.isinf(args.update_interval_h)) \
                 or args.update_interval_h <= 0:
             raise SweepError(f"--update-interval-h: {args.update_interval_h!r} must be > 0 (or inf)")
-        if args.jobs < 1:
-            raise SweepError(f"--jobs: {args.jobs} must be >= 1")
-        engine = EngineSpec(args.engine, args.address, args.jobs, args.retries)
+        engine = engine_from_args(args)
         base = {"input_names": list(TALC_INPUTS)}
         if args.config:
             base.update(load_config_file(args.config))
