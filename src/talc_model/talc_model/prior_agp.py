@@ -253,14 +253,20 @@ class AgpPriorModel(AdaptiveGaussianProcess):
     def from_state(cls, state: Mapping[str, Any]) -> "AgpPriorModel":
         if "prior" not in state:
             raise PriorError("agp prior: model state has no 'prior'")
-        base = AdaptiveGaussianProcess.from_state({k: v for k, v in state.items() if k != "prior"})
-        model = cls(state["config"], state["prior"], state["check_s"], state["agree_um"], state["residual_std_um"])
-        for key, value in vars(base).items():
-            if key != "config":
-                setattr(model, key, value)
-        model.x0 = None if state["x0"] is None else np.asarray(state["x0"], dtype=float)
-        return model
+        return restore_with_prior(cls(state["config"], state["prior"], state["check_s"], state["agree_um"],
+                                      state["residual_std_um"]), AdaptiveGaussianProcess, state)
 
+
+
+def restore_with_prior(model, base_cls, state: Mapping[str, Any]):
+    """``model`` (a prior-started model just built from ``state``'s settings) given the learnt state
+    of ``base_cls.from_state`` (everything but the prior) and the prior's input origin ``x0``."""
+    base = base_cls.from_state({k: v for k, v in state.items() if k != "prior"})
+    for key, value in vars(base).items():
+        if key != "config":
+            setattr(model, key, value)
+    model.x0 = None if state["x0"] is None else np.asarray(state["x0"], dtype=float)
+    return model
 
 def agp_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs) -> AgpPriorModel:
     """The run's AGP started from ``prior`` (from :func:`build_agp_prior` / ``thermal-comp prior``)."""

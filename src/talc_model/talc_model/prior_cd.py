@@ -23,7 +23,7 @@ from talc_model.cd_input_selection import forward_selection
 from talc_model.cd_model import CdConfig, CharacteristicDiagramModel
 from talc_model.characteristic_diagram import CharacteristicDiagram
 from talc_model.prior import PRIOR_VERSION, PriorError
-from talc_model.prior_agp import error_deltas
+from talc_model.prior_agp import error_deltas, restore_with_prior
 
 #: adaptation settings stored in the prior (the run's configuration overrides the CD-model keys):
 #: a load-case update after every probe, its stop rule floored at twice the linear probe noise
@@ -169,13 +169,8 @@ class CdPriorModel(CharacteristicDiagramModel):
     def from_state(cls, state: Mapping[str, Any]) -> "CdPriorModel":
         if not state.get("prior"):
             raise PriorError("cd prior: model state has no 'prior'")
-        base = CharacteristicDiagramModel.from_state({k: v for k, v in state.items() if k != "prior"})
-        model = cls(state["config"], state["prior"], state["check_s"])
-        for key, value in vars(base).items():
-            if key != "config":
-                setattr(model, key, value)
-        model.x0 = None if state["x0"] is None else np.asarray(state["x0"], dtype=float)
-        return model
+        return restore_with_prior(cls(state["config"], state["prior"], state["check_s"]),
+                                  CharacteristicDiagramModel, state)
 
 
 def cd_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs) -> CdPriorModel:
