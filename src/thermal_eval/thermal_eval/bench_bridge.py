@@ -2,8 +2,9 @@
 
 The CNC emulator runs as its own process (``thermal-comp cnc-emulator``), as a CNC would;
 this process plays the bridge's core path for each prediction: eq. 6.3-6.5 at the current
-position, one safety-envelope step, the OPC UA write of X/Y/Z and its read-back. The
-latency of one prediction is from its arrival to the confirmed read-back. Measured twice:
+position, one safety-envelope step, the OPC UA write of X/Y/Z with its read-back pipelined
+behind it in the same round trip. The latency of one prediction is from its arrival to the
+read-back that confirms it. Measured twice:
 without security and with Basic256Sha256 Sign&Encrypt plus user/password (self-signed
 certificates made for the run). Figures: p50, p99, max in ms, and writes/s. A histogram
 PNG goes to ``--out-dir``.
