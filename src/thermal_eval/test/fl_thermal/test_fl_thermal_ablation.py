@@ -1,6 +1,6 @@
 """Issue 19 item 6 on the real FL_THERMAL recording (slow: one calibration of the
 ``fl-thermal-rig`` preset, a screen of its 54 mechanisms and eight diagnoses of the 46 h
-recording, 15-25 min on a loaded 2-core machine).
+recording: 131 s measured on a nearly idle 2-core machine, each diagnosis 51-213 s under load 5-12).
 
 The mechanisms are chosen by the recording, not by the finder: every mechanism of the
 calibrated twin is removed and scored with the calibrated twin alone, and the rule of
