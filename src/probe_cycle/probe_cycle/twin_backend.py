@@ -6,8 +6,11 @@ answers from the true geometry at that instant (thermal_twin.artefact_geometry).
 cycle's 95 s are spent in simulated time, and the reply's stamp is the simulated instant
 of the trigger.
 
-Calls block the calling thread. The node runs a multi-threaded executor, and the
-response is processed by another thread. A service that is missing, or that gives no
+Calls block the calling thread. The client lives on a private node spun by its own
+single-threaded executor thread: rclpy's MultiThreadedExecutor, which runs the node's action
+goal, keeps re-yielding an in-progress task before it looks at its wait set, so a service
+response waiting there was taken only at a lucky moment (probing cycles stalled for 6-24 s
+of wall time with every process idle). A service that is missing, or that gives no
 answer within ``call_timeout_s`` of wall time, raises ``ProbeBackendError``; so does
 :meth:`TwinProbeBackend.stop` (from another thread, at once): a node told to stop while
 machine_sim is already gone must not sit out the timeout (the launcher's SIGKILL came first).
@@ -18,7 +21,8 @@ import threading
 import time
 
 import numpy as np
-from rclpy.callback_groups import ReentrantCallbackGroup
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
 from thermal_comp_common.node_runtime import SERVICE_TOUCH_PROBE, stamp_to_s
@@ -36,10 +40,23 @@ class TwinProbeBackend(ProbeBackend):
         self.node = node
         self.call_timeout_s = float(call_timeout_s)
         self.service_wait_s = float(service_wait_s)
-        self.client = node.create_client(TouchProbe, service_name,
-                                         callback_group=ReentrantCallbackGroup())
+        # the node's own remappings are global arguments (__node:=...): the private node takes
+        # none, its namespace is the node's, so the service name resolves as it would there
+        self._client_node = rclpy.create_node(f"{node.get_name()}_touch_client", namespace=node.get_namespace(),
+                                              context=node.context, use_global_arguments=False)
+        self.client = self._client_node.create_client(TouchProbe, service_name)
+        self._executor = SingleThreadedExecutor(context=node.context)
+        self._executor.add_node(self._client_node)
+        self._spinner = threading.Thread(target=self._spin, name="touch-probe-client", daemon=True)
+        self._spinner.start()
         self._stopped = threading.Event()
         self._wake: threading.Event | None = None     # the wait of the move in progress
+
+    def _spin(self) -> None:
+        try:
+            self._executor.spin()
+        except Exception:           # context shut down under it (the node's stop): nothing to answer
+            pass
 
     def stop(self) -> None:
         """End the move in progress (its ``touch`` raises at once) and refuse further moves."""
@@ -94,4 +111,7 @@ class TwinProbeBackend(ProbeBackend):
 
     def close(self) -> None:
         self.stop()
-        self.node.destroy_client(self.client)
+        self._executor.shutdown(timeout_sec=1.0)
+        self._spinner.join(timeout=2.0)
+        self._client_node.destroy_client(self.client)
+        self._client_node.destroy_node()
