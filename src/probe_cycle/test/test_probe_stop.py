@@ -18,7 +18,7 @@ import time
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 
 from probe_cycle.cycle_plan import TouchMove  # noqa: E402

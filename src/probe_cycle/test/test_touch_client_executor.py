@@ -14,7 +14,7 @@ import pathlib
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from probe_cycle.cycle_plan import TouchMove  # noqa: E402

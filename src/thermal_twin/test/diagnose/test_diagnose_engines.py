@@ -65,7 +65,6 @@ def test_a_local_pool_of_two_gives_the_serial_report(recording, serial):
 
 @pytest.mark.slow
 def test_a_dask_local_cluster_of_two_gives_the_serial_report(recording, serial):
-    pytest.importorskip("distributed")
     _assert_same(diagnose(SPEC, recording, engine=EngineSpec("dask", workers=2)), serial)
 
 

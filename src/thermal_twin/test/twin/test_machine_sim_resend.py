@@ -12,7 +12,7 @@ import types
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 
 from thermal_comp_common.node_runtime import s_to_stamp  # noqa: E402
 
