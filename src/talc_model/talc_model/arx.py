@@ -274,46 +274,48 @@ class ArxModel:
         *after* the prediction for k has been recorded. Returns the predictions (NaN
         before ``start``).
         """
-        u = np.asarray(u, dtype=float)
-        if u.ndim == 1:
-            u = u[:, None]
-        n = u.shape[0]
-        o = self.orders
-        if start < o.max_lag:
-            raise ValueError(f"simulate: start {start} is before the model's largest lag {o.max_lag}")
-        y = np.full(n, np.nan)
-        y[:start] = np.asarray(y_init, dtype=float)[:start]
-        bu = self.input_part(u)
+        y, bu = self.simulation_start(u, y_init, start, "simulate")
+        n = len(bu)
         pred = np.full(n, np.nan)
-        if measured is None or not np.any(measured[start:]):
-            # pure simulation: an IIR filter, vectorised by scipy.signal.lfilter
-            if o.na == 0:
-                pred[start:] = bu[start:]
-                return pred
-            den = np.concatenate(([1.0], self.a))
-            zi = signal.lfiltic([1.0], den, y[start - o.na:start][::-1])
-            pred[start:], _ = signal.lfilter([1.0], den, bu[start:], zi=zi)
-            return pred
-        if o.na == 0:
-            pred[start:] = bu[start:]
+        if measured is None or not np.any(measured[start:]) or self.orders.na == 0:
+            pred[start:] = self.free_run(bu, y, start, n)
             return pred
         # between measurements the recursion is an IIR filter: run it segment by segment,
         # each segment starting from the history (measured values replacing predictions)
-        den = np.concatenate(([1.0], self.a))
         meas_idx = np.flatnonzero(np.asarray(measured[start:], bool)) + start
         seg_starts = [start] + [int(m) + 1 for m in meas_idx if m + 1 < n]
         seg_ends = [int(m) + 1 for m in meas_idx] + [n]
         for s0, s1 in zip(seg_starts, seg_ends):
             if s1 <= s0:
                 continue
-            zi = signal.lfiltic([1.0], den, y[s0 - o.na:s0][::-1])
-            out, _ = signal.lfilter([1.0], den, bu[s0:s1], zi=zi)
-            pred[s0:s1] = out
-            y[s0:s1] = out
+            pred[s0:s1] = y[s0:s1] = self.free_run(bu, y, s0, s1)
             last = s1 - 1
             if measured[last]:
                 y[last] = y_measured[last]
         return pred
+
+    def simulation_start(self, u: np.ndarray, y_init: np.ndarray, start: int, who: str
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The output history (``y_init`` before ``start``, NaN after) and the input part of
+        ``u`` for a simulation from ``start``; ``who`` names the caller in the error."""
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 1:
+            u = u[:, None]
+        if start < self.orders.max_lag:
+            raise ValueError(f"{who}: start {start} is before the model's largest lag {self.orders.max_lag}")
+        y = np.full(u.shape[0], np.nan)
+        y[:start] = np.asarray(y_init, dtype=float)[:start]
+        return y, self.input_part(u)
+
+    def free_run(self, bu: np.ndarray, y: np.ndarray, s0: int, s1: int) -> np.ndarray:
+        """Predictions for k = s0 .. s1-1 fed back on their own from the history ``y[:s0]``:
+        an IIR filter, vectorised by scipy.signal.lfilter."""
+        na = self.orders.na
+        if na == 0:
+            return bu[s0:s1].copy()
+        den = np.concatenate(([1.0], self.a))
+        zi = signal.lfiltic([1.0], den, y[s0 - na:s0][::-1])
+        return signal.lfilter([1.0], den, bu[s0:s1], zi=zi)[0]
 
     def to_state(self) -> dict:
         return {"orders": self.orders.to_state(), "theta": self.theta.tolist(),

@@ -127,23 +127,12 @@ def observer_predictions(model, u: np.ndarray, y: np.ndarray, start: int, measur
     matching as in ``TalcModel._observe``). ``y[:start]`` is the initial history, known to the
     probe noise (as after TALC's first fit). NaN before ``start``. The same predictor the
     online loop runs, so candidate models are ranked by what the loop will do with them."""
-    from scipy import signal   # the segments between probes are IIR filters, as ArxModel.simulate
-
-    u = np.asarray(u, float)
-    if u.ndim == 1:
-        u = u[:, None]
-    n = u.shape[0]
-    o = model.orders
-    if start < o.max_lag:
-        raise ObserverError(f"observer_predictions: start {start} is before the model's largest lag {o.max_lag}")
     if window < 1:
         raise ObserverError(f"observer_predictions: window {window!r} must be >= 1")
-    x = np.full(n, np.nan)
-    x[:start] = np.asarray(y, float)[:start]
-    bu = model.input_part(u)
+    x, bu = model.simulation_start(u, y, start, "observer_predictions")
+    n = len(bu)
     pred = np.full(n, np.nan)
-    na = o.na
-    den = np.concatenate(([1.0], model.a))
+    na = model.orders.na
     meas = np.asarray(measured, bool)
     meas_idx = [int(k) for k in np.flatnonzero(meas[start:]) + start if math.isfinite(y[k])]
     k_last = start - 1
@@ -154,12 +143,7 @@ def observer_predictions(model, u: np.ndarray, y: np.ndarray, start: int, measur
     for s1 in meas_idx + ([n - 1] if not meas_idx or meas_idx[-1] != n - 1 else []):
         if s1 < s0:
             continue
-        if na == 0:
-            pred[s0:s1 + 1] = bu[s0:s1 + 1]
-        else:
-            zi = signal.lfiltic([1.0], den, x[s0 - na:s0][::-1])
-            pred[s0:s1 + 1], _ = signal.lfilter([1.0], den, bu[s0:s1 + 1], zi=zi)
-        x[s0:s1 + 1] = pred[s0:s1 + 1]
+        pred[s0:s1 + 1] = x[s0:s1 + 1] = model.free_run(bu, x, s0, s1 + 1)
         s0 = s1 + 1
         if s1 not in probes or not math.isfinite(pred[s1]) or na == 0:
             continue
