@@ -1,7 +1,6 @@
 """Presets against the theses' magnitudes and behaviour; every scenario runs."""
 from __future__ import annotations
 
-import pathlib
 
 import numpy as np
 import pytest
@@ -78,9 +77,8 @@ def test_lathe_test_piece_tool_positions_as_in_the_thesis():
     assert abs(peak["T221_X_um"] - peak["T223_X_um"]) < 0.15 * peak["T221_X_um"]
 
 
-def test_spindle_stand_columns_line_up_with_fl_thermal():
-    shared = pathlib.Path(__file__).resolve().parents[5] / "shared"      # beside the repository
-    real = read_recording_csv(shared / "data" / "fl_thermal" / "fl_thermal.csv")
+def test_spindle_stand_columns_line_up_with_fl_thermal(shared_dir):
+    real = read_recording_csv(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv")
     r = simulate("spindle-stand", make_timeline("spindle-stand", "fl-thermal-programme", seed=0), seed=0)
     rec = r.to_recording()
     assert len(rec) == len(real)
