@@ -32,6 +32,7 @@ from typing import Mapping
 import numpy as np
 
 from talc_model.uncertainty_weighted_hold import measured_hold_rate, uncertainty_weighted_hold
+from thermal_eval.probe_gain_update import regained_compensation
 from thermal_comp_common.metrics import q_prod
 from thermal_eval.evaluation_spec import EvaluationData
 
@@ -194,9 +195,11 @@ def _segment_values(values: np.ndarray, measured: list[int], start: int, n: int)
 
 
 def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof: Mapping[str, tuple[np.ndarray, int]],
-                 budget: ProbingBudget) -> AdaptiveResult:
+                 budget: ProbingBudget, regain: Mapping[str, tuple[np.ndarray, float]] | None = None) -> AdaptiveResult:
     """One model in adaptive mode: schedule, rates from the training rows (updated at each of
-    its probings), blended compensation."""
+    its probings), blended compensation. ``regain``: per channel the model's per-input
+    contributions and the walk-forward's penalty; there the probes re-estimate the gains
+    (:mod:`thermal_eval.probe_gain_update`) and that replaces the blend (w = 1, dead band kept)."""
     n, start, t = len(data), data.split.n_train, data.time_s
     rows, triggered = probe_schedule(data, prediction, budget)
     measured = [start - 1] + rows
@@ -211,7 +214,12 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         q_m = measured_hold_rate(t[first:start], (y - p_oof)[first:start], start - first)
         gain0 = training_gain(t, y, p_oof, first, start, lag_h, band)
         gains = online_gains(y, p, measured, gain0, band=band)
-        corrected = _piecewise_offset(y, p, measured, start, n)
+        if regain and c in regain:
+            contrib, penalty = regain[c]
+            corrected = regained_compensation(y, p, contrib, measured, start, n, penalty)
+            gains = np.ones_like(gains)
+        else:
+            corrected = _piecewise_offset(y, p, measured, start, n)
         y_p = _segment_values(y[measured], measured, start, n)
         outside = y_p + shrink(corrected - y_p, band)          # the model's change beyond the dead band
         # uncertainty-weighted hold with a unit hold rate: w = dt / (dt + s^2) = gain

@@ -23,7 +23,8 @@ from thermal_eval.adaptive_eval import ProbingBudget, probe_counts, run_adaptive
 from thermal_eval.baselines import BASELINES
 from thermal_eval.closed_loop_rows import CLOSED_LOOP, hold_probes, run_closed_loop
 from thermal_eval.evaluation_spec import EvaluationData
-from thermal_eval.model_selection import ModelSpec, checked_prediction, out_of_fold_prediction
+from thermal_eval.model_selection import OOF_MIN_FRACTION, ModelSpec, checked_prediction, out_of_fold_prediction
+from thermal_eval.probe_gain_update import choose_penalty
 from thermal_eval.open_loop_models import MODELS, OPT_IN
 
 #: baselines whose adaptive row would only be holding again
@@ -89,7 +90,7 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
     """Every channel of one model, open loop and (unless a plain baseline) adaptive."""
     s = data.split
     ol: dict[str, Any] = {"kind": model.kind, "description": model.description, "channels": {}}
-    preds, oofs = {}, {}
+    preds, oofs, regain = {}, {}, {}
     t0 = time.perf_counter()
     for ch in data.channels:
         y = data.displacement_um[ch]
@@ -100,6 +101,8 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
             cell["params"] = {k: v for k, v in params.items() if k != "orders"}
             if adaptive and model.name not in NOT_ADAPTIVE:
                 oofs[ch] = out_of_fold_prediction(model, data, ch, params, s.n_train)
+                if model.contributions is not None:
+                    regain[ch], cell["probe_gain_update"] = _gain_update_choice(data, model, ch, params, budget)
             preds[ch] = p
         except Exception as exc:   # one failing model/channel is one row with its reason
             cell = {"failed": _reason(exc)}
@@ -107,11 +110,26 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
     ol["seconds"] = round(time.perf_counter() - t0, 1)
     row = ModelRow(model.name, ol, preds)
     if adaptive and model.name not in NOT_ADAPTIVE:
-        _adaptive_row(data, model, preds, oofs, budget, row)
+        _adaptive_row(data, model, preds, oofs, budget, row, regain)
     return row
 
 
-def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow) -> None:
+def _gain_update_choice(data: EvaluationData, model: ModelSpec, ch: str, params: dict, budget: ProbingBudget):
+    """The model's contributions on rows < n_train, and the gain update's penalty chosen by a
+    walk-forward inside the training rows: the model fitted on the first half, probed at the
+    budget's interval over the second half."""
+    n_train = data.split.n_train
+    first = int(round(OOF_MIN_FRACTION * n_train))
+    every_s = 3600.0 * min(budget.probe_every_h, 1.0 / budget.max_probes_per_h)
+    p_fit = model.predict(data, ch, params, first)
+    penalty, scores = choose_penalty(data.time_s, data.displacement_um[ch], p_fit,
+                                     model.contributions(data, ch, params, first), first, n_train, every_s)
+    info = {"penalty": penalty, "walk_forward_rows": [first, n_train],
+            "walk_forward_mae_um": {k: round(v, 3) for k, v in scores.items()}}
+    return (model.contributions(data, ch, params, n_train), penalty), info
+
+
+def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow, regain=None) -> None:
     row: dict[str, Any] = {"kind": model.kind, "channels": {}}
     out.adaptive = row
     usable = {c: p for c, p in preds.items() if c in oofs}
@@ -119,7 +137,7 @@ def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow) -> None:
         row["failed"] = "no channel has an open-loop prediction"
         return
     try:
-        ad = run_adaptive(data, usable, oofs, budget)
+        ad = run_adaptive(data, usable, oofs, budget, {c: v for c, v in (regain or {}).items() if c in usable})
     except Exception as exc:
         row["failed"] = _reason(exc)
         return

@@ -21,6 +21,8 @@ from thermal_eval.evaluation_spec import EvaluationData
 
 Select = Callable[[EvaluationData, str, int], dict]
 Predict = Callable[[EvaluationData, str, dict, int], np.ndarray]
+#: per-input contributions of the open-loop prediction (rows x inputs), fitted on rows < n_fit
+Contributions = Callable[[EvaluationData, str, dict, int], np.ndarray]
 
 
 class ModelFailure(RuntimeError):
@@ -37,6 +39,9 @@ class ModelSpec:
     select: Select
     predict: Predict
     needs_inputs: bool = False
+    #: a linear model's per-input contributions: adaptive mode re-estimates their gains from the
+    #: probes (:mod:`thermal_eval.probe_gain_update`); None: the model only gets offsets
+    contributions: Contributions | None = None
 
 
 #: Walk-forward of the adaptive calibration: expanding folds from this fraction of the training rows.

@@ -9,6 +9,8 @@ predicts open loop from temperatures (and, for the ``*_inputs`` variants, machin
 - ``arx_simulation`` / ``arx_simulation_inputs``: TALC's ARX on a 5-min grid, inputs = medoid
   sensors of k-means groups (k chosen), orders by MDL, simulated after the fit rows; held
   between grid samples; ``arx_subgrid``: the same evaluated between grid samples;
+  ``arx_subgrid_gain_update``: the same open loop, whose adaptive row re-estimates the gain of
+  each input's contribution from the probes (:mod:`thermal_eval.probe_gain_update`);
 - ``characteristic_diagram``: a smoothed-grid diagram of the medoid temperatures and their
   1-h low-pass (grid refinement on the training rows' last 40 %);
 - ``gp_static``: the AGP's ARD-RBF GP on the medoid temperatures and 0.5-h / 2-h low-pass
@@ -161,18 +163,23 @@ def fit_guarded(y: np.ndarray, u: np.ndarray, orders):
     return fit_arx(y, u, orders, start=start, stop=int(round(0.6 * y.size)))
 
 
+def _arx_fit(data, channel, params, n_fit, with_inputs):
+    """The chosen ARX fitted on rows < n_fit: (model, grid, step, g, y on the grid, inputs by row)."""
+    grid, step = _grid(data)
+    g = int(np.sum(grid < n_fit))
+    y = data.displacement_um[channel][grid]
+    u_rows = _arx_rows(data, params["inputs"], with_inputs)
+    try:
+        model = fit_guarded(y[:g], u_rows[grid][:g], params["orders"])
+    except RankDeficientError as exc:
+        raise ModelFailure(f"ARX unidentifiable on rows < {n_fit}: {exc}") from None
+    return model, grid, step, g, y, u_rows
+
+
 def _arx_predict(with_inputs: bool, subgrid: bool):
     def predict(data, channel, params, n_fit):
-        grid, step = _grid(data)
-        g = int(np.sum(grid < n_fit))
-        y = data.displacement_um[channel][grid]
-        u_rows = _arx_rows(data, params["inputs"], with_inputs)
-        u = u_rows[grid]
-        try:
-            model = fit_guarded(y[:g], u[:g], params["orders"])
-        except RankDeficientError as exc:
-            raise ModelFailure(f"ARX unidentifiable on rows < {n_fit}: {exc}") from None
-        pred_grid = model.simulate(u, y[:g], g)
+        model, grid, step, g, y, u_rows = _arx_fit(data, channel, params, n_fit, with_inputs)
+        pred_grid = model.simulate(u_rows[grid], y[:g], g)
         pred_grid[:g] = y[:g]
         if subgrid:
             pred = subgrid_prediction(model, u_rows, grid, pred_grid, g - 1)
@@ -180,6 +187,30 @@ def _arx_predict(with_inputs: bool, subgrid: bool):
             return pred
         return pred_grid[np.minimum(np.arange(len(data)) // step, grid.size - 1)]
     return predict
+
+
+def arx_contributions(model, u_grid: np.ndarray, g: int) -> np.ndarray:
+    """Each input's share of the simulation from grid sample ``g`` (grid x inputs, 0 before g):
+    the model simulated on that input alone from a zero history, minus the zero-input run (the
+    intercept's). By linearity they sum with the zero-input run from the measured history to the
+    full simulation."""
+    zero_u = np.zeros_like(u_grid)
+    hist = np.zeros(g)
+    base = model.simulate(zero_u, hist, g)
+    out = np.zeros(u_grid.shape)
+    for j in range(u_grid.shape[1]):
+        uj = zero_u.copy()
+        uj[:, j] = u_grid[:, j]
+        out[g:, j] = (model.simulate(uj, hist, g) - base)[g:]
+    return out
+
+
+def _arx_contributions(with_inputs: bool):
+    def contributions(data, channel, params, n_fit):
+        model, grid, step, g, _, u_rows = _arx_fit(data, channel, params, n_fit, with_inputs)
+        per_grid = arx_contributions(model, u_rows[grid], g)
+        return per_grid[np.minimum(np.arange(len(data)) // step, grid.size - 1)]   # held between samples
+    return contributions
 
 
 # ----------------------------------------------------------------------------- characteristic diagram
@@ -254,6 +285,8 @@ MODELS = [
               _arx_predict(False, False)),
     ModelSpec("arx_subgrid", "model", "TALC's ARX, simulated, evaluated between grid samples", _arx_select(False),
               _arx_predict(False, True)),
+    ModelSpec("arx_subgrid_gain_update", "model", "arx_subgrid; adaptive: probes re-estimate each input's gain",
+              _arx_select(False), _arx_predict(False, True), contributions=_arx_contributions(False)),
     ModelSpec("arx_simulation_inputs", "model", "TALC's ARX + machine inputs", _arx_select(True),
               _arx_predict(True, False), needs_inputs=True),
     ModelSpec("characteristic_diagram", "model", "characteristic diagram of medoid temperatures + 1-h low-pass",

@@ -1,0 +1,81 @@
+"""The probes' re-estimation of each input's gain (thermal_eval.probe_gain_update) and the ARX
+contributions it works on."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from talc_model.arx import ArxOrders, fit_arx
+from thermal_eval.open_loop_models import arx_contributions
+from thermal_eval.probe_gain_update import (GainUpdateError, choose_penalty, gain_errors, regained_compensation,
+                                            regular_probes)
+
+
+def _drifting_gain(n=2000, err=(0.3, 0.0), seed=0):
+    """Two smooth contributions; the machine's gain of the first is 30 % above the model's."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 60.0
+    x = np.column_stack([5 * np.sin(t / 20000.0), 3 * (1 - np.exp(-t / 30000.0))])
+    p = x.sum(axis=1)
+    y = p + x @ np.asarray(err) + rng.normal(0, 0.01, n)
+    return t, x, p, y
+
+
+def test_the_probes_recover_a_wrong_input_gain():
+    t, x, p, y = _drifting_gain()
+    measured = [99] + regular_probes(t, 100, len(t), 3600.0)
+    d = gain_errors(y, p, x, measured, penalty=0.1)
+    assert np.allclose(d[-1], [0.3, 0.0], atol=0.02)
+    assert np.allclose(d[0], 0.0)     # before any pair: the calibrated gains
+
+
+def test_the_regained_model_beats_the_plain_offset_and_sees_only_its_probes():
+    t, x, p, y = _drifting_gain()
+    start = 100
+    measured = [start - 1] + regular_probes(t, start, len(t), 3600.0)
+    c = regained_compensation(y, p, x, measured, start, len(t), penalty=1.0)
+    seg = np.searchsorted(measured, np.arange(start, len(t)), side="left") - 1
+    m = np.asarray(measured)[seg]
+    offset = p[start:] + y[m] - p[m]
+    assert np.mean(np.abs(y[start:] - c[start:])) < 0.5 * np.mean(np.abs(y[start:] - offset))
+    poisoned = np.full_like(y, 1e6)
+    poisoned[measured] = y[measured]
+    c2 = regained_compensation(poisoned, p, x, measured, start, len(t), penalty=1.0)
+    assert np.array_equal(c[start:], c2[start:]) and np.isnan(c2[:start]).all()
+
+
+def test_the_walk_forward_penalty_uses_only_rows_before_its_stop():
+    t, x, p, y = _drifting_gain()
+    best, scores = choose_penalty(t, y, p, x, 500, 1500, 3600.0)
+    assert scores[f"{best:g}"] == min(scores.values())
+    y2 = y.copy()
+    y2[1500:] = 1e6
+    assert choose_penalty(t, y2, p, x, 500, 1500, 3600.0) == (best, scores)
+    # the true gain error is large: the loosest prior wins over the tightest
+    assert scores["1"] < scores["1000"]
+
+
+def test_bad_input_names_the_argument():
+    t, x, p, y = _drifting_gain(n=50)
+    with pytest.raises(GainUpdateError, match="penalty"):
+        gain_errors(y, p, x, [0, 10], penalty=0.0)
+    with pytest.raises(GainUpdateError, match="measured"):
+        regained_compensation(y, p, x, [20, 30], 10, 50, 1.0)
+    with pytest.raises(GainUpdateError, match="contributions"):
+        gain_errors(y, p, x[:10], [0, 10], penalty=1.0)
+
+
+def test_arx_contributions_add_up_to_the_simulation():
+    rng = np.random.default_rng(3)
+    n = 400
+    u = np.cumsum(rng.normal(0, 0.1, (n, 2)), axis=0)
+    y = np.zeros(n)
+    for k in range(2, n):
+        y[k] = 1.5 * y[k - 1] - 0.56 * y[k - 2] + 0.2 * u[k, 0] - 0.1 * u[k - 1, 1] + 0.05 + rng.normal(0, 1e-3)
+    model = fit_arx(y[:300], u[:300], ArxOrders(2, (1, 2), intercept=True), start=2)
+    g = 300
+    full = model.simulate(u, y[:g], g)
+    base = model.simulate(np.zeros_like(u), y[:g], g)
+    x = arx_contributions(model, u, g)
+    assert np.allclose(x[:g], 0.0)
+    assert np.allclose(base[g:] + x[g:].sum(axis=1), full[g:], atol=1e-9)

@@ -1,0 +1,98 @@
+"""Re-estimating a model's gain per input from its probes (adaptive mode of ``evaluate``).
+
+A linear model's open-loop prediction is a sum of per-input contributions, p = p0 + sum_j x_j
+(for an ARX model, x_j = B_j(q)/A(q) u_j simulated; linearity). After calibration the machine's
+sensitivities drift from the fitted ones, so between two probings the displacement changes by
+dy = dp + sum_j d_j dx_j + e, with d_j the relative error of input j's gain. Each pair of
+consecutive probings gives one such equation; the gain errors d are re-estimated by ridge
+regression on all pairs so far, shrunk towards 0 (the calibrated gains) by ``penalty`` (um^2 of
+contribution change per unit gain error: the prior's precision over the noise's). Between
+probings the compensation starts from the last probe and follows the re-gained model:
+
+    c(t) = y(t_p) + [p(t) + sum_j d_j x_j(t)] - [p(t_p) + sum_j d_j x_j(t_p)].
+
+``penalty`` is chosen on the training rows by walk-forward (:func:`choose_penalty`), never on
+held-out rows. No rclpy here.
+"""
+from __future__ import annotations
+
+import math
+from typing import Sequence
+
+import numpy as np
+
+#: candidate penalties (um^2 per unit gain error), from nearly free gains to nearly fixed ones
+PENALTIES = (1.0, 10.0, 100.0, 1000.0)
+
+
+class GainUpdateError(ValueError):
+    """Bad input to the gain update; the message names the argument and value."""
+
+
+def gain_errors(y: np.ndarray, p: np.ndarray, contributions: np.ndarray, measured: Sequence[int],
+                penalty: float) -> np.ndarray:
+    """The gain errors d in force after each measurement (row i: after ``measured[i]``): ridge on
+    the pairs of consecutive measurements up to it. Reads ``y`` at measured rows only."""
+    if not (math.isfinite(penalty) and penalty > 0):
+        raise GainUpdateError(f"penalty: {penalty!r} must be a finite number > 0")
+    x = np.nan_to_num(np.asarray(contributions, float))
+    if x.ndim != 2 or x.shape[0] != len(p):
+        raise GainUpdateError(f"contributions: shape {x.shape} must be (rows={len(p)}, inputs)")
+    m = np.asarray(measured, int)
+    a = penalty * np.eye(x.shape[1])
+    b = np.zeros(x.shape[1])
+    out = [np.zeros(x.shape[1])]
+    for prev, r in zip(m[:-1], m[1:]):
+        dx = x[r] - x[prev]
+        z = (y[r] - y[prev]) - (p[r] - p[prev])
+        if math.isfinite(z):
+            a += np.outer(dx, dx)
+            b += dx * z
+        out.append(np.linalg.solve(a, b))
+    return np.asarray(out)
+
+
+def regained_compensation(y: np.ndarray, p: np.ndarray, contributions: np.ndarray, measured: Sequence[int],
+                          start: int, stop: int, penalty: float) -> np.ndarray:
+    """c(t) on rows [start, stop) from the last measurement strictly before each row (a probe row
+    is compensated before its probe); NaN elsewhere. ``measured[0]`` < ``start``."""
+    m = np.asarray(measured, int)
+    if m.size == 0 or m[0] >= start:
+        raise GainUpdateError(f"measured: {m[:3].tolist()!r}... must start with a row before {start}")
+    d = gain_errors(y, p, contributions, m, penalty)
+    x = np.nan_to_num(np.asarray(contributions, float))
+    rows = np.arange(start, stop)
+    seg = np.searchsorted(m, rows, side="left") - 1
+    mr = m[seg]
+    out = np.full(len(p), np.nan)
+    out[rows] = (y[mr] + p[rows] - p[mr] + np.sum(d[seg] * (x[rows] - x[mr]), axis=1))
+    return out
+
+
+def regular_probes(time_s: np.ndarray, start: int, stop: int, every_s: float) -> list[int]:
+    """Rows of a probing every ``every_s`` after row ``start - 1`` (the walk-forward's schedule:
+    at a budget of one per hour the cap puts the probings on the hour)."""
+    t = np.asarray(time_s, float)
+    rows, nxt = [], t[start - 1] + every_s
+    for r in range(start, stop):
+        if t[r] >= nxt:
+            rows.append(r)
+            nxt = t[r] + every_s
+    return rows
+
+
+def choose_penalty(time_s: np.ndarray, y: np.ndarray, p_fit: np.ndarray, contributions_fit: np.ndarray,
+                   first: int, stop: int, every_s: float, penalties: Sequence[float] = PENALTIES
+                   ) -> tuple[float, dict[str, float]]:
+    """The penalty with the smallest MAE on training rows [first, stop) of a model fitted on rows
+    < ``first`` (``p_fit``, ``contributions_fit``) probed every ``every_s``: (best, MAE by penalty)."""
+    if not 0 < first < stop <= len(y):
+        raise GainUpdateError(f"walk-forward rows [{first}, {stop}) are not inside the {len(y)} rows")
+    measured = [first - 1] + regular_probes(time_s, first, stop, every_s)
+    scores = {}
+    for pen in penalties:
+        c = regained_compensation(y, p_fit, contributions_fit, measured, first, stop, pen)
+        e = np.abs(y[first:stop] - c[first:stop])
+        scores[f"{pen:g}"] = float(np.mean(e[np.isfinite(e)])) if np.isfinite(e).any() else math.inf
+    best = min(penalties, key=lambda v: scores[f"{v:g}"])
+    return float(best), scores
