@@ -58,6 +58,7 @@ class ProbeUpdateResult:
     probe_rows: list[int] = field(default_factory=list)
     no_good_phases: int = 0
     load_change_phases: int = 0
+    refused_steps: int = 0                # rows at which a due probing was refused by the cap
 
     def probes_in(self, lo: int, hi: int) -> int:
         return int(sum(lo <= r < hi for r in self.probe_rows))
@@ -66,7 +67,8 @@ class ProbeUpdateResult:
 def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np.ndarray, start: int,
                       schedule: ProbeSchedule, filters: Sequence[SlowErrorFilter], stop: int | None = None,
                       last_calibration_probe_s: float | None = None,
-                      load_change_rows: Sequence[int] = ()) -> ProbeUpdateResult:
+                      load_change_rows: Sequence[int] = (),
+                      max_probes_per_h: float = math.inf) -> ProbeUpdateResult:
     """Replay rows [start, stop): compensate with ``prediction + b``, probe on the schedule.
 
     ``true_um`` and ``prediction_um`` are N x m (m channels, one filter each; 1-D = one channel).
@@ -82,6 +84,9 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
     model is least sure, so it starts a no-good phase as an ACL exceedance would (unless one is
     running): ``ng_measurements`` probings every ``ng_interval_s``, the first one interval after
     the change. Counted in ``load_change_phases``.
+
+    ``max_probes_per_h`` (the user's budget): a due probing is refused (and asked again at the
+    next row) while it would make the probings more than that many per hour since row start-1.
     """
     t = np.asarray(time_s, dtype=float)
     y = np.asarray(true_um, dtype=float)
@@ -127,6 +132,9 @@ def run_probe_updates(time_s: np.ndarray, true_um: np.ndarray, prediction_um: np
             result.load_change_phases += 1
             due = min(due, t[k] + schedule.ng_interval_s)
         if t[k] + 1e-9 < due:
+            continue
+        if len(result.probe_rows) + 1 > max_probes_per_h * (t[k] - t[start - 1]) / 3600.0:
+            result.refused_steps += 1
             continue
         if not np.all(np.isfinite(y[k])):
             raise ProbeUpdateError(f"true_um: row {k} is {y[k].tolist()!r} at a probing instant")

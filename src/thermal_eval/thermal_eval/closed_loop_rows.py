@@ -1,15 +1,24 @@
 """The project's adaptive models (AGP, TALC) as adaptive rows of ``thermal-comp evaluate``.
 
 Unlike the open-loop models wrapped by :mod:`thermal_eval.adaptive_eval`, these run their own
-logic through :class:`talc_model.closed_loop.ClosedLoop` (the virtual experiment): their own
-calibration phase from row 0, then the AGP's control measurements and sigma_max-triggered
-recalibrations with its uncertainty-weighted hold, or TALC's no-good phases and parameter
-updates. A displacement is seen only when the model's own schedule probes. Every probing after
-the model leaves its calibration phase counts against the user's budget: :class:`ProbingCap`
-refuses a probing that would exceed ``max_probes_per_h`` x the hours since then. Beside each
-row: holding the same probes at exactly the same instants. The models are configured from the
-recording's columns only (components = displacement column names, sensors = temperature
-column names); nothing knows a dataset. No rclpy here.
+logic. Two ways to start:
+
+- **from row 0** (``agp_closed_loop``, ``talc_closed_loop``): through
+  :class:`talc_model.closed_loop.ClosedLoop` (the virtual experiment), with their own calibration
+  phase, then the AGP's control measurements and sigma_max-triggered recalibrations with its
+  uncertainty-weighted hold, or TALC's no-good phases and parameter updates;
+  :class:`ProbingCap` holds them to the budget;
+- **calibrated on the training rows** (``talc_calibrated*``, ``agp_calibrated``): the training
+  rows are their calibration phase (one charged probing per 5-min grid sample), their settings
+  chosen by a walk-forward inside them (:mod:`thermal_eval.calibrated_talc`,
+  :mod:`thermal_eval.calibrated_agp`), and they probe after it under the same budget and cap.
+
+A displacement is seen only when the model probes. Every probing after calibration counts
+against the user's budget (``max_probes_per_h`` x the hours since the end of calibration),
+Q_prod after calibration is counted the same way for every row, and beside each row is holding
+the same probes at exactly the same instants. The models are configured from the recording's
+columns only (components = displacement column names, sensors = temperature column names,
+machine inputs = input columns); nothing knows a dataset. No rclpy here.
 """
 from __future__ import annotations
 
@@ -24,6 +33,7 @@ from talc_model.sensor_selection import sensor_groups, sensor_medoids
 from thermal_comp_common.metrics import q_prod
 from thermal_comp_common.recording_csv import Recording
 from thermal_eval.adaptive_eval import ProbingBudget
+from thermal_eval.calibration_rows import refused_by_cap
 from thermal_eval.evaluation_spec import EvaluationData
 
 
@@ -58,8 +68,7 @@ class ProbingCap:
         own = self.model.probe_due(t_s)
         if not own or self._calibrating(t_s):
             return own
-        allowed = self.max_probes_per_h * (t_s - self.calibration_end_s) / 3600.0
-        if self.after_calibration + 1 > allowed:
+        if refused_by_cap(self.after_calibration, t_s, self.calibration_end_s, self.max_probes_per_h):
             self.refused += 1
             return False
         return True
@@ -118,19 +127,13 @@ def talc_config(data: EvaluationData, budget: ProbingBudget) -> dict[str, Any]:
             "post_cp_interval_h": budget.probe_every_h, "probe_duration_s": budget.probe_duration_s}
 
 
-#: name -> (model kind, configuration from the data and the budget)
-CLOSED_LOOP: dict[str, tuple[str, Callable[[EvaluationData, ProbingBudget], dict]]] = {
-    "agp_closed_loop": ("agp", agp_config),
-    "talc_closed_loop": ("talc", talc_config),
-}
-
-
 def hold_probes(y: np.ndarray, probe_rows: list[int], n: int) -> np.ndarray:
-    """The last probed value at every row (NaN before the first probe): the baseline beside it."""
+    """The last value probed strictly before each row (NaN up to the first probe; a probe row is
+    compensated before its probe, so it holds the one before): the baseline beside each row."""
     out = np.full(n, np.nan)
-    bounds = probe_rows[1:] + [n]
+    bounds = probe_rows[1:] + [n - 1]
     for r, hi in zip(probe_rows, bounds):
-        out[r + 1:hi] = y[r]
+        out[r + 1:hi + 1] = y[r]
     return out
 
 
@@ -157,22 +160,79 @@ def replay(data: EvaluationData, model: Any, show_progress: bool = False) -> Rep
     return Replay(comp, rows, res)
 
 
-def run_closed_loop(data: EvaluationData, name: str, budget: ProbingBudget) -> dict[str, Any]:
-    """Replay ``data`` through the model ``name``: compensation per channel, its probe rows, the
-    probings after calibration (and how many the cap refused), Q_prod after calibration."""
-    kind, config = CLOSED_LOOP[name]
-    model = ProbingCap(make_model(kind, config(data, budget)), budget.max_probes_per_h)
-    run = replay(data, model)
-    res, rows, comp = run.result, run.probe_rows, run.compensation
-    end = model.calibration_end_s
-    after = [r for r in rows if end is not None and data.time_s[r] >= end]
-    hours = (data.time_s[-1] - end) / 3600.0 if end is not None else 0.0
-    return {"compensation": comp, "probe_rows": rows, "probe_rows_after_calibration": after,
-            "calibration_end_h": None if end is None else round((end - data.time_s[0]) / 3600.0, 2),
-            "probings_after_calibration": len(after), "steps_probing_refused_by_budget": model.refused,
+def _counts(data: EvaluationData, rows: list[int], end_s: float | None, budget: ProbingBudget) -> dict[str, Any]:
+    """The probings after the end of calibration, per hour, and Q_prod after calibration."""
+    after = [r for r in rows if end_s is not None and data.time_s[r] >= end_s]
+    hours = (data.time_s[-1] - end_s) / 3600.0 if end_s is not None else 0.0
+    return {"probe_rows": rows, "probe_rows_after_calibration": after,
+            "calibration_end_h": None if end_s is None else round((end_s - data.time_s[0]) / 3600.0, 2),
+            "probings_after_calibration": len(after),
             "probings_per_h_after_calibration": round(len(after) / hours, 3) if hours > 0 else math.nan,
             "q_prod_after_calibration_pct": (round(q_prod(len(after), hours * 3600.0, budget.probe_duration_s), 2)
-                                             if hours > 0 else math.nan),
-            "parameter_updates": int(res.final_status.get("parameter_updates", 0)),
-            "no_good_phases": int(res.final_status.get("no_good_phases", 0)),
-            "recalibrations": len(res.recalibration_times_s)}
+                                             if hours > 0 else math.nan)}
+
+
+def _from_row_0(kind: str, config: Callable[[EvaluationData, ProbingBudget], dict]):
+    def run(data: EvaluationData, budget: ProbingBudget) -> dict[str, Any]:
+        model = ProbingCap(make_model(kind, config(data, budget)), budget.max_probes_per_h)
+        rep = replay(data, model)
+        res = rep.result
+        return {"compensation": rep.compensation, **_counts(data, rep.probe_rows, model.calibration_end_s, budget),
+                "calibration": "own, from row 0", "steps_probing_refused_by_budget": model.refused,
+                "parameter_updates": int(res.final_status.get("parameter_updates", 0)),
+                "no_good_phases": int(res.final_status.get("no_good_phases", 0)),
+                "recalibrations": len(res.recalibration_times_s)}
+    return run
+
+
+def _calibrated(data: EvaluationData, budget: ProbingBudget, calibration_rows: list[int], after: list[int],
+                compensation: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """The row of a model calibrated on the training rows: the calibration probings are the
+    first probe rows (what the hold beside it starts from), Q_prod over the whole recording
+    charges them too."""
+    n = data.split.n_train
+    rows = list(calibration_rows) + list(after)
+    total_s = float(data.time_s[-1] - data.time_s[0])
+    return {"compensation": {ch: np.where(np.isfinite(c), c, 0.0) for ch, c in compensation.items()},
+            **_counts(data, rows, float(data.time_s[n - 1]), budget),
+            "calibration": "the training rows", "calibration_probings": len(calibration_rows),
+            "q_prod_pct": round(q_prod(len(rows), total_s, budget.probe_duration_s), 2)}
+
+
+def _talc_calibrated(with_inputs: bool, load_probing: bool):
+    def run(data: EvaluationData, budget: ProbingBudget) -> dict[str, Any]:
+        from thermal_eval.calibrated_talc import run_calibrated_talc
+        r = run_calibrated_talc(data, budget, with_inputs=with_inputs, load_probing=load_probing, arx_cache={})
+        return {**_calibrated(data, budget, r.calibration_rows, r.probe_rows, r.compensation),
+                "steps_probing_refused_by_budget": r.refused_steps, "parameter_updates": 0,
+                "no_good_phases": r.no_good_phases, "load_change_phases": r.load_change_phases,
+                "recalibrations": 0, "settings": r.settings}
+    return run
+
+
+def _agp_calibrated(data: EvaluationData, budget: ProbingBudget) -> dict[str, Any]:
+    from thermal_eval.calibrated_agp import run_calibrated_agp
+    r = run_calibrated_agp(data, budget)
+    tr = r.trajectory
+    return {**_calibrated(data, budget, r.calibration_rows, tr.probe_rows, r.compensation),
+            "steps_probing_refused_by_budget": tr.refused_steps, "parameter_updates": tr.refits_optimised,
+            "no_good_phases": 0, "recalibrations": tr.sigma_probes, "settings": r.settings()}
+
+
+#: name -> runner (data, budget) -> the row's arrays and counts (:func:`run_closed_loop`)
+CLOSED_LOOP: dict[str, Callable[[EvaluationData, ProbingBudget], dict[str, Any]]] = {
+    "agp_closed_loop": _from_row_0("agp", agp_config),
+    "talc_closed_loop": _from_row_0("talc", talc_config),
+    "talc_calibrated": _talc_calibrated(False, False),
+    "talc_calibrated_inputs": _talc_calibrated(True, False),
+    "talc_calibrated_load_probing": _talc_calibrated(False, True),
+    "talc_calibrated_inputs_load_probing": _talc_calibrated(True, True),
+    "agp_calibrated": _agp_calibrated,
+}
+
+
+def run_closed_loop(data: EvaluationData, name: str, budget: ProbingBudget) -> dict[str, Any]:
+    """Run the model ``name`` on ``data``: compensation per channel, its probe rows (calibration
+    probings included), those after calibration, how many steps the cap refused, Q_prod after
+    calibration (and the model's own counts)."""
+    return CLOSED_LOOP[name](data, budget)
