@@ -21,7 +21,14 @@ and restart: it acknowledges instant t_k on ``sim_sync`` only once it has writte
 stamped t_k on every one of ``ack_topics`` and handed the file to the OS (fsynced with
 ``ack_fsync``), so machine_sim cannot run
 ahead of a dead recorder; the restarted recorder gets the unacknowledged instant when
-machine_sim re-sends it. (Buffering in the publishers and replaying was the alternative; it
+machine_sim re-sends it. The other participants' stamped outputs (``follow_topics``:
+temperatures, predictions, offsets, ground truth) are covered too, so the last instant's are
+written before machine_sim can finish and the graph be stopped (an acknowledgement of theirs
+says they published, not that the recorder has it): a follow topic is expected at t_k when it
+was written at the instant acknowledged before, so a bridge that is off or a topic nobody
+publishes never holds the graph; one that stops (a bridge switched off) holds t_k at most
+``follow_timeout_s`` wall seconds, then it is named (topic and publishing node) on the log and
+on ``/diagnostics`` and not expected until it is written again. (Buffering in the publishers and replaying was the alternative; it
 needs a second copy of every stream and a replay protocol, where lock-step reuses the
 handshake every other node already speaks.) Its health (messages written, last instant
 acknowledged) is on ``/diagnostics``. Run: ``python -m thermal_comp.bag_recorder_node --ros-args
@@ -31,6 +38,7 @@ from __future__ import annotations
 
 import importlib
 import pathlib
+import time
 
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
@@ -138,6 +146,13 @@ class BagRecorderNode(Node):
             rt.Param("ack_topics", ["machine_state", "twin/sensor_readings"], "lock-step: topics "
                      "whose message for t_k must be written before t_k is acknowledged (topics "
                      "machine_sim re-sends; ones not recorded are ignored)"),
+            rt.Param("follow_topics", [rt.TOPIC_TEMPERATURES, rt.TOPIC_ERRORS_PREDICTED, rt.TOPIC_OFFSETS,
+                                       rt.TOPIC_ERRORS_TRUE], "lock-step: topics the other participants "
+                     "publish for t_k; one written at the instant acknowledged before must be written "
+                     "at t_k too before t_k is acknowledged (ones not recorded are ignored)"),
+            rt.Param("follow_timeout_s", 10.0, "lock-step: wall s to wait for an expected follow topic "
+                     "once every ack_topics topic of t_k is written; then it is named and no longer "
+                     "expected until written again", lo=0.1, hi=3600.0),
             rt.Param("health", False, "also record the graph's health: /diagnostics and /rosout "
                      "(with the default topics; the demo's recorder does)"),
             rt.Param("keep_resends", False, "write every copy of a re-sent message (same topic, same "
@@ -181,19 +196,27 @@ class BagRecorderNode(Node):
         self._ack_fsync = bool(p["ack_fsync"])
         self._flush_timer = self.create_timer(p["flush_period_s"], self._periodic,
                                               clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self._ack_topics = set()
-        self._pending: dict[int, set[str]] = {}
+        self._ack_topics: set[str] = set()
+        self._follow_topics: set[str] = set()
+        self._pending: dict[int, set[str]] = {}       # stamp -> ack topics written at it (until acknowledged)
+        self._follow_seen: dict[int, set[str]] = {}   # stamp -> follow topics written at it (from the last ack on)
+        self._complete_since: dict[int, float] = {}  # instant -> steady time its ack_topics were complete
         self.acked_ns: int | None = None
+        self.follow_dropped: list[tuple[str, int]] = []   # (topic, instant) acknowledged without it
         self._sync_pub = None
         if p["lockstep_participant"]:
             from thermal_comp_msgs.msg import SimSync
-            wanted = {self.resolve_topic_name(t) for t in p["ack_topics"] if t.strip()}
-            self._ack_topics = {topic for _, topic, stamped in self._subs if topic in wanted and stamped}
+            self._ack_topics = self._stamped_topics(p["ack_topics"])
             if not self._ack_topics:
                 raise ValueError(f"parameter 'ack_topics': none of {list(p['ack_topics'])} is a "
                                  "recorded topic with a stamp")
+            self._follow_topics = self._stamped_topics(p["follow_topics"]) - self._ack_topics
+            self._follow_timeout_s = float(p["follow_timeout_s"])
             self._SimSync = SimSync
             self._sync_pub = self.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
+            if self._follow_topics:
+                self.create_timer(min(0.25, self._follow_timeout_s / 4), self._check_follow,
+                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
         self.diag = DiagnosticsPublisher(self, hardware_id=str(p["output"]))
         self.diag.set("recorder", "OK", f"recording into {p['output']}", messages=0)
         self.get_logger().info(f"recording {len(infos)} topics into {p['output']}: "
@@ -211,27 +234,75 @@ class BagRecorderNode(Node):
                 self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
                 if stamp is not None:
                     self._last_written[topic] = bytes(data)
-            if stamp is not None and topic in self._ack_topics:
+            if stamp is not None and (topic in self._ack_topics or topic in self._follow_topics):
                 self._written(topic, stamp)
         return on_message
 
+    def _stamped_topics(self, names) -> set[str]:
+        wanted = {self.resolve_topic_name(t) for t in names if t.strip()}
+        return {topic for _, topic, stamped in self._subs if topic in wanted and stamped}
+
+    def _expected_follow(self, stamp_ns: int) -> set[str]:
+        """The follow topics t_k waits for: those written at the instant acknowledged before it
+        (none for an instant acknowledged already, a re-send)."""
+        if self.acked_ns is None or stamp_ns <= self.acked_ns:
+            return set()
+        return self._follow_seen.get(self.acked_ns, set())
+
     def _written(self, topic: str, stamp_ns: int) -> None:
-        """Acknowledge t_k once every ack topic has a written message stamped t_k (handed to the OS first)."""
+        """Acknowledge t_k once every ack topic and every expected follow topic has a written
+        message stamped t_k (handed to the OS first)."""
+        if topic in self._follow_topics:
+            self._follow_seen.setdefault(stamp_ns, set()).add(topic)
+            if stamp_ns in self._complete_since and not self._expected_follow(stamp_ns) - self._follow_seen[stamp_ns]:
+                self._acknowledge(stamp_ns)
+            return
         seen = self._pending.setdefault(stamp_ns, set())
         seen.add(topic)
         if seen != self._ack_topics:
             return
+        if self._expected_follow(stamp_ns) - self._follow_seen.get(stamp_ns, set()):
+            self._complete_since.setdefault(stamp_ns, time.monotonic())
+            return
+        self._acknowledge(stamp_ns)
+
+    def _check_follow(self) -> None:
+        """An expected follow topic not written within ``follow_timeout_s`` of its instant's
+        ack_topics: named, and the instant acknowledged without it (nothing waits forever)."""
+        now = time.monotonic()
+        for stamp_ns, since in sorted(self._complete_since.items()):
+            if stamp_ns not in self._complete_since or now - since < self._follow_timeout_s:
+                continue     # acknowledged meanwhile (with an earlier instant of this loop), or not yet due
+            missing = self._expected_follow(stamp_ns) - self._follow_seen.get(stamp_ns, set())
+            for topic in sorted(missing):
+                nodes = sorted({i.node_name for i in self.get_publishers_info_by_topic(topic)}) or ["none"]
+                text = (f"{topic} (publisher: {', '.join(nodes)}): no message stamped t = {stamp_ns / 1e9:.0f} s "
+                        f"within follow_timeout_s = {self._follow_timeout_s:g} s of the instant; acknowledged "
+                        "without it, not expected until it is written again")
+                self.get_logger().warning(text)
+                self.diag.set("recorder", "WARN", text, messages=self.writer.message_count)
+                self.follow_dropped.append((topic, stamp_ns))
+            self._acknowledge(stamp_ns)
+
+    def _acknowledge(self, stamp_ns: int) -> None:
         self.writer.sync(fsync=self._ack_fsync)
         for k in [k for k in self._pending if k <= stamp_ns]:
             del self._pending[k]
-        self.acked_ns = stamp_ns if self.acked_ns is None else max(self.acked_ns, stamp_ns)
+        if self.acked_ns is None or stamp_ns > self.acked_ns:
+            self.acked_ns = stamp_ns
+            # the follow topics written at the acknowledged instant stay: they say what t_{k+1} expects
+            for k in [k for k in self._follow_seen if k < stamp_ns]:
+                del self._follow_seen[k]
+        for k in [k for k in self._complete_since if k <= self.acked_ns]:
+            del self._complete_since[k]
         from builtin_interfaces.msg import Time
         self._sync_pub.publish(self._SimSync(node_name=self.get_name(), processed_until=Time(
             sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)))
 
     def _periodic(self) -> None:
         self.writer.flush()
-        values = {"messages": self.writer.message_count, "resends_skipped": self.resends_skipped}
+        values = {"messages": self.writer.message_count, "resends_skipped": self.resends_skipped,
+                  "follow_dropped": len(self.follow_dropped)}
         if self.acked_ns is not None:
             values["acknowledged_until_s"] = self.acked_ns / 1e9
         self.diag.update_values("recorder", **values)
