@@ -1,15 +1,8 @@
-"""Adaptive models on FL_THERMAL: TALC and AGP with one probing every 2 h after calibration.
+"""Adaptive models on FL_THERMAL replayed from row 0: TALC and AGP with one probing every 2 h after calibration.
 
-``talc`` (and its variants ``talc_acl5``, ``talc_spindle``, ``talc_spindle_acl5``):
-TALC's ARX calibrated on the training rows 0..6668 (the authors' protocol; Q_prod charges one
-probing per 5-min grid sample of them), then one probing of the five channels every 2 h and
-no-good phases, each probing updating the model's state
-(:mod:`thermal_eval.fl_thermal_calibrated_talc`, :mod:`talc_model.probe_update` / :mod:`talc_model.slow_error_filter`; the
-rule that picks every hyper-parameter on the training rows is stated there). The action-control
-limit is the user's tolerance: ``talc`` uses 1 um (the issue's target), ``talc_acl5`` the
-thesis's 5 um; ``*_spindle*`` add the spindle speed (known to the CNC) as an ARX input and
-``*_load_probing`` also probe densely after every spindle-speed change (12 x 10 min, like a
-no-good phase); both are reported separately.
+The models calibrated on the training rows (``talc_calibrated*``, ``agp_calibrated``) are
+closed-loop rows of ``thermal-comp evaluate`` (:mod:`thermal_eval.closed_loop_rows`); the
+benchmark runs them through it (:func:`thermal_eval.fl_thermal_benchmark.run_generic_adaptive`).
 
 ``talc_own_cp``, ``agp`` and ``agp_load_probing`` (plus dense probing after every
 spindle-speed change, :mod:`talc_model.load_driven_probing`; reported separately) replay the whole recording from row 0 (:func:`virtual_experiment.run_virtual_experiment`)
@@ -42,7 +35,6 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from talc_model.adaptive_model import make_model
 from talc_model.load_driven_probing import LoadDrivenProbing
-from talc_model.probe_update import ProbeSchedule
 from talc_model.sensor_selection import sensor_medoids
 
 from thermal_eval.fl_thermal_data import (CHANNELS, SENSORS, SPINDLE_COLUMN, FlThermalData, FlThermalError, Splits,
@@ -93,49 +85,6 @@ def select_talc_inputs(data: FlThermalData, splits: Splits, candidates: Sequence
     if not best[1]:
         raise FlThermalError(f"TALC input candidates {list(candidates)!r}: none could be scored")
     return best[1], scores
-
-
-#: name -> (action-control limit in um, spindle speed as an ARX input, dense probing after every
-#: spindle-speed change) of the calibrated TALC variants.
-CALIBRATED_TALC_VARIANTS: dict[str, tuple[float, bool, bool]] = {
-    "talc": (1.0, False, False), "talc_acl5": (5.0, False, False),
-    "talc_spindle": (1.0, True, False), "talc_spindle_acl5": (5.0, True, False),
-    "talc_load_probing": (1.0, False, True), "talc_spindle_load_probing": (1.0, True, True),
-}
-
-
-def run_calibrated_talc_variants(data: FlThermalData, splits: Splits, *, variants: Sequence[str] | None = None,
-                                 group_candidates: Sequence[int] | None = None, show_progress: bool = True,
-                                 **selection) -> tuple[dict, dict[str, dict[str, np.ndarray]], dict[str, list[int]]]:
-    """Figures, compensation per channel and probe rows of each calibrated TALC variant."""
-    from tqdm import tqdm
-    from thermal_eval.fl_thermal_calibrated_talc import (GROUP_CANDIDATES, calibrated_talc_figures,
-                                                       run_calibrated_talc)
-    names = list(variants) if variants is not None else list(CALIBRATED_TALC_VARIANTS)
-    unknown = sorted(set(names) - set(CALIBRATED_TALC_VARIANTS))
-    if unknown:
-        raise FlThermalError(f"variants: {unknown} are not calibrated TALC variants ({sorted(CALIBRATED_TALC_VARIANTS)})")
-    groups = tuple(group_candidates or GROUP_CANDIDATES)
-    cache: dict = {}
-    figures: dict[str, Any] = {}
-    comp: dict[str, dict[str, np.ndarray]] = {}
-    probes: dict[str, list[int]] = {}
-    with tqdm(total=len(names) * len(CHANNELS), desc="adaptive TALC (calibrated on the training rows)",
-              unit="channel", disable=not show_progress, leave=False) as bar:
-        for name in names:
-            acl, spindle, load_probing = CALIBRATED_TALC_VARIANTS[name]
-            t0 = time.perf_counter()
-            schedule = ProbeSchedule(probe_interval_s=PROBE_INTERVAL_S, probe_duration_s=PROBE_DURATION_S,
-                                     acl_um=acl)
-            res = run_calibrated_talc(data, splits, schedule, with_spindle=spindle, group_candidates=groups,
-                                      load_probing=load_probing, arx_cache=cache, progress=bar.update, **selection)
-            figures[name] = calibrated_talc_figures(data, splits, res)
-            figures[name]["spindle_input"] = spindle
-            figures[name]["probing_after_load_changes"] = load_probing
-            figures[name]["run_s"] = round(time.perf_counter() - t0, 1)
-            comp[name] = res.compensation
-            probes[name] = list(res.probe_rows)
-    return figures, comp, probes
 
 
 def adaptive_configs(data: FlThermalData, splits: Splits, talc_inputs: Sequence[str],

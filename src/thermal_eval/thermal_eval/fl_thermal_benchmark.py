@@ -4,8 +4,11 @@
 --agp-load-probing --no-agp-calibrated]`` (suite options in the ``--name=value`` form).
 The authors' chronological 60/20/20 split; open-loop models (lagged ridge, ARX simulation: the
 generic ``evaluate`` models and baselines, run by :func:`thermal_eval.evaluation_run.evaluate`) and
-adaptive models (calibrated TALC and AGP, replayed TALC/AGP) scored by MAE on the test and
-validation rows, beside the published numbers. Protocol, models and figure keys: docs/fl_thermal.md.
+adaptive models (``evaluate``'s adaptive rows at the issue's budget, the closed-loop rows calibrated
+on the training rows, the replayed TALC/AGP) scored by MAE on the test and validation rows, beside
+the published numbers: FL_THERMAL is a dataset configuration of the generic path (its loader,
+split, published numbers and budget live here and in ``fl_thermal_data``). Protocol, models and
+figure keys: docs/fl_thermal.md.
 """
 from __future__ import annotations
 
@@ -20,8 +23,7 @@ from talc_model.lagged_temperature_model import DEFAULT_ALPHA_GRID
 from thermal_eval.adaptive_eval import ProbingBudget
 from thermal_eval.baselines import BASELINES
 from thermal_eval.evaluation_run import evaluate
-from thermal_eval.fl_thermal_adaptive import (adaptive_configs, run_adaptive, run_calibrated_talc_variants,
-                                            select_talc_inputs)
+from thermal_eval.fl_thermal_adaptive import adaptive_configs, run_adaptive, select_talc_inputs
 from thermal_eval.fl_thermal_data import (CHANNELS, FlThermalData, FlThermalError, Splits, as_evaluation_data,
                                           load_fl_thermal, mae)
 from thermal_eval.open_loop_models import GROUP_CANDIDATES as ARX_GROUP_CANDIDATES
@@ -87,35 +89,54 @@ def run_open_loop(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_g
 # ----------------------------------------------------------------------------- generic adaptive rows
 #: the issue's budget: a probing every 2 h plus the model's own, at most one per hour after calibration
 GENERIC_BUDGET = ProbingBudget(probe_every_h=2.0, max_probes_per_h=1.0, tolerance_um=1.0)
+#: the closed-loop rows of ``evaluate`` calibrated on the training rows (the authors' protocol
+#: gives a model every training displacement); ``*_inputs*``: the spindle speed as an ARX input
+CALIBRATED_ROWS = ("talc_calibrated", "talc_calibrated_inputs", "talc_calibrated_load_probing",
+                   "talc_calibrated_inputs_load_probing")
+AGP_CALIBRATED_ROW = "agp_calibrated"
+#: row-level figures kept from an adaptive row of ``evaluate``
+ROW_KEYS = ("probings_after_calibration", "probings_per_h_after_calibration", "q_prod_after_calibration_pct",
+            "probings_asked_by_model", "q_prod_pct", "calibration", "calibration_probings", "calibration_end_h",
+            "steps_probing_refused_by_budget", "no_good_phases", "load_change_phases", "recalibrations",
+            "parameter_updates", "settings", "seconds")
+
+
+def _adaptive_figures(row: Mapping[str, Any], contract: str) -> dict[str, Any]:
+    """One adaptive row of ``evaluate`` in the benchmark's figure keys."""
+    fig: dict[str, Any] = {"contract": contract}
+    if "failed" in row:
+        return {**fig, "failed": row["failed"], **{ch: {"failed": row["failed"]} for ch in CHANNELS}}
+    for ch in CHANNELS:
+        c = row["channels"][ch]
+        fig[ch] = {"failed": c["failed"]} if "failed" in c else {
+            "mae_um": c["mae_test_um"], "mae_validation_um": c["mae_validation_um"],
+            "hold_last_measurement_mae_um": c["hold_own_probes_mae_test_um"],
+            "hold_last_measurement_mae_validation_um": c["hold_own_probes_mae_validation_um"],
+            **{k: c[k] for k in ("model_weight", "dead_band_um", "ratio_to_hold_test", "ratio_to_hold_validation")
+               if k in c}}
+    fig.update({k: row[k] for k in ROW_KEYS if k in row})
+    fig["probing_cycles_test_rows"] = row["probings_test"]
+    fig["probing_cycles_validation_rows"] = row["probings_validation"]
+    return fig
 
 
 def run_generic_adaptive(data: FlThermalData, splits: Splits, *, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID,
-                         arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES, show_progress: bool = True
+                         arx_groups: Sequence[int] = ARX_GROUP_CANDIDATES, closed_loop: Sequence[str] = CALIBRATED_ROWS,
+                         show_progress: bool = True
                          ) -> tuple[dict, dict[str, dict[str, np.ndarray]], dict[str, list[int]]]:
-    """``arx_subgrid`` and ``lagged_ridge`` in the adaptive mode of ``thermal-comp evaluate``
-    (:mod:`thermal_eval.adaptive_eval`, the same loop ``bench evaluate`` reports), in the
+    """The adaptive rows of ``thermal-comp evaluate`` at the issue's budget on FL_THERMAL: the
+    open-loop models ``arx_subgrid`` and ``lagged_ridge`` in its adaptive mode
+    (:mod:`thermal_eval.adaptive_eval`) and the closed-loop rows ``closed_loop``
+    (:mod:`thermal_eval.closed_loop_rows`: TALC / AGP calibrated on the training rows), in the
     benchmark's figure keys: MAE, holding the same probes, probings counted after calibration."""
     ed = as_evaluation_data(data, splits)
     models = [arx_model("arx_subgrid", False, True, arx_groups), lagged_ridge_model("lagged_ridge", False, tau_grid, alpha_grid)]
-    res = evaluate(ed, models=models, adaptive=True, budget=GENERIC_BUDGET, show_progress=show_progress)
-    figures: dict[str, Any] = {}
-    for m in models:
-        row = res.figures["adaptive"][m.name]
-        fig: dict[str, Any] = {"contract": "generic adaptive (thermal-comp evaluate)"}
-        if "failed" in row:
-            figures[m.name] = {**fig, "failed": row["failed"], **{ch: {"failed": row["failed"]} for ch in CHANNELS}}
-            continue
-        for ch in CHANNELS:
-            c = row["channels"][ch]
-            fig[ch] = {"failed": c["failed"]} if "failed" in c else {
-                "mae_um": c["mae_test_um"], "mae_validation_um": c["mae_validation_um"],
-                "hold_last_measurement_mae_um": c["hold_own_probes_mae_test_um"],
-                "hold_last_measurement_mae_validation_um": c["hold_own_probes_mae_validation_um"],
-                "model_weight": c["model_weight"], "dead_band_um": c["dead_band_um"]}
-        fig.update({k: row[k] for k in ("probings_after_calibration", "probings_per_h_after_calibration",
-                                        "q_prod_after_calibration_pct", "probings_asked_by_model")})
-        fig["probing_cycles_test_rows"] = row["probings_test"]
-        figures[m.name] = fig
+    res = evaluate(ed, models=models, adaptive=True, budget=GENERIC_BUDGET, show_progress=show_progress,
+                   closed_loop=list(closed_loop))
+    figures = {m.name: _adaptive_figures(res.figures["adaptive"][m.name], "generic adaptive (thermal-comp evaluate)")
+               for m in models}
+    figures.update({name: _adaptive_figures(res.figures["adaptive"][name], "closed-loop row (thermal-comp evaluate "
+                                            "--closed-loop), calibrated on the training rows") for name in closed_loop})
     return figures, {k: v for k, v in res.adaptive.items()}, {k: v for k, v in res.probe_rows.items()}
 
 
@@ -157,8 +178,8 @@ def print_table(figures: Mapping[str, Any]) -> None:
     console = Console(width=max(140, Console().width))
     console.print(table)
     console.print(f"green: beats {BEST_PUBLISHED} (open loop) / <= 1 um (adaptive) on the test rows. "
-                  "Q_prod (in brackets: after calibration) charges 95 s per probing; the calibrated talc* "
-                  "models are charged one probing per 5-min grid sample of the training rows. "
+                  "Q_prod (in brackets: after calibration) charges 95 s per probing; the rows calibrated "
+                  "on the training rows are charged one probing per 5-min grid sample of them. "
                   "'hold ...'s probes': each measurement of that model held until its next one (the baseline "
                   "its probing schedule alone gives).")
 
@@ -187,8 +208,9 @@ def plot_predictions(data: FlThermalData, splits: Splits, predictions: Mapping[s
 
 
 #: adaptive models drawn in the prediction plot / in the adaptive plot (with their probe instants)
-ADAPTIVE_IN_PREDICTION_PLOT = ("talc", "agp")
-ADAPTIVE_PLOT = ("talc", "talc_load_probing", "agp", "agp_calibrated", "agp_load_probing", "arx_subgrid")   # those that were run
+ADAPTIVE_IN_PREDICTION_PLOT = ("talc_calibrated", "agp")
+ADAPTIVE_PLOT = ("talc_calibrated", "talc_calibrated_load_probing", "agp", "agp_calibrated", "agp_load_probing",
+                 "arx_subgrid")   # those that were run
 
 
 def plot_adaptive(data: FlThermalData, splits: Splits, compensation: Mapping[str, Mapping[str, np.ndarray]],
@@ -229,7 +251,6 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
                   tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID, adaptive_overrides: Mapping[str, dict] | None = None,
                   talc_groups: Sequence[int] | None = None, arx_groups: Sequence[int] | None = None,
                   agp_load_probing: bool = False, agp_calibrated: bool = True,
-                  agp_calibrated_selection: Mapping[str, Any] | None = None,
                   show_progress: bool = True) -> dict[str, Any]:
     """The whole protocol on ``data``; returns the figures (and writes the PNG into ``out_dir``)."""
     from threadpoolctl import threadpool_limits
@@ -252,16 +273,10 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
             raise FlThermalError(f"adaptive_overrides: {unknown} are not replayed adaptive models "
                                  "(talc_own_cp, agp, agp_load_probing)")
         t1 = time.perf_counter()
-        with threadpool_limits(1):
-            figures["adaptive"], adaptive_pred, probe_rows = run_calibrated_talc_variants(
-                data, splits, group_candidates=arx_groups, show_progress=show_progress)
-        if agp_calibrated:
-            from thermal_eval.fl_thermal_agp import run_agp_calibrated_variant
-            with threadpool_limits(1):
-                fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=show_progress,
-                                                             out_dir=out_dir, **dict(agp_calibrated_selection or {}))
-            figures["adaptive"]["agp_calibrated"], adaptive_pred["agp_calibrated"] = fig, comp
-            probe_rows["agp_calibrated"] = rows
+        closed_loop = CALIBRATED_ROWS + ((AGP_CALIBRATED_ROW,) if agp_calibrated else ())
+        figures["adaptive"], adaptive_pred, probe_rows = run_generic_adaptive(
+            data, splits, tau_grid=tau_grid, alpha_grid=alpha_grid, arx_groups=arx_groups or ARX_GROUP_CANDIDATES,
+            closed_loop=closed_loop, show_progress=show_progress)
         groups = {} if talc_groups is None else {"candidates": talc_groups}
         talc_inputs, talc_scores = select_talc_inputs(data, splits, overrides=overrides.get("talc_own_cp"),
                                                       show_progress=show_progress, **groups)
@@ -277,13 +292,6 @@ def run_benchmark(data: FlThermalData, *, out_dir: str | pathlib.Path | None = N
         figures["adaptive"].update(replay_fig)
         adaptive_pred.update(replay_pred)
         probe_rows.update(replay_probes)
-        with threadpool_limits(1):
-            gen_fig, gen_pred, gen_probes = run_generic_adaptive(
-                data, splits, tau_grid=tau_grid, alpha_grid=alpha_grid, arx_groups=arx_groups or ARX_GROUP_CANDIDATES,
-                show_progress=show_progress)
-        figures["adaptive"].update(gen_fig)
-        adaptive_pred.update(gen_pred)
-        probe_rows.update(gen_probes)
         figures["adaptive_s"] = round(time.perf_counter() - t1, 1)
         predictions.update({f"adaptive {k}": adaptive_pred[k] for k in ADAPTIVE_IN_PREDICTION_PLOT})
     best = PUBLISHED_MAE_UM[BEST_PUBLISHED]

@@ -117,21 +117,6 @@ class Splits:
         return slice(self.test_end, self.n)
 
 
-def walk_forward_fold_rows(fold_starts, n: int) -> list[int]:
-    """Row k of each walk-forward fold inside ``n`` training rows: calibrate on rows 0..k-1,
-    replay k..n-1; each fold must leave >= 40 calibration and >= 20 replay rows."""
-    rows = []
-    for f in fold_starts:
-        k = int(f * n)
-        if k < 40 or n - k < 20:
-            raise FlThermalError(f"fold_starts: {f!r} of {n} training rows leaves calibration {k} / replay "
-                                 f"{n - k} rows (need >= 40 / 20)")
-        rows.append(k)
-    return rows
-
-
-
-
 def as_evaluation_data(data: FlThermalData, splits: Splits | None = None):
     """The same rows as the generic ``evaluate`` data (names ``t1..t16`` / ``ch1..ch5``, the spindle
     speed as the one machine input, ``splits`` or the authors' split), so the benchmark runs the

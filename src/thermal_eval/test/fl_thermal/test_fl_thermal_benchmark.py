@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from talc_model.sensor_selection import sensor_medoids
-from thermal_eval.fl_thermal_arx import arx_open_loop_channel
-from thermal_eval.fl_thermal_benchmark import PUBLISHED_MAE_UM, run_benchmark
+from thermal_eval.calibrated_talc import calibrated_arx
+from thermal_eval.fl_thermal_benchmark import CALIBRATED_ROWS, PUBLISHED_MAE_UM, run_benchmark
 from thermal_eval.fl_thermal_data import (CHANNELS, FlThermalError, Splits, as_evaluation_data, default_csv_path,
                                           load_fl_thermal)
 from thermal_eval.open_loop_models import lagged_ridge_model
@@ -61,7 +61,8 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
     data = load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
     assert len(data) == 600 and np.all(np.diff(data.time_s) == 60.0)
     figures = run_benchmark(data, out_dir=tmp_path, tau_grid=[(), (600.0,), (1800.0, 7200.0)],
-                            alpha_grid=[1.0, 100.0], talc_groups=(2, 3), arx_groups=(2, 3), show_progress=False)
+                            alpha_grid=[1.0, 100.0], talc_groups=(2, 3), arx_groups=(2, 3), agp_calibrated=False,
+                            show_progress=False)
     figures = json.loads(json.dumps(figures, default=float))       # what the bench command saves
     assert figures["rows"] == {"train": [0, 359], "test": [360, 479], "validation": [480, 599]}
     for model in ("lagged_ridge", "lagged_ridge_spindle"):
@@ -76,8 +77,7 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f["mae_um"]) and math.isfinite(f["mae_validation_um"])
             assert 1 <= f["na"] <= 2 and len(f["nb"]) == len(f["inputs"]) in (2 + extra, 3 + extra)
             assert ("spindle_krpm" in f["inputs"]) == bool(extra)
-    for model in ("talc", "talc_acl5", "talc_spindle", "talc_spindle_acl5", "talc_load_probing",
-                  "talc_spindle_load_probing", "talc_own_cp", "agp"):
+    for model in ("talc_own_cp", "agp"):
         f = figures["adaptive"][model]
         for ch in CHANNELS:
             assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["mae_validation_um"])
@@ -85,27 +85,27 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
             assert math.isfinite(f[ch]["hold_last_measurement_mae_um"])
             assert math.isfinite(f[ch]["hold_last_measurement_mae_validation_um"])
         assert 0.0 < f["q_prod_pct"] < 100.0 and f["probing_cycles"] > 0
-    for model in ("arx_subgrid", "lagged_ridge"):     # through the generic adaptive contract (adaptive_eval)
+    for model in ("arx_subgrid", "lagged_ridge") + CALIBRATED_ROWS:     # through evaluate's adaptive rows
         f = figures["adaptive"][model]
-        assert f["contract"].startswith("generic adaptive")
+        assert f["contract"].startswith("generic adaptive") or f["contract"].startswith("closed-loop row")
         for ch in CHANNELS:
             assert math.isfinite(f[ch]["mae_um"]) and math.isfinite(f[ch]["hold_last_measurement_mae_validation_um"])
         # 4 h after calibration: the budget caps the probings at one per hour
         assert 0 < f["probings_after_calibration"] <= 4 and f["probings_per_h_after_calibration"] <= 1.0
+    assert "agp_calibrated" not in figures["adaptive"]
     for name in ("train_mean", "hold_last_training", "static_ls", "lowpass_ridge"):   # the generic baselines
         assert all(math.isfinite(figures["baselines"][name][ch]["mae_um"]) for ch in CHANNELS)
     assert set(figures["adaptive"]["talc_own_cp"]["inputs"]) <= {f"t{i}" for i in range(1, 17)}
-    assert figures["adaptive"]["talc"]["load_change_phases"] == 0
-    assert figures["adaptive"]["talc_load_probing"]["probing_after_load_changes"] is True
-    for model, spindle in (("talc", False), ("talc_spindle", True)):
+    assert figures["adaptive"]["talc_calibrated"]["load_change_phases"] == 0
+    assert figures["adaptive"]["talc_calibrated_load_probing"]["load_change_phases"] > 0
+    for model, spindle in (("talc_calibrated", False), ("talc_calibrated_inputs", True)):
         f = figures["adaptive"][model]
-        assert f["acl_um"] == 1.0 and figures["adaptive"][model + "_acl5"]["acl_um"] == 5.0
         assert f["calibration_probings"] == 72                    # 360 training rows of 60 s, 5-min grid
-        assert f["probing_cycles"] == 72 + f["probing_cycles_after_calibration"]
         assert f["q_prod_pct"] < f["q_prod_after_calibration_pct"] < 100.0
         for ch in CHANNELS:
-            assert ("spindle_krpm" in f[ch]["inputs"]) == spindle
-            assert f[ch]["evaluation"] in ("grid_hold", "subgrid") and f[ch]["bias_time_constant_h"] > 0
+            s = f["settings"][ch]
+            assert ("spindle_rpm" in s["inputs"]) == spindle
+            assert s["evaluation"] in ("grid_hold", "subgrid") and s["bias_time_constant_h"] > 0
     assert figures["published"]["S2S2"] == PUBLISHED_MAE_UM["S2S2"]
     for name in ("fl_thermal_predictions.png", "fl_thermal_adaptive.png"):
         png = tmp_path / name
@@ -136,11 +136,12 @@ def test_open_loop_models_never_use_a_displacement_after_the_training_rows(share
         poisoned.displacement_um[ch][splits.n_train:] = 1e6
     for ch in ("ch1", "ch3"):
         for spindle in (False, True):
-            a = arx_open_loop_channel(data, splits, ch, group_candidates=(2, 3), with_spindle=spindle)
-            b = arx_open_loop_channel(poisoned, splits, ch, group_candidates=(2, 3), with_spindle=spindle)
-            np.testing.assert_array_equal(a.prediction, b.prediction)
-            assert np.all(np.isnan(a.prediction[:splits.n_train]))
-            assert np.all(np.isfinite(a.prediction[splits.n_train:]))
+            a, _ = calibrated_arx(as_evaluation_data(data, splits), splits.n_train, ch, (2, 3), spindle)
+            b, _ = calibrated_arx(as_evaluation_data(poisoned, splits), splits.n_train, ch, (2, 3), spindle)
+            for mode in ("grid_hold", "subgrid"):
+                np.testing.assert_array_equal(a[mode], b[mode])
+                assert np.all(np.isnan(a[mode][:splits.n_train]))
+                assert np.all(np.isfinite(a[mode][splits.n_train:]))
         for spindle in (False, True):
             model = lagged_ridge_model("lagged", spindle, [(), (1800.0,)], [1.0, 100.0])
             preds = []
