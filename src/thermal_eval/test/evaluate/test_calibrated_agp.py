@@ -1,4 +1,4 @@
-"""Calibrated AGP on FL_THERMAL: sigma_max probes in unseen states, rate limit, state update, no look ahead."""
+"""AGP calibrated on the training rows (a closed-loop row of evaluate): sigma_max probes, rate limit, cap, no look ahead."""
 import copy
 
 import numpy as np
@@ -7,16 +7,18 @@ import pytest
 from talc_model.sensor_selection import SensorSelectionError, fast_sensor
 from talc_model.slow_error_filter import SlowErrorFilter, slow_error_compensation
 from talc_model.uncertainty_weighted_hold import HoldError, measured_hold_rate, uncertainty_weighted_hold
-from thermal_eval.fl_thermal_agp import (AgpSchedule, agp_features, agp_input_sensors, fit_calibration_gps,
-                                       replay_agp, run_agp_calibrated_variant, run_calibrated_agp)
-from thermal_eval.fl_thermal_data import CHANNELS, SENSORS, FlThermalError, Splits, load_fl_thermal
+from thermal_eval.adaptive_eval import ProbingBudget
+from thermal_eval.calibrated_agp import (AgpSchedule, agp_features, agp_input_sensors, fit_calibration_gps,
+                                         replay_agp, run_calibrated_agp)
+from thermal_eval.calibration_rows import CalibratedRowError
+from thermal_eval.fl_thermal_data import SENSORS, as_evaluation_data, load_fl_thermal
 
 DT = 15.0
 
 
 @pytest.fixture(scope="module")
 def slice_data(shared_dir):
-    return load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4)
+    return as_evaluation_data(load_fl_thermal(shared_dir / "data" / "fl_thermal" / "fl_thermal.csv", rows=2400, every=4))
 
 
 def _synthetic(n=2400, jump_row=1200):
@@ -50,6 +52,10 @@ def test_an_unseen_state_triggers_sigma_max_probes_no_closer_than_the_rate_limit
     k = sigma[-1] + 1
     assert abs(tr.mean[k, 0] - 9.0) < 1.0 and abs(tr.mean[k, 1] + 5.0) < 1.0
     assert tr.refits_optimised >= len(sigma)
+    capped = replay_agp(t, X, Y, start, len(t), gps, cal, 1.0, AgpSchedule(max_probes_per_h=0.5))
+    assert capped.refused_steps > 0 and len(capped.probe_rows) < len(tr.probe_rows)
+    for i, r in enumerate(capped.probe_rows):          # never more than 0.5 per hour since calibration ended
+        assert i + 1 <= 0.5 * (t[r] - t[start - 1]) / 3600.0
 
 
 def test_the_gp_inputs_are_read_only_at_calibration_and_probe_rows():
@@ -82,44 +88,45 @@ def test_an_exact_probe_cancels_a_constant_error_from_the_next_row_and_decays_wi
 
 
 def test_bad_settings_are_named(slice_data):
-    with pytest.raises(FlThermalError, match="min_sigma_probe_interval_s"):
+    with pytest.raises(CalibratedRowError, match="min_sigma_probe_interval_s"):
         AgpSchedule(min_sigma_probe_interval_s=0.0)
-    with pytest.raises(FlThermalError, match="sensors"):
+    with pytest.raises(CalibratedRowError, match="sensors"):
         agp_features(slice_data, ["t99"], ())
-    with pytest.raises(FlThermalError, match="sigma_max_ratios"):
-        run_calibrated_agp(slice_data, Splits.authors(len(slice_data)), sigma_max_ratios=(1.5,))
+    with pytest.raises(CalibratedRowError, match="sigma_max_ratios"):
+        run_calibrated_agp(slice_data, ProbingBudget(), sigma_max_ratios=(1.5,))
     t, X, Y = _synthetic(200, 150)
     cal = np.arange(0, 100, 20)
     gps = fit_calibration_gps(X, Y, cal, max_err=10.0)
-    with pytest.raises(FlThermalError, match="sigma_max_um"):
+    with pytest.raises(CalibratedRowError, match="sigma_max_um"):
         replay_agp(t, X, Y, 100, 200, gps, cal, float("nan"), AgpSchedule())
 
 
-def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_probes(slice_data, tmp_path):
+def test_calibrated_agp_on_a_real_slice_sees_only_the_training_rows_and_its_probes(slice_data):
     data = slice_data
-    splits = Splits.authors(len(data))
+    n = data.split.n_train
+    budget = ProbingBudget(probe_every_h=2.0, max_probes_per_h=2.0)
     kw = dict(feature_tau_sets=((), (1800.0,)), sigma_max_ratios=(0.1,), fold_starts=(0.7,),
               tau_grid=(3600.0, 28800.0), ratio_grid=(0.0, 1.0))
-    fig, comp, rows = run_agp_calibrated_variant(data, splits, show_progress=False, out_dir=tmp_path, **kw)
-    assert (tmp_path / "fl_thermal_agp_calibrated.png").stat().st_size > 0
-    assert rows and all(r >= splits.n_train for r in rows)
-    assert fig["probing_cycles"] == fig["calibration_probings"] + len(rows)
-    assert fig["sigma_max_probings"] + fig["control_probings"] == len(rows)
-    assert fig["q_prod_pct"] < fig["q_prod_after_calibration_pct"] < 100.0
-    assert fig["sigma_max_ratio"] == 0.1 and tuple(fig["feature_taus_s"]) in {(), (1800.0,)}
-    for ch in CHANNELS:
-        assert np.isfinite(fig[ch]["mae_um"]) and np.isfinite(fig[ch]["mae_validation_um"])
-        assert fig[ch]["noise_ratio"] in (0.0, 1.0) and fig[ch]["bias_time_constant_h"] in (1.0, 8.0)
+    res = run_calibrated_agp(data, budget, **kw)
+    rows = res.trajectory.probe_rows
+    assert rows and all(r >= n for r in rows) and len(res.calibration_rows) == 72
+    st = res.settings()
+    assert st["sigma_max_probings"] + st["control_probings"] == len(rows)
+    assert st["sigma_max_ratio"] == 0.1 and tuple(st["feature_taus_s"]) in {(), (1800.0,)}
+    for ch in data.channels:
+        assert np.all(np.isfinite(res.compensation[ch][n:]))
+        f = st["filters"][ch]
+        assert f["noise_ratio"] in (0.0, 1.0) and f["bias_time_constant_h"] in (1.0, 8.0)
     poisoned = copy.deepcopy(data)
     keep = np.zeros(len(data), bool)
-    keep[:splits.n_train] = True
+    keep[:n] = True
     keep[rows] = True
-    for ch in CHANNELS:
+    for ch in data.channels:
         poisoned.displacement_um[ch][~keep] = -1e6
-    res2 = run_calibrated_agp(poisoned, splits, **kw)
+    res2 = run_calibrated_agp(poisoned, budget, **kw)
     assert res2.trajectory.probe_rows == rows
-    for ch in CHANNELS:
-        assert np.array_equal(res2.compensation[ch], comp[ch], equal_nan=True)
+    for ch in data.channels:
+        assert np.array_equal(res2.compensation[ch], res.compensation[ch], equal_nan=True)
 
 
 def test_the_fast_sensor_is_the_one_whose_fast_part_the_displacements_follow():
@@ -133,9 +140,9 @@ def test_the_fast_sensor_is_the_one_whose_fast_part_the_displacements_follow():
     T[:, 3] += 0.5 * wiggle                                  # the wiggle on t4
     D = np.column_stack([2.0 * slow + 1.5 * np.roll(wiggle, 8), -slow - np.roll(wiggle, 8)])
     assert fast_sensor(t, T, D, SENSORS) == "t4"
-    sensors = agp_input_sensors(T, time_s=t, displacements=D)
+    sensors = agp_input_sensors(T, SENSORS, time_s=t, displacements=D)
     assert sensors[-1] == "t4" and len(set(sensors)) == len(sensors)
-    assert agp_input_sensors(T) == sensors[:-1]               # without displacements: the medoids only
+    assert agp_input_sensors(T, SENSORS) == sensors[:-1]               # without displacements: the medoids only
     with pytest.raises(SensorSelectionError, match="temperatures"):
         fast_sensor(t, T[:, :5], D, SENSORS)
 
