@@ -232,15 +232,7 @@ def screen_one(problem: FitProblem, base_spec: dict, c: Candidate, y0_train: np.
     (:func:`linear_change`)."""
     rr = float(r0 @ r0) or 1.0
     st = problem.stride
-    starts = _starts(c)
-    x0 = starts[0]
-    probes = list(starts)
-    for j in range(1, len(c.params)):
-        step = x0.copy()
-        p = c.params[j]
-        h = 0.05 * (p.hi - p.lo)
-        step[j] = x0[j] + h if x0[j] + h <= p.hi else x0[j] - h
-        probes.append(step)
+    starts, probes = probe_values(c)
     cols = []
     try:
         for v in probes:
@@ -258,6 +250,22 @@ def screen_one(problem: FitProblem, base_spec: dict, c: Candidate, y0_train: np.
     steps = cols[ns:] if len(cols) == len(probes) else []
     err = max(_projection_share(np.column_stack([d] + steps), r0, rr) for d in cols[:ns])
     return min(err, 1.0)
+
+
+def probe_values(c: Candidate) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """(start values, every probe): the probes are the starts (:func:`_starts`) and then a
+    step of 5 % of its range in every further parameter at x0; their output changes span the
+    candidate's local Jacobian that the screening projects the residual on."""
+    starts = _starts(c)
+    x0 = starts[0]
+    probes = list(starts)
+    for j in range(1, len(c.params)):
+        step = x0.copy()
+        p = c.params[j]
+        h = 0.05 * (p.hi - p.lo)
+        step[j] = x0[j] + h if x0[j] + h <= p.hi else x0[j] - h
+        probes.append(step)
+    return starts, probes
 
 
 def linear_change(problem: FitProblem, base_spec: dict, c: Candidate, v: np.ndarray,
