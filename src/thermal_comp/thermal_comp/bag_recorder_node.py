@@ -150,6 +150,9 @@ class BagRecorderNode(Node):
                                        rt.TOPIC_ERRORS_TRUE], "lock-step: topics the other participants "
                      "publish for t_k; one written at the instant acknowledged before must be written "
                      "at t_k too before t_k is acknowledged (ones not recorded are ignored)"),
+            rt.Param("expect_from_start", [""], "lock-step: follow topics expected at the first instant "
+                     "this recorder acknowledges too (the cell's participants publish them from its first "
+                     "instant: a message lost before the recorder matched its publisher is re-sent)"),
             rt.Param("follow_timeout_s", 10.0, "lock-step: wall s to wait for an expected follow topic "
                      "once every ack_topics topic of t_k is written; then it is named and no longer "
                      "expected until written again", lo=0.1, hi=3600.0),
@@ -210,7 +213,8 @@ class BagRecorderNode(Node):
             if not self._ack_topics:
                 raise ValueError(f"parameter 'ack_topics': none of {list(p['ack_topics'])} is a "
                                  "recorded topic with a stamp")
-            self._follow_topics = self._stamped_topics(p["follow_topics"]) - self._ack_topics
+            self._start_topics = self._stamped_topics(p["expect_from_start"]) - self._ack_topics
+            self._follow_topics = (self._stamped_topics(p["follow_topics"]) | self._start_topics) - self._ack_topics
             self._follow_timeout_s = float(p["follow_timeout_s"])
             self._SimSync = SimSync
             self._sync_pub = self.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
@@ -243,9 +247,11 @@ class BagRecorderNode(Node):
         return {topic for _, topic, stamped in self._subs if topic in wanted and stamped}
 
     def _expected_follow(self, stamp_ns: int) -> set[str]:
-        """The follow topics t_k waits for: those written at the instant acknowledged before it
-        (none for an instant acknowledged already, a re-send)."""
-        if self.acked_ns is None or stamp_ns <= self.acked_ns:
+        """The follow topics t_k waits for: those written at the instant acknowledged before it,
+        ``expect_from_start`` at the first (none for an instant acknowledged already, a re-send)."""
+        if self.acked_ns is None:
+            return self._start_topics
+        if stamp_ns <= self.acked_ns:
             return set()
         return self._follow_seen.get(self.acked_ns, set())
 

@@ -114,7 +114,11 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
         {"name": "bridge", "module": "cnc_bridge.cnc_bridge_node",
          "parameters": _bridge_parameters(cfg, out, endpoint)},
         {"name": "recorder", "module": "thermal_comp.bag_recorder_node",
-         "parameters": {"output": str(out / "bag"), "lockstep_participant": True, "health": True}},
+         "parameters": {"output": str(out / "bag"), "lockstep_participant": True, "health": True,
+                        # every participant publishes from the first instant: one lost before the
+                        # recorder matched its publisher is waited for (machine_sim re-sends t_0)
+                        "expect_from_start": ["temperatures", "errors/predicted", "offsets",
+                                              "errors/ground_truth"]}},
     ]
     if live_view:
         nodes.append({"name": "viewer", "module": "thermal_comp.rerun_view_node", "parameters": {}})
