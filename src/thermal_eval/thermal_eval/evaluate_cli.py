@@ -45,7 +45,8 @@ def parser() -> argparse.ArgumentParser:
                     help="the default models plus these (opt-in: gp_static)")
     ap.add_argument("--closed-loop", nargs="+", default=[], metavar="NAME",
                     help="also the project's adaptive models with their own logic, within the budget: "
-                         "agp_closed_loop (sigma_max recalibration), talc_closed_loop (calibration, no-good, updates)")
+                         "agp_closed_loop (sigma_max recalibration), talc_closed_loop (calibration, no-good, updates); calibrated on the training rows: "
+                         "talc_calibrated[_inputs][_load_probing], agp_calibrated")
     ap.add_argument("--open-loop-only", action="store_true", help="no adaptive mode")
     ap.add_argument("--probe-every-h", type=float, default=2.0, help="scheduled probing interval (h)")
     ap.add_argument("--max-probes-per-h", type=float, default=1.0,
