@@ -6,12 +6,13 @@ with a concealed heat source in the headstock (80 W at full speed), diagnosed ag
 unmodified twin. Figures: wall and CPU time of the whole diagnosis (simulation, statistics,
 locating, screening and fitting every candidate, two rounds), the number of twin
 evaluations, and whether the concealed effect was found. ``args.quick`` shortens the
-recording to 12 h and skips the suite.
+recording to 12 h and skips the suite; ``--suite-only`` runs only the suite.
 
 Then the broadened concealed-effect suite (:mod:`thermal_eval.diagnose_suite`): true effect
 first (%), exact target (%), extra adopted effects per ten cases, ``none`` on the no-effect
 cases, ``unnamed`` on the out-of-vocabulary cases with their held-out improvement, the
-diagnosis wall times, two diagnoses with ``calibrate=True`` (calibration and diagnosis wall
+concealed conduction paths named exactly, the changed existing links found by the
+calibration (``mis-calibrated``), the diagnosis wall times and load average, two diagnoses with ``calibrate=True`` (calibration and diagnosis wall
 time), and the twin's simulated hours per second of the finder's evaluation.
 
 Then, when the FL_THERMAL CSV is available (``$THERMAL_COMP_SHARED``), the diagnosis of the
@@ -45,6 +46,8 @@ HIDDEN = ("heat_source:headstock:spindle_rpm", (80.0, 1.2))
 
 def run(args: argparse.Namespace | None = None) -> dict:
     quick = bool(getattr(args, "quick", False)) if args is not None else False
+    if "--suite-only" in (getattr(args, "extra", None) or []):
+        return run_suite(None, None)
     hours = 12.0 if quick else None
     spec = load_machine("spindle-stand").to_dict()
     tl = make_timeline("spindle-stand", "fl-thermal-programme", hours=hours, seed=0)
@@ -172,26 +175,37 @@ def twin_hours_per_s(spec: dict, rec, repeats: int = 5) -> float:
     return repeats * float(rec.time_s[-1] - rec.time_s[0]) / 3600.0 / wall
 
 
-def run_suite(spec_stand: dict, rec_stand) -> dict:
+def _case_line(o: dict) -> str:
+    unnamed = "; ".join(f"{u['formula']} ({u['holdout_improvement_pct']:.1f} %)" for u in o["unnamed"])
+    moved = ", ".join(f"{n} -> {v:.4g}" for n, v in o["moved"][:2])
+    return (f"  {o['case']}: answer {o['answer']} {o['selected'] or ''}{' ' + unnamed if unnamed else ''}"
+            f"{' moved ' + moved if moved else ''} [{o['wall_s']:.1f} s, load {os.getloadavg()[0]:.1f}]")
+
+
+def run_suite(spec_stand: dict | None, rec_stand) -> dict:
+    """The concealed-effect suite's scores (and the twin's speed on ``spec_stand``/``rec_stand``
+    when given)."""
     key = "diagnose.suite"
     mm = diagnose_suite.mini_mill()
     outcomes = []
+    loads = []
     for case in diagnose_suite.SUITE:
-        o = diagnose_suite.run_case(mm, case)
+        o = diagnose_suite.run_case(case)
         outcomes.append(o)
-        print(f"  {o['case']}: answer {o['answer']} {o['selected'] or ''}"
-              f"{' ' + '; '.join(u['formula'] + ' (' + format(u['holdout_improvement_pct'], '.1f') + ' %)' for u in o['unnamed']) if o['unnamed'] else ''}"
-              f" [{o['wall_s']:.1f} s]", flush=True)
+        loads.append(os.getloadavg()[0])
+        print(_case_line(o), flush=True)
     figures = {f"{key}.{k}": (round(v, 2) if isinstance(v, float) else v)
                for k, v in diagnose_suite.score(outcomes).items()}
+    figures[f"{key}.load_average_1min_range"] = f"{min(loads):.1f}-{max(loads):.1f}"
     for case in (diagnose_suite.SUITE[0], diagnose_suite.SUITE[22]):
-        o = diagnose_suite.run_case(mm, case, calibrate=True)
+        o = diagnose_suite.run_case(case, calibrate=True)
         figures[f"{key}.calibrate_first.{o['case']}.answer"] = o["answer"]
         figures[f"{key}.calibrate_first.{o['case']}.calibration_wall_s"] = round(o["calibration_wall_s"], 2)
         figures[f"{key}.calibrate_first.{o['case']}.diagnosis_wall_s"] = round(o["wall_s"], 2)
     rec_mm, _ = diagnose_suite.concealed_recording(mm, (), hours=48.0, step_s=300.0, seed=1)
     figures[f"{key}.twin_simulated_h_per_s.mini_mill_300s"] = round(twin_hours_per_s(mm, rec_mm), 0)
-    figures[f"{key}.twin_simulated_h_per_s.spindle_stand_15s"] = round(twin_hours_per_s(spec_stand, rec_stand), 0)
+    if spec_stand is not None:
+        figures[f"{key}.twin_simulated_h_per_s.spindle_stand_15s"] = round(twin_hours_per_s(spec_stand, rec_stand), 0)
     for k, v in figures.items():
         print(f"{k}: {v}", flush=True)
     return figures
