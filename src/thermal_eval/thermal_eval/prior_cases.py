@@ -31,10 +31,11 @@ def shipped_config() -> dict[str, Any]:
     return default_config("nmv5000", "talc")
 
 
-def prior_training(case: str) -> list[tuple[str, int]]:
-    """(programme, seed) of the prior for ``case``: the default training programmes without it."""
+def prior_training(case: str, programmes: Sequence[str] | None = None) -> list[tuple[str, int]]:
+    """(programme, seed) of the prior for ``case``: the training programmes (default: those of
+    ``thermal-comp prior``; the last is held out to choose the orders) without it."""
     from thermal_comp.prior_cli import SEED_BASE, TRAINING_SCENARIOS
-    names = [s for s in TRAINING_SCENARIOS["talc"]["nmv5000"] if s != case]
+    names = [s for s in (programmes or TRAINING_SCENARIOS["talc"]["nmv5000"]) if s != case]
     return [(s, SEED_BASE + i) for i, s in enumerate(names)]
 
 
@@ -67,16 +68,17 @@ def error_location(result, components: Sequence[str], top: int = 5) -> list[dict
 
 
 def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
-             prior_overrides: Mapping[str, Any] | None = None, seed: int = RUN_SEED) -> dict[str, Any]:
-    """One case: build the prior (nominal type, other programmes), replay unit #1, and the
-    figures beside probe-and-hold at the same Q_prod."""
+             prior_overrides: Mapping[str, Any] | None = None, seed: int = RUN_SEED,
+             training: Sequence[str] | None = None) -> dict[str, Any]:
+    """One case: build the prior (nominal type, other programmes; ``training`` replaces the
+    default list), replay unit #1, and the figures beside probe-and-hold at the same Q_prod."""
     from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
     from thermal_eval.baseline_beside import beside_probe_and_hold
     from thermal_eval.replay_summary import PROBE_RESOLUTION_UM, probe_noise
     from thermal_eval.virtual_experiment import run_virtual_experiment
     from thermal_twin.machine_instance import machine_instance
     cache = {} if cache is None else cache
-    train = prior_training(case)
+    train = prior_training(case, training)
     recs = [_simulate("nmv5000", s, seed, cache) for s, seed in train]
     prior = build_talc_prior(recs, config, machine="nmv5000", sources=training_labels(train),
                              **dict(prior_overrides or {}))
@@ -120,6 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--prior-nb-max", type=int, default=8, help="largest n_b of the prior (default 8)")
     p.add_argument("--seed", type=int, default=RUN_SEED, help="seed of the run and its probe noise (default 0; "
                    "the priors' training runs use 101 on)")
+    p.add_argument("--training", help="comma-separated training programmes of the priors instead of "
+                   "thermal-comp prior's (the last one chooses the orders; seeds 101, 102, ... in this order)")
     p.add_argument("--json", type=pathlib.Path, help="write every figure here")
     p.add_argument("--detail", action="store_true", help="also print no-good times and the largest residuals")
     args = p.parse_args(argv)
@@ -128,13 +132,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ReplayInputError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    training = [s.strip() for s in args.training.split(",") if s.strip()] if args.training else None
+    if training is not None:
+        from thermal_twin.scenarios import scenario_names
+        unknown = sorted(set(training) - set(scenario_names("nmv5000")))
+        if unknown:
+            print(f"error: --training {args.training!r}: {unknown} are not nmv5000 scenarios", file=sys.stderr)
+            return 2
     config = shipped_config()
     config.update(overrides)
     cache: dict = {}
     rows = []
     for case in args.case or CASES:
         r = run_case(case, config, cache, {"na_max": args.prior_na_max, "nb_max": args.prior_nb_max},
-                     args.seed)
+                     args.seed, training)
         rows.append(r)
         print(format_row(r), flush=True)
         if args.detail:
@@ -144,7 +155,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     worst = max((r["ratio"] for r in rows if math.isfinite(r["ratio"])), default=math.nan)
     print(f"worst ratio {worst:.2f} (goal <= 0.5); lowest Q_prod {min(r['q_prod_pct'] for r in rows):.2f} %")
     if args.json:
-        args.json.write_text(json.dumps({"config_overrides": overrides, "rows": rows}, indent=1, default=str) + "\n")
+        args.json.write_text(json.dumps({"config_overrides": overrides, "training": training, "rows": rows},
+                                        indent=1, default=str) + "\n")
     return 0
 
 

@@ -82,6 +82,28 @@ def _load_case(mwf: bool, optimised_h: float = 0.0):
     return build
 
 
+def _stratified_durations(rng, n: int, lo_s: float, hi_s: float) -> np.ndarray:
+    """``n`` durations in [lo_s, hi_s], one from each of n equal strata, in random order (a
+    Latin-hypercube design in one dimension: short and long phases both occur)."""
+    u = (np.arange(n) + rng.uniform(0.0, 1.0, n)) / n
+    return rng.permutation(lo_s + u * (hi_s - lo_s))
+
+
+def type_mwf_hall_phases(t, rng):
+    """Prior training (virtual experiment of the type): MWF switching at every phase of a
+    swinging hall. The on/off durations are a stratified design over 1-6 h, so the switches
+    fall at all hours of the day/night cycle (+-3 degC, the type's widest hall) and both short
+    and long phases occur; two door drops, one of them while the MWF runs."""
+    n = int(np.ceil(t[-1] / (3.5 * H))) + 2
+    on, off = _stratified_durations(rng, n, 1 * H, 6 * H), _stratified_durations(rng, n, 1 * H, 6 * H)
+    edges = np.cumsum(np.ravel(np.column_stack([off, on])))
+    cool = (np.searchsorted(edges, t, side="right") % 2).astype(float)
+    drops = [DoorDrop(float(t[-1]) * f, depth=3.0, fall_s=1500.0) for f in (0.37, 0.71)]
+    amb = hall_ambient(t, rng, mean=20.5, day_amplitude=3.0, drift_per_day=1.0, door_drops=drops)
+    return {"c_speed_rpm": _c_random(t, rng), "coolant_on": cool,
+            "coolant_temp_degc": _mwf_supply(t, amb, cool), "ambient_degc": amb}
+
+
 def _iso230_3(speeds: dict[str, float]):
     """ISO 230-3 style: 4 h at constant speed of the heat sources, then 4 h stopped; steady hall."""
     def build(t, rng):
@@ -265,6 +287,10 @@ _register(Scenario("load-case-C", "104 h: first 32 h the 'optimised' pattern (0-
 _register(Scenario("load-case-D", "144 h random C-axis speeds with MWF on/off (spec §4.7)", 144.0, 60.0,
                    {"nmv5000": _load_case(True)}))
 
+_register(Scenario("type-mwf-hall-phases", "prior training programme (a designed virtual experiment, no "
+                   "evaluated case): 144 h random C-axis speeds, MWF on/off for stratified 1-6 h phases "
+                   "that fall at every phase of a +-3 degC day/night hall, two door drops", 144.0, 60.0,
+                   {"nmv5000": type_mwf_hall_phases}))
 _register(Scenario("iso230-3", "ISO 230-3 style warm-up and cool-down: 4 h at a constant high speed of the "
                    "main heat source, then 4 h stopped, steady hall", 8.0, 30.0,
                    {"nmv5000": _iso230_3({"c_speed_rpm": 1200.0}),
