@@ -6,8 +6,9 @@ Run: ``python -m cnc_bridge.cnc_bridge_node`` (then ``configure`` and ``activate
 launcher drives them, ``autostart:=true`` does it without a manager).
 
 * **configure** connects (opcua: within ``connect_timeout_s``, the server's certificate
-  checked against the trust list), reads what the CNC holds and adopts it into the envelope
-  only within its limits (clamped; 0 where compensation was off), one audit line per axis
+  checked against the trust list; the client's event loop runs in the node's own thread,
+  each write to completion, and a wall-clock timer serves it between writes), reads what
+  the CNC holds and adopts it into the envelope only within its limits (clamped; 0 where compensation was off), one audit line per axis
   saying what was held and what was adopted. Configure never writes; a failed configure
   releases the connection and leaves the node unconfigured.
 * **activate** starts writing: every prediction is transformed at the current positions,
@@ -34,10 +35,12 @@ skipped; nothing already applied changes, and the watchdog takes over if they pe
 """
 from __future__ import annotations
 
+import gc
 import math
 import time
 
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -65,6 +68,9 @@ from cnc_bridge.update_profile import UpdateProfile
 LIFECYCLE_NODE = True
 
 SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FAILURE
+#: wall-clock period at which a backend whose I/O runs in the node's thread is served between
+#: writes (OPC UA: health check, keep-alive, positions, reconnection), s
+SERVE_PERIOD_S = 0.05
 
 
 def _make_backend(p: dict):
@@ -86,7 +92,8 @@ def _make_backend(p: dict):
         certificate=p["certificate"] or None, private_key=creds.private_key,
         server_certificate=p["server_certificate"] or None,
         server_trust=(p["server_trust"],) if p["server_trust"] else (),
-        security_required=p["security_required"], timeout_s=p["request_timeout_s"]))
+        security_required=p["security_required"], timeout_s=p["request_timeout_s"]),
+        inline=True)      # the client's loop runs in the node's thread: no hop per write
     if not backend.wait_connected(p["connect_timeout_s"]):
         error = backend.last_error or "no answer"
         backend.close()
@@ -172,6 +179,9 @@ class CncBridgeNode(LifecycleNode):
         self._entities += [self.offsets_pub, self.sync_pub]
         if not p["lockstep"]:
             self._entities.append(self.create_timer(p["update_period_s"], self._on_timer))
+        if hasattr(self.backend, "serve"):
+            self._entities.append(self.create_timer(SERVE_PERIOD_S, self.backend.serve,
+                                                    clock=Clock(clock_type=ClockType.STEADY_TIME)))
         self.get_logger().info(
             f"configured: backend {p['backend']}, limit {p['abs_limit_um']} um, rate "
             f"{p['max_rate_um_per_s']} um/s, watchdog {p['watchdog_timeout_s']} s; not writing "
@@ -181,6 +191,9 @@ class CncBridgeNode(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         self.envelope.set_enabled(bool(self.get_parameter("enable").value))
         self._active, self._ramping_down = True, False
+        # what start-up allocated (modules, the client, the node) stays out of the garbage
+        # collector's passes: a full collection over it is a pause on the offsets' path
+        gc.freeze()
         self._audit_event("", f"activate: compensation {'enabled' if self.envelope.enabled else 'DISABLED'}")
         self.get_logger().info(f"active: writing offsets from "
                                f"{self._fmt(self.envelope.applied)} (rate-limited)")

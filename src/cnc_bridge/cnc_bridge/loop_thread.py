@@ -1,8 +1,18 @@
-"""An asyncio event loop running in its own thread, driven from synchronous code.
+"""Event loops for the asyncio libraries (OPC UA client, CNC emulator), driven from synchronous code.
 
 The OPC UA client and the CNC emulator are asyncio libraries; the ROS node and the tests
-are synchronous. Each owns one :class:`LoopThread`; :meth:`run` submits a coroutine and
-waits for it with a deadline, :meth:`stop` cancels whatever is still pending and joins.
+are synchronous. Two ways to drive a loop, with one interface (``run``, ``submit``,
+``wait``, ``serve``, ``stop``):
+
+* :class:`LoopThread`: the loop runs forever in its own thread; :meth:`LoopThread.run`
+  hands a coroutine over and waits for its result with a deadline. Background tasks
+  (reconnection, keep-alive) run whenever they are due. Each call costs two thread wakes
+  (the loop's thread, then the caller's) and the two threads contend for the GIL.
+* :class:`InlineLoop`: the loop belongs to the calling thread and runs only while that
+  thread drives it: :meth:`InlineLoop.run` runs the coroutine to completion there (no
+  hop), and :meth:`InlineLoop.serve`, called periodically (the bridge node's timer),
+  serves the background tasks in between. Used by the cnc_bridge node, whose OPC UA
+  write sits on the temperature-to-offsets latency path (docs/cnc_bridge.md).
 """
 from __future__ import annotations
 
@@ -30,6 +40,13 @@ class LoopThread:
             fut.cancel()
             raise
 
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        """Wait at most ``timeout_s`` for ``event`` (set by a task on the loop)."""
+        return event.wait(timeout_s)
+
+    def serve(self, budget_s: float = 0.0) -> None:
+        """Nothing to do: the loop's own thread serves its tasks."""
+
     def stop(self, timeout_s: float = 5.0) -> None:
         """Cancel every pending task, stop the loop and join the thread."""
         if not self._thread.is_alive():
@@ -48,3 +65,51 @@ class LoopThread:
         self._thread.join(timeout_s)
         if not self._thread.is_alive():
             self.loop.close()
+
+
+class InlineLoop:
+    """A loop owned by the thread that drives it (see the module docstring). Not thread-safe:
+    every call must come from the same thread, and none from inside the loop itself."""
+
+    def __init__(self, name: str):
+        self.name = name
+        self.loop = asyncio.new_event_loop()
+
+    def submit(self, coro: Coroutine) -> asyncio.Task:
+        """Schedule ``coro`` as a task; it runs whenever the loop is driven (run, wait, serve)."""
+        return self.loop.create_task(coro)
+
+    def run(self, coro: Coroutine, timeout_s: float) -> Any:
+        """Run ``coro`` to completion in this thread, at most ``timeout_s`` (then it is
+        cancelled and TimeoutError raised); background tasks due meanwhile run too."""
+        if self.loop.is_running():
+            raise RuntimeError(f"{self.name}: run() called from inside its own loop")
+        return self.loop.run_until_complete(asyncio.wait_for(coro, timeout_s))
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        """Drive the loop until ``event`` is set (by one of its tasks) or ``timeout_s`` passed."""
+        async def until_set():
+            while not event.is_set():
+                await asyncio.sleep(0.005)
+        try:
+            self.run(until_set(), timeout_s)
+        except TimeoutError:
+            pass
+        return event.is_set()
+
+    def serve(self, budget_s: float) -> None:
+        """Drive the loop for ``budget_s``: whatever is ready or falls due meanwhile runs
+        (received answers, keep-alives, timers, a reconnection's next steps)."""
+        if not self.loop.is_closed():
+            self.loop.run_until_complete(asyncio.sleep(budget_s))
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        """Cancel every pending task, give them ``timeout_s`` to finish, close the loop."""
+        if self.loop.is_closed():
+            return
+        tasks = asyncio.all_tasks(self.loop)
+        for t in tasks:
+            t.cancel()
+        if tasks:
+            self.loop.run_until_complete(asyncio.wait(tasks, timeout=timeout_s))
+        self.loop.close()

@@ -27,8 +27,12 @@
   ``security_required`` refuses to connect without it, and then needs a user and a trust
   list of server certificates (:mod:`cnc_bridge.trust_list`) or one pinned certificate:
   a server whose certificate is not listed is refused before any session.
-* The asyncio client runs in a dedicated thread with its own event loop; the public
-  methods are synchronous, with deadlines, so a ROS node stays single-threaded.
+* The public methods are synchronous, with deadlines, so a ROS node stays single-threaded.
+  The asyncio client's loop runs either in a dedicated thread (default) or, with
+  ``inline=True``, in the caller's own thread (:class:`cnc_bridge.loop_thread.InlineLoop`):
+  a write then runs to completion there without a hop between threads, and the caller
+  calls :meth:`OpcUaBackend.serve` periodically so that the health check, keep-alives,
+  position updates and a reconnection go on between writes (the cnc_bridge node does).
 """
 from __future__ import annotations
 
@@ -45,7 +49,7 @@ from typing import Mapping
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-from cnc_bridge.loop_thread import LoopThread
+from cnc_bridge.loop_thread import InlineLoop, LoopThread
 from cnc_bridge.trust_list import TrustList
 
 log = logging.getLogger("cnc_bridge.opcua")
@@ -184,7 +188,7 @@ class OpcUaBackend:
 
     name = "opcua"
 
-    def __init__(self, config: OpcUaConfig):
+    def __init__(self, config: OpcUaConfig, inline: bool = False):
         self.config = config
         self._offset_axes = [a for a, n in config.node_map.items() if n.offset]
         self._offset_ids = {a: ua.NodeId.from_string(config.node_map[a].offset) for a in self._offset_axes}
@@ -204,7 +208,7 @@ class OpcUaBackend:
         self._held: dict[str, tuple[float, bool]] = {}
         self._trust = TrustList.from_paths(config.server_trust, "server trust list") \
             if config.server_trust else None
-        self._io = LoopThread("opcua-client")
+        self._io = InlineLoop("opcua-client") if inline else LoopThread("opcua-client")
         self._loop = self._io.loop
         self._supervisor = self._io.submit(self._supervise())
 
@@ -214,7 +218,16 @@ class OpcUaBackend:
         return self._connected.is_set()
 
     def wait_connected(self, timeout_s: float) -> bool:
-        return self._connected.wait(timeout_s)
+        return self._io.wait(self._connected, timeout_s)
+
+    #: how long one :meth:`serve` drives an inline loop: connected, its tasks need little
+    #: (an answer to read, a publish request to send); reconnecting, a handshake of round trips
+    SERVE_CONNECTED_S, SERVE_RECONNECTING_S = 0.001, 0.02
+
+    def serve(self) -> None:
+        """Inline loop: run the client's background tasks for a moment (call it every few
+        tens of ms); a no-op with the loop in its own thread."""
+        self._io.serve(self.SERVE_CONNECTED_S if self._connected.is_set() else self.SERVE_RECONNECTING_S)
 
     def axis_positions(self) -> dict[str, float]:
         return dict(self._positions)

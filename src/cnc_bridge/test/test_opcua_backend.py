@@ -16,11 +16,14 @@ from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, OpcUaConfigError
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 
 
-def wait_for(condition, timeout_s: float, what: str):
+def wait_for(condition, timeout_s: float, what: str, be: OpcUaBackend | None = None):
+    """Poll ``condition``; with ``be``, serve its loop meanwhile (what the node's timer does)."""
     deadline = time.monotonic() + timeout_s
     while not condition():
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout_s:g} s waiting for {what}")
+        if be is not None:
+            be.serve()
         time.sleep(0.01)
 
 
@@ -40,9 +43,13 @@ def emulator(port):
     emu.close()
 
 
-def backend(port, **kw) -> OpcUaBackend:
+def backend(port, inline: bool = False, **kw) -> OpcUaBackend:
     kw.setdefault("reconnect_max_s", 0.3)
-    return OpcUaBackend(OpcUaConfig(endpoint=endpoint(port), **kw))
+    return OpcUaBackend(OpcUaConfig(endpoint=endpoint(port), **kw), inline=inline)
+
+
+#: the client's loop in its own thread, or in the caller's (as the cnc_bridge node runs it)
+LOOPS = pytest.mark.parametrize("inline", [False, True], ids=["loop-thread", "inline-loop"])
 
 
 def offset_writes(emu, axis):
@@ -50,23 +57,25 @@ def offset_writes(emu, axis):
     return [v for n, v in emu.write_log if n == nid]
 
 
-def test_writes_are_read_back_and_the_cnc_applies_them(emulator, port):
-    be = backend(port)
+@LOOPS
+def test_writes_are_read_back_and_the_cnc_applies_them(emulator, port, inline):
+    be = backend(port, inline)
     try:
         assert be.wait_connected(10), be.last_error
         back = be.write_offsets({"X": 1.5, "Y": -2.0, "Z": 12.25})
         assert back == pytest.approx({"X": 1.5, "Y": -2.0, "Z": 12.25})
         assert emulator.applied_um() == pytest.approx({"X": 1.5, "Y": -2.0, "Z": 12.25})
         emulator.set_position("Z", -250.0)           # positions arrive by subscription
-        wait_for(lambda: be.axis_positions().get("Z") == -250.0, 5, "Z position")
+        wait_for(lambda: be.axis_positions().get("Z") == -250.0, 5, "Z position", be)
         with pytest.raises(OpcUaConfigError, match="B"):
             be.write_offsets({"B": 1.0})              # B has no offset node: a clear error
     finally:
         be.close()
 
 
-def test_server_restart_mid_run_loses_no_write_and_duplicates_none(emulator, port):
-    be = backend(port)
+@LOOPS
+def test_server_restart_mid_run_loses_no_write_and_duplicates_none(emulator, port, inline):
+    be = backend(port, inline)
     try:
         assert be.wait_connected(10), be.last_error
         confirmed = []
@@ -77,10 +86,10 @@ def test_server_restart_mid_run_loses_no_write_and_duplicates_none(emulator, por
         emulator.stop()                               # the CNC goes away ...
         assert be.write_offsets({"X": 99.0}) == {"X": None}   # ... a write now fails, visibly
         emulator.start()                              # ... and comes back with its compensation reset
-        wait_for(lambda: be.connected and be.connections == 2, 15, "reconnection")
+        wait_for(lambda: be.connected and be.connections == 2, 15, "reconnection", be)
         assert emulator.applied_um()["X"] == pytest.approx(confirmed[-1])   # re-applied
         emulator.set_position("Y", 42.0)                                    # re-subscribed
-        wait_for(lambda: be.axis_positions().get("Y") == 42.0, 5, "Y position after restart")
+        wait_for(lambda: be.axis_positions().get("Y") == 42.0, 5, "Y position after restart", be)
         for k in range(6, 9):
             assert be.write_offsets({"X": 0.5 * k})["X"] == pytest.approx(0.5 * k)
             confirmed.append(0.5 * k)

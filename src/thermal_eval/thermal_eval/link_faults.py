@@ -54,7 +54,8 @@ def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: 
 
     def make_backend(**kw):
         return OpcUaBackend(OpcUaConfig(endpoint=endpoint, node_map=node_map, timeout_s=1.0,
-                                        check_period_s=0.2, reconnect_min_s=0.1, reconnect_max_s=0.5, **kw))
+                                        check_period_s=0.2, reconnect_min_s=0.1, reconnect_max_s=0.5, **kw),
+                            inline=True)      # the client's loop in this thread, as in the cnc_bridge node
 
     emu = CncEmulatorThread(emu_cfg).start()
     backend = None
@@ -125,6 +126,7 @@ def _verdict(fault: str, backend, emu, env, axes, failed: int, max_step_um: floa
     while time.monotonic() < deadline and fault != "wrong_credentials":
         if backend.connected:
             break
+        backend.serve()
         time.sleep(0.05)
     applied = emu.applied_um()
     violations = []
