@@ -20,6 +20,7 @@ so the lock-step goes on; it never retries the refused state.
 """
 from __future__ import annotations
 
+import gc
 import math
 import pathlib
 import time
@@ -135,6 +136,9 @@ class TalcModelNode(Node):
         self.ack_pending_t: float | None = None
         self.diag.set("state", "OK", how)
         self.get_logger().info(f"{self.kind} model: {how}; components {', '.join(model.component_names)}")
+        # what start-up allocated (modules, the model, the node) stays out of the garbage
+        # collector's passes: a full collection over it is a pause on the predictions' path
+        gc.freeze()
 
     @property
     def model(self):
