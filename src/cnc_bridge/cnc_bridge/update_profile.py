@@ -3,8 +3,7 @@
 The cnc_bridge node, when given ``profile_path``, times every prediction from the moment its
 callback starts: the transform (eq. 6.3-6.5), the envelope step, the CNC write with its
 read-back (the backend call as the node sees it, and the round trip(s) as the OPC UA
-client's event loop sees them; the difference is the hop between the node's thread and the
-client's), the ``offsets`` publication, the audit log line (flushed and fsync'ed) and the
+client's event loop sees them; the difference is the call's own work around them), the ``offsets`` publication, the audit log line (flushed and fsync'ed) and the
 SimSync acknowledgement. One CSV row per prediction, written when the node exits; the wall
 clock of the callback start lets ``bench graph`` join it to the DDS publication times of the
 same instant (thermal_comp.graph_profile) and so measure the DDS hop into the bridge too.

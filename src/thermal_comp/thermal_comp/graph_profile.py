@@ -90,8 +90,9 @@ def ack_breakdown(arrivals: dict[tuple[str, int], float], acks: dict[tuple[str, 
 
 #: The temperature-to-offsets latency of one instant, in order along its path: (name, profile
 #: column). model: temperatures -> errors/predicted publications; DDS hop: that publication ->
-#: the bridge's callback; " of it": parts of the CNC call (round trip on the client's loop,
-#: the rest is the hop between the node's thread and that loop).
+#: the bridge's callback; " of it": parts of the CNC call (the round trip as the client's
+#: event loop times it; the rest is the call's own work around it: the lock, the loop's
+#: start and stop in the node's thread, and other tasks the loop served meanwhile).
 #: From the DDS publication of ``temperatures`` to that of the answering ``offsets``; the
 #: bridge publishes them after the CNC confirmed the write (write status and read-back), and
 #: writes its audit line after that (``audit``, outside the latency, before the lock-step ack).
@@ -102,7 +103,7 @@ LATENCY_PARTS = (
     ("envelope step", "envelope_ms"),
     ("CNC write + read-back", "cnc_call_ms"),
     (" of it: OPC UA round trip", "round_trip_ms"),
-    (" of it: thread hop", None),
+    (" of it: around the round trip", None),
     ("publication", "publish_ms"),
 )
 
