@@ -44,6 +44,9 @@ class CdConfig:
     sensors: list[str] | None = None          # None: all temperatures seen at the first update
     use_gradients: bool = True
     gradient_window_s: float = 600.0
+    #: first-order low-passes of every temperature (time constants, s): candidates that carry the
+    #: structure's thermal lag, which static maps of the present temperatures miss (docs/prior.md)
+    lowpass_time_constants_s: list[float] = field(default_factory=list)
     max_inputs: int = 3
     n_intervals: int = 4
     smoothing: float = 1e-4
@@ -71,6 +74,9 @@ class CdConfig:
             v = getattr(cfg, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise CdModelError(f"cd config: '{name}' must be a positive number, got {v!r}")
+        for tau in cfg.lowpass_time_constants_s:
+            if not (isinstance(tau, (int, float)) and math.isfinite(tau) and tau > 0):
+                raise CdModelError(f"cd config: 'lowpass_time_constants_s' must hold positive numbers, got {tau!r}")
         for name in ("max_inputs", "n_intervals", "update_batch", "uncertainty_window"):
             v = getattr(cfg, name)
             if not (isinstance(v, int) and v >= 1):
@@ -96,6 +102,8 @@ class CharacteristicDiagramModel:
         self.sensor_names: list[str] | None = list(self.config.sensors) if self.config.sensors else None
         self.recent: deque = deque()            # (t, temperatures) within the gradient window
         self.current: np.ndarray | None = None  # candidate input vector
+        self.lowpass: np.ndarray | None = None  # low-passed temperatures, one row per time constant
+        self.t_input: float | None = None       # time of the last update_inputs
         self.excluded: list[str] = []
         self.held: dict[str, float] = {}
         self.base_u: list[list[float]] = []     # candidate vectors the base was trained on
@@ -124,8 +132,15 @@ class CharacteristicDiagramModel:
     # ------------------------------------------------------------------ inputs
     @property
     def candidate_names(self) -> list[str]:
+        """temperatures, their low-passes (``T~tau``, tau in h), their gradients (``dT/dt``)."""
         names = list(self.sensor_names or [])
-        return names + ([f"d{n}/dt" for n in names] if self.config.use_gradients else [])
+        lows = [f"{n}~{tau / 3600.0:g}h" for tau in self.config.lowpass_time_constants_s for n in names]
+        return names + lows + ([f"d{n}/dt" for n in names] if self.config.use_gradients else [])
+
+    @property
+    def level_columns(self) -> int:
+        """How many leading candidates are temperature levels (the temperatures and their low-passes)."""
+        return len(self.sensor_names or []) * (1 + len(self.config.lowpass_time_constants_s))
 
     def update_inputs(self, t_s: float, temperatures: Mapping[str, float],
                       machine_state: Mapping[str, float]) -> None:
@@ -148,15 +163,22 @@ class CharacteristicDiagramModel:
             temps.append(v)
         self.excluded = excluded
         temps = np.asarray(temps)
+        taus = np.asarray(self.config.lowpass_time_constants_s, float)[:, None]
+        if self.lowpass is None or self.t_input is None or not np.all(np.isfinite(self.lowpass)):
+            self.lowpass = np.repeat(temps[None, :], taus.shape[0], axis=0)
+        else:
+            self.lowpass = self.lowpass + (temps - self.lowpass) * (1.0 - np.exp(-max(t_s - self.t_input, 0.0) / taus))
+        self.t_input = float(t_s)
+        levels = np.concatenate([temps, self.lowpass.ravel()])
         self.recent.append((float(t_s), temps))
         while len(self.recent) > 2 and t_s - self.recent[1][0] >= self.config.gradient_window_s:
             self.recent.popleft()
         if self.config.use_gradients:
             t0, x0 = self.recent[0]
             grad = (temps - x0) / ((t_s - t0) / 3600.0) if t_s > t0 else np.zeros_like(temps)
-            self.current = np.concatenate([temps, grad])
+            self.current = np.concatenate([levels, grad])
         else:
-            self.current = temps
+            self.current = levels
         self._key += 1
 
     # ------------------------------------------------------------------ prediction
@@ -279,6 +301,7 @@ class CharacteristicDiagramModel:
                 "sensor_names": self.sensor_names, "held": self.held, "excluded": self.excluded,
                 "recent": [[t, x.tolist()] for t, x in self.recent],
                 "current": None if self.current is None else self.current.tolist(),
+                "lowpass": None if self.lowpass is None else self.lowpass.tolist(), "t_input": self.t_input,
                 "base_u": self.base_u, "base_y": self.base_y, "new_u": self.new_u, "new_y": self.new_y,
                 "inputs": self.inputs, "base": {c: cd.to_state() for c, cd in self.base.items()},
                 "update": {c: cd.to_state() for c, cd in self.update.items()},
@@ -303,6 +326,9 @@ class CharacteristicDiagramModel:
                 setattr(m, key, state[key])
             m.recent = deque((float(t), np.asarray(x, dtype=float)) for t, x in state["recent"])
             m.current = None if state["current"] is None else np.asarray(state["current"], dtype=float)
+            m.lowpass = None if state.get("lowpass") is None else np.asarray(state["lowpass"], dtype=float).reshape(
+                len(m.config.lowpass_time_constants_s), len(m.sensor_names or []))
+            m.t_input = state.get("t_input")
             m.base = {c: CharacteristicDiagram.from_state(s) for c, s in state["base"].items()}
             m.update = {c: CharacteristicDiagram.from_state(s) for c, s in state["update"].items()}
             m.errors = {c: deque(e, maxlen=m.config.uncertainty_window) for c, e in state["errors"].items()}

@@ -13,6 +13,7 @@ the unit's probes the new load case). No rclpy here. docs/prior.md, docs/agp_cd.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict
 from typing import Any, Mapping, Sequence
 
@@ -26,12 +27,19 @@ from talc_model.prior import PRIOR_VERSION, PriorError
 from talc_model.prior_agp import error_deltas, restore_with_prior
 
 #: adaptation settings stored in the prior (the run's configuration overrides the CD-model keys):
-#: a load-case update after every probe, its stop rule floored at twice the linear probe noise
-#: (measured on 48 h of talc-178h-dry, unit #1: batches of 3 or 6 left P99_lin 14.1 / 26.7 um
-#: against 11.6 um with 1; floor 0: 27.5 against 24.2 um over 178 h with batch 6)
-DEFAULT_ADAPTATION = {"check_s": 4 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5}
+#: the prediction is the last probe plus the diagrams' change since it, weighted by the measured
+#: gain over the last ``gain_window`` probe pairs (the prior's held-out gain before ``min_pairs``);
+#: ``load_case_updates`` off: refitting the diagrams to the unit's probes made the anchored
+#: prediction worse (12 h of talc-178h-dry, unit #1: P99_lin first 8 h 1.29 against 0.89 um
+#: without, whole 12 h 3.81 against 2.48 um; docs/prior.md)
+DEFAULT_ADAPTATION = {"check_s": 4 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5, "gain_window": 12,
+                      "min_pairs": 2, "load_case_updates": False}
+#: the prior's default low-pass time constants (s): the forward heuristic picks among them on the
+#: held-out programme, which estimates the structure's lag per component
+PRIOR_LOWPASS_S = (3600.0, 7200.0, 14400.0, 28800.0)
 #: the CD structure is the prior's: these run-configuration keys are taken from it
-STRUCTURE_KEYS = ("sensors", "use_gradients", "gradient_window_s", "max_inputs", "n_intervals", "smoothing")
+STRUCTURE_KEYS = ("sensors", "use_gradients", "gradient_window_s", "lowpass_time_constants_s", "max_inputs",
+                  "n_intervals", "smoothing")
 
 
 def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.ndarray]:
@@ -45,7 +53,7 @@ def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.nda
         probe.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()}, {})
         rows.append(probe.current.copy())
     x = np.asarray(rows)
-    n = len(probe.sensor_names)
+    n = probe.level_columns
     ok = np.all(np.isfinite(x), axis=1)
     if ok.any():
         x[:, :n] -= x[ok][0, :n]
@@ -67,13 +75,29 @@ def _training_parts(recordings: Sequence[Any], cfg: CdConfig, every_s: float):
     return parts, names
 
 
+def change_gain(measured: np.ndarray, predicted: np.ndarray) -> float:
+    """The least-squares gain of predicted on measured changes, sum(d p) / sum(p^2), in [0, 1]
+    (0 without any predicted change)."""
+    d, p = np.asarray(measured, float), np.asarray(predicted, float)
+    pp = float(p @ p)
+    return 0.0 if pp <= 0 else float(np.clip((d @ p) / pp, 0.0, 1.0))
+
+
+def held_out_change_gain(cd: CharacteristicDiagram, x: np.ndarray, y: np.ndarray, lag: int) -> float:
+    """:func:`change_gain` of ``cd`` (fitted without the held-out programme) on the held-out
+    rows ``x``, ``y``: changes over ``lag`` rows (the check phase's probe interval)."""
+    f = cd.predict(x)
+    return change_gain(y[lag:] - y[:-lag], f[lag:] - f[:-lag]) if y.size > lag else 1.0
+
+
 def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConfig | None = None, *,
                    machine: str = "", sources: Sequence[str] = (), every_s: float = 600.0,
                    max_anchor_points: int = 1500) -> dict[str, Any]:
     """The CD prior from nominal recordings (module docstring): inputs chosen on the last
     recording held out, whose RMS is the ``validation_rms``; diagrams fitted on all of them;
     ``anchors``: the training points (thinned evenly) the load-case updates keep close to."""
-    cfg = config if isinstance(config, CdConfig) else CdConfig.from_mapping(dict(config or {}))
+    cfg = config if isinstance(config, CdConfig) else CdConfig.from_mapping(
+        {"lowpass_time_constants_s": list(PRIOR_LOWPASS_S), **dict(config or {})})
     if len(recordings) < 2:
         raise PriorError(f"cd prior: needs >= 2 training recordings (one held out), got {len(recordings)}")
     if not (math.isfinite(every_s) and every_s > 0):
@@ -89,7 +113,7 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
     def make() -> CharacteristicDiagram:
         return CharacteristicDiagram(n_intervals=cfg.n_intervals, smoothing=cfg.smoothing)
 
-    inputs, cds, held = {}, {}, {}
+    inputs, cds, held, gain = {}, {}, {}, {}
     for c in cfg.components:
         steps = forward_selection(x, y[c], max_inputs=cfg.max_inputs, make_cd=make, seed=cfg.seed,
                                   min_relative_gain=0.05, split=split)
@@ -97,12 +121,15 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
         inputs[c] = cols
         held[c] = float(steps[-1].score)            # RMS on the held-out programme, fitted without it
         cds[c] = make().fit(x[:, cols], y[c]).to_state()
+        lag = max(1, int(round(cfg.calibration_probe_interval_s / every_s)))
+        gain[c] = held_out_change_gain(make().fit(x[split[0]][:, cols], y[c][split[0]]),
+                                       x[split[1]][:, cols], y[c][split[1]], lag)
     thin = np.unique(np.linspace(0, x.shape[0] - 1, min(max_anchor_points, x.shape[0])).round().astype(int))
     return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "cd", "machine": machine,
             "sources": list(sources), "sensors": list(parts[0][0]), "candidate_names": list(names),
             "inputs": inputs, "input_names": {c: [names[i] for i in cols] for c, cols in inputs.items()},
             "cds": cds, "anchors": {"u": x[thin].tolist(), "y": {c: v[thin].tolist() for c, v in y.items()}},
-            "validation_rms": held, "training_points": int(x.shape[0]), "every_s": float(every_s),
+            "validation_rms": held, "change_gain": gain, "training_points": int(x.shape[0]), "every_s": float(every_s),
             "cd_config": asdict(cfg), "adaptation": dict(DEFAULT_ADAPTATION)}
 
 
@@ -119,7 +146,7 @@ class CdPriorModel(CharacteristicDiagramModel):
         if not prior or prior.get("model_kind") != "cd":
             raise PriorError(f"cd prior: 'model_kind' is {(prior or {}).get('model_kind')!r}, expected 'cd'")
         cfg = dict(config or {})
-        cfg.update({k: prior["cd_config"][k] for k in STRUCTURE_KEYS})
+        cfg.update({k: prior["cd_config"][k] for k in STRUCTURE_KEYS if k in prior["cd_config"]})
         cfg["sensors"] = list(prior["sensors"])
         adapt = {**DEFAULT_ADAPTATION, **prior.get("adaptation", {})}
         for key in ("update_batch", "update_rmse_floor"):
@@ -139,38 +166,118 @@ class CdPriorModel(CharacteristicDiagramModel):
         self.base_y = {c: list(prior["anchors"]["y"][c]) for c in self.component_names}
         self.phase = PHASE_COMPENSATION
         self.message = "prior: compensating with the machine type's characteristic diagrams"
+        self.anchored = bool(adapt.get("anchored", True))
+        self.gain_window = int(adapt["gain_window"])
+        self.min_pairs = int(adapt["min_pairs"])
+        self.load_case_updates = bool(adapt["load_case_updates"])
+        self.prior_gain = dict(prior.get("change_gain", {}))
+        if self.gain_window < 1:
+            raise PriorError(f"cd prior: gain_window {self.gain_window!r} must be an integer >= 1")
+        #: the last probe: time, measured total error, diagrams' values and inputs there
+        self.anchor: dict[str, Any] | None = None
+        #: walk-forward at the probe pairs: (hours between, measured change, predicted change)
+        self.pairs = {c: deque(maxlen=self.gain_window) for c in self.component_names}
 
     def update_inputs(self, t_s: float, temperatures: Mapping[str, float],
                       machine_state: Mapping[str, float]) -> None:
         """The candidates with temperatures as deltas from the first complete row (as the prior)."""
         super().update_inputs(t_s, temperatures, machine_state)
-        n = len(self.sensor_names or [])
+        n = self.level_columns
         if self.x0 is None and np.all(np.isfinite(self.current)):
             self.x0 = self.current[:n].copy()
         if self.x0 is not None:
             self.current = self.current.copy()
             self.current[:n] -= self.x0
 
+    def _diagrams(self, u: np.ndarray) -> dict[str, float]:
+        """base + update of every component at the candidate vector ``u`` (not anchored)."""
+        out = {}
+        for c in self.component_names:
+            x = np.asarray(u, float)[self.inputs[c]][None, :]
+            out[c] = float(self.base[c].predict(x)[0]) + (float(self.update[c].predict(x)[0]) if c in self.update else 0.0)
+        return out
+
+    def change_gain(self, c: str) -> float:
+        """Weight of the diagrams' predicted change since the last probe: the least-squares gain of
+        the predicted on the measured changes at the walk-forward probe pairs, sum(d p) / sum(p^2),
+        clipped to [0, 1]: 1 where the diagrams predict the changes, 0 where holding the probe is
+        better (an uncorrelated or opposite prediction). Before ``min_pairs`` pairs: the prior's own
+        gain, measured the same way on its held-out programme (``change_gain`` in the prior)."""
+        pairs = self.pairs[c]
+        if len(pairs) < self.min_pairs:
+            return float(self.prior_gain.get(c, 1.0))
+        return change_gain([x[1] for x in pairs], [x[2] for x in pairs])
+
     def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
+        """The level of the last probe plus the diagrams' predicted change since it, weighted by
+        :meth:`change_gain` (before any probe: the change since the first row, where the errors,
+        deltas from the start, are 0)."""
         if self.current is None or not np.all(np.isfinite(self.current)):   # before the first complete row
             return {c: 0.0 for c in self.component_names}, {c: math.nan for c in self.component_names}
-        return super().predict(t_s)
+        if self._cache is not None and self._cache[0] == self._key:
+            return dict(self._cache[1]), dict(self._cache[2])
+        raw, stds = super().predict(t_s)
+        if not self.anchored:
+            return raw, stds
+        if self.anchor is None:
+            self.anchor = {"t": float(t_s), "y": {c: 0.0 for c in self.component_names},
+                           "f": dict(raw), "u": self.current.tolist()}
+        a = self.anchor
+        values = {c: a["y"][c] + self.change_gain(c) * (raw[c] - a["f"][c]) for c in self.component_names}
+        self._cache = (self._key, dict(values), dict(stds))
+        return values, stds
+
+    def add_measurement(self, t_s: float, measured: Mapping[str, float],
+                        applied_compensation: Mapping[str, float]) -> None:
+        """The CD model's measurement (load-case update), then the walk-forward pair (the change the
+        diagrams predicted since the last probe, before learning from this one, against the
+        measured change) and the new anchor."""
+        done = self.probing_cycles
+        before = self._diagrams(self.current) if self.current is not None and self.anchor is not None else None
+        u_prev = None if self.anchor is None else np.asarray(self.anchor["u"], float)
+        prev = None if u_prev is None else self._diagrams(u_prev)
+        super().add_measurement(t_s, measured, applied_compensation)
+        if self.probing_cycles == done:                              # not learned from
+            return
+        totals = {c: float(measured[c]) + _finite(applied_compensation.get(c, 0.0)) for c in self.component_names}
+        if before is not None and t_s > self.anchor["t"]:
+            h = (t_s - self.anchor["t"]) / 3600.0
+            for c in self.component_names:
+                self.pairs[c].append((h, totals[c] - self.anchor["y"][c], before[c] - prev[c]))
+        self.anchor = {"t": float(t_s), "y": totals, "f": self._diagrams(self.current), "u": self.current.tolist()}
+        self._cache = None
 
     def _interval(self) -> float:
         checking = (self.t_start is None or self.t_last_probe is None
                     or self.t_last_probe - self.t_start < self.check_s)
         return self.config.calibration_probe_interval_s if checking else self.config.update_probe_interval_s
 
+    def _fit_update(self) -> None:
+        if self.load_case_updates:
+            super()._fit_update()
+        else:
+            self.pending_since_update = 0
+
     def to_state(self) -> dict:
         return {**super().to_state(), "prior": self.prior, "check_s": self.check_s,
-                "x0": None if self.x0 is None else self.x0.tolist()}
+                "x0": None if self.x0 is None else self.x0.tolist(), "anchor": self.anchor,
+                "pairs": {c: [list(p) for p in v] for c, v in self.pairs.items()}}
 
     @classmethod
     def from_state(cls, state: Mapping[str, Any]) -> "CdPriorModel":
         if not state.get("prior"):
             raise PriorError("cd prior: model state has no 'prior'")
-        return restore_with_prior(cls(state["config"], state["prior"], state["check_s"]),
-                                  CharacteristicDiagramModel, state)
+        base = {k: v for k, v in state.items() if k not in ("anchor", "pairs")}
+        model = restore_with_prior(cls(state["config"], state["prior"], state["check_s"]),
+                                   CharacteristicDiagramModel, base)
+        model.anchor = state.get("anchor")
+        for c, pairs in (state.get("pairs") or {}).items():
+            model.pairs[c].extend(tuple(p) for p in pairs)
+        return model
+
+
+def _finite(v) -> float:
+    return 0.0 if v is None or not math.isfinite(float(v)) else float(v)
 
 
 def cd_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs) -> CdPriorModel:

@@ -10,7 +10,7 @@ from talc_model.adaptive_model import PHASE_COMPENSATION, model_from_state
 from talc_model.cd_model import CharacteristicDiagramModel
 from talc_model.prior import PriorError
 from talc_model.prior_agp import model_from_prior
-from talc_model.prior_cd import CdPriorModel, build_cd_prior, cd_inputs
+from talc_model.prior_cd import CdPriorModel, build_cd_prior, cd_inputs, change_gain
 from talc_model.cd_model import CdConfig
 from thermal_twin.scenarios import make_timeline
 from thermal_twin.simulate import simulate
@@ -64,7 +64,8 @@ def _drive(model, rec, until_h):
 
 def test_compensates_from_the_first_instant_adapts_and_resumes(prior):
     rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=12.0, seed=0), seed=0).to_recording()
-    model = model_from_prior("cd", {"components": COMPONENTS, "update_batch": 2}, prior)
+    with_updates = {**prior, "adaptation": {**prior["adaptation"], "load_case_updates": True}}
+    model = model_from_prior("cd", {"components": COMPONENTS, "update_batch": 2}, with_updates)
     assert isinstance(model, CdPriorModel) and model.phase == PHASE_COMPENSATION
     preds = _drive(model, rec, 3.0)
     assert np.any(np.abs(preds[1:]) > 0)                      # the prior's diagrams, before any update
@@ -78,3 +79,28 @@ def test_compensates_from_the_first_instant_adapts_and_resumes(prior):
     _drive(model, rec, 12.0)
     assert model.config.update_probe_interval_s == 4 * 3600.0
     assert model.probing_cycles == 7 + 4                      # 3.5 and 4 h, then every 4 h: 8 and 12 h
+    assert back.anchor == state["anchor"] and all([list(x) for x in back.pairs[c]] == state["pairs"][c] for c in COMPONENTS)
+
+
+def test_change_gain_is_the_measured_least_squares_gain():
+    assert change_gain([1.0, 2.0], [1.0, 2.0]) == pytest.approx(1.0)
+    assert change_gain([1.0, 2.0], [2.0, 4.0]) == pytest.approx(0.5)
+    assert change_gain([1.0, -2.0], [-1.0, 2.0]) == 0.0         # opposite prediction: hold
+    assert change_gain([1.0, 2.0], [0.0, 0.0]) == 0.0            # no predicted change: hold
+    assert change_gain([3.0], [1.0]) == 1.0                      # at most the diagrams' change
+
+
+def test_prediction_is_the_last_probe_plus_the_weighted_change(prior):
+    rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=3.0, seed=0), seed=0).to_recording()
+    model = model_from_prior("cd", {"components": COMPONENTS}, prior)
+    _drive(model, rec, 2.0)
+    a = model.anchor
+    assert a is not None and model.probing_cycles == 5 and all(len(model.pairs[c]) == 4 for c in COMPONENTS)
+    raw = model._diagrams(model.current)
+    pred = model.predict(float(rec.time_s[-1]))[0]
+    for c in COMPONENTS:
+        g = model.change_gain(c)
+        assert 0.0 <= g <= 1.0
+        assert pred[c] == pytest.approx(a["y"][c] + g * (raw[c] - a["f"][c]))
+    assert prior["change_gain"].keys() == set(COMPONENTS)
+    assert all(0.0 <= v <= 1.0 for v in prior["change_gain"].values())
