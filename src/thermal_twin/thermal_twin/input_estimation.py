@@ -15,7 +15,10 @@ put it on (a twin that lacks the bearing source would otherwise have all the hea
 the motor, its only speed-driven source left), and the profile is estimated again with that
 split. The input equivalent to the heat on the nodes of the twin's own sources is found by
 inverting sum c_i u^n_i; heat located elsewhere is reported as such (a heat input at that
-node the twin lacks). Details and limits: docs/calibrate.md.
+node the twin lacks). A recorded boundary that the missing heat itself warms (a jacket's
+coolant return) can be declared a *response* for the estimation (:func:`as_responses`: held at
+its low level, its sensor not fitted), so that it does not carry the heat's signal into the
+twin as a boundary. Details and limits: docs/calibrate.md.
 """
 from __future__ import annotations
 
@@ -109,16 +112,46 @@ def _outputs(spec: dict, rec: Recording, channels: list[str], extra: dict | None
     return np.stack([out[c] for c in channels])
 
 
+def as_responses(machine: Machine, rec: Recording, channels: list[str], responses: list[str],
+                 quantile: float = 0.05) -> tuple[Recording, list[str]]:
+    """The recording and channels for an estimation in which the boundary inputs
+    ``responses`` are *responses*, not drivers: a recorded boundary temperature that the
+    missing heat itself warms (a jacket's coolant *return* rises with the motor's losses)
+    would otherwise feed the heat's signal into the twin as a boundary, and the inverse
+    would find no heat to estimate. Each is held at its ``quantile`` of the recording (the
+    return is lowest when no heat flows into the jacket: about the supply temperature), and
+    its sensor leaves the estimation's channels."""
+    cols = dict(rec.columns)
+    drop = set()
+    for name in responses:
+        if name not in machine.inputs:
+            raise InputEstimationError(f"response input '{name}': not an input of twin '{machine.name}' "
+                                       f"(inputs {sorted(machine.inputs)})")
+        sensor = machine.inputs[name].from_sensor
+        col = f"{sensor}_c" if sensor and f"{sensor}_c" in cols else (name if name in cols else None)
+        if col is None:
+            raise InputEstimationError(f"response input '{name}': the recording has neither column '{name}' "
+                                       f"nor its sensor's column")
+        level = float(np.nanquantile(np.asarray(cols[col], dtype=float), quantile))
+        cols[col] = np.full(len(rec), level)
+        drop.add(col)
+    held = Recording(rec.time_s, cols, source=rec.source, warnings=list(rec.warnings))
+    return held, [c for c in channels if c not in drop]
+
+
 def estimate_input(machine: Machine, rec: Recording, name: str, channels: list[str],
                    block_s: float = 1800.0, folds: int = 5, stride: int = 0, locate: bool = True,
-                   reweight: int = REWEIGHT) -> InputEstimate:
+                   reweight: int = REWEIGHT, responses: list[str] = ()) -> InputEstimate:
     """Estimate the heat of the sources driven by ``name`` from ``channels`` of ``rec``.
     ``locate``: then find which nodes the temperatures put that heat on (:func:`locate_heat`)
     and estimate the profile again with that split. ``reweight``: see :func:`_profile`
     (measured on the mini_mill test twin: block-heat correlation 0.9955 -> 0.9979 with 2, but
-    the 95 % band covers 81 % of the blocks instead of 100 %; hence 0 by default)."""
+    the 95 % band covers 81 % of the blocks instead of 100 %; hence 0 by default).
+    ``responses``: boundary inputs treated as responses during the estimation (:func:`as_responses`)."""
     if not any(s.input == name for s in machine.sources.values()):
         raise InputEstimationError(f"input '{name}': no source of twin '{machine.name}' is driven by it")
+    if responses:
+        rec, channels = as_responses(machine, rec, channels, list(responses))
     base, pulse, share = _heat_spec(machine, name)
     t = rec.time_s
     edges = np.arange(t[0], t[-1] + block_s, block_s)
@@ -285,14 +318,16 @@ def equivalent_input(machine: Machine, name: str, power: np.ndarray) -> np.ndarr
     return np.interp(power, pg, grid)
 
 
-def fill_missing_inputs(machine: Machine, rec: Recording, channels: list[str],
-                        block_s: float = 1800.0) -> tuple[Recording, list[InputEstimate], list[str]]:
+def fill_missing_inputs(machine: Machine, rec: Recording, channels: list[str], block_s: float = 1800.0,
+                        responses: list[str] = ()) -> tuple[Recording, list[InputEstimate], list[str]]:
     """The recording with every missing source-driving input replaced by its estimate
-    (the equivalent input of the estimated heat), the estimates and one finding each."""
+    (the equivalent input of the estimated heat), the estimates and one finding each.
+    ``responses``: boundary inputs that the missing heat warms, held during the estimation
+    (:func:`as_responses`); the returned recording keeps them as recorded."""
     cols = dict(rec.columns)
     ests, notes = [], []
     for name in missing_inputs(machine, rec):
-        e = estimate_input(machine, rec, name, channels, block_s=block_s)
+        e = estimate_input(machine, rec, name, channels, block_s=block_s, responses=responses)
         cols[name] = e.input_series(rec.time_s)
         ests.append(e)
         split = e.located or e.sources
@@ -303,6 +338,8 @@ def fill_missing_inputs(machine: Machine, rec: Recording, channels: list[str],
                      f"{block_s / 60:.0f}-min blocks, {where} {srcs}), i.e. {name} of "
                      f"{np.mean(e.equivalent_input):.0f} {machine.inputs[name].unit} on average"
                      + (f" from the {100 * e.own_share:.0f} % on the nodes of its sources" if e.own_share < 1 else "")
+                     + (f", with {', '.join(responses)} treated as a response (held at its 5 % level)"
+                        if responses else "")
                      + "; "
                      f"profile and 95 % band in input_estimate_{name}.png")
     return Recording(rec.time_s, cols, source=rec.source, warnings=list(rec.warnings)), ests, notes
