@@ -12,7 +12,9 @@ lost held-out fit it restores (``restored_pct``: 100 = back to the calibrated tw
 weighted SSE), what the finder marks indistinguishable from its answer, and the channels the
 removal changes most. The last row repeats the bearing case with the speed column deleted: the
 speed is first estimated from the temperatures (``input_estimation.fill_missing_inputs``) with
-the ablated twin. ``thermal-comp bench diagnose`` does not run this (minutes); the slow test
+the ablated twin, the coolant return t4 treated as a response of the jacket's heat, not a driver
+(``RESPONSES``), and the estimated heat is compared with the deleted speed's heat (correlation).
+Each screened mechanism also gets its identifiability (:mod:`thermal_eval.fl_thermal_identifiability`). ``thermal-comp bench diagnose`` does not run this (minutes); the slow test
 and docs/diagnose.md do.
 """
 from __future__ import annotations
@@ -25,12 +27,13 @@ import numpy as np
 
 from thermal_twin.calibration import calibrate
 from thermal_twin.column_mapping import parse_mapping, read_real_recording
-from thermal_twin.input_estimation import fill_missing_inputs
+from thermal_twin.input_estimation import fill_missing_inputs, source_power
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.mismatch_diagnosis import diagnose, shared_channels
 from thermal_twin.mismatch_fit import FitProblem
 from thermal_comp_common.recording_csv import Recording
 from thermal_eval.fl_thermal_data import default_csv_path
+from thermal_eval.fl_thermal_identifiability import identifiability
 from thermal_eval.fl_thermal_mechanisms import (Mechanism, all_mechanisms, holdout_by_channel, ratios_by_channel,
                                                 screen, screen_markdown, select)
 
@@ -65,9 +68,14 @@ def _row(mech: Mechanism, ref: float, rep: dict, sse: dict, wall: float) -> dict
     r1 = [h for h in rep["hypotheses"] if h["round"] == 1]
     rank = next((i + 1 for i, h in enumerate(r1) if f"{h['effect']}:{h['target']}" == mech.expect), None)
     exp_h = r1[rank - 1] if rank else None
+    # the same hypotheses ranked by their screening share: which step prefers a neighbour
+    by_screen = sorted(r1, key=lambda h: -h["screening_err"])
+    s_rank = next((i + 1 for i, h in enumerate(by_screen) if f"{h['effect']}:{h['target']}" == mech.expect), None)
     exp_value = (float(exp_h["params"][mech.param]["value"])
                  if exp_h and mech.param in exp_h["params"] else None)
-    return {"expected_rank_round1": rank, "expected_fitted": exp_value,
+    return {"expected_rank_round1": rank, "expected_screen_rank_round1": s_rank, "expected_fitted": exp_value,
+            "expected_screening_err": exp_h["screening_err"] if exp_h else None,
+            "first_screening_err": r1[0]["screening_err"] if r1 else None,
             "expected_holdout_improvement_pct": exp_h["holdout_improvement_pct"] if exp_h else None,
             "hypotheses_round1": len(r1),
             "mechanism": mech.label, "expected": mech.expect, "answer": rep["answer"], "first": first,
@@ -94,12 +102,20 @@ def _calibrated(twin: str, rec: Recording, progress) -> tuple[dict, dict]:
     return cal.spec, fig
 
 
+#: boundary inputs the missing speed's heat warms (the preset's header: t4 is the jacket's coolant
+#: *return*), treated as responses when the speed is estimated (input_estimation.as_responses)
+RESPONSES = {"fl-thermal-rig": ["coolant_degc"]}
+
+
 def _chosen(problem: FitProblem, spec_c: dict, umax: float, twin: str, at_bound: list[str]) -> tuple[list, list]:
-    """(the screening rows of every mechanism, the mechanisms to diagnose). For
-    ``spindle-stand`` the first table's four; otherwise the selection rule's, then the
+    """(the screening rows of every mechanism with its identifiability, the mechanisms to
+    diagnose). For ``spindle-stand`` the first table's four; otherwise every mechanism the
+    support rule picks (identifiable or not: each one's outcome is reported), then the
     ch5/headstock term if the rule left it out (it is the term the brief asks about)."""
     every = all_mechanisms(spec_c, umax)
     rows = screen(problem, spec_c, every, set(at_bound))
+    for r, i in zip(rows, identifiability(problem, spec_c, every)):
+        r.update(identifiable=i["identifiable"], competitor=i["competitor"], distinct=i["distinct"])
     if twin == "spindle-stand":
         return rows, mechanisms(umax, twin)
     chosen = select(every, rows)
@@ -125,14 +141,16 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
     speedless = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "spindle_rpm"},
                           source=rec.source + " (spindle_rpm deleted)")
     rule = {m.label for m in select(all_mechanisms(spec_c, umax), screened)}
+    ident = {r["mechanism"]: r["identifiable"] for r in screened}
     bearing = next(m for m in chosen if m.expect == "heat_source:front_bearing")
     cases = [(m, rec) for m in chosen] + [(bearing, speedless)]
     rows = []
     for i, (mech, r) in enumerate(cases):
         if only is not None and i not in only:
             continue
-        row = _case(mech, r, r is speedless, spec_c, problem, (chans, n_train, res))
+        row = _case(mech, r, r is speedless, spec_c, problem, (chans, n_train, res, RESPONSES.get(twin, [])))
         row["selected_by_rule"] = mech.label in rule
+        row["identifiable"] = ident[mech.label]
         rows.append(row)
         if progress:
             progress(f"{row['mechanism']} [{row['recording']}]: first {row['first']} (expected {row['expected']}), "
@@ -143,14 +161,15 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
 
 def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: FitProblem, setup) -> dict:
     """Ablate ``mech`` from ``spec_c``, (estimate the missing speed,) diagnose, score."""
-    chans, n_train, res = setup
+    chans, n_train, res, responses = setup
     ablated = copy.deepcopy(spec_c)
     ref = mech.remove(ablated)
-    note = ""
+    note, est = "", {}
     if estimate:
         am = load_machine(ablated)
-        r, _, found = fill_missing_inputs(am, r, shared_channels(am, r))
+        r, ests, found = fill_missing_inputs(am, r, shared_channels(am, r), responses=responses)
         note = "; ".join(found)
+        est = _against_true_heat(ests[0], spec_c, problem.recording)
     t1 = time.perf_counter()
     d = diagnose(ablated, r)
     wall = time.perf_counter() - t1
@@ -164,7 +183,20 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     row["most_changed"] = most_changed(prob, spec_c, ablated)
     row["note"] = note
     row["indistinguishable"] = _indistinguishable(d.report)
+    row["estimate"] = est
     return row
+
+
+def _against_true_heat(e, spec_c: dict, rec: Recording) -> dict:
+    """The estimated heat per block against the deleted speed's heat in the calibrated twin
+    (its speed-driven sources at the recorded speed, block means): correlation and means."""
+    true_p = source_power(load_machine(spec_c), e.input, rec.columns[e.input])
+    k = np.clip(np.searchsorted(e.block_edges_s, rec.time_s, side="right") - 1, 0, len(e.power_w) - 1)
+    tb = np.array([np.mean(true_p[k == b]) if np.any(k == b) else np.nan for b in range(len(e.power_w))])
+    ok = np.isfinite(tb)
+    return {"corr_with_true_heat": float(np.corrcoef(e.power_w[ok], tb[ok])[0, 1]),
+            "mean_power_w": float(np.mean(e.power_w[ok])), "true_mean_power_w": float(np.mean(tb[ok])),
+            "located": e.located}
 
 
 def _indistinguishable(report: dict) -> list[str]:
@@ -185,12 +217,20 @@ def markdown(result: dict) -> str:
         rest = f"{r['restored_pct']:.0f} %" if r["restored_pct"] is not None else "-"
         if r["expected_rank_round1"]:
             ev = "-" if r["expected_fitted"] is None else f"{r['expected_fitted']:.4g}"
-            exp = (f"{r['expected_rank_round1']} of {r['hypotheses_round1']}: {r['parameter']} {ev}, "
+            exp = (f"{r['expected_rank_round1']} of {r['hypotheses_round1']} (screening rank "
+                   f"{r['expected_screen_rank_round1']}): {r['parameter']} {ev}, "
                    f"held-out {r['expected_holdout_improvement_pct']:.0f} %")
         else:
             exp = f"not among the {r['hypotheses_round1']} fitted"
         ratio = r["holdout_sse_ablated"] / r["holdout_sse_calibrated"]
-        L.append(f"| {r['mechanism']} | {r['recording']} | {ratio:.3f} | {r['first']} | {'yes' if r['effect_ok'] else 'no'} "
+        if r.get("estimate"):
+            e = r["estimate"]
+            ratio_note = (f" (estimated heat {e['mean_power_w']:.0f} W mean against {e['true_mean_power_w']:.0f} W, "
+                          f"r = {e['corr_with_true_heat']:.2f})")
+        else:
+            ratio_note = ""
+        ident = {True: "identifiable", False: "not identifiable", None: "-"}[r.get("identifiable")]
+        L.append(f"| {r['mechanism']} ({ident}) | {r['recording']}{ratio_note} | {ratio:.3f} | {r['first']} | {'yes' if r['effect_ok'] else 'no'} "
                  f"| {'yes' if r['target_ok'] else 'no'} | {par} | {rest} | {exp} "
                  f"| {', '.join(r.get('indistinguishable') or []) or '-'} "
                  f"| {', '.join(f'{c} {x:.2f}' for c, x in r.get('most_changed', []))} |")

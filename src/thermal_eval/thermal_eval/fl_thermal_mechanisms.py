@@ -161,10 +161,13 @@ def select(mechs: list[Mechanism], rows: list[dict], min_ratio: float = MIN_RATI
 def screen_markdown(rows: list[dict]) -> str:
     """The screening table of docs/diagnose.md."""
     L = ["| mechanism | kind | vocabulary word | calibrated value | held-out SSE ablated / calibrated "
-         "| at a calibration bound | channels it changes most (held-out SSE x) |",
-         "|---|---|---|---|---|---|---|"]
+         "| at a calibration bound | identifiable: best competitor, share it leaves "
+         "| channels it changes most (held-out SSE x) |",
+         "|---|---|---|---|---|---|---|---|"]
     for r in sorted(rows, key=lambda r: -r["ratio"]):
+        ident = ("-" if r.get("identifiable") is None else
+                 f"{'yes' if r['identifiable'] else 'no'}: {r['competitor']}, {r['distinct']:.3f}")
         L.append(f"| {r['mechanism']} | {r['kind']} | {r['expected'] or '(none)'} | {r['reference']:.4g} "
-                 f"| {r['ratio']:.3f} | {'yes' if r['at_bound'] else 'no'} "
+                 f"| {r['ratio']:.3f} | {'yes' if r['at_bound'] else 'no'} | {ident} "
                  f"| {', '.join(f'{c} {x:.2f}' for c, x in r['most_changed'])} |")
     return "\n".join(L)
