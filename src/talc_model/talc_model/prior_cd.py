@@ -29,10 +29,11 @@ from talc_model.prior_agp import error_deltas, restore_with_prior
 #: adaptation settings stored in the prior (the run's configuration overrides the CD-model keys):
 #: the prediction is the last probe plus the diagrams' change since it, weighted by the measured
 #: gain over the last ``gain_window`` probe pairs (the prior's held-out gain before ``min_pairs``);
+#: ``check_s`` 8 h at the calibration interval (30 min), the probes of the CD model's own calibration;
 #: ``load_case_updates`` off: refitting the diagrams to the unit's probes made the anchored
 #: prediction worse (12 h of talc-178h-dry, unit #1: P99_lin first 8 h 1.29 against 0.89 um
 #: without, whole 12 h 3.81 against 2.48 um; docs/prior.md)
-DEFAULT_ADAPTATION = {"check_s": 4 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5, "gain_window": 12,
+DEFAULT_ADAPTATION = {"check_s": 8 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5, "gain_window": 12,
                       "min_pairs": 2, "load_case_updates": False}
 #: the prior's default low-pass time constants (s): the forward heuristic picks among them on the
 #: held-out programme, which estimates the structure's lag per component

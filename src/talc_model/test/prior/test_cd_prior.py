@@ -64,7 +64,7 @@ def _drive(model, rec, until_h):
 
 def test_compensates_from_the_first_instant_adapts_and_resumes(prior):
     rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=12.0, seed=0), seed=0).to_recording()
-    with_updates = {**prior, "adaptation": {**prior["adaptation"], "load_case_updates": True}}
+    with_updates = {**prior, "adaptation": {**prior["adaptation"], "load_case_updates": True, "check_s": 4 * 3600.0}}
     model = model_from_prior("cd", {"components": COMPONENTS, "update_batch": 2}, with_updates)
     assert isinstance(model, CdPriorModel) and model.phase == PHASE_COMPENSATION
     preds = _drive(model, rec, 3.0)
