@@ -321,7 +321,10 @@ class BagRecorderNode(Node):
     def close(self) -> None:
         self.writer.close()
         self.get_logger().info(f"bag {self.writer.path} closed: {self.writer.message_count} messages"
-                               f" ({self.resends_skipped} re-sent copies not written again)")
+                               f" ({self.resends_skipped} re-sent copies not written again"
+                               + (f"; {len(self.follow_dropped)} instants acknowledged without an expected message: "
+                                  + ", ".join(f"{t} at {k / 1e9:.0f} s" for t, k in self.follow_dropped[:5])
+                                  if self.follow_dropped else "") + ")")
 
 
 def main(args=None) -> int:

@@ -192,7 +192,9 @@ class MachineSimNode(Node):
             # what its reliable writers still owe; wait for the acknowledgements (bounded, 5 s each)
             from rclpy.duration import Duration
             for pub in (self.pub_clock, self.pub_state, self.pub_sensors, self.pub_truth):
-                pub.wait_for_all_acked(Duration(seconds=5.0))
+                if not pub.wait_for_all_acked(Duration(seconds=5.0)):
+                    self.get_logger().warning(f"{pub.topic_name}: a subscriber did not acknowledge the last "
+                                              "messages within 5 s; shutting down without it")
             self.context.try_shutdown()
         return True
 
