@@ -92,14 +92,14 @@ def _stratified_durations(rng, n: int, lo_s: float, hi_s: float) -> np.ndarray:
 def type_mwf_hall_phases(t, rng):
     """Prior training (virtual experiment of the type): MWF switching at every phase of a
     swinging hall. The on/off durations are a stratified design over 1-6 h, so the switches
-    fall at all hours of the day/night cycle (+-3 degC, the type's widest hall) and both short
-    and long phases occur; two door drops, one of them while the MWF runs."""
+    fall at all hours of the day/night cycle (+-3 degC, the type's widest hall, drifting as the
+    load cases' hall) and both short and long phases occur. No door drops: on top of the
+    swing they took the hall below the type's 15-25 degC (12 degC in one draw)."""
     n = int(np.ceil(t[-1] / (3.5 * H))) + 2
     on, off = _stratified_durations(rng, n, 1 * H, 6 * H), _stratified_durations(rng, n, 1 * H, 6 * H)
     edges = np.cumsum(np.ravel(np.column_stack([off, on])))
     cool = (np.searchsorted(edges, t, side="right") % 2).astype(float)
-    drops = [DoorDrop(float(t[-1]) * f, depth=3.0, fall_s=1500.0) for f in (0.37, 0.71)]
-    amb = hall_ambient(t, rng, mean=20.5, day_amplitude=3.0, drift_per_day=1.0, door_drops=drops)
+    amb = hall_ambient(t, rng, mean=21.0, day_amplitude=3.0, drift_per_day=0.8)
     return {"c_speed_rpm": _c_random(t, rng), "coolant_on": cool,
             "coolant_temp_degc": _mwf_supply(t, amb, cool), "ambient_degc": amb}
 
@@ -289,7 +289,7 @@ _register(Scenario("load-case-D", "144 h random C-axis speeds with MWF on/off (s
 
 _register(Scenario("type-mwf-hall-phases", "prior training programme (a designed virtual experiment, no "
                    "evaluated case): 144 h random C-axis speeds, MWF on/off for stratified 1-6 h phases "
-                   "that fall at every phase of a +-3 degC day/night hall, two door drops", 144.0, 60.0,
+                   "that fall at every phase of a +-3 degC day/night hall", 144.0, 60.0,
                    {"nmv5000": type_mwf_hall_phases}))
 _register(Scenario("iso230-3", "ISO 230-3 style warm-up and cool-down: 4 h at a constant high speed of the "
                    "main heat source, then 4 h stopped, steady hall", 8.0, 30.0,
