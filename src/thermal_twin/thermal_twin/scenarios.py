@@ -93,8 +93,8 @@ def type_mwf_hall_phases(t, rng):
     """Prior training (virtual experiment of the type): MWF switching at every phase of a
     swinging hall. The on/off durations are a stratified design over 1-6 h, so the switches
     fall at all hours of the day/night cycle (+-3 degC, the type's widest hall, drifting as the
-    load cases' hall) and both short and long phases occur. No door drops: on top of the
-    swing they took the hall below the type's 15-25 degC (12 degC in one draw)."""
+    load cases' hall) and both short and long phases occur. No door drops: with them and a
+    1 K/day drift one draw took the hall to 12 degC (docs/talc.md, session 6)."""
     n = int(np.ceil(t[-1] / (3.5 * H))) + 2
     on, off = _stratified_durations(rng, n, 1 * H, 6 * H), _stratified_durations(rng, n, 1 * H, 6 * H)
     edges = np.cumsum(np.ravel(np.column_stack([off, on])))
