@@ -136,6 +136,10 @@ def link_found(o: dict) -> bool:
     return true is not None and abs(value - true) <= LINK_TOLERANCE * true
 
 
+def _exact(o: dict) -> bool:
+    return bool(o["selected"]) and o["selected"][0] == o["true_key"]
+
+
 def score(outcomes: list[dict]) -> dict:
     """The issue's figures from the outcomes of :func:`run_case`."""
     named = [o for o in outcomes if o["kind"] == "named"]
@@ -144,7 +148,7 @@ def score(outcomes: list[dict]) -> dict:
     mis = [o for o in outcomes if o["kind"] == "mis-calibrated"]
     cond = [o for o in named if o["true_key"].startswith("conduction:")]
     first = sum(o["answer"] == o["true_key"].split(":")[0] for o in named)
-    exact = sum(bool(o["selected"]) and o["selected"][0] == o["true_key"] for o in named)
+    exact = sum(_exact(o) for o in named)
     extra = sum(max(0, len(o["selected"]) - 1) + (o["answer"] == "unnamed") for o in named)
     extra += sum(len(o["selected"]) + bool(o["unnamed"]) for o in none)
     extra += sum(len(o["selected"]) for o in oov)
@@ -158,7 +162,7 @@ def score(outcomes: list[dict]) -> dict:
         "extra_adopted_per_10_cases": 10.0 * extra / max(len(outcomes), 1),
         "none_answered": f"{sum(o['answer'] == 'none' for o in none)}/{len(none)}",
         "unnamed_answered": f"{sum(o['answer'] == 'unnamed' for o in oov)}/{len(oov)}",
-        "conduction_exact": f"{sum(bool(o['selected']) and o['selected'][0] == o['true_key'] for o in cond)}/{len(cond)}",
+        "conduction_exact": f"{sum(_exact(o) for o in cond)}/{len(cond)}",
         "mis_calibrated_link_found": f"{sum(link_found(o) for o in mis)}/{len(mis)}",
         "unnamed_min_holdout_improvement_pct": min(gains) if gains else None,
         "diagnosis_wall_s_median": walls[len(walls) // 2] if walls else None,
