@@ -56,6 +56,9 @@ class TalcModel(TalcIdentification):
         self.parameter_updates = 0
         self.ng_left = 0.0
         self.last_probe_t: float | None = None
+        #: the switch-driven probing (TalcConfig.switch_probe_input): last value, pending due time
+        self.switch_last: float | None = None
+        self.switch_probe_due_s: float | None = None
         self.t_last_update: float | None = None
         self.nb_max_selected = c.nb_max            # max n_b used in the last order selection
         self.out_of_sample: dict[str, list[float]] = {n: [] for n in self.component_names}
@@ -110,7 +113,24 @@ class TalcModel(TalcIdentification):
             else:
                 held.append(name)
         self.held_inputs = held
+        self._watch_switch(t_s, signals)
         self.t_last = t_s
+
+    def _watch_switch(self, t_s: float, signals: Mapping[str, float]) -> None:
+        """A switch of ``switch_probe_input`` makes one probing due ``switch_probe_delay_min``
+        later (a switch while one is pending is ignored; an unknown value keeps the last)."""
+        name = self.config.switch_probe_input
+        v = signals.get(name) if name else None
+        try:
+            v = float(v) if v is not None else math.nan
+        except (TypeError, ValueError):
+            raise ValueError(f"update_inputs: switch_probe_input '{name}': value {v!r} is not a number") from None
+        if not math.isfinite(v):
+            return
+        if self.switch_last is not None and abs(v - self.switch_last) > 0.5 and self.switch_probe_due_s is None:
+            self.switch_probe_due_s = t_s + 60.0 * self.config.switch_probe_delay_min
+            self.events.append({"t_s": t_s, "event": "switch", "input": name, "value": v})
+        self.switch_last = v
 
     def _current_u(self) -> np.ndarray:
         return np.array([self.input_last.get(n, 0.0) for n in self.input_names])
@@ -247,7 +267,14 @@ class TalcModel(TalcIdentification):
         gap = self._interval_s()
         if self.config.interval_from_cycle_end:
             gap += self.config.probe_duration_s
-        return self.last_probe_t + gap
+        due = self.last_probe_t + gap
+        return due if self.switch_probe_due_s is None else min(due, self.switch_probe_due_s)
+
+    def _probed(self, t_s: float) -> None:
+        """A probing (done or failed) at t_s: it is the pending switch probing once that is due."""
+        self.last_probe_t = t_s
+        if self.switch_probe_due_s is not None and t_s + 1e-9 >= self.switch_probe_due_s:
+            self.switch_probe_due_s = None
 
     def probe_due(self, t_s: float) -> bool:
         self._advance(float(t_s))
@@ -262,7 +289,7 @@ class TalcModel(TalcIdentification):
         t_s = float(t_s)
         self._advance(t_s)
         self.failed_probing_cycles += 1
-        self.last_probe_t = t_s
+        self._probed(t_s)
         self.message = f"probing failed at t={t_s:.0f} s (not learned from): {reason}"
         self.events.append({"t_s": t_s, "event": "probe_failed", "reason": reason})
 
@@ -312,7 +339,7 @@ class TalcModel(TalcIdentification):
             g.y[k, j] = total[name]
             g.measured[k, j] = True
         self.probing_cycles += 1
-        self.last_probe_t = t_s
+        self._probed(t_s)
         if self.phase != PHASE_CALIBRATION:
             self._resimulate_after(k)
         self._after_measurement(t_s, residual)
@@ -379,6 +406,7 @@ class TalcModel(TalcIdentification):
                          "no_good_phases": self.no_good_phases,
                          "parameter_updates": self.parameter_updates},
             "ng_left": self.ng_left, "last_probe_t": self.last_probe_t,
+            "switch": {"last": self.switch_last, "probe_due_s": self.switch_probe_due_s},
             "t_last_update": self.t_last_update, "nb_max_selected": self.nb_max_selected,
             "out_of_sample": {n: list(v) for n, v in self.out_of_sample.items()},
             "observer": {n: {"k": k, "p": p.tolist()} for n, (k, p) in self.observer.items()},
@@ -414,6 +442,8 @@ class TalcModel(TalcIdentification):
             setattr(model, k, int(v))
         model.ng_left = float(state["ng_left"])
         model.last_probe_t = state["last_probe_t"]
+        switch = state.get("switch") or {}          # states saved before the switch probing: none
+        model.switch_last, model.switch_probe_due_s = switch.get("last"), switch.get("probe_due_s")
         model.t_last_update = state["t_last_update"]
         model.nb_max_selected = int(state["nb_max_selected"])
         model.out_of_sample = {n: [float(x) for x in v] for n, v in state["out_of_sample"].items()}

@@ -89,6 +89,12 @@ class TalcConfig:
     probe_duration_s: float = 95.0
     interval_from_cycle_end: bool = True
     uncertainty_window: int = 10
+    #: a machine-state signal whose switch (a change by more than 0.5, e.g. the MWF flag
+    #: coolant_on, M08/M09) makes one extra probing due ``switch_probe_delay_min`` later, on top
+    #: of the schedule: the model gets the step response after a switch wrong in its shape, and
+    #: the probe measures it early (docs/talc.md, session 6). "" = off
+    switch_probe_input: str = ""
+    switch_probe_delay_min: float = 30.0
     # --- state update by a probe (docs/talc.md "State update")
     #: "observer": a probe corrects the whole output history by the Kalman gain of the model's
     #: own dynamics (talc_model.arx_observer; stable for any n_a); "replace": the thesis's
@@ -102,8 +108,9 @@ class TalcConfig:
         self.component_names = [str(c) for c in self.component_names]
         self.input_names = [str(c) for c in self.input_names]
         self.angular_components = [str(c) for c in self.angular_components]
+        self.switch_probe_input = str(self.switch_probe_input)
         for name in ("model_step_s", "cp_interval_s", "ng_interval_min", "probe_duration_s",
-                     "forgetting_period_h", "cp_min_samples_per_parameter"):
+                     "forgetting_period_h", "cp_min_samples_per_parameter", "switch_probe_delay_min"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"TALC config '{name}': {v!r} must be a finite number > 0")
