@@ -214,6 +214,11 @@ class BagRecorderNode(Node):
                 raise ValueError(f"parameter 'ack_topics': none of {list(p['ack_topics'])} is a "
                                  "recorded topic with a stamp")
             self._start_topics = self._stamped_topics(p["expect_from_start"]) - self._ack_topics
+            unknown = sorted({self.resolve_topic_name(t) for t in p["expect_from_start"] if t.strip()}
+                             - self._start_topics - self._ack_topics)
+            if unknown:
+                raise ValueError(f"parameter 'expect_from_start': {unknown} is not a recorded topic with "
+                                 "a stamp (a topic expected from the first instant must be recorded)")
             self._follow_topics = (self._stamped_topics(p["follow_topics"]) | self._start_topics) - self._ack_topics
             self._follow_timeout_s = float(p["follow_timeout_s"])
             self._SimSync = SimSync

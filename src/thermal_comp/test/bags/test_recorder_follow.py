@@ -136,3 +136,15 @@ def test_expect_from_start_holds_the_first_instant_until_its_offsets_are_written
     c.publish(0.0, rt.TOPIC_OFFSETS)
     c.spin_until(lambda: c.acks == [0.0])
     assert c.rec.follow_dropped == [] and ("offsets", 0) in c.close()
+
+
+def test_expect_from_start_naming_a_topic_not_recorded_is_one_clear_error(tmp_path):
+    from thermal_comp.bag_recorder_node import BagRecorderNode
+    ctx = rclpy.context.Context()
+    rclpy.init(args=["rec", "--ros-args", "-p", f"output:={tmp_path / 'bag'}",
+                     "-p", "lockstep_participant:=true", "-p", "expect_from_start:=['ofsets']"], context=ctx)
+    try:
+        with pytest.raises(ValueError, match=r"expect_from_start.*ofsets"):
+            BagRecorderNode(context=ctx)
+    finally:
+        ctx.try_shutdown()
