@@ -174,9 +174,12 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     d = diagnose(ablated, r)
     wall = time.perf_counter() - t1
     after = d.augmented_spec or ablated
-    # scored on the recording the finder saw (with the estimated speed in the last row)
+    # the ablated and augmented twins are scored on the recording the finder saw (with the
+    # estimated speed in the last row), the reference always on the real recording: the
+    # calibrated twin driven by the estimated speed is no reference (its own sources would
+    # turn the estimated heat into more heat again)
     prob = problem if not estimate else FitProblem(r, chans, n_train, resolution=res)
-    sse = {"calibrated": _holdout_sse(prob, spec_c), "ablated": _holdout_sse(prob, ablated),
+    sse = {"calibrated": _holdout_sse(problem, spec_c), "ablated": _holdout_sse(prob, ablated),
            "after": _holdout_sse(prob, after)}
     row = _row(mech, ref, d.report, sse, wall)
     row["recording"] = "speed deleted, estimated" if estimate else "FL_THERMAL"

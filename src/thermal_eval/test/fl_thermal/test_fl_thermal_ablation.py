@@ -1,6 +1,7 @@
 """Issue 19 item 6 on the real FL_THERMAL recording (slow: one calibration of the
-``fl-thermal-rig`` preset, a screen of its 54 mechanisms and eight diagnoses of the 46 h
-recording: 131 s measured on a nearly idle 2-core machine, each diagnosis 51-213 s under load 5-12).
+``fl-thermal-rig`` preset, a screen of its 54 mechanisms with their identifiability (157 twin
+runs), the speed estimate and eight diagnoses of the 46 h recording: about 20 min measured
+under load 8-24 on 2 cores (calibration 107 s, diagnoses 12-20 s each once the load fell)).
 
 The mechanisms are chosen by the recording, not by the finder: every mechanism of the
 calibrated twin is removed and scored with the calibrated twin alone, and the rule of
@@ -53,6 +54,7 @@ def test_every_ablation_is_diagnosed_and_what_is_adopted_improves_the_held_out_f
     # on the recording the finder saw (the speedless row: with the estimated speed)
     rows = table["rows"]
     assert len(rows) == 8 and table["calibration"]["free_parameters"] > 0
+    # the speedless row's reference is the calibrated twin on the real recording
     for r in rows:
         assert r["holdout_sse_ablated"] > 0 and r["holdout_sse_after"] <= r["holdout_sse_ablated"] * 1.0001, r
 
@@ -92,10 +94,43 @@ def test_every_selected_mechanism_is_named_first_with_its_parameter_within_30_pc
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6): with the speed column deleted, "
-                                       "the heat estimated from the temperatures does not follow the deleted "
-                                       "speed on this recording (the coolant return t4 is the jacket's "
-                                       "boundary and already carries most of the speed's signal)")
+def test_identifiability_is_decided_for_every_mechanism_with_a_word(table):
+    # computed from the calibrated twin alone (fl_thermal_identifiability), before any diagnosis
+    for r in table["screen"]:
+        assert (r["identifiable"] is None) == (r["expected"] is None), r
+        if r["identifiable"] is not None:
+            assert r["competitor"] and r["competitor"] != r["expected"] and r["distinct"] >= 0, r
+    ident = {r["mechanism"]: r["identifiable"] for r in table["screen"]}
+    assert ident[JACKET], ident
+
+
+@pytest.mark.slow
+def test_the_speedless_estimate_follows_the_deleted_speed_with_the_coolant_return_as_a_response(table):
+    # measured: block heat r = 0.57 with the deleted speed's heat, 114 W mean against 106 W
+    # (with t4 as the coolant boundary instead: r = -0.45, 46 W)
+    e = _row(table, BEARING, "speed deleted, estimated")["estimate"]
+    assert e["corr_with_true_heat"] > 0.5, e
+    assert e["mean_power_w"] == pytest.approx(e["true_mean_power_w"], rel=0.3), e
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6): the identifiability criterion "
+                                       "holds for the bearing-housing path (its best other word leaves 1.75 "
+                                       "of the calibrated held-out SSE), yet the finder's full fit prefers a "
+                                       "bearing-column path (the removed path screens 1st, fits 2nd, G off 38 %)")
+def test_every_selected_identifiable_mechanism_is_named_first_with_its_parameter_within_30_pct(table):
+    for r in table["rows"]:
+        if r["selected_by_rule"] and r["identifiable"] and r["recording"] == "FL_THERMAL":
+            assert r["target_ok"], r
+            assert r["rel_error_pct"] is not None and r["rel_error_pct"] <= 30.0, r
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6): with the speed column deleted and "
+                                       "t4 held as a response, the estimated heat follows the deleted speed "
+                                       "(r = 0.57) but the temperatures put 77 % of it on the shaft; the finder "
+                                       "names a 24 h periodic load on the headstock first, the bearing source "
+                                       "2nd (P_max 156 / 275 W)")
 def test_with_the_speed_deleted_the_bearing_source_is_named_first_within_30_pct(table):
     r = _row(table, BEARING, "speed deleted, estimated")
     assert r["target_ok"], r
