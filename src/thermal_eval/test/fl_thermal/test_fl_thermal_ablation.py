@@ -1,7 +1,7 @@
 """Issue 19 item 6 on the real FL_THERMAL recording (slow: one calibration of the
 ``fl-thermal-rig`` preset, a screen of its 54 mechanisms with their identifiability (157 twin
-runs), the speed estimate and eight diagnoses of the 46 h recording: about 20 min measured
-under load 8-24 on 2 cores (calibration 107 s, diagnoses 12-20 s each once the load fell)).
+runs), the speed estimate and eight diagnoses of the 46 h recording: 562 s measured on 2 cores
+under load 0.5-5 (7 passed, 3 strict xfails); about 21 min under load 8-24).
 
 The mechanisms are chosen by the recording, not by the finder: every mechanism of the
 calibrated twin is removed and scored with the calibrated twin alone, and the rule of
