@@ -105,6 +105,10 @@ def geometry_from_parameters(p: dict) -> ArtefactGeometry:
 class ProbeCycleNode(Node):
     def __init__(self, context=None):
         super().__init__("probe_cycle", context=context)
+        self._clock_follower = None
+        if self.get_parameter("use_sim_time").value:
+            from probe_cycle.sim_clock_follower import SimClockFollower
+            self._clock_follower = SimClockFollower(self)
         p = declare_parameters(self, PARAMS)
         self.engine = ProbeCycleEngine(
             geometry_from_parameters(p),
@@ -224,6 +228,8 @@ class ProbeCycleNode(Node):
                                     f"{self._stop_wait_s:g} s")
         self._server.destroy()
         self.backend.close()
+        if self._clock_follower is not None:
+            self._clock_follower.close()
 
 
 def main(args=None) -> int:
