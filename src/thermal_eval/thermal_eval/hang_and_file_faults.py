@@ -39,10 +39,11 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
     """kill -9 of a lock-step recorder mid-run, restarted: every machine_sim instant is in
     bag + bag.2, and the killed bag is repaired for the standard rosbags reader."""
     from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.errors import ReaderError
 
     from thermal_comp_common.bag_reader import read_bag
     from thermal_comp_common.bag_repair import repair_bag
-    ns, hours, step = "/bench_recorder", 1.0, 60.0
+    ns, hours, step = "/bench_recorder", 4.0, 60.0   # 241 instants: the kill after 20 falls mid-run
     bag = out / "bag"
     rec = [sys.executable, "-m", "thermal_comp.bag_recorder_node", "--ros-args", "-r", f"__ns:={ns}",
            "-p", f"output:={bag}", "-p", "lockstep_participant:=true", "-p", "flush_period_s:=0.2"]
@@ -51,7 +52,10 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
                             "-p", "lockstep_participants:=['bag_recorder']", "-p", "shutdown_when_done:=true",
                             "-p", "resend_after_s:=0.5", "-p", "lockstep_deadline_s:=60.0"],
                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    first = subprocess.Popen(rec, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out.mkdir(parents=True, exist_ok=True)
+    logs = [out / "recorder_1.log", out / "recorder_2.log"]     # kept: a failed row says why
+    handles = [log.open("w") for log in logs]
+    first = subprocess.Popen(rec, env=env, stdout=subprocess.DEVNULL, stderr=handles[0])
     second = None
     try:
         end = time.monotonic() + 120
@@ -59,7 +63,7 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
             time.sleep(0.2)
         first.send_signal(signal.SIGKILL)
         first.wait(timeout=30)
-        second = subprocess.Popen(rec, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        second = subprocess.Popen(rec, env=env, stdout=subprocess.DEVNULL, stderr=handles[1])
         sim.wait(timeout=300)
     finally:
         for p in (second, sim):
@@ -71,21 +75,27 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
                     p.wait(timeout=30)
                 except subprocess.TimeoutExpired:
                     p.kill()
+        for h in handles:
+            h.close()
     repaired = repair_bag(bag)
     want = {int(round(k * step)) for k in range(int(hours * 3600 / step) + 1)}
     got: set[int] = set()
-    readable = 0
+    readable, unreadable = 0, ""
     for b in (bag, out / "bag.2"):
         if b.is_dir():
             got |= {int(round(m.stamp_ns / 1e9)) for m in read_bag(b).messages
                     if m.topic == f"{ns}/machine_state"}
-            with Reader(b) as r:
-                readable += sum(1 for _ in r.messages())
+            try:
+                with Reader(b) as r:
+                    readable += sum(1 for _ in r.messages())
+            except ReaderError as exc:     # a recorder that did not close its bag: say which, and its log
+                log = logs[0 if b == bag else 1].read_text()[-400:]
+                unreadable = f"; rosbags cannot read {b.name}: {exc} (recorder log tail: {log!r})"
     lost = len(want - got)
     return _row("recorder", "kill -9 lock-step recorder, restarted", lost == 0 and readable > 0
-                and repaired.damage is not None,
-                f"{len(got)}/{len(want)} instants in bag+bag.2; repaired, rosbags reads {readable} msgs",
-                data_lost=lost)
+                and repaired.damage is not None and not unreadable,
+                f"{len(got)}/{len(want)} instants in bag+bag.2; repaired, rosbags reads {readable} msgs"
+                + unreadable, data_lost=lost)
 
 
 def _flushed_instants(bag: pathlib.Path, ns: str) -> int:
