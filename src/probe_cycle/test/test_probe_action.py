@@ -15,15 +15,12 @@ import time
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
 from action_msgs.msg import GoalStatus  # noqa: E402
-from rclpy.action import ActionClient  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
-from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE, stamp_to_s  # noqa: E402
+from thermal_comp_common.node_runtime import stamp_to_s  # noqa: E402
 from thermal_comp_msgs.action import ProbeCycle  # noqa: E402
 from thermal_comp_msgs.msg import ThermalErrors  # noqa: E402
-from touch_probe_provider import stop_processes
+from touch_probe_provider import probe_action_client, stop_processes
 
 HERE = pathlib.Path(__file__).resolve().parent
 BEFORE = {"E_X0C": 2.0, "E_Y0C": 10.0, "E_Z0T": -6.0, "E_R0T": 1.0, "E_A0C": 5.0,
@@ -53,26 +50,10 @@ def graph(ros_domain_id):
                 "-p", "backend:=twin", "-p", "axis_resolution_um:=0.0",
                 "-p", "touch_timeout_s:=20.0", "-r", f"__ns:={NS}"]),
     ]
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node("probe_test_client", namespace=NS, context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    client = ActionClient(node, ProbeCycle, ACTION_PROBE_CYCLE)
     try:
-        deadline = time.monotonic() + 120.0
-        while not client.server_is_ready():
-            for p in procs:
-                if p.poll() is not None:
-                    pytest.fail(f"process exited early: {p.stdout.read()}")
-            assert time.monotonic() < deadline, "probe_cycle action server did not appear"
-            ex.spin_once(timeout_sec=0.1)
-        yield ex, client
+        with probe_action_client(NS, "probe_test_client", procs) as (ex, client):
+            yield ex, client
     finally:
-        client.destroy()
-        node.destroy_node()
-        ex.shutdown()
-        rclpy.shutdown(context=ctx)
         stop_processes(procs)
 
 

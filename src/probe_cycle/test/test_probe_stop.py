@@ -27,7 +27,7 @@ from probe_cycle.twin_backend import TwinProbeBackend  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-from touch_probe_provider import TouchProbeProvider  # noqa: E402
+from touch_probe_provider import TouchProbeProvider, probe_action_client  # noqa: E402
 
 LONG_S = 600.0     # the backend's own timeouts: far beyond any bound the tests wait
 
@@ -113,9 +113,6 @@ def test_node_exits_on_signal_with_a_cycle_in_flight(ros_domain_id, sig):
     """probe_cycle (touch_timeout_s 600 s) in a cycle whose 4th move is never answered: the
     signal ends the process with code 0 within the launcher's 5 s grace (bound 15 s here for a
     loaded machine; before the fix it took the 600 s timeout), the cycle logged as failed."""
-    from rclpy.action import ActionClient
-    from rclpy.executors import SingleThreadedExecutor
-    from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE
     from thermal_comp_msgs.action import ProbeCycle
     ns = f"/probe_stop_{sig.name.lower()}"
     env = dict(os.environ)
@@ -128,50 +125,37 @@ def test_node_exits_on_signal_with_a_cycle_in_flight(ros_domain_id, sig):
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     provider_lines: queue.Queue = queue.Queue()
     threading.Thread(target=lambda: [provider_lines.put(x) for x in provider.stdout], daemon=True).start()
-    ctx = rclpy.context.Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node("probe_stop_client", namespace=ns, context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    client = ActionClient(node, ProbeCycle, ACTION_PROBE_CYCLE)
+    end = time.monotonic() + 120.0
     try:
-        end = time.monotonic() + 120.0
-        while not client.server_is_ready():
-            assert server.poll() is None and provider.poll() is None, "a process exited early"
-            assert time.monotonic() < end, "probe_cycle action server did not appear"
-            ex.spin_once(timeout_sec=0.1)
-        goal = ProbeCycle.Goal()
-        goal.artefact = ProbeCycle.Goal.ARTEFACT_SPHERE
-        goal.set_reference = True
-        client.send_goal_async(goal)
-        # synchronisation: the provider says it left request 4 pending (the server now waits)
-        while True:
-            ex.spin_once(timeout_sec=0.05)
+        with probe_action_client(ns, "probe_stop_client", (server, provider)) as (ex, client):
+            goal = ProbeCycle.Goal()
+            goal.artefact = ProbeCycle.Goal.ARTEFACT_SPHERE
+            goal.set_reference = True
+            client.send_goal_async(goal)
+            # synchronisation: the provider says it left request 4 pending (the server now waits)
+            while True:
+                ex.spin_once(timeout_sec=0.05)
+                try:
+                    line = provider_lines.get_nowait()
+                except queue.Empty:
+                    assert time.monotonic() < end, "the 4th probing move never reached the provider"
+                    continue
+                if "request 4 left unanswered" in line:
+                    break
+            assert server.poll() is None
+            t0 = time.monotonic()
+            server.send_signal(sig)
             try:
-                line = provider_lines.get_nowait()
-            except queue.Empty:
-                assert time.monotonic() < end, "the 4th probing move never reached the provider"
-                continue
-            if "request 4 left unanswered" in line:
-                break
-        assert server.poll() is None
-        t0 = time.monotonic()
-        server.send_signal(sig)
-        try:
-            code = server.wait(timeout=15.0)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            pytest.fail(f"probe_cycle did not exit within 15 s of {sig.name}: {server.communicate()[0]}")
-        took = time.monotonic() - t0
-        out = server.communicate()[0]
-        assert code == 0, out
-        assert "probe cycle FAILED" in out and "shutting down" in out, out
-        print(f"probe_cycle exited {took:.2f} s after {sig.name}")
+                code = server.wait(timeout=15.0)
+            except subprocess.TimeoutExpired:
+                server.kill()
+                pytest.fail(f"probe_cycle did not exit within 15 s of {sig.name}: {server.communicate()[0]}")
+            took = time.monotonic() - t0
+            out = server.communicate()[0]
+            assert code == 0, out
+            assert "probe cycle FAILED" in out and "shutting down" in out, out
+            print(f"probe_cycle exited {took:.2f} s after {sig.name}")
     finally:
-        client.destroy()
-        node.destroy_node()
-        ex.shutdown()
-        ctx.try_shutdown()
         for p in (server, provider):
             if p.poll() is None:
                 p.terminate()

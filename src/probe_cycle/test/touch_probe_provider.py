@@ -9,9 +9,11 @@ blocking its own executor. Run: ``python touch_probe_provider.py --ros-args -p .
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import sys
+import time
 
 import numpy as np
 from rclpy.node import Node
@@ -89,3 +91,35 @@ def stop_processes(procs) -> None:
             p.kill()
             p.wait()
         print(p.stdout.read())
+
+
+@contextlib.contextmanager
+def probe_action_client(namespace: str, name: str, procs, wait_s: float = 120.0):
+    """``(executor, client)``: a ProbeCycle action client in its own context, yielded once the
+    server is ready; a test process that exits while waiting fails the test, naming it."""
+    import pytest
+    import rclpy
+    from rclpy.action import ActionClient
+    from rclpy.executors import SingleThreadedExecutor
+    from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE
+    from thermal_comp_msgs.action import ProbeCycle
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node(name, namespace=namespace, context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    client = ActionClient(node, ProbeCycle, ACTION_PROBE_CYCLE)
+    try:
+        end = time.monotonic() + wait_s
+        while not client.server_is_ready():
+            for p in procs:
+                if p.poll() is not None:
+                    pytest.fail(f"process exited early (code {p.returncode}): {p.args}")
+            assert time.monotonic() < end, "probe_cycle action server did not appear"
+            ex.spin_once(timeout_sec=0.1)
+        yield ex, client
+    finally:
+        client.destroy()
+        node.destroy_node()
+        ex.shutdown()
+        ctx.try_shutdown()

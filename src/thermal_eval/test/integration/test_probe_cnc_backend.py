@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-asyncua = pytest.importorskip("asyncua")
+import asyncua  # noqa: E402,F401  (a hard dependency: setup.sh installs it)
 from asyncua import ua  # noqa: E402
 from asyncua.sync import Client  # noqa: E402
 
