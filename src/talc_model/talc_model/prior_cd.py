@@ -25,6 +25,7 @@ from talc_model.cd_model import CdConfig, CharacteristicDiagramModel
 from talc_model.characteristic_diagram import CharacteristicDiagram
 from talc_model.prior import PRIOR_VERSION, PriorError
 from talc_model.prior_agp import error_deltas, restore_with_prior
+from talc_model.uncertainty_weighted_hold import change_gain
 
 #: adaptation settings stored in the prior (the run's configuration overrides the CD-model keys):
 #: the prediction is the last probe plus the diagrams' change since it, weighted by the measured
@@ -74,14 +75,6 @@ def _training_parts(recordings: Sequence[Any], cfg: CdConfig, every_s: float):
         ok = np.all(np.isfinite(x[pick]), axis=1) & np.all([np.isfinite(v) for v in e.values()], axis=0)
         parts.append((sensors, x[pick][ok], {c: v[ok] for c, v in e.items()}))
     return parts, names
-
-
-def change_gain(measured: np.ndarray, predicted: np.ndarray) -> float:
-    """The least-squares gain of predicted on measured changes, sum(d p) / sum(p^2), in [0, 1]
-    (0 without any predicted change)."""
-    d, p = np.asarray(measured, float), np.asarray(predicted, float)
-    pp = float(p @ p)
-    return 0.0 if pp <= 0 else float(np.clip((d @ p) / pp, 0.0, 1.0))
 
 
 def held_out_change_gain(cd: CharacteristicDiagram, x: np.ndarray, y: np.ndarray, lag: int) -> float:

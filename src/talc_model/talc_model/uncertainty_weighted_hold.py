@@ -73,3 +73,13 @@ def measured_hold_rate(time_s: np.ndarray, y: np.ndarray, n_calibration: int, la
     if d.size == 0:
         raise HoldError("y: no finite displacement change on the calibration rows")
     return float(np.mean(d * d) / (float(np.median(t[lag:] - t[:-lag])) / 3600.0))
+
+
+def change_gain(measured, predicted, default: float = 0.0) -> float:
+    """The share of a model's predicted changes that the measured changes make: the least-squares
+    gain sum(dy dp) / sum(dp^2) over the finite pairs, clipped to [0, 1] (0 where the predicted
+    changes do not happen: hold the last measurement); ``default`` without any predicted change."""
+    dy, dp = np.asarray(measured, dtype=float), np.asarray(predicted, dtype=float)
+    ok = np.isfinite(dy) & np.isfinite(dp)
+    den = float(np.sum(dp[ok] ** 2))
+    return float(np.clip(np.sum(dy[ok] * dp[ok]) / den, 0.0, 1.0)) if den > 0 else float(default)

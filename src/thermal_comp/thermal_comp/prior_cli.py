@@ -36,7 +36,7 @@ SEED_BASE = 101
 PRIOR_MODULES = {"talc": ["talc_model.prior", "talc_model.talc"],
                  "agp": ["talc_model.prior_agp", "talc_model.agp", "talc_model.gaussian_process"],
                  "cd": ["talc_model.prior_cd", "talc_model.cd_model", "talc_model.characteristic_diagram",
-                        "talc_model.cd_input_selection"]}
+                        "talc_model.cd_input_selection", "talc_model.uncertainty_weighted_hold"]}
 
 
 def type_name(machine: str) -> str:

@@ -31,7 +31,7 @@ from typing import Mapping
 
 import numpy as np
 
-from talc_model.uncertainty_weighted_hold import measured_hold_rate, uncertainty_weighted_hold
+from talc_model.uncertainty_weighted_hold import change_gain, measured_hold_rate, uncertainty_weighted_hold
 from thermal_eval.probe_gain_update import regained_compensation
 from thermal_comp_common.metrics import q_prod
 from thermal_eval.evaluation_spec import EvaluationData
@@ -158,9 +158,7 @@ def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, s
         return 0.0
     dy = y[first + lag:stop] - y[first:stop - lag]
     dp = shrink(p_oof[first + lag:stop] - p_oof[first:stop - lag], band)
-    ok = np.isfinite(dy) & np.isfinite(dp)
-    den = float(np.sum(dp[ok] ** 2))
-    return float(np.clip(np.sum(dy[ok] * dp[ok]) / den, 0.0, 1.0)) if den > 0 else 0.0
+    return change_gain(dy, dp)
 
 
 def online_gains(y: np.ndarray, p: np.ndarray, measured: list[int], gain0: float,
@@ -178,9 +176,7 @@ def online_gains(y: np.ndarray, p: np.ndarray, measured: list[int], gain0: float
         if len(dys) < 2:
             gains.append(gain0)
             continue
-        dy, dp = np.asarray(dys[-memory:]), np.asarray(dps[-memory:])
-        den = float(np.sum(dp * dp))
-        gains.append(float(np.clip(np.sum(dy * dp) / den, 0.0, 1.0)) if den > 0 else gain0)
+        gains.append(change_gain(dys[-memory:], dps[-memory:], default=gain0))
     return np.asarray(gains)
 
 
