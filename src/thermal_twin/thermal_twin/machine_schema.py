@@ -107,6 +107,8 @@ def dump_machine(machine: Machine) -> str:
         out.append(f"{section}:" + ("" if items else " {}"))
         for k, v in items.items():
             out.append(f"  {k}: {_flow(v)}")
+    if spec.get("contacts"):
+        out.append("contacts: " + _flow(spec["contacts"]))
     if spec.get("calibration"):
         out.append("calibration: " + _flow(spec["calibration"]))
     return "\n".join(out) + "\n"

@@ -18,7 +18,7 @@ from thermal_twin.machine_spec import (ERROR_UNITS, INPUT_KINDS, SCHEMA_VERSION,
                                        NodeSpec, SensorSpec, SourceSpec)
 
 TOP_KEYS = {"schema_version", "name", "description", "units", "inputs", "boundaries",
-            "initial_state", "nodes", "links", "sources", "sensors", "errors", "calibration"}
+            "initial_state", "nodes", "links", "sources", "sensors", "errors", "calibration", "contacts"}
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
@@ -107,10 +107,38 @@ def validate_machine(raw: dict) -> Machine:
         if ispec.from_sensor is not None and ispec.from_sensor not in sensors:
             raise _fail(f"inputs.{iname}.from_sensor", ispec.from_sensor, "is not a sensor")
     errors, spec["errors"] = _errors(_mapping(raw.get("errors"), "errors", required=False), nodes)
+    if raw.get("contacts") is not None:      # which places touch (the mismatch finder's new paths)
+        spec["contacts"] = _contacts(raw["contacts"], nodes, boundaries)
     if raw.get("calibration") is not None:   # which parameters `calibrate` may move (checked there)
         spec["calibration"] = check_section(_mapping(raw["calibration"], "calibration"), spec)
     return Machine(name, description, inputs, boundaries, nodes, links, sources, sensors, errors,
                    init, spec)
+
+
+def _contacts(section: Any, nodes: dict, boundaries: dict) -> list[list[str]]:
+    """``contacts``: the pairs of places that physically touch (a joint, a fit, a bearing, a
+    jacket's fluid on a node), ``[[a, b], ...]``; a node and a boundary or two nodes."""
+    if not isinstance(section, list):
+        raise _fail("contacts", section, "must be a list of [place, place] pairs")
+    out: list[list[str]] = []
+    seen: set = set()
+    for i, pair in enumerate(section):
+        p = f"contacts[{i}]"
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+            raise _fail(p, pair, "must be a pair [place, place]")
+        for j, x in enumerate(pair):
+            if x not in nodes and x not in boundaries:
+                raise _fail(f"{p}[{j}]", x, f"is not a node or boundary (nodes: {', '.join(nodes)}; "
+                            f"boundaries: {', '.join(boundaries)})")
+        if pair[0] == pair[1]:
+            raise _fail(p, list(pair), "puts a place in contact with itself")
+        if pair[0] in boundaries and pair[1] in boundaries:
+            raise _fail(p, list(pair), "pairs two boundaries (at least one must be a node)")
+        if frozenset(pair) in seen:
+            raise _fail(p, list(pair), "is declared twice")
+        seen.add(frozenset(pair))
+        out.append([str(pair[0]), str(pair[1])])
+    return out
 
 
 def _units(units: dict) -> None:

@@ -12,7 +12,8 @@ heat_source                 new ``sources`` entry on a node driven by an input  
 ambient_coupling            new/changed ``links`` node <-> ambient boundary             dG [W/K]
 conduction                  new ``links`` entry between two nodes that have none, or    G [W/K]
                             a node and a boundary other than the hall air (a contact,
-                            a cooling jacket the twin lacks)
+                            a cooling jacket the twin lacks); only declared ``contacts``
+                            pairs if the description declares any
 time_lag                    sensor: ``lag_s``; error channel: its nodes seen through    tau [s]
                             a small lag node (capacity 1e-3 C, G = C/tau)
 speed_dependent_convection  ``varies_with`` on the node's ambient link,                 dG_max [W/K] at max speed
@@ -21,7 +22,9 @@ coolant                     link node <-> coolant boundary switched by the coola
                             input (new boundary at a fitted temperature if none)        (only if a new boundary)
 door_event                  ``varies_with`` door input on the node's ambient link        dG_open [W/K]
 sensor_bias                 ``sensors.<id>.bias`` (more than half the resolution)       bias [K]
-elastic_gain                change of ``errors.<ch>.terms.<node>``                      d_gain [um/K]
+elastic_gain                change of ``errors.<ch>.terms.<node>`` (a node touching     d_gain [um/K]
+                            the channel's nodes gets a term from 0, if ``contacts``
+                            are declared)
 periodic_load               new source with a 24 h sinusoid (sun, hall heating)         amplitude [W], phase [s]
 none                        no edit                                                     -
 ==========================  =========================================================  ==========================
@@ -254,12 +257,35 @@ def conduction(spec: dict, a: str, b: str) -> Candidate:
 
 
 def unlinked_pairs(spec: dict) -> list[tuple[str, str]]:
-    """(node, node or non-ambient boundary) pairs without a link, in the description's order."""
+    """(node, node or non-ambient boundary) pairs without a link, in the description's order;
+    if the description declares ``contacts`` (which places physically touch), only those pairs:
+    heat does not conduct between parts that do not touch."""
     nodes = list(spec["nodes"])
     amb = _ambient_boundary(spec)
     others = nodes + [b for b in spec["boundaries"] if b != amb]
     linked = {frozenset(d["between"]) for d in spec["links"].values()}
-    return [(a, b) for i, a in enumerate(nodes) for b in others[i + 1:] if frozenset((a, b)) not in linked]
+    touching = _contacts(spec)
+    return [(a, b) for i, a in enumerate(nodes) for b in others[i + 1:] if frozenset((a, b)) not in linked
+            and (touching is None or frozenset((a, b)) in touching)]
+
+
+def _contacts(spec: dict) -> set[frozenset] | None:
+    """The declared touching pairs, or None when the description declares none (all pairs)."""
+    declared = spec.get("contacts")
+    return None if not declared else {frozenset(p) for p in declared}
+
+
+def elastic_nodes(spec: dict, channel: str) -> list[str]:
+    """Nodes an ``elastic_gain`` of ``channel`` may change: its terms, and, if the description
+    declares ``contacts``, every node touching one of them that has no term yet (the channel's
+    structural loop may pass through a part the twin left out of it; the term is then added
+    from zero). Without a declaration, the existing terms only."""
+    terms = list(spec["errors"][channel]["terms"])
+    touching = _contacts(spec)
+    if touching is None:
+        return terms
+    near = {x for pair in touching if pair & set(terms) for x in pair}
+    return terms + [n for n in spec["nodes"] if n in near and n not in terms]
 
 
 def time_lag_sensor(spec: dict, sensor: str) -> Candidate:
@@ -451,5 +477,5 @@ def candidates(spec: dict, drivers: dict[str, DriverInfo], channels: list[str],
     if "sensor_bias" in effects:
         out += [sensor_bias(spec, s) for s in sensors]
     if "elastic_gain" in effects:
-        out += [elastic_gain(spec, e, n) for e in errors for n in spec["errors"][e]["terms"]]
+        out += [elastic_gain(spec, e, n) for e in errors for n in elastic_nodes(spec, e)]
     return out
