@@ -278,7 +278,28 @@ class TalcModel(TalcIdentification):
 
     def probe_due(self, t_s: float) -> bool:
         self._advance(float(t_s))
-        return float(t_s) >= self.next_probe_due_s() - 1e-9
+        return float(t_s) >= self.next_probe_due_s() - 1e-9 or self._change_due(float(t_s))
+
+    def _in_check(self) -> bool:
+        """In a prior's check phase (TalcPriorModel); plain TALC has none."""
+        return False
+
+    def _change_due(self, t_s: float) -> bool:
+        """The model's own probing rule (TalcConfig.change_probe_threshold): its predicted change
+        of some component since the last probing exceeds the threshold times its probe noise."""
+        c = self.config
+        if not math.isfinite(c.change_probe_threshold) or self.phase != PHASE_COMPENSATION or \
+                self.last_probe_t is None or self._in_check() or self.grid is None or \
+                t_s - self.last_probe_t < 60.0 * c.change_probe_min_interval_min:
+            return False
+        k_now = self.grid.n - 1
+        k_last = int(round((self.last_probe_t - self.t0) / self.step))
+        if not 0 <= k_last < k_now:
+            return False
+        change = np.abs(self.grid.x[k_now] - self.grid.x[k_last])
+        noise = np.sqrt([self._probe_noise_var(n) for n in self.component_names])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return bool(np.nanmax(change / noise) > c.change_probe_threshold)
 
     # ------------------------------------------------------------------ measurements
     def _limit(self, name: str) -> float:

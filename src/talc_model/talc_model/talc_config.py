@@ -95,6 +95,12 @@ class TalcConfig:
     #: the probe measures it early (docs/talc.md, session 6). "" = off
     switch_probe_input: str = ""
     switch_probe_delay_min: float = 30.0
+    #: the model decides when to probe: a probing is due once the model's predicted change of
+    #: any component since the last probing exceeds this many times that component's probe noise
+    #: (probe_noise_*), no earlier than ``change_probe_min_interval_min`` after it; the regular
+    #: post-CP interval stays the longest gap (docs/talc.md, session 7). inf = off
+    change_probe_threshold: float = math.inf
+    change_probe_min_interval_min: float = 20.0
     # --- state update by a probe (docs/talc.md "State update")
     #: "observer": a probe corrects the whole output history by the Kalman gain of the model's
     #: own dynamics (talc_model.arx_observer; stable for any n_a); "replace": the thesis's
@@ -110,10 +116,20 @@ class TalcConfig:
         self.angular_components = [str(c) for c in self.angular_components]
         self.switch_probe_input = str(self.switch_probe_input)
         for name in ("model_step_s", "cp_interval_s", "ng_interval_min", "probe_duration_s",
-                     "forgetting_period_h", "cp_min_samples_per_parameter", "switch_probe_delay_min"):
+                     "forgetting_period_h", "cp_min_samples_per_parameter", "switch_probe_delay_min",
+                     "change_probe_min_interval_min"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"TALC config '{name}': {v!r} must be a finite number > 0")
+        if not isinstance(self.change_probe_threshold, (int, float)) or math.isnan(self.change_probe_threshold) \
+                or self.change_probe_threshold <= 0:
+            raise ValueError(f"TALC config 'change_probe_threshold': {self.change_probe_threshold!r} must be a "
+                             "number > 0 (inf = off)")
+        if math.isfinite(self.change_probe_threshold) and \
+                min(self.probe_noise_linear_um, self.probe_noise_angular_um_per_m) <= 0:
+            raise ValueError("TALC config: 'change_probe_threshold' counts in probe noise: 'probe_noise_linear_um' "
+                             f"{self.probe_noise_linear_um!r} and 'probe_noise_angular_um_per_m' "
+                             f"{self.probe_noise_angular_um_per_m!r} must be > 0")
         for name in ("cp_length_h", "post_cp_interval_h", "update_interval_h", "history_window_h",
                      "max_time_constant_h", "min_input_range", "max_input_gain_ratio",
                      "acl_linear_um", "acl_angular_um_per_m", "ng_measurements"):
