@@ -11,6 +11,9 @@ predicts open loop from temperatures (and, for the ``*_inputs`` variants, machin
   between grid samples; ``arx_subgrid``: the same evaluated between grid samples;
   ``arx_subgrid_gain_update``: the same open loop, whose adaptive row re-estimates the gain of
   each input's contribution from the probes (:mod:`thermal_eval.probe_gain_update`);
+- ``lagged_ridge_gain_update`` (opt-in): ``lagged_ridge`` whose adaptive row re-estimates the
+  gain of each feature's contribution from the probes (docs/evaluate.md, session 7: it wins the
+  training rows' walk-forward but not the held-out rows);
 - ``characteristic_diagram``: a smoothed-grid diagram of the medoid temperatures and their
   1-h low-pass (grid refinement on the training rows' last 40 %);
 - ``gp_static``: the AGP's ARD-RBF GP on the medoid temperatures and 0.5-h / 2-h low-pass
@@ -70,6 +73,18 @@ def _lagged_predict(with_inputs: bool):
                         None if exo is None else exo[:n_fit])
         return m.predict_recording(data.time_s, data.temperatures, exo)
     return predict
+
+
+def lagged_contributions(model: LaggedTemperatureModel, features: np.ndarray) -> np.ndarray:
+    """Each feature's share of a fitted lagged ridge's prediction (rows x features): coef_j
+    (x_j - mean_j) / scale_j; they add up to the prediction minus the intercept."""
+    return (np.asarray(features, float) - model.mean_) / model.scale_ * model.coef_
+
+
+def _lagged_contributions(data, channel, params, n_fit):
+    m = LaggedTemperatureModel(tuple(params["taus_s"]), params["alpha"])
+    m.fit_recording(data.time_s[:n_fit], data.temperatures[:n_fit], data.displacement_um[channel][:n_fit])
+    return lagged_contributions(m, m.features(data.time_s, data.temperatures))
 
 
 # ----------------------------------------------------------------------------- ARX (TALC's model class)
@@ -281,6 +296,8 @@ MODELS = [
               _lagged_predict(False)),
     ModelSpec("lagged_ridge_inputs", "model", "lagged ridge + machine inputs", _lagged_select(True),
               _lagged_predict(True), needs_inputs=True),
+    ModelSpec("lagged_ridge_gain_update", "model", "lagged_ridge; adaptive: probes re-estimate each feature's gain",
+              _lagged_select(False), _lagged_predict(False), contributions=_lagged_contributions),
     ModelSpec("arx_simulation", "model", "TALC's ARX, simulated (5-min grid held)", _arx_select(False),
               _arx_predict(False, False)),
     ModelSpec("arx_subgrid", "model", "TALC's ARX, simulated, evaluated between grid samples", _arx_select(False),
@@ -295,8 +312,10 @@ MODELS = [
 ]
 
 #: models run only when asked for (``--models`` / ``--also``): the static GP dominated the wall
-#: time on FL_THERMAL (108-121 s of 172-297 s) and was worse than the training mean there
-OPT_IN = ("gp_static",)
+#: time on FL_THERMAL (108-121 s of 172-297 s) and was worse than the training mean there; the
+#: lagged ridge's gain update repeats the lagged ridge's grid search and was worse than it on
+#: FL_THERMAL's held-out rows (docs/evaluate.md, session 7)
+OPT_IN = ("gp_static", "lagged_ridge_gain_update")
 
 
 def lagged_ridge_model(name: str, with_inputs: bool, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID) -> ModelSpec:

@@ -152,7 +152,7 @@ def test_models_needing_inputs_are_left_out_without_inputs():
 def test_the_static_gp_is_opt_in():
     d = _data()
     names = [m.name for m in available_models(d)]
-    assert "gp_static" not in names and "lagged_ridge" in names
+    assert "gp_static" not in names and "lagged_ridge_gain_update" not in names and "lagged_ridge" in names
     also = [m.name for m in available_models(d, also=["gp_static"])]
     assert also == names + ["gp_static"]
 
@@ -212,3 +212,15 @@ def test_the_hold_beside_a_model_is_pure_holding_of_its_probes():
         for r in range(d.split.n_train, len(d)):     # a probe row was compensated before its probe
             last = max(m for m in measured if m < r)
             assert h[r] == y[last]
+
+
+def test_the_lagged_ridge_gain_update_chooses_its_penalty_on_the_training_rows():
+    from thermal_eval.evaluation_run import REGISTRY, model_row
+    d = _data()
+    row = model_row(d, REGISTRY["lagged_ridge_gain_update"], True, ProbingBudget())
+    for ch in d.channels:
+        info = row.open_loop["channels"][ch]["probe_gain_update"]
+        assert info["walk_forward_rows"][1] == d.split.n_train
+        assert info["penalty"] == min(map(float, info["walk_forward_mae_um"]),
+                                      key=lambda v: info["walk_forward_mae_um"][f"{v:g}"])
+        assert np.isfinite(row.compensation[ch][d.split.n_train:]).all()
