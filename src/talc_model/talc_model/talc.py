@@ -56,8 +56,8 @@ class TalcModel(TalcIdentification):
         self.parameter_updates = 0
         self.ng_left = 0.0
         self.last_probe_t: float | None = None
-        #: the switch-driven probing (TalcConfig.switch_probe_input): last value, pending due time
-        self.switch_last: float | None = None
+        #: the switch-driven probing (TalcConfig.switch_probe_input): last value per signal, pending due time
+        self.switch_last: dict[str, float] = {}
         self.switch_probe_due_s: float | None = None
         self.t_last_update: float | None = None
         self.nb_max_selected = c.nb_max            # max n_b used in the last order selection
@@ -117,20 +117,21 @@ class TalcModel(TalcIdentification):
         self.t_last = t_s
 
     def _watch_switch(self, t_s: float, signals: Mapping[str, float]) -> None:
-        """A switch of ``switch_probe_input`` makes one probing due ``switch_probe_delay_min``
+        """A switch of a ``switch_probe_input`` signal makes one probing due ``switch_probe_delay_min``
         later (a switch while one is pending is ignored; an unknown value keeps the last)."""
-        name = self.config.switch_probe_input
-        v = signals.get(name) if name else None
-        try:
-            v = float(v) if v is not None else math.nan
-        except (TypeError, ValueError):
-            raise ValueError(f"update_inputs: switch_probe_input '{name}': value {v!r} is not a number") from None
-        if not math.isfinite(v):
-            return
-        if self.switch_last is not None and abs(v - self.switch_last) > 0.5 and self.switch_probe_due_s is None:
-            self.switch_probe_due_s = t_s + 60.0 * self.config.switch_probe_delay_min
-            self.events.append({"t_s": t_s, "event": "switch", "input": name, "value": v})
-        self.switch_last = v
+        for name in self.config.switch_probe_names:
+            v = signals.get(name)
+            try:
+                v = float(v) if v is not None else math.nan
+            except (TypeError, ValueError):
+                raise ValueError(f"update_inputs: switch_probe_input '{name}': value {v!r} is not a number") from None
+            if not math.isfinite(v):
+                continue
+            last = self.switch_last.get(name)
+            if last is not None and abs(v - last) > 0.5 and self.switch_probe_due_s is None:
+                self.switch_probe_due_s = t_s + 60.0 * self.config.switch_probe_delay_min
+                self.events.append({"t_s": t_s, "event": "switch", "input": name, "value": v})
+            self.switch_last[name] = v
 
     def _current_u(self) -> np.ndarray:
         return np.array([self.input_last.get(n, 0.0) for n in self.input_names])
@@ -427,7 +428,7 @@ class TalcModel(TalcIdentification):
                          "no_good_phases": self.no_good_phases,
                          "parameter_updates": self.parameter_updates},
             "ng_left": self.ng_left, "last_probe_t": self.last_probe_t,
-            "switch": {"last": self.switch_last, "probe_due_s": self.switch_probe_due_s},
+            "switch": {"last": dict(self.switch_last), "probe_due_s": self.switch_probe_due_s},
             "t_last_update": self.t_last_update, "nb_max_selected": self.nb_max_selected,
             "out_of_sample": {n: list(v) for n, v in self.out_of_sample.items()},
             "observer": {n: {"k": k, "p": p.tolist()} for n, (k, p) in self.observer.items()},
@@ -464,7 +465,11 @@ class TalcModel(TalcIdentification):
         model.ng_left = float(state["ng_left"])
         model.last_probe_t = state["last_probe_t"]
         switch = state.get("switch") or {}          # states saved before the switch probing: none
-        model.switch_last, model.switch_probe_due_s = switch.get("last"), switch.get("probe_due_s")
+        last = switch.get("last")                   # one float in states of a single switch signal
+        model.switch_last = dict(last) if isinstance(last, Mapping) else \
+            ({model.config.switch_probe_names[0]: float(last)} if last is not None and model.config.switch_probe_names
+             else {})
+        model.switch_probe_due_s = switch.get("probe_due_s")
         model.t_last_update = state["t_last_update"]
         model.nb_max_selected = int(state["nb_max_selected"])
         model.out_of_sample = {n: [float(x) for x in v] for n, v in state["out_of_sample"].items()}

@@ -89,8 +89,8 @@ class TalcConfig:
     probe_duration_s: float = 95.0
     interval_from_cycle_end: bool = True
     uncertainty_window: int = 10
-    #: a machine-state signal whose switch (a change by more than 0.5, e.g. the MWF flag
-    #: coolant_on, M08/M09) makes one extra probing due ``switch_probe_delay_min`` later, on top
+    #: machine-state signals (comma-separated) whose switch (a change by more than 0.5, e.g. the
+    #: MWF flag coolant_on, M08/M09, or a speed step of c_speed_rpm) makes one extra probing due ``switch_probe_delay_min`` later, on top
     #: of the schedule: the model gets the step response after a switch wrong in its shape, and
     #: the probe measures it early (docs/talc.md, session 6). "" = off
     switch_probe_input: str = ""
@@ -193,6 +193,11 @@ class TalcConfig:
             if isinstance(v, float) and v.is_integer():
                 values[name] = int(v)
         return cls(**values)
+
+    @property
+    def switch_probe_names(self) -> list[str]:
+        """The signals of ``switch_probe_input`` (comma-separated, e.g. "coolant_on, c_speed_rpm")."""
+        return [n.strip() for n in self.switch_probe_input.split(",") if n.strip()]
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -40,7 +40,7 @@ def test_no_switch_leaves_the_schedule_and_a_switch_while_pending_is_ignored():
     m.update_inputs(1500.0, {"ambient": 20.0}, {"coolant_on": 0.0})        # switched back: still 1200 + 30 min
     assert m.switch_probe_due_s == pytest.approx(1200.0 + 1800.0)
     m.update_inputs(1800.0, {"ambient": 20.0}, {"coolant_on": math.nan})   # unknown: no decision
-    assert m.switch_last == 0.0
+    assert m.switch_last == {"coolant_on": 0.0}
 
 
 def test_off_by_default_and_state_round_trip():
@@ -50,10 +50,23 @@ def test_off_by_default_and_state_round_trip():
     s = _model()
     s.update_inputs(600.0, {"ambient": 20.0}, {"coolant_on": 1.0})
     back = TalcModel.from_state(s.to_state())
-    assert back.switch_probe_due_s == pytest.approx(2400.0) and back.switch_last == 1.0
+    assert back.switch_probe_due_s == pytest.approx(2400.0) and back.switch_last == {"coolant_on": 1.0}
     old = s.to_state()
     del old["switch"]                                                     # a state saved before
     assert TalcModel.from_state(old).switch_probe_due_s is None
+    old = s.to_state()
+    old["switch"]["last"] = 1.0                                           # saved with one switch signal
+    assert TalcModel.from_state(old).switch_last == {"coolant_on": 1.0}
+
+
+def test_several_switch_signals_each_make_a_probing_due():
+    m = _model(switch_probe_input="coolant_on, c_speed_rpm")
+    m.update_inputs(300.0, {"ambient": 20.0}, {"coolant_on": 0.0, "c_speed_rpm": 300.0})
+    m.update_inputs(600.0, {"ambient": 20.0}, {"coolant_on": 0.0, "c_speed_rpm": 900.0})   # a speed step
+    assert m.switch_probe_due_s == pytest.approx(600.0 + 1800.0)
+    m.add_failed_measurement(2400.0, "test")
+    m.update_inputs(2700.0, {"ambient": 20.0}, {"coolant_on": 1.0, "c_speed_rpm": 900.0})  # M08
+    assert m.switch_probe_due_s == pytest.approx(2700.0 + 1800.0)
 
 
 @pytest.mark.parametrize("bad", [0.0, -5.0, math.inf])
