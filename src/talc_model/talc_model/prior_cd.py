@@ -26,6 +26,7 @@ from talc_model.characteristic_diagram import CharacteristicDiagram
 from talc_model.prior import PRIOR_VERSION, PriorError
 from talc_model.prior_agp import error_deltas, restore_with_prior
 from talc_model.uncertainty_weighted_hold import change_gain
+from thermal_comp_common.probe_and_hold import table_5_4_noise
 
 #: adaptation settings stored in the prior (the run's configuration overrides the CD-model keys):
 #: the prediction is the last probe plus the diagrams' change since it, weighted by the measured
@@ -35,7 +36,10 @@ from talc_model.uncertainty_weighted_hold import change_gain
 #: prediction worse (12 h of talc-178h-dry, unit #1: P99_lin first 8 h 1.29 against 0.89 um
 #: without, whole 12 h 3.81 against 2.48 um; docs/prior.md)
 DEFAULT_ADAPTATION = {"check_s": 8 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5, "gain_window": 12,
-                      "min_pairs": 2, "load_case_updates": False}
+                      "min_pairs": 2, "load_case_updates": False, "interval_by_gain": True}
+#: lags (h) at which the prior keeps the held-out change statistics that choose the post-check
+#: probing interval (:func:`interval_from_gain`); the longest is the CD model's update interval
+CHANGE_LAGS_H = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 #: the prior's default low-pass time constants (s): the forward heuristic picks among them on the
 #: held-out programme, which estimates the structure's lag per component
 PRIOR_LOWPASS_S = (3600.0, 7200.0, 14400.0, 28800.0)
@@ -84,6 +88,50 @@ def held_out_change_gain(cd: CharacteristicDiagram, x: np.ndarray, y: np.ndarray
     return change_gain(y[lag:] - y[:-lag], f[lag:] - f[:-lag]) if y.size > lag else 1.0
 
 
+def held_out_change_stats(cd: CharacteristicDiagram, x: np.ndarray, y: np.ndarray, every_s: float,
+                          lags_h: Sequence[float] = CHANGE_LAGS_H) -> dict[str, list[float]]:
+    """Second moments of the measured (dy) and predicted (dp) changes of ``cd`` (fitted without the
+    held-out programme) on the held-out rows, per lag: mean dy^2, dy dp and dp^2. With a gain g the
+    expected squared error of "last probe + g x predicted change" after a lag L is
+    yy(L) - 2 g yp(L) + g^2 pp(L) (:func:`interval_from_gain`)."""
+    f = cd.predict(x)
+    out: dict[str, list[float]] = {"lags_h": [], "yy": [], "yp": [], "pp": []}
+    for lag_h in lags_h:
+        lag = max(1, int(round(lag_h * 3600.0 / every_s)))
+        if y.size <= lag:
+            continue
+        dy, dp = y[lag:] - y[:-lag], f[lag:] - f[:-lag]
+        out["lags_h"].append(float(lag_h))
+        for key, v in (("yy", dy * dy), ("yp", dy * dp), ("pp", dp * dp)):
+            out[key].append(float(np.mean(v)))
+    return out
+
+
+def interval_from_gain(stats: Mapping[str, Mapping[str, Sequence[float]]], gains: Mapping[str, float],
+                       check_h: float, max_h: float, noise: Mapping[str, float] | None = None) -> float:
+    """The post-check probing interval (h): the longest held-out lag L <= ``max_h`` at which, for
+    every component, the expected squared error of the anchored prediction with the measured gain
+    g, yy(L) - 2 g yp(L) + g^2 pp(L), is no larger than that of holding a probe for the check
+    interval, yy(check_h): the model probes as seldom as it can while staying as accurate as the
+    check phase's probe-and-hold, or than the probe's own noise variance ``noise``^2 (std per
+    component) where that is larger: a drift below the probe noise is not what probing more often
+    could resolve. A gain of 0 gives ``check_h`` for a component that drifts more than its probe
+    noise within the check interval; components without statistics do not constrain it."""
+    best = max_h
+    for c, st in stats.items():
+        if c not in gains or not st["lags_h"]:
+            continue
+        g = float(gains[c])
+        tol = max(float(np.interp(check_h, st["lags_h"], st["yy"])), float((noise or {}).get(c, 0.0)) ** 2)
+        limit = check_h
+        for lag, yy, yp, pp in zip(st["lags_h"], st["yy"], st["yp"], st["pp"]):
+            if lag > max_h + 1e-9 or yy - 2 * g * yp + g * g * pp > tol * (1 + 1e-9):
+                break                                # the allowed range ends at the first lag that errs more
+            limit = max(limit, float(lag))
+        best = min(best, limit)
+    return best
+
+
 def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConfig | None = None, *,
                    machine: str = "", sources: Sequence[str] = (), every_s: float = 600.0,
                    max_anchor_points: int = 1500) -> dict[str, Any]:
@@ -107,7 +155,7 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
     def make() -> CharacteristicDiagram:
         return CharacteristicDiagram(n_intervals=cfg.n_intervals, smoothing=cfg.smoothing)
 
-    inputs, cds, held, gain = {}, {}, {}, {}
+    inputs, cds, held, gain, stats = {}, {}, {}, {}, {}
     for c in cfg.components:
         steps = forward_selection(x, y[c], max_inputs=cfg.max_inputs, make_cd=make, seed=cfg.seed,
                                   min_relative_gain=0.05, split=split)
@@ -116,15 +164,74 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
         held[c] = float(steps[-1].score)            # RMS on the held-out programme, fitted without it
         cds[c] = make().fit(x[:, cols], y[c]).to_state()
         lag = max(1, int(round(cfg.calibration_probe_interval_s / every_s)))
-        gain[c] = held_out_change_gain(make().fit(x[split[0]][:, cols], y[c][split[0]]),
-                                       x[split[1]][:, cols], y[c][split[1]], lag)
+        without = make().fit(x[split[0]][:, cols], y[c][split[0]])
+        gain[c] = held_out_change_gain(without, x[split[1]][:, cols], y[c][split[1]], lag)
+        stats[c] = held_out_change_stats(without, x[split[1]][:, cols], y[c][split[1]], every_s)
     thin = np.unique(np.linspace(0, x.shape[0] - 1, min(max_anchor_points, x.shape[0])).round().astype(int))
     return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "cd", "machine": machine,
             "sources": list(sources), "sensors": list(parts[0][0]), "candidate_names": list(names),
             "inputs": inputs, "input_names": {c: [names[i] for i in cols] for c, cols in inputs.items()},
             "cds": cds, "anchors": {"u": x[thin].tolist(), "y": {c: v[thin].tolist() for c, v in y.items()}},
-            "validation_rms": held, "change_gain": gain, "training_points": int(x.shape[0]), "every_s": float(every_s),
+            "validation_rms": held, "change_gain": gain, "change_stats": stats, "training_points": int(x.shape[0]), "every_s": float(every_s),
             "cd_config": asdict(cfg), "adaptation": dict(DEFAULT_ADAPTATION)}
+
+
+def cd_prior_from_state(state: Mapping[str, Any], machine: str = "",
+                        sensors: Sequence[str] | None = None) -> dict[str, Any]:
+    """A prior from the persisted CD model state (kind ``cd``) of another machine. A model started
+    from a prior gives that prior with its own adaptation: its probes join the anchors, its
+    measured change gain (walk-forward at its probe pairs) replaces the prior's and its load-case
+    updates, if any, are folded into the diagrams (refitted on the anchors). A plain CD model gives
+    its inputs and its diagrams refitted on all its probes with the temperatures as deltas from its
+    first probe (its run's first instant), as a prior's. ``sensors``: the new machine's temperature
+    channels; a state whose channels are not among them is refused."""
+    if not isinstance(state, Mapping) or state.get("kind") != "cd":
+        kind = state.get("kind") if isinstance(state, Mapping) else type(state).__name__
+        raise PriorError(f"cd prior: the state's 'kind' is {kind!r}, expected 'cd' (a CD model state)")
+    model = CharacteristicDiagramModel.from_state(dict(state))
+    if isinstance(model, CdPriorModel):
+        prior = _prior_of_adapted(model)
+    elif model.phase != PHASE_COMPENSATION or not model.base:
+        raise PriorError("cd prior: the given CD state has no fitted diagrams (still in calibration)")
+    else:
+        prior = _prior_of_plain(model)
+    if sensors is not None:
+        missing = [s for s in prior["sensors"] if s not in set(sensors)]
+        if missing:
+            raise PriorError(f"cd prior: the state's temperature channels {missing} are not the machine's "
+                             f"({sorted(sensors)}): a state of another machine type")
+    return {**prior, "machine": machine, "sources": ["persisted model state"]}
+
+
+def _prior_of_adapted(model: "CdPriorModel") -> dict[str, Any]:
+    prior = {**model.prior, "anchors": {"u": list(model.prior["anchors"]["u"]) + list(model.new_u),
+                                        "y": {c: list(model.prior["anchors"]["y"][c]) + list(model.new_y[c])
+                                              for c in model.component_names}}}
+    prior["change_gain"] = {c: model.change_gain(c) for c in model.component_names}
+    if model.update:
+        u = np.asarray(prior["anchors"]["u"], float)
+        make = model._make_cd
+        prior["cds"] = {**prior["cds"], **{c: make().fit(u[:, model.inputs[c]], [model._diagrams(r)[c] for r in u])
+                                           .to_state() for c in model.update}}
+    return prior
+
+
+def _prior_of_plain(model: CharacteristicDiagramModel) -> dict[str, Any]:
+    u = np.asarray(model.base_u + model.new_u, float)
+    n = model.level_columns
+    u[:, :n] -= u[0, :n]                              # deltas from the first probe, as a prior's inputs
+    y = {c: np.asarray(model.base_y[c] + model.new_y[c], float) for c in model.component_names}
+    cds = {c: model._make_cd().fit(u[:, model.inputs[c]], y[c]) for c in model.component_names}
+    gain = {c: change_gain(np.diff(y[c]), np.diff(cds[c].predict(u[:, model.inputs[c]]))) for c in cds}
+    names = model.candidate_names
+    return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "cd", "sensors": list(model.sensor_names),
+            "candidate_names": names, "inputs": {c: list(v) for c, v in model.inputs.items()},
+            "input_names": {c: [names[i] for i in v] for c, v in model.inputs.items()},
+            "cds": {c: cd.to_state() for c, cd in cds.items()},
+            "anchors": {"u": u.tolist(), "y": {c: v.tolist() for c, v in y.items()}},
+            "validation_rms": {c: math.nan for c in cds}, "change_gain": gain,
+            "training_points": int(u.shape[0]), "cd_config": asdict(model.config),
+            "adaptation": dict(DEFAULT_ADAPTATION)}
 
 
 class CdPriorModel(CharacteristicDiagramModel):
@@ -165,6 +272,11 @@ class CdPriorModel(CharacteristicDiagramModel):
         self.min_pairs = int(adapt["min_pairs"])
         self.load_case_updates = bool(adapt["load_case_updates"])
         self.prior_gain = dict(prior.get("change_gain", {}))
+        self.interval_by_gain = bool(adapt.get("interval_by_gain", False)) and bool(prior.get("change_stats"))
+        self._interval_cache: tuple[tuple[int, int], float] | None = None
+        #: probe noise std per component (um, um/m) the interval rule compares drifts with: the
+        #: prior's adaptation ``probe_noise`` or Table 5.4's (0.25 um, 1.2 um/m)
+        self.probe_noise = {**table_5_4_noise(self.component_names), **dict(adapt.get("probe_noise") or {})}
         if self.gain_window < 1:
             raise PriorError(f"cd prior: gain_window {self.gain_window!r} must be an integer >= 1")
         #: the last probe: time, measured total error, diagrams' values and inputs there
@@ -244,7 +356,18 @@ class CdPriorModel(CharacteristicDiagramModel):
     def _interval(self) -> float:
         checking = (self.t_start is None or self.t_last_probe is None
                     or self.t_last_probe - self.t_start < self.check_s)
-        return self.config.calibration_probe_interval_s if checking else self.config.update_probe_interval_s
+        if checking:
+            return self.config.calibration_probe_interval_s
+        if not self.interval_by_gain:
+            return self.config.update_probe_interval_s
+        key = (self.probing_cycles, self.failed_probing_cycles)
+        if self._interval_cache is None or self._interval_cache[0] != key:   # changes only with a probe
+            gains = {c: self.change_gain(c) for c in self.component_names}
+            stats = {c: v for c, v in self.prior["change_stats"].items() if c in gains}
+            self._interval_cache = (key, 3600.0 * interval_from_gain(
+                stats, gains, self.config.calibration_probe_interval_s / 3600.0,
+                self.config.update_probe_interval_s / 3600.0, self.probe_noise))
+        return self._interval_cache[1]
 
     def _fit_update(self) -> None:
         if self.load_case_updates:

@@ -3,7 +3,7 @@
 Simulates the nominal twin of ``M`` on training load programmes (never the run a prior is later
 used on: other scenarios and seeds) and fits the prior of the model (TALC: talc_model.prior,
 AGP: prior_agp, characteristic diagrams: prior_cd); or, with ``--from-state``, turns the
-persisted TALC or AGP model of another machine into a prior. On a real
+persisted TALC, AGP or CD model of another machine into a prior. On a real
 machine this costs no probing: it is simulation. docs/prior.md.
 """
 from __future__ import annotations
@@ -166,7 +166,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--na-max", type=int, default=1, help="TALC: largest n_a of the prior (default %(default)s)")
     ap.add_argument("--nb-max", type=int, default=8, help="TALC: largest n_b of the prior (default %(default)s)")
     ap.add_argument("--from-state", metavar="STATE",
-                    help="instead: the persisted TALC or AGP model state (model_state.json) of another machine")
+                    help="instead: the persisted TALC, AGP or CD model state (model_state.json) of another machine")
     return ap
 
 
@@ -178,8 +178,9 @@ def _from_state(a) -> dict:
     if isinstance(state, dict) and state.get("kind") == "agp":   # another lathe's persisted AGP
         from talc_model.prior_agp import agp_prior_from_state
         return agp_prior_from_state(state, machine=a.machine)
-    if isinstance(state, dict) and state.get("kind") == "cd":
-        raise PriorError(f"--from-state {a.from_state!r}: a CD model state is not a prior source yet (TALC, AGP)")
+    if isinstance(state, dict) and state.get("kind") == "cd":     # another machine's persisted CD model
+        from talc_model.prior_cd import cd_prior_from_state
+        return cd_prior_from_state(state, machine=a.machine, sensors=load_machine(a.machine).sensor_ids)
     return prior_from_state(state, machine=a.machine)
 
 

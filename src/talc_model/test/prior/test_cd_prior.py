@@ -64,7 +64,8 @@ def _drive(model, rec, until_h):
 
 def test_compensates_from_the_first_instant_adapts_and_resumes(prior):
     rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=12.0, seed=0), seed=0).to_recording()
-    with_updates = {**prior, "adaptation": {**prior["adaptation"], "load_case_updates": True, "check_s": 4 * 3600.0}}
+    with_updates = {**prior, "adaptation": {**prior["adaptation"], "load_case_updates": True, "check_s": 4 * 3600.0,
+                                            "interval_by_gain": False}}
     model = model_from_prior("cd", {"components": COMPONENTS, "update_batch": 2}, with_updates)
     assert isinstance(model, CdPriorModel) and model.phase == PHASE_COMPENSATION
     preds = _drive(model, rec, 3.0)
@@ -104,3 +105,90 @@ def test_prediction_is_the_last_probe_plus_the_weighted_change(prior):
         assert pred[c] == pytest.approx(a["y"][c] + g * (raw[c] - a["f"][c]))
     assert prior["change_gain"].keys() == set(COMPONENTS)
     assert all(0.0 <= v <= 1.0 for v in prior["change_gain"].values())
+
+
+def _state_file(tmp_path, model):
+    path = tmp_path / "model_state.json"
+    path.write_text(json.dumps(model.to_state()))
+    return path
+
+
+def test_another_machines_adapted_cd_state_is_a_prior_a_run_starts_from(prior, tmp_path):
+    from talc_model.prior import load_prior
+    from thermal_comp import prior_cli
+    from thermal_twin.machine_instance import machine_instance
+    src = model_from_prior("cd", {"components": COMPONENTS}, prior)
+    rec = simulate(machine_instance("nmv5000", 2), make_timeline("nmv5000", "load-case-B", hours=12.0, seed=7),
+                   seed=7).to_recording()
+    _drive(src, rec, 12.0)                                    # past the 8-h check: measured pairs
+    assert len(src.pairs["E_Y0C"]) >= src.min_pairs
+    out = tmp_path / "prior.json"
+    assert prior_cli.main(["--from-state", str(_state_file(tmp_path, src)), "--out", str(out)]) == 0
+    derived = load_prior(out)
+    assert derived["model_kind"] == "cd" and derived["sources"] == ["persisted model state"]
+    assert derived["change_gain"] == {c: src.change_gain(c) for c in COMPONENTS}     # its measured gain
+    assert len(derived["anchors"]["u"]) == len(prior["anchors"]["u"]) + len(src.new_u)
+    run = model_from_prior("cd", {"components": COMPONENTS}, derived)
+    other = simulate(machine_instance("nmv5000", 1), make_timeline("nmv5000", "load-case-A", hours=2.0, seed=8),
+                     seed=8).to_recording()
+    preds = _drive(run, other, 2.0)
+    assert isinstance(run, CdPriorModel) and run.phase == PHASE_COMPENSATION and np.any(np.abs(preds[1:]) > 0)
+    assert run.change_gain("E_Y0C") == src.change_gain("E_Y0C") or len(run.pairs["E_Y0C"]) >= run.min_pairs
+
+
+def test_a_plain_cd_state_becomes_a_prior_on_temperature_deltas(tmp_path):
+    from talc_model.prior_cd import cd_prior_from_state
+    rec = simulate("nmv5000", make_timeline("nmv5000", "load-case-A", hours=8.0, seed=9), seed=9).to_recording()
+    plain = CharacteristicDiagramModel({"components": COMPONENTS, "min_calibration_s": 5 * 3600.0})
+    _drive(plain, rec, 8.0)
+    assert plain.phase == PHASE_COMPENSATION and not plain.new_u      # fitted, no probe since
+    derived = cd_prior_from_state(json.loads(_state_file(tmp_path, plain).read_text()), machine="nmv5000",
+                                  sensors=plain.sensor_names)
+    u = np.asarray(plain.base_u)
+    du = u.copy()
+    du[:, :plain.level_columns] -= u[0, :plain.level_columns]
+    for c in COMPONENTS:                                      # the same diagrams, on deltas from its first probe
+        from talc_model.characteristic_diagram import CharacteristicDiagram
+        cols = plain.inputs[c]
+        shifted = CharacteristicDiagram.from_state(derived["cds"][c]).predict(du[:, cols])
+        assert np.allclose(shifted, plain.base[c].predict(u[:, cols]), atol=1e-6)
+    assert isinstance(model_from_prior("cd", {"components": COMPONENTS}, derived), CdPriorModel)
+
+
+def test_from_state_refuses_other_kinds_calibrating_models_and_other_types_channels(prior):
+    from talc_model.prior_cd import cd_prior_from_state
+    with pytest.raises(PriorError, match="'kind' is 'talc'"):
+        cd_prior_from_state({"kind": "talc"})
+    calibrating = CharacteristicDiagramModel({"components": COMPONENTS})
+    calibrating.update_inputs(0.0, {"a": 20.0}, {})
+    with pytest.raises(PriorError, match="still in calibration"):
+        cd_prior_from_state(json.loads(json.dumps(calibrating.to_state())))
+    state = json.loads(json.dumps(model_from_prior("cd", {"components": COMPONENTS}, prior).to_state()))
+    with pytest.raises(PriorError, match="another machine type"):
+        cd_prior_from_state(state, sensors=["ambient", "cutting_oil"])     # the lathe's channels
+
+
+def test_interval_from_gain_probes_more_often_with_a_low_gain():
+    from talc_model.prior_cd import interval_from_gain
+    lags = [0.5, 1.0, 2.0, 4.0]
+    # a drift the diagrams predict exactly: yy = yp = pp, growing as the lag squared
+    st = {"E": {"lags_h": lags, "yy": [l * l for l in lags], "yp": [l * l for l in lags], "pp": [l * l for l in lags]}}
+    assert interval_from_gain(st, {"E": 1.0}, 0.5, 4.0) == 4.0         # the predicted change is the change
+    assert interval_from_gain(st, {"E": 0.0}, 0.5, 4.0) == 0.5         # hold: as often as the check phase
+    assert interval_from_gain(st, {"E": 0.5}, 0.5, 4.0) == 1.0         # (1 - g)^2 l^2 <= 0.25 up to l = 1
+    assert interval_from_gain(st, {"E": 0.0}, 0.5, 4.0, noise={"E": 2.0}) == 2.0   # drift below the probe noise
+    assert interval_from_gain(st, {"E": 1.0}, 0.5, 3.0) == 2.0         # never beyond the update interval
+    assert interval_from_gain(st, {}, 0.5, 4.0) == 4.0                 # no gain of it: does not constrain
+
+
+def test_the_interval_after_the_check_follows_the_measured_gain(prior):
+    rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=12.0, seed=0), seed=0).to_recording()
+    hold = {**prior, "change_gain": {c: 0.0 for c in COMPONENTS}, "adaptation": {**prior["adaptation"], "min_pairs": 99}}
+    model = model_from_prior("cd", {"components": COMPONENTS}, hold)
+    assert model.interval_by_gain
+    _drive(model, rec, 12.0)
+    assert model.probing_cycles == 25                          # gain 0: every 30 min after the check too
+    fixed = model_from_prior("cd", {"components": COMPONENTS},
+                             {**hold, "adaptation": {**hold["adaptation"], "interval_by_gain": False}})
+    _drive(fixed, rec, 12.0)
+    assert fixed.probing_cycles == 17 + 1                      # 0-8 h every 30 min, then 12 h
