@@ -121,84 +121,71 @@ def _receive_qos(q: QoSProfile) -> QoSProfile:
                       reliability=q.reliability, durability=q.durability)
 
 
+def topic_specs(topics, health: bool) -> list[tuple[str, str, QoSProfile]]:
+    """(name, type, QoS) of every topic to record: ``topics`` (empty: the defaults), and with
+    ``health`` the health topics not named already."""
+    args = [t for t in topics if t.strip()]
+    specs = [parse_topic_arg(a) for a in args] if args else [(n, t, q) for n, (t, q) in DEFAULT_TOPICS.items()]
+    if health:
+        specs += [(n, t, q) for n, (t, q) in HEALTH_TOPICS.items() if n not in {s[0] for s in specs}]
+    return specs
+
+
+#: The node's parameters.
+PARAMS = [
+    rt.Param("output", "", "bag folder to create (must not exist)"),
+    rt.Param("topics", [""], "topics to record, 'name' or 'name:pkg/msg/Type'; "
+             "empty: every default topic"),
+    rt.Param("flush_period_s", 1.0, "close the open chunk this often (wall clock, s): "
+             "a crash loses at most this much", lo=0.05, hi=3600.0),
+    rt.Param("chunk_bytes", 262144, "close a chunk when it holds this many bytes",
+             lo=1024, hi=64 * 2**20),
+    rt.Param("timestamps", "receive", "log time in the bag: the receive time on the "
+             "node's clock (as rosbag2 writes it), or the message's own header stamp",
+             choices=("header", "receive")),
+    rt.Param("compression", "zstd", "chunk compression", choices=("zstd", "lz4", "none")),
+    rt.Param("on_existing", "continue", "when 'output' exists (a restart after a crash): "
+             "continue in a new bag 'output.2', 'output.3', ... and leave the old one as it "
+             "is, or fail", choices=("continue", "fail")),
+    rt.Param("lockstep_participant", False, "acknowledge instant t_k on sim_sync once a message "
+             "stamped t_k of every ack_topics topic is written (and fsynced with ack_fsync)"),
+    rt.Param("ack_topics", ["machine_state", "twin/sensor_readings"], "lock-step: topics "
+             "whose message for t_k must be written before t_k is acknowledged (topics "
+             "machine_sim re-sends; ones not recorded are ignored)"),
+    rt.Param("follow_topics", [rt.TOPIC_TEMPERATURES, rt.TOPIC_ERRORS_PREDICTED, rt.TOPIC_OFFSETS,
+                               rt.TOPIC_ERRORS_TRUE], "lock-step: topics the other participants "
+             "publish for t_k; one written at the instant acknowledged before must be written "
+             "at t_k too before t_k is acknowledged (ones not recorded are ignored)"),
+    rt.Param("expect_from_start", [""], "lock-step: follow topics expected at the first instant "
+             "this recorder acknowledges too (the cell's participants publish them from its first "
+             "instant: a message lost before the recorder matched its publisher is re-sent)"),
+    rt.Param("follow_timeout_s", 10.0, "lock-step: wall s to wait for an expected follow topic "
+             "once every ack_topics topic of t_k is written; then it is named and no longer "
+             "expected until written again", lo=0.1, hi=3600.0),
+    rt.Param("health", False, "also record the graph's health: /diagnostics and /rosout "
+             "(with the default topics; the demo's recorder does)"),
+    rt.Param("keep_resends", False, "write every copy of a re-sent message (same topic, same "
+             "stamp, same bytes as the last one written on the topic); default: write it once"),
+    rt.Param("ack_fsync", False, "lock-step: fsync the bag before each acknowledgement (survives a "
+             "power loss, a few ms per instant); without, the written chunk is handed to the OS "
+             "first, which survives a crash or kill of this process"),
+]
+
+
 class BagRecorderNode(Node):
     """Records the configured topics into ``output`` until shut down."""
 
     def __init__(self, context=None, **kwargs):
         super().__init__("bag_recorder", context=context, **kwargs)
-        p = rt.declare_parameters(self, [
-            rt.Param("output", "", "bag folder to create (must not exist)"),
-            rt.Param("topics", [""], "topics to record, 'name' or 'name:pkg/msg/Type'; "
-                     "empty: every default topic"),
-            rt.Param("flush_period_s", 1.0, "close the open chunk this often (wall clock, s): "
-                     "a crash loses at most this much", lo=0.05, hi=3600.0),
-            rt.Param("chunk_bytes", 262144, "close a chunk when it holds this many bytes",
-                     lo=1024, hi=64 * 2**20),
-            rt.Param("timestamps", "receive", "log time in the bag: the receive time on the "
-                     "node's clock (as rosbag2 writes it), or the message's own header stamp",
-                     choices=("header", "receive")),
-            rt.Param("compression", "zstd", "chunk compression", choices=("zstd", "lz4", "none")),
-            rt.Param("on_existing", "continue", "when 'output' exists (a restart after a crash): "
-                     "continue in a new bag 'output.2', 'output.3', ... and leave the old one as it "
-                     "is, or fail", choices=("continue", "fail")),
-            rt.Param("lockstep_participant", False, "acknowledge instant t_k on sim_sync once a message "
-                     "stamped t_k of every ack_topics topic is written (and fsynced with ack_fsync)"),
-            rt.Param("ack_topics", ["machine_state", "twin/sensor_readings"], "lock-step: topics "
-                     "whose message for t_k must be written before t_k is acknowledged (topics "
-                     "machine_sim re-sends; ones not recorded are ignored)"),
-            rt.Param("follow_topics", [rt.TOPIC_TEMPERATURES, rt.TOPIC_ERRORS_PREDICTED, rt.TOPIC_OFFSETS,
-                                       rt.TOPIC_ERRORS_TRUE], "lock-step: topics the other participants "
-                     "publish for t_k; one written at the instant acknowledged before must be written "
-                     "at t_k too before t_k is acknowledged (ones not recorded are ignored)"),
-            rt.Param("expect_from_start", [""], "lock-step: follow topics expected at the first instant "
-                     "this recorder acknowledges too (the cell's participants publish them from its first "
-                     "instant: a message lost before the recorder matched its publisher is re-sent)"),
-            rt.Param("follow_timeout_s", 10.0, "lock-step: wall s to wait for an expected follow topic "
-                     "once every ack_topics topic of t_k is written; then it is named and no longer "
-                     "expected until written again", lo=0.1, hi=3600.0),
-            rt.Param("health", False, "also record the graph's health: /diagnostics and /rosout "
-                     "(with the default topics; the demo's recorder does)"),
-            rt.Param("keep_resends", False, "write every copy of a re-sent message (same topic, same "
-                     "stamp, same bytes as the last one written on the topic); default: write it once"),
-            rt.Param("ack_fsync", False, "lock-step: fsync the bag before each acknowledgement (survives a "
-                     "power loss, a few ms per instant); without, the written chunk is handed to the OS "
-                     "first, which survives a crash or kill of this process"),
-        ])
+        p = rt.declare_parameters(self, PARAMS)
         if not p["output"]:
             raise ValueError("parameter 'output': a bag folder path is required")
-        output = p["output"]
-        if p["on_existing"] == "continue" and pathlib.Path(output).exists():
-            k = 2
-            while pathlib.Path(f"{output}.{k}").exists():
-                k += 1
-            self.get_logger().warning(f"{output} exists (an earlier run, or this recorder was restarted "
-                                      f"after a crash): it is kept as it is; recording continues in {output}.{k}")
-            output = f"{output}.{k}"
-        p["output"] = output
-        args = [t for t in p["topics"] if t.strip()]
-        specs = ([parse_topic_arg(a) for a in args] if args
-                 else [(n, t, q) for n, (t, q) in DEFAULT_TOPICS.items()])
-        if p["health"]:
-            specs += [(n, t, q) for n, (t, q) in HEALTH_TOPICS.items() if n not in {s[0] for s in specs}]
         self._use_header = p["timestamps"] == "header"
         self._keep_resends = bool(p["keep_resends"])
+        self._ack_fsync = bool(p["ack_fsync"])
         self._last_written: dict[str, bytes] = {}     # topic -> the last stamped message written
         self.resends_skipped = 0
-        self._subs = []
-        infos = []
-        for name, type_name, qos in specs:
-            cls = message_class(type_name)
-            sub = self.create_subscription(cls, name, self._callback_for(len(self._subs)),
-                                           _receive_qos(qos), raw=True)
-            stamped = starts_with_stamp(type_name)
-            self._subs.append((sub, sub.topic_name, stamped))
-            infos.append(TopicInfo(sub.topic_name, type_name, [_qos_to_dict(qos)]))
-        self.writer = BagWriter(p["output"], infos, chunk_bytes=p["chunk_bytes"],
-                                compression=p["compression"],
-                                custom_data={"recorded_by": "thermal_comp.bag_recorder_node"})
-        self._ack_fsync = bool(p["ack_fsync"])
-        self._flush_timer = self.create_timer(p["flush_period_s"], self._periodic,
-                                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+        infos = self._subscribe(topic_specs(p["topics"], p["health"]))
         self._ack_topics: set[str] = set()
         self._follow_topics: set[str] = set()
         self._pending: dict[int, set[str]] = {}       # stamp -> ack topics written at it (until acknowledged)
@@ -208,28 +195,67 @@ class BagRecorderNode(Node):
         self.follow_dropped: list[tuple[str, int]] = []   # (topic, instant) acknowledged without it
         self._sync_pub = None
         if p["lockstep_participant"]:
-            from thermal_comp_msgs.msg import SimSync
-            self._ack_topics = self._stamped_topics(p["ack_topics"])
-            if not self._ack_topics:
-                raise ValueError(f"parameter 'ack_topics': none of {list(p['ack_topics'])} is a "
-                                 "recorded topic with a stamp")
-            self._start_topics = self._stamped_topics(p["expect_from_start"]) - self._ack_topics
-            unknown = sorted({self.resolve_topic_name(t) for t in p["expect_from_start"] if t.strip()}
-                             - self._start_topics - self._ack_topics)
-            if unknown:
-                raise ValueError(f"parameter 'expect_from_start': {unknown} is not a recorded topic with "
-                                 "a stamp (a topic expected from the first instant must be recorded)")
-            self._follow_topics = (self._stamped_topics(p["follow_topics"]) | self._start_topics) - self._ack_topics
-            self._follow_timeout_s = float(p["follow_timeout_s"])
-            self._SimSync = SimSync
-            self._sync_pub = self.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
-            if self._follow_topics:
-                self.create_timer(min(0.25, self._follow_timeout_s / 4), self._check_follow,
-                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
-        self.diag = DiagnosticsPublisher(self, hardware_id=str(p["output"]))
-        self.diag.set("recorder", "OK", f"recording into {p['output']}", messages=0)
-        self.get_logger().info(f"recording {len(infos)} topics into {p['output']}: "
+            self._setup_lockstep(p)
+        # The bag last: a start refused for a parameter leaves no empty, unclosed bag behind (which a
+        # restart would then step over into OUTPUT.2).
+        output = self._output_path(p["output"], p["on_existing"])
+        self.writer = BagWriter(output, infos, chunk_bytes=p["chunk_bytes"], compression=p["compression"],
+                                custom_data={"recorded_by": "thermal_comp.bag_recorder_node"})
+        try:
+            self._flush_timer = self.create_timer(p["flush_period_s"], self._periodic,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self.diag = DiagnosticsPublisher(self, hardware_id=output)
+        except BaseException:
+            self.writer.close()      # run_node closes only a node it got: the bag is closed here
+            raise
+        self.diag.set("recorder", "OK", f"recording into {output}", messages=0)
+        self.get_logger().info(f"recording {len(infos)} topics into {output}: "
                                + ", ".join(i.name for i in infos))
+
+    def _subscribe(self, specs) -> list[TopicInfo]:
+        """A raw subscription per (name, type, QoS); the bag's topic list, names resolved."""
+        self._subs = []
+        infos = []
+        for name, type_name, qos in specs:
+            cls = message_class(type_name)
+            sub = self.create_subscription(cls, name, self._callback_for(len(self._subs)),
+                                           _receive_qos(qos), raw=True)
+            self._subs.append((sub, sub.topic_name, starts_with_stamp(type_name)))
+            infos.append(TopicInfo(sub.topic_name, type_name, [_qos_to_dict(qos)]))
+        return infos
+
+    def _setup_lockstep(self, p: dict) -> None:
+        """Lock-step participant: the ack, follow and start topics checked, sim_sync publisher,
+        the follow timeout's timer."""
+        from thermal_comp_msgs.msg import SimSync
+        self._ack_topics = self._stamped_topics(p["ack_topics"])
+        if not self._ack_topics:
+            raise ValueError(f"parameter 'ack_topics': none of {list(p['ack_topics'])} is a "
+                             "recorded topic with a stamp")
+        self._start_topics = self._stamped_topics(p["expect_from_start"]) - self._ack_topics
+        unknown = sorted({self.resolve_topic_name(t) for t in p["expect_from_start"] if t.strip()}
+                         - self._start_topics - self._ack_topics)
+        if unknown:
+            raise ValueError(f"parameter 'expect_from_start': {unknown} is not a recorded topic with "
+                             "a stamp (a topic expected from the first instant must be recorded)")
+        self._follow_topics = (self._stamped_topics(p["follow_topics"]) | self._start_topics) - self._ack_topics
+        self._follow_timeout_s = float(p["follow_timeout_s"])
+        self._SimSync = SimSync
+        self._sync_pub = self.create_publisher(SimSync, rt.TOPIC_SIM_SYNC, rt.EVENT_QOS)
+        if self._follow_topics:
+            self.create_timer(min(0.25, self._follow_timeout_s / 4), self._check_follow,
+                              clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def _output_path(self, output: str, on_existing: str) -> str:
+        """``output``, or after a crash (it exists, ``on_existing`` continue) the next free ``output.k``."""
+        if on_existing != "continue" or not pathlib.Path(output).exists():
+            return output
+        k = 2
+        while pathlib.Path(f"{output}.{k}").exists():
+            k += 1
+        self.get_logger().warning(f"{output} exists (an earlier run, or this recorder was restarted "
+                                  f"after a crash): it is kept as it is; recording continues in {output}.{k}")
+        return f"{output}.{k}"
 
     def _callback_for(self, index: int):
         def on_message(data: bytes) -> None:

@@ -115,6 +115,14 @@ def remove_bag_folder(path: str | os.PathLike) -> None:
     shutil.rmtree(path)
 
 
+def _fsync_dir(path: pathlib.Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 class BagWriter:
     """Writes one rosbag2 MCAP bag folder. Use as a context manager or call :meth:`close`."""
 
@@ -126,8 +134,14 @@ class BagWriter:
             raise BagWriteError(f"output {str(self.path)!r} exists already; not overwriting")
         if compression not in ("zstd", "lz4", "none"):
             raise BagWriteError(f"compression {compression!r} is not one of ['zstd', 'lz4', 'none']")
-        self.path.mkdir(parents=True)
-        self.mcap_name = f"{self.path.name}_0.mcap"
+        # Made under a hidden name and renamed once its MCAP header and metadata.yaml are on disk:
+        # a crash while creating leaves no half-made bag at ``path`` (a restarted recorder took a
+        # zero-byte file for a bag), only that hidden folder.
+        final = self.path
+        final.parent.mkdir(parents=True, exist_ok=True)
+        self.path = final.with_name(f".{final.name}.creating-{os.getpid()}")
+        self.path.mkdir(exist_ok=True)    # left by a killed process of the same pid: reused
+        self.mcap_name = f"{final.name}_0.mcap"
         self._stream = open(self.path / self.mcap_name, "wb")
         self._writer = Writer(self._stream, chunk_size=chunk_bytes,
                               compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
@@ -144,7 +158,11 @@ class BagWriter:
         self.closed = False
         for t in topics:
             self.add_topic(t)
+        self.sync()                  # the MCAP header on disk (schemas and channels go with the first chunk)
         self._write_metadata()
+        self.path.rename(final)
+        self.path = final
+        _fsync_dir(final.parent)
 
     # ----------------------------------------------------------------------------------
     def add_topic(self, topic: TopicInfo) -> None:
