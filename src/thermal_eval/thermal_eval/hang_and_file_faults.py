@@ -43,6 +43,7 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
 
     from thermal_comp_common.bag_reader import read_bag
     from thermal_comp_common.bag_repair import repair_bag
+    from thermal_comp_common.child_processes import stop
     ns, hours, step = "/bench_recorder", 4.0, 60.0   # 241 instants: the kill after 20 falls mid-run
     bag = out / "bag"
     rec = [sys.executable, "-m", "thermal_comp.bag_recorder_node", "--ros-args", "-r", f"__ns:={ns}",
@@ -66,15 +67,8 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
         second = subprocess.Popen(rec, env=env, stdout=subprocess.DEVNULL, stderr=handles[1])
         sim.wait(timeout=300)
     finally:
-        for p in (second, sim):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
         for p in (first, second, sim):
-            if p is not None:
-                try:
-                    p.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop(p)
         for h in handles:
             h.close()
     repaired = repair_bag(bag)
@@ -92,10 +86,14 @@ def recorder_lockstep_kill_row(out: pathlib.Path, env: dict) -> dict:
                 log = logs[0 if b == bag else 1].read_text()[-400:]
                 unreadable = f"; rosbags cannot read {b.name}: {exc} (recorder log tail: {log!r})"
     lost = len(want - got)
-    return _row("recorder", "kill -9 lock-step recorder, restarted", lost == 0 and readable > 0
-                and repaired.damage is not None and not unreadable,
-                f"{len(got)}/{len(want)} instants in bag+bag.2; repaired, rosbags reads {readable} msgs"
-                + unreadable, data_lost=lost)
+    closed = second is not None and second.returncode == 0     # the restarted recorder closed bag.2
+    detail = (f"{len(got)}/{len(want)} instants in bag+bag.2; repaired, rosbags reads {readable} msgs"
+              + ("" if closed else f"; restarted recorder exit {second and second.returncode}") + unreadable)
+    row = _row("recorder", "kill -9 lock-step recorder, restarted", lost == 0 and readable > 0
+               and repaired.damage is not None and not unreadable and closed, detail, data_lost=lost)
+    if not row["survived"]:
+        row["why"] = detail + f" (recorder logs in {out})"     # the table's detail is cut at 90 characters
+    return row
 
 
 def _flushed_instants(bag: pathlib.Path, ns: str) -> int:

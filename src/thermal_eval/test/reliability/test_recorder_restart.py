@@ -70,6 +70,7 @@ def test_lockstep_recorder_loses_no_instant_across_a_kill_and_restart(tmp_path):
     from rosbags.rosbag2 import Reader
 
     from thermal_comp_common.bag_repair import repair_bag
+    from thermal_comp_common.child_processes import stop
     from thermal_comp_common.node_runtime import EVENT_QOS, TOPIC_SIM_SYNC, stamp_to_s
     from thermal_comp_msgs.msg import SimSync
 
@@ -107,14 +108,7 @@ def test_lockstep_recorder_loses_no_instant_across_a_kill_and_restart(tmp_path):
         assert sim.returncode == 0, sim_out
     finally:
         for p in (first, second, sim):
-            if p is not None and p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in (first, second, sim):
-            if p is not None:
-                try:
-                    p.wait(timeout=30)
-                except subprocess.TimeoutExpired:
-                    p.kill()
+            stop(p)
         ex.shutdown()
         node.destroy_node()
         ctx.try_shutdown()
