@@ -30,27 +30,29 @@ def _transition_id(name: str) -> int:
             "shutdown": Transition.TRANSITION_UNCONFIGURED_SHUTDOWN}[name]
 
 
+def _spin_until(executor, done, timeout_s: float, error: str) -> None:
+    """Spin until ``done()``; TransitionError(``error``) after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not done():
+        if time.monotonic() > deadline:
+            raise TransitionError(error)
+        executor.spin_once(timeout_sec=0.05)
+
+
 def drive(node, executor, target: str, transitions: list[str], timeout_s: float) -> None:
     """Run ``transitions`` on lifecycle node ``target`` (full name) from rclpy ``node``."""
     from lifecycle_msgs.srv import ChangeState
     client = node.create_client(ChangeState, f"{target}/change_state")
     try:
-        deadline = time.monotonic() + timeout_s
-        while not client.service_is_ready():
-            if time.monotonic() > deadline:
-                raise TransitionError(f"{target}: no lifecycle service {target}/change_state "
-                                      f"within {timeout_s:g} s (not started, or not a managed node)")
-            executor.spin_once(timeout_sec=0.05)
+        _spin_until(executor, client.service_is_ready, timeout_s,
+                    f"{target}: no lifecycle service {target}/change_state within {timeout_s:g} s "
+                    "(not started, or not a managed node)")
         for name in transitions:
             request = ChangeState.Request()
             request.transition.id = _transition_id(name)
             future = client.call_async(request)
-            deadline = time.monotonic() + timeout_s
-            while not future.done():
-                if time.monotonic() > deadline:
-                    raise TransitionError(f"{target}: transition '{name}' did not answer within "
-                                          f"{timeout_s:g} s")
-                executor.spin_once(timeout_sec=0.05)
+            _spin_until(executor, future.done, timeout_s,
+                        f"{target}: transition '{name}' did not answer within {timeout_s:g} s")
             if not future.result().success:
                 raise TransitionError(f"{target}: transition '{name}' failed (see the node's log)")
     finally:
