@@ -85,6 +85,10 @@ def test_rtu_needs_a_serial_port_and_units_are_unique_per_line():
                                    {"name": "rtd2", "transport": "rtu", "serial_port": "/dev/ttyUSB0"}])
     with pytest.raises(SensorConfigError, match=r"modules\[1\]\.unit_id: 1 is already used"):
         parse_sensor_config(doc)
+    doc = _with("modbus.modules", [{"name": "rtd1", "transport": "rtu", "serial_port": "/dev/ttyUSB0"},
+                                   {"name": "rtd1", "transport": "rtu", "serial_port": "/dev/ttyUSB1"}])
+    with pytest.raises(SensorConfigError, match=r"modules\[1\]\.name: 'rtd1' duplicates modules\[0\]"):
+        parse_sensor_config(doc)
 
 
 def test_modbus_source_requires_a_register_per_sensor():

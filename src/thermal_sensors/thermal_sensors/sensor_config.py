@@ -116,6 +116,17 @@ def _fail(where: str, key: str, value: Any, why: str) -> SensorConfigError:
     return SensorConfigError(f"{where}{key}: {value!r} {why}")
 
 
+def _unique(keys: list, where: str, key: str, why: str, values: list | None = None) -> dict:
+    """``{key: index}``; the first repeated key fails naming ``where[i].key``, its value (``values[i]``,
+    default the key) and ``why`` with ``{first}`` the index of the earlier one."""
+    seen: dict = {}
+    for i, k in enumerate(keys):
+        if k in seen:
+            raise _fail(f"{where}[{i}].", key, k if values is None else values[i], why.format(first=seen[k]))
+        seen[k] = i
+    return seen
+
+
 def _number(d: Mapping, key: str, default: float | None, where: str, lo: float | None = None,
             hi: float | None = None, positive: bool = False) -> float:
     if key not in d:
@@ -257,11 +268,7 @@ def parse_sensor_config(doc: Any, source: str = "") -> SensorConfig:
     if not isinstance(raw_sensors, list) or not raw_sensors:
         raise _fail(prefix, "sensors", raw_sensors, "must be a non-empty list of sensors")
     sensors = tuple(_parse_sensor(s, f"{prefix}sensors[{i}].") for i, s in enumerate(raw_sensors))
-    seen: dict[str, int] = {}
-    for i, s in enumerate(sensors):
-        if s.id in seen:
-            raise _fail(f"{prefix}sensors[{i}].", "id", s.id, f"duplicates sensors[{seen[s.id]}]")
-        seen[s.id] = i
+    _unique([s.id for s in sensors], f"{prefix}sensors", "id", "duplicates sensors[{first}]")
     modules: tuple[ModbusModule, ...] = ()
     if "modbus" in doc:
         mw = f"{prefix}modbus."
@@ -271,18 +278,9 @@ def parse_sensor_config(doc: Any, source: str = "") -> SensorConfig:
         if not isinstance(raw_modules, list) or not raw_modules:
             raise _fail(mw, "modules", raw_modules, "must be a non-empty list of modules")
         modules = tuple(_parse_module(m, f"{mw}modules[{i}].") for i, m in enumerate(raw_modules))
-        names: dict[str, int] = {}
-        for i, m in enumerate(modules):
-            if m.name in names:
-                raise _fail(f"{mw}modules[{i}].", "name", m.name, f"duplicates modules[{names[m.name]}]")
-            names[m.name] = i
-        units: dict[tuple, int] = {}
-        for i, m in enumerate(modules):
-            key = (m.link_key, m.unit_id)
-            if key in units:
-                raise _fail(f"{mw}modules[{i}].", "unit_id", m.unit_id,
-                            f"is already used on the same connection by modules[{units[key]}]")
-            units[key] = i
+        names = _unique([m.name for m in modules], f"{mw}modules", "name", "duplicates modules[{first}]")
+        _unique([(m.link_key, m.unit_id) for m in modules], f"{mw}modules", "unit_id",
+                "is already used on the same connection by modules[{first}]", [m.unit_id for m in modules])
         for i, s in enumerate(sensors):
             if s.modbus is not None and s.modbus.module not in names:
                 raise _fail(f"{prefix}sensors[{i}].modbus.", "module", s.modbus.module,
