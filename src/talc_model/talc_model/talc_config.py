@@ -101,6 +101,9 @@ class TalcConfig:
     #: post-CP interval stays the longest gap (docs/talc.md, session 7). inf = off
     change_probe_threshold: float = math.inf
     change_probe_min_interval_min: float = 20.0
+    #: the rule spends a probing only while Q_prod, this probing counted, stays at or above this
+    #: (the run's probing budget; the schedule and no-good phases are not limited by it)
+    change_probe_min_q_prod_pct: float = 97.5
     # --- state update by a probe (docs/talc.md "State update")
     #: "observer": a probe corrects the whole output history by the Kalman gain of the model's
     #: own dynamics (talc_model.arx_observer; stable for any n_a); "replace": the thesis's
@@ -125,6 +128,10 @@ class TalcConfig:
                 or self.change_probe_threshold <= 0:
             raise ValueError(f"TALC config 'change_probe_threshold': {self.change_probe_threshold!r} must be a "
                              "number > 0 (inf = off)")
+        if not (isinstance(self.change_probe_min_q_prod_pct, (int, float)) and 0 <= self.change_probe_min_q_prod_pct
+                < 100):
+            raise ValueError(f"TALC config 'change_probe_min_q_prod_pct': {self.change_probe_min_q_prod_pct!r} must "
+                             "be a number in [0, 100)")
         if math.isfinite(self.change_probe_threshold) and \
                 min(self.probe_noise_linear_um, self.probe_noise_angular_um_per_m) <= 0:
             raise ValueError("TALC config: 'change_probe_threshold' counts in probe noise: 'probe_noise_linear_um' "

@@ -11,7 +11,8 @@ from talc_model.talc import TalcModel
 H = 3600.0
 CFG = {"component_names": ["E_X0C", "E_A0C"], "angular_components": ["E_A0C"], "input_names": ["ambient"],
        "post_cp_interval_h": 2.0, "probe_noise_linear_um": 0.25, "probe_noise_angular_um_per_m": 1.2,
-       "change_probe_threshold": 4.0, "change_probe_min_interval_min": 20.0}
+       "change_probe_threshold": 4.0, "change_probe_min_interval_min": 20.0,
+       "change_probe_min_q_prod_pct": 90.0}
 
 
 def _model(gain_lin=1.0, gain_ang=0.0, **over):
@@ -64,6 +65,14 @@ def test_off_by_default_and_not_in_other_phases():
     assert _ramp_until(m, 2 * H) is None
 
 
+def test_the_rule_keeps_the_probing_budget():
+    # 1 probing so far; one more at 90 min: Q_prod 100 (1 - 2 x 95 s / 5400 s) = 96.5 %
+    for floor, due in ((97.5, None), (96.0, 90 * 60.0)):
+        m = _model(change_probe_min_q_prod_pct=floor)
+        m.probing_cycles = 1
+        assert _ramp_until(m, 2 * H) == (None if due is None else pytest.approx(due))
+
+
 @pytest.mark.parametrize("bad", [0.0, -1.0, math.nan])
 def test_bad_threshold_is_one_clear_error(bad):
     with pytest.raises(ValueError, match="change_probe_threshold"):
@@ -73,3 +82,9 @@ def test_bad_threshold_is_one_clear_error(bad):
 def test_zero_probe_noise_with_the_rule_on_is_refused():
     with pytest.raises(ValueError, match="probe_noise_linear_um"):
         TalcModel({**CFG, "probe_noise_linear_um": 0.0})
+
+
+@pytest.mark.parametrize("bad", [100.0, -1.0, math.nan])
+def test_bad_q_prod_floor_is_one_clear_error(bad):
+    with pytest.raises(ValueError, match="change_probe_min_q_prod_pct"):
+        TalcModel({**CFG, "change_probe_min_q_prod_pct": bad})
