@@ -27,7 +27,8 @@ import numpy as np
 
 from thermal_twin.calibration import calibrate
 from thermal_twin.column_mapping import parse_mapping, read_real_recording
-from thermal_twin.input_estimation import fill_missing_inputs, source_power
+from thermal_twin.input_alternation import alternate
+from thermal_twin.input_estimation import source_power
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.mismatch_diagnosis import diagnose, shared_channels
 from thermal_twin.mismatch_fit import FitProblem
@@ -105,6 +106,8 @@ def _calibrated(twin: str, rec: Recording, progress) -> tuple[dict, dict]:
 #: boundary inputs the missing speed's heat warms (the preset's header: t4 is the jacket's coolant
 #: *return*), treated as responses when the speed is estimated (input_estimation.as_responses)
 RESPONSES = {"fl-thermal-rig": ["coolant_degc"]}
+#: rounds of the speedless row's joint re-estimation (speed estimate <-> finder's answer)
+ALTERNATION_ROUNDS = 3
 
 
 def _chosen(problem: FitProblem, spec_c: dict, umax: float, twin: str, at_bound: list[str]) -> tuple[list, list]:
@@ -164,14 +167,20 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     chans, n_train, res, responses = setup
     ablated = copy.deepcopy(spec_c)
     ref = mech.remove(ablated)
-    note, est = "", {}
-    if estimate:
-        am = load_machine(ablated)
-        r, ests, found = fill_missing_inputs(am, r, shared_channels(am, r), responses=responses)
-        note = "; ".join(found)
-        est = _against_true_heat(ests[0], spec_c, problem.recording)
+    note, est, rounds = "", {}, []
     t1 = time.perf_counter()
-    d = diagnose(ablated, r)
+    if estimate:
+        # the speed estimated with the ablated twin, the finder's answer, the speed estimated
+        # again with the finder's augmented twin ... (input_alternation: until the answer repeats)
+        alt = alternate(ablated, r, responses=responses, rounds=ALTERNATION_ROUNDS)
+        r, d = alt.last.recording, alt.last.diagnosis
+        note = "; ".join(alt.last.notes)
+        est = _against_true_heat(alt.last.estimate, spec_c, problem.recording)
+        rounds = [{"first": a.first, **_against_true_heat(a.estimate, spec_c, problem.recording)}
+                  for a in alt.rounds]
+        est["converged"] = alt.converged
+    else:
+        d = diagnose(ablated, r)
     wall = time.perf_counter() - t1
     after = d.augmented_spec or ablated
     # the ablated and augmented twins are scored on the recording the finder saw (with the
@@ -187,7 +196,28 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     row["note"] = note
     row["indistinguishable"] = _indistinguishable(d.report)
     row["estimate"] = est
+    row["alternation"] = rounds
+    if estimate:
+        row["heat_w"] = _source_heat(d.report, mech.expect, r, spec_c, problem.recording)
     return row
+
+
+def _source_heat(report: dict, expect: str, r: Recording, spec_c: dict, rec: Recording) -> dict:
+    """The speedless row's scale-free figure: the mean heat of the first hypothesis named
+    ``expect`` (round 1) at the estimated speed against the removed source's mean heat at the
+    recorded speed in the calibrated twin. P_max is the heat at the *estimated* speed's maximum,
+    whose scale the temperatures fix only through the twin's remaining sources."""
+    node = expect.split(":")[1]
+    h = next((h for h in report["hypotheses"] if h["round"] == 1 and f"{h['effect']}:{h['target']}" == expect), None)
+    true = sum(s.coefficient * np.abs(np.asarray(rec.columns[s.input], dtype=float)) ** s.exponent
+               for s in load_machine(spec_c).sources.values() if s.input and s.node == node)
+    out = {"calibrated_mean_w": float(np.mean(true)), "fitted_mean_w": None}
+    if h is not None:
+        u = np.abs(np.asarray(r.columns[h["driver"]], dtype=float)) if h.get("driver") in r.columns else None
+        if u is not None and np.max(u) > 0:
+            n = float(h["params"].get("exponent", {"value": 1.0})["value"])
+            out["fitted_mean_w"] = float(h["params"]["P_max"]["value"] * np.mean((u / np.max(u)) ** n))
+    return out
 
 
 def _against_true_heat(e, spec_c: dict, rec: Recording) -> dict:
@@ -228,8 +258,13 @@ def markdown(result: dict) -> str:
         ratio = r["holdout_sse_ablated"] / r["holdout_sse_calibrated"]
         if r.get("estimate"):
             e = r["estimate"]
+            rounds = " -> ".join(f"{a['first']} (r = {a['corr_with_true_heat']:.2f}, {a['mean_power_w']:.0f} W)"
+                                 for a in r.get("alternation") or [])
+            hw = r.get("heat_w") or {}
+            fitted = "-" if hw.get("fitted_mean_w") is None else f"{hw['fitted_mean_w']:.0f}"
             ratio_note = (f" (estimated heat {e['mean_power_w']:.0f} W mean against {e['true_mean_power_w']:.0f} W, "
-                          f"r = {e['corr_with_true_heat']:.2f})")
+                          f"r = {e['corr_with_true_heat']:.2f}; rounds: {rounds}; the named source's mean heat "
+                          f"{fitted} / {hw.get('calibrated_mean_w', float('nan')):.0f} W)")
         else:
             ratio_note = ""
         ident = {True: "identifiable", False: "not identifiable", None: "-"}[r.get("identifiable")]
