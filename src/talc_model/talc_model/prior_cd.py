@@ -6,9 +6,11 @@ candidate inputs are exactly the CD model's online ones (every temperature as a 
 run's first row, and its gradient), chosen by the forward heuristic scored on the LAST
 training recording held out (a prior must generalise to an unseen programme), then fitted on
 all recordings. ``CdPriorModel`` (kind ``cd``) compensates with those diagrams from the first
-instant, probes at the calibration interval for ``check_s`` and then at the update interval,
-and adapts with the CD papers' load-case update (the prior's training points are the anchors,
-the unit's probes the new load case). No rclpy here. docs/prior.md, docs/agp_cd.md.
+instant, probes at the calibration interval for ``check_s`` and then at the longest interval
+its measured change gain allows (:func:`interval_from_gain`, at most the update interval), and
+predicts the last probe plus the diagrams' change since it times that gain.
+:func:`cd_prior_from_state` turns another machine's persisted CD model into a prior. No rclpy
+here. docs/prior.md, docs/agp_cd.md.
 """
 from __future__ import annotations
 
@@ -34,7 +36,10 @@ from thermal_comp_common.probe_and_hold import table_5_4_noise
 #: ``check_s`` 8 h at the calibration interval (30 min), the probes of the CD model's own calibration;
 #: ``load_case_updates`` off: refitting the diagrams to the unit's probes made the anchored
 #: prediction worse (12 h of talc-178h-dry, unit #1: P99_lin first 8 h 1.29 against 0.89 um
-#: without, whole 12 h 3.81 against 2.48 um; docs/prior.md)
+#: without, whole 12 h 3.81 against 2.48 um; docs/prior.md); ``interval_by_gain``: after the check
+#: the interval of :func:`interval_from_gain` (48 h runs: beats probe-and-hold at its Q_prod on seven
+#: of seven against six of seven every 4 h, at Q_prod 94.7-96.6 % against 98.5 %; docs/prior.md);
+#: ``probe_noise`` (std per component, default Table 5.4) is that rule's noise floor
 DEFAULT_ADAPTATION = {"check_s": 8 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5, "gain_window": 12,
                       "min_pairs": 2, "load_case_updates": False, "interval_by_gain": True}
 #: lags (h) at which the prior keeps the held-out change statistics that choose the post-check
@@ -172,7 +177,8 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
             "sources": list(sources), "sensors": list(parts[0][0]), "candidate_names": list(names),
             "inputs": inputs, "input_names": {c: [names[i] for i in cols] for c, cols in inputs.items()},
             "cds": cds, "anchors": {"u": x[thin].tolist(), "y": {c: v[thin].tolist() for c, v in y.items()}},
-            "validation_rms": held, "change_gain": gain, "change_stats": stats, "training_points": int(x.shape[0]), "every_s": float(every_s),
+            "validation_rms": held, "change_gain": gain, "change_stats": stats, "training_points": int(x.shape[0]),
+            "every_s": float(every_s),
             "cd_config": asdict(cfg), "adaptation": dict(DEFAULT_ADAPTATION)}
 
 
@@ -236,9 +242,9 @@ def _prior_of_plain(model: CharacteristicDiagramModel) -> dict[str, Any]:
 
 class CdPriorModel(CharacteristicDiagramModel):
     """The CD model started from a prior: compensating from the first instant with the prior's
-    diagrams, probing every ``calibration_probe_interval_s`` for ``check_s`` and then every
-    ``update_probe_interval_s``, a load-case update after every ``update_batch`` probes (the
-    prior's adaptation default 1 unless the run's configuration sets it)."""
+    diagrams, probing every ``calibration_probe_interval_s`` for ``check_s`` and then at the
+    interval the measured gain allows (``interval_by_gain``; off: every ``update_probe_interval_s``),
+    load-case updates only with ``load_case_updates``."""
 
     kind = "cd"
 
