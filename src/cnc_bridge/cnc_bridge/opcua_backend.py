@@ -18,7 +18,9 @@
   axis counts as applied only if its write status is Good and the value read equals the
   value written (:meth:`OpcUaBackend._write_and_read`). The backend returns the read-back
   in um, or None for an axis whose write was not confirmed.
-* **Reconnect**: a supervisor task checks the session, and on any failure disconnects,
+* **Reconnect**: a supervisor task checks the session (a read of the server's state every
+  ``check_period_s`` in which no write was answered: while writes flow, their answers prove
+  the session and a failed write marks it lost at once), and on any failure disconnects,
   waits with exponential back-off, reconnects, re-creates the subscription on the axis
   positions and re-applies the last confirmed offsets (a CNC that restarted with its
   compensation reset gets back what it held). Writes asked for while disconnected fail
@@ -205,6 +207,9 @@ class OpcUaBackend:
         self._lock: asyncio.Lock | None = None
         self._closing = False
         self._armed = False                   # set by the first write: from then on re-apply
+        #: monotonic time of the server's last answer to a write: the health check reads the
+        #: server's state only when no write was answered within ``check_period_s``
+        self._answered_at = -math.inf
         self._held: dict[str, tuple[float, bool]] = {}
         self._trust = TrustList.from_paths(config.server_trust, "server trust list") \
             if config.server_trust else None
@@ -220,9 +225,11 @@ class OpcUaBackend:
     def wait_connected(self, timeout_s: float) -> bool:
         return self._io.wait(self._connected, timeout_s)
 
-    #: how long one :meth:`serve` drives an inline loop: connected, its tasks need little
-    #: (an answer to read, a publish request to send); reconnecting, a handshake of round trips
-    SERVE_CONNECTED_S, SERVE_RECONNECTING_S = 0.001, 0.02
+    #: how long one :meth:`serve` drives an inline loop. Connected: 0, run what is ready (an
+    #: answer that arrived, a timer that fell due, a publish request to send) and return;
+    #: the next serve or write goes on from there, so a serve is one wake, not a 1 ms sleep
+    #: in the executor's thread. Reconnecting: a handshake of round trips, 20 ms
+    SERVE_CONNECTED_S, SERVE_RECONNECTING_S = 0.0, 0.02
 
     def serve(self) -> None:
         """Inline loop: run the client's background tasks for a moment (call it every few
@@ -379,6 +386,7 @@ class OpcUaBackend:
                 self._mark_lost()
                 return {a: None for a in axes}
             self.last_round_trip_s = time.perf_counter() - t0
+            self._answered_at = time.monotonic()
             out: dict[str, float | None] = {}
             for a, want, status, got in zip(axes, values, written, back):
                 if status.is_good() and _read_equal(want, got, self.config.readback_tolerance):
@@ -452,6 +460,8 @@ class OpcUaBackend:
                     try:
                         await asyncio.wait_for(self._lost.wait(), cfg.check_period_s)
                     except asyncio.TimeoutError:
+                        if time.monotonic() - self._answered_at < cfg.check_period_s:
+                            continue      # a write's answer within the period proved the session
                         async with self._lock:
                             await asyncio.wait_for(
                                 self._client.nodes.server_state.read_value(), cfg.timeout_s)

@@ -109,6 +109,8 @@ class CncEmulator:
             if config.client_trust else None
         self._server: Server | None = None
         self._nodes: dict[str, object] = {}
+        #: node id string -> NodeId of the nodes the server updates itself (parsed once)
+        self._node_ids: dict[str, ua.NodeId] = {}
 
     # ---------------------------------------------------------------- address space
     async def start(self) -> None:
@@ -170,6 +172,7 @@ class CncEmulator:
                 [arg("artefact", ua.VariantType.UInt32), arg("c_axis_deg", D), arg("b_axis_deg", D),
                  arg("start_mm", D, 3), arg("direction", D, 3), arg("max_travel_mm", D)],
                 [arg("triggered", ua.VariantType.Boolean), arg("position_mm", D, 3)])
+        self._node_ids = {nid: ua.NodeId.from_string(nid) for nid in self._nodes}
         server.subscribe_server_callback(CallbackType.PostWrite, self._after_write)
         await server.start()
         self._server = server
@@ -224,8 +227,9 @@ class CncEmulator:
             self.on_compensation(self.applied_um())
 
     async def _write_internal(self, node_id: str, value: float) -> None:
+        # the server's own update: straight into the address space (no service, no callback)
         await self._server.write_attribute_value(
-            ua.NodeId.from_string(node_id), ua.DataValue(ua.Variant(value, ua.VariantType.Double)))
+            self._node_ids[node_id], ua.DataValue(ua.Variant(value, ua.VariantType.Double)))
 
     async def _after_write(self, event, _dispatcher) -> None:
         if not event.is_external:       # the server's own updates of Applied/Position
