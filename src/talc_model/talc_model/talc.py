@@ -288,7 +288,7 @@ class TalcModel(TalcIdentification):
     def _change_due(self, t_s: float) -> bool:
         """The model's own probing rule (TalcConfig.change_probe_threshold): its predicted change
         of some component since the last probing exceeds the threshold times its probe noise,
-        while Q_prod with this probing stays at or above ``change_probe_min_q_prod_pct``."""
+        while Q_prod over the last 24 h with this probing stays at or above ``change_probe_min_q_prod_pct``."""
         c = self.config
         if not math.isfinite(c.change_probe_threshold) or self.phase != PHASE_COMPENSATION or \
                 self.last_probe_t is None or self._in_check() or self.grid is None or \
@@ -298,8 +298,11 @@ class TalcModel(TalcIdentification):
         k_last = int(round((self.last_probe_t - self.t0) / self.step))
         if not 0 <= k_last < k_now:
             return False
-        n = self.probing_cycles + self.failed_probing_cycles + 1
-        if q_prod(n, t_s - self.t0, c.probe_duration_s) < c.change_probe_min_q_prod_pct:
+        # the budget: Q_prod over the last day (or since the start), this probing counted
+        start = max(self.t0, t_s - 24 * 3600.0)
+        k0 = int(math.ceil((start - self.t0) / self.step - 1e-9))
+        n = int(np.count_nonzero(self.grid.measured[k0: k_now + 1].any(axis=1))) + 1
+        if q_prod(n, t_s - start, c.probe_duration_s) < c.change_probe_min_q_prod_pct:
             return False                     # over the budget: the schedule alone
         change = np.abs(self.grid.x[k_now] - self.grid.x[k_last])
         noise = np.sqrt([self._probe_noise_var(n) for n in self.component_names])

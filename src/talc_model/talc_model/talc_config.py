@@ -101,8 +101,9 @@ class TalcConfig:
     #: post-CP interval stays the longest gap (docs/talc.md, session 7). inf = off
     change_probe_threshold: float = math.inf
     change_probe_min_interval_min: float = 20.0
-    #: the rule spends a probing only while Q_prod, this probing counted, stays at or above this
-    #: (the run's probing budget; the schedule and no-good phases are not limited by it)
+    #: the rule spends a probing only while Q_prod over the last 24 h (or since the start), this
+    #: probing counted, stays at or above this (a probing budget per day; the schedule and
+    #: no-good phases are not limited by it)
     change_probe_min_q_prod_pct: float = 97.5
     # --- state update by a probe (docs/talc.md "State update")
     #: "observer": a probe corrects the whole output history by the Kalman gain of the model's

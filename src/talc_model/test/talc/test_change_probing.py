@@ -23,6 +23,7 @@ def _model(gain_lin=1.0, gain_ang=0.0, **over):
     m.phase = "compensation"
     m.update_inputs(0.0, {"ambient": 20.0}, {})
     m.last_probe_t = 0.0
+    m.probe_due(0.0)                      # creates the grid sample at 0 s
     return m
 
 
@@ -66,10 +67,10 @@ def test_off_by_default_and_not_in_other_phases():
 
 
 def test_the_rule_keeps_the_probing_budget():
-    # 1 probing so far; one more at 90 min: Q_prod 100 (1 - 2 x 95 s / 5400 s) = 96.5 %
+    # one probing (at 0 s) so far; one more at 90 min: Q_prod 100 (1 - 2 x 95 s / 5400 s) = 96.5 %
     for floor, due in ((97.5, None), (96.0, 90 * 60.0)):
         m = _model(change_probe_min_q_prod_pct=floor)
-        m.probing_cycles = 1
+        m.grid.measured[0, :] = True
         assert _ramp_until(m, 2 * H) == (None if due is None else pytest.approx(due))
 
 
