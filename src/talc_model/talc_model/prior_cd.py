@@ -39,9 +39,12 @@ from thermal_comp_common.probe_and_hold import table_5_4_noise
 #: without, whole 12 h 3.81 against 2.48 um; docs/prior.md); ``interval_by_gain``: after the check
 #: the interval of :func:`interval_from_gain` (48 h runs: beats probe-and-hold at its Q_prod on seven
 #: of seven against six of seven every 4 h, at Q_prod 94.7-96.6 % against 98.5 %; docs/prior.md);
-#: ``probe_noise`` (std per component, default Table 5.4) is that rule's noise floor
+#: ``probe_noise`` (std per component, default Table 5.4) is that rule's noise floor;
+#: ``min_q_prod_pct``: the rule never probes sooner than keeps the run's Q_prod (probing time over
+#: the time since the start) at or above it once the next probing is done (the issue's 97 %)
 DEFAULT_ADAPTATION = {"check_s": 8 * 3600.0, "update_batch": 1, "update_rmse_floor": 0.5, "gain_window": 12,
-                      "min_pairs": 2, "load_case_updates": False, "interval_by_gain": True}
+                      "min_pairs": 2, "load_case_updates": False, "interval_by_gain": True,
+                      "min_q_prod_pct": 97.0}
 #: lags (h) at which the prior keeps the held-out change statistics that choose the post-check
 #: probing interval (:func:`interval_from_gain`); the longest is the CD model's update interval
 CHANGE_LAGS_H = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
@@ -280,6 +283,9 @@ class CdPriorModel(CharacteristicDiagramModel):
         self.prior_gain = dict(prior.get("change_gain", {}))
         self.interval_by_gain = bool(adapt.get("interval_by_gain", False)) and bool(prior.get("change_stats"))
         self._interval_cache: tuple[tuple[int, int], float] | None = None
+        self.min_q_prod_pct = float(adapt.get("min_q_prod_pct", 0.0))
+        if not (math.isfinite(self.min_q_prod_pct) and 0.0 <= self.min_q_prod_pct < 100.0):
+            raise PriorError(f"cd prior: min_q_prod_pct {self.min_q_prod_pct!r} must be a number in [0, 100)")
         #: probe noise std per component (um, um/m) the interval rule compares drifts with: the
         #: prior's adaptation ``probe_noise`` or Table 5.4's (0.25 um, 1.2 um/m)
         self.probe_noise = {**table_5_4_noise(self.component_names), **dict(adapt.get("probe_noise") or {})}
@@ -370,10 +376,22 @@ class CdPriorModel(CharacteristicDiagramModel):
         if self._interval_cache is None or self._interval_cache[0] != key:   # changes only with a probe
             gains = {c: self.change_gain(c) for c in self.component_names}
             stats = {c: v for c, v in self.prior["change_stats"].items() if c in gains}
-            self._interval_cache = (key, 3600.0 * interval_from_gain(
+            wanted = 3600.0 * interval_from_gain(
                 stats, gains, self.config.calibration_probe_interval_s / 3600.0,
-                self.config.update_probe_interval_s / 3600.0, self.probe_noise))
+                self.config.update_probe_interval_s / 3600.0, self.probe_noise)
+            self._interval_cache = (key, min(max(wanted, self._productivity_floor_s()),
+                                             self.config.update_probe_interval_s))
         return self._interval_cache[1]
+
+    def _productivity_floor_s(self) -> float:
+        """The shortest interval after the last probing that keeps Q_prod >= ``min_q_prod_pct``
+        once the next probing is done: (probing time + one probing) / (1 - q) - elapsed."""
+        if self.min_q_prod_pct <= 0.0:
+            return 0.0
+        d = self.config.probe_duration_s
+        probing = (self.probing_cycles + self.failed_probing_cycles + 1) * d
+        elapsed = self.t_last_probe - self.t_start
+        return max(0.0, probing / (1.0 - self.min_q_prod_pct / 100.0) - elapsed)
 
     def _fit_update(self) -> None:
         if self.load_case_updates:

@@ -47,6 +47,8 @@ def test_prior_structure_and_bad_priors(prior):
         CdPriorModel({"components": ["E_Z0T"]}, prior)
     with pytest.raises(PriorError, match="held out"):
         build_cd_prior([object()], {})
+    with pytest.raises(PriorError, match="min_q_prod_pct 100.0"):
+        CdPriorModel({"components": COMPONENTS}, {**prior, "adaptation": {**prior["adaptation"], "min_q_prod_pct": 100.0}})
 
 
 def _drive(model, rec, until_h):
@@ -183,11 +185,19 @@ def test_interval_from_gain_probes_more_often_with_a_low_gain():
 
 def test_the_interval_after_the_check_follows_the_measured_gain(prior):
     rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=12.0, seed=0), seed=0).to_recording()
-    hold = {**prior, "change_gain": {c: 0.0 for c in COMPONENTS}, "adaptation": {**prior["adaptation"], "min_pairs": 99}}
+    hold = {**prior, "change_gain": {c: 0.0 for c in COMPONENTS},
+            "adaptation": {**prior["adaptation"], "min_pairs": 99, "min_q_prod_pct": 0.0}}
     model = model_from_prior("cd", {"components": COMPONENTS}, hold)
     assert model.interval_by_gain
     _drive(model, rec, 12.0)
     assert model.probing_cycles == 25                          # gain 0: every 30 min after the check too
+    floored = model_from_prior("cd", {"components": COMPONENTS},
+                               {**hold, "adaptation": {**hold["adaptation"], "min_q_prod_pct": 97.0}})
+    _drive(floored, rec, 12.0)
+    # the check phase's 16 probings in 8 h leave Q_prod at 94.7 %: the productivity floor holds the
+    # longest interval (4 h) until the run is back above 97 %, whatever the gain asks
+    assert floored.probing_cycles == 17 + 1
+    assert floored._productivity_floor_s() > floored.config.update_probe_interval_s
     fixed = model_from_prior("cd", {"components": COMPONENTS},
                              {**hold, "adaptation": {**hold["adaptation"], "interval_by_gain": False}})
     _drive(fixed, rec, 12.0)
