@@ -23,6 +23,7 @@ from talc_model.adaptive_model import (PHASE_CALIBRATION, PHASE_COMPENSATION, PH
 from talc_model.arx import ArxModel
 from talc_model.arx_observer import observer_update
 from talc_model.blas_threads import single_thread_blas
+from talc_model.change_probing import change_probe_due
 from talc_model.talc_config import PRESETS, TalcConfig, input_signal, parse_input  # noqa: F401 (PRESETS, parse_input: old import paths)
 from talc_model.talc_grid import ModelGrid
 from talc_model.talc_identification import TalcIdentification
@@ -294,20 +295,11 @@ class TalcModel(TalcIdentification):
                 self.last_probe_t is None or self._in_check() or self.grid is None or \
                 t_s - self.last_probe_t < 60.0 * c.change_probe_min_interval_min:
             return False
-        k_now = self.grid.n - 1
-        k_last = int(round((self.last_probe_t - self.t0) / self.step))
-        if not 0 <= k_last < k_now:
-            return False
-        # the budget: Q_prod over the last day (or since the start), this probing counted
-        start = max(self.t0, t_s - 24 * 3600.0)
-        k0 = int(math.ceil((start - self.t0) / self.step - 1e-9))
-        n = int(np.count_nonzero(self.grid.measured[k0: k_now + 1].any(axis=1))) + 1
-        if q_prod(n, t_s - start, c.probe_duration_s) < c.change_probe_min_q_prod_pct:
-            return False                     # over the budget: the schedule alone
-        change = np.abs(self.grid.x[k_now] - self.grid.x[k_last])
+        g = self.grid
         noise = np.sqrt([self._probe_noise_var(n) for n in self.component_names])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return bool(np.nanmax(change / noise) > c.change_probe_threshold)
+        return change_probe_due(g.x[: g.n], g.measured[: g.n], int(round((self.last_probe_t - self.t0) / self.step)),
+                                t_s, self.t0, self.step, noise, c.change_probe_threshold, c.probe_duration_s,
+                                c.change_probe_min_q_prod_pct)
 
     # ------------------------------------------------------------------ measurements
     def _limit(self, name: str) -> float:
