@@ -51,6 +51,17 @@ def test_the_finder_names_the_table_source_the_twin_lacks(result):
     assert alt.last.first == "heat_source:table", [a.first for a in alt.rounds]
 
 
+def test_the_second_round_puts_more_heat_on_the_table_and_scales_the_speed_better(result):
+    # round 2 estimates with the twin augmented by the finder's table source: measured table
+    # share 0.35 -> 0.41 (truth 150 / 350 = 0.43), mean speed 3381 -> 2942 1/min (deleted: 2605)
+    _, alt, speed = result
+    assert len(alt.rounds) >= 2
+    r1, r2 = alt.rounds[0], alt.rounds[1]
+    assert r1.estimate.located["table"] < r2.estimate.located["table"] <= 0.5, (r1.estimate.located, r2.estimate.located)
+    err = [abs(np.mean(r.estimate.input_series(r.recording.time_s)) / np.mean(speed) - 1) for r in (r1, r2)]
+    assert err[1] < err[0], err
+
+
 def test_rounds_must_be_at_least_one(result):
     spec, alt, _ = result
     with pytest.raises(ValueError, match="rounds"):
