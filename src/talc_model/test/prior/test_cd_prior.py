@@ -186,7 +186,7 @@ def test_interval_from_gain_probes_more_often_with_a_low_gain():
 def test_the_interval_after_the_check_follows_the_measured_gain(prior):
     rec = simulate("nmv5000", make_timeline("nmv5000", "talc-178h-dry", hours=12.0, seed=0), seed=0).to_recording()
     hold = {**prior, "change_gain": {c: 0.0 for c in COMPONENTS},
-            "adaptation": {**prior["adaptation"], "min_pairs": 99, "min_q_prod_pct": 0.0}}
+            "adaptation": {**prior["adaptation"], "min_pairs": 99, "min_q_prod_pct": 0.0, "interval_by_gain": True}}
     model = model_from_prior("cd", {"components": COMPONENTS}, hold)
     assert model.interval_by_gain
     _drive(model, rec, 12.0)
