@@ -58,6 +58,7 @@ class InputEstimate:
     tau: float
     located: dict[str, float] = field(default_factory=dict)   # node -> share the temperatures point to
     own_share: float = 1.0              # share of the heat on the nodes of the twin's own sources
+    scale_identified: bool = True       # False: the temperatures put < MIN_OWN_SHARE on those nodes
 
     def input_series(self, time_s: np.ndarray) -> np.ndarray:
         """The equivalent input at every instant (block value)."""
@@ -67,7 +68,7 @@ class InputEstimate:
     def as_dict(self) -> dict:
         return {"input": self.input, "sources": self.sources, "block_s": float(np.diff(self.block_edges_s)[0]),
                 "lambda": self.lam, "channels": self.channels, "located": self.located,
-                "own_share": self.own_share,
+                "own_share": self.own_share, "scale_identified": self.scale_identified,
                 "mean_power_w": float(np.mean(self.power_w)), "max_power_w": float(np.max(self.power_w)),
                 "profile": [{"start_s": float(a), "power_w": float(p), "ci95_w": [float(lo), float(hi)],
                              "equivalent_input": float(u)}
@@ -176,7 +177,8 @@ def estimate_input(machine: Machine, rec: Recording, name: str, channels: list[s
     power, ci, lam, curve, tau = sol
     own = _own_share(machine, name, located)
     return InputEstimate(name, share, edges, power, ci, equivalent_input(machine, name, power * own),
-                         float(lam), curve, list(channels), float(tau), located, own)
+                         float(lam), curve, list(channels), float(tau), located, own,
+                         scale_identified=not located or _own_nodes_share(machine, name, located) >= MIN_OWN_SHARE)
 
 
 def _block_series(t: np.ndarray, edges: np.ndarray, power: np.ndarray) -> np.ndarray:
@@ -199,9 +201,13 @@ def _own_share(machine: Machine, name: str, located: dict[str, float]) -> float:
     MIN_OWN_SHARE the twin's sources cannot carry the heat and the whole heat is inverted."""
     if not located:
         return 1.0
-    nodes = {s.node for s in machine.sources.values() if s.input == name}
-    own = sum(w for n, w in located.items() if n in nodes)
+    own = _own_nodes_share(machine, name, located)
     return own if own >= MIN_OWN_SHARE else 1.0
+
+
+def _own_nodes_share(machine: Machine, name: str, located: dict[str, float]) -> float:
+    nodes = {s.node for s in machine.sources.values() if s.input == name}
+    return sum(w for n, w in located.items() if n in nodes)
 
 
 def locate_heat(base: dict, heat: np.ndarray, prob: tuple, min_share: float = 0.05) -> dict[str, float]:
@@ -338,6 +344,10 @@ def fill_missing_inputs(machine: Machine, rec: Recording, channels: list[str], b
                      f"{block_s / 60:.0f}-min blocks, {where} {srcs}), i.e. {name} of "
                      f"{np.mean(e.equivalent_input):.0f} {machine.inputs[name].unit} on average"
                      + (f" from the {100 * e.own_share:.0f} % on the nodes of its sources" if e.own_share < 1 else "")
+                     + ("" if e.scale_identified else
+                        f" (the temperatures put under {100 * MIN_OWN_SHARE:.0f} % of the heat on the nodes of the "
+                        f"twin's {name}-driven sources: the scale of {name} is not identified, the equivalent "
+                        f"value makes them carry all of the heat; compare heats, not {name})")
                      + (f", with {', '.join(responses)} treated as a response (held at its 5 % level)"
                         if responses else "")
                      + "; "

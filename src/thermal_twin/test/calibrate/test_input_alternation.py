@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from thermal_twin.input_alternation import alternate, first_answer
+from thermal_twin.input_estimation import fill_missing_inputs
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.simulate import simulate
 from thermal_eval.mismatch_concealed import operating_programme
@@ -66,3 +67,23 @@ def test_rounds_must_be_at_least_one(result):
     spec, alt, _ = result
     with pytest.raises(ValueError, match="rounds"):
         alternate(spec, alt.last.recording, rounds=0)
+
+
+def test_an_estimate_whose_heat_is_not_on_the_twins_sources_says_its_scale_is_not_identified():
+    # the truth's speed heats the table (300 W at 12,000 1/min) and barely the spindle (10 % of
+    # the twin's spindle source, 20 W): the temperatures put the heat on the table (measured:
+    # all of it), not on the twin's only speed-driven source, so the equivalent speed has no
+    # scale and the finding says so
+    spec = copy.deepcopy(load_machine(TWIN).to_dict())
+    truth = copy.deepcopy(spec)
+    truth["sources"]["spindle_losses"]["coefficient"] *= 0.1
+    truth["sources"]["table_heat"] = {"node": "table", "input": "spindle_rpm",
+                                      "coefficient": 300.0 / 12000.0 ** 1.5, "exponent": 1.5}
+    rec = simulate(load_machine(truth), operating_programme(truth, 36.0, 300.0, seed=5), seed=1).to_recording()
+    rec.columns.pop("spindle_rpm")
+    twin = load_machine(spec)
+    chans = [c for c in rec.columns if c.endswith("_c") or c.startswith("E_")]
+    _, ests, notes = fill_missing_inputs(twin, rec, chans)
+    assert ests[0].located.get("spindle", 0.0) < 0.1 and not ests[0].scale_identified, ests[0].located
+    assert ests[0].as_dict()["scale_identified"] is False
+    assert "the scale of spindle_rpm is not identified" in notes[0], notes
