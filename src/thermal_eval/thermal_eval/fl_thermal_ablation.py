@@ -11,9 +11,11 @@ and target), how close its fitted parameter comes to the calibrated value, how m
 lost held-out fit it restores (``restored_pct``: 100 = back to the calibrated twin's held-out
 weighted SSE), what the finder marks indistinguishable from its answer, and the channels the
 removal changes most. The last row repeats the bearing case with the speed column deleted: the
-speed is first estimated from the temperatures (``input_estimation.fill_missing_inputs``) with
-the ablated twin, the coolant return t4 treated as a response of the jacket's heat, not a driver
-(``RESPONSES``), and the estimated heat is compared with the deleted speed's heat (correlation).
+speed is estimated from the temperatures with the ablated twin, the coolant return t4 treated
+as a response of the jacket's heat, not a driver (``RESPONSES``), then again with the finder's
+augmented twin until its first answer repeats (``input_alternation.alternate``); each round's
+estimated heat is compared with the deleted speed's heat (correlation, mean), and the named
+source's mean heat with the removed one's (its P_max is at the estimated speed's maximum).
 Each screened mechanism also gets its identifiability (:mod:`thermal_eval.fl_thermal_identifiability`). ``thermal-comp bench diagnose`` does not run this (minutes); the slow test
 and docs/diagnose.md do.
 """
