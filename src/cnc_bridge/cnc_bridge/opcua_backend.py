@@ -57,6 +57,11 @@ from cnc_bridge.trust_list import TrustList
 log = logging.getLogger("cnc_bridge.opcua")
 
 
+#: period of asyncua's own server-state probe, s: far beyond ``check_period_s``, so that the
+#: backend's supervisor is the one health check (asyncua still reports a closed transport at once)
+LIBRARY_WATCHDOG_S = 60.0
+
+
 class OpcUaConfigError(ValueError):
     """The OPC UA backend's settings are inconsistent (the message names the setting)."""
 
@@ -266,7 +271,9 @@ class OpcUaBackend:
     # ------------------------------------------------------------------ async internals
     async def _connect(self) -> Client:
         cfg = self.config
-        client = Client(cfg.endpoint, timeout=cfg.timeout_s)
+        # asyncua's own watchdog would read the server's state every second beside ours
+        # (a round trip on the offsets' channel): ours (_supervise) is the health check
+        client = Client(cfg.endpoint, timeout=cfg.timeout_s, watchdog_intervall=LIBRARY_WATCHDOG_S)
         client.application_uri = cfg.application_uri
         if self._trust is not None:
             client.certificate_validator = self._trust

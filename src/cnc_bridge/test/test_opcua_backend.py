@@ -306,3 +306,34 @@ def test_a_read_answered_before_the_write_is_read_again_never_confirmed_on_statu
         assert back[0].Value.Value == (0.004 if applies else 0.001)
     finally:
         be.close()
+
+
+def test_the_health_check_reads_the_server_only_when_no_write_was_answered(emulator, port):
+    """While writes are answered, their answers prove the session: no health-check read holds
+    the write lock; with no write for a check period, the server's state is read again."""
+    from asyncua import ua
+    from asyncua.common.callback import CallbackType
+    state_id = ua.NodeId(ua.ObjectIds.Server_ServerStatus_State)
+    checks = []
+
+    async def on_read(event, _dispatcher):
+        checks.extend(r for r in event.request_params.NodesToRead if r.NodeId == state_id)
+    emulator.emulator._server.subscribe_server_callback(CallbackType.PreRead, on_read)
+    be = backend(port, inline=True, check_period_s=0.5)
+    try:
+        assert be.wait_connected(10), be.last_error
+        wait_for(lambda: checks, 10, "a health check of an idle session", be)
+        seen = len(checks)
+        t_end = time.monotonic() + 1.5                    # three check periods of writes
+        i = 0
+        while time.monotonic() < t_end:
+            i += 1
+            assert be.write_offsets({"X": 0.001 * i}) == pytest.approx({"X": 0.001 * i})
+            be.serve()
+        # one check may have been on its way when the writes began
+        assert len(checks) - seen <= 1, f"{len(checks) - seen} health-check reads among {i} answered writes"
+        seen = len(checks)
+        wait_for(lambda: len(checks) > seen, 10, "a health check once the writes stopped", be)
+        assert be.connected and be.connections == 1
+    finally:
+        be.close()
