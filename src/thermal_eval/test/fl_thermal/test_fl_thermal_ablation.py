@@ -1,8 +1,8 @@
 """Issue 19 item 6 on the real FL_THERMAL recording (slow: one calibration of the
 ``fl-thermal-rig`` preset, a screen of its 54 mechanisms with their identifiability (157 twin
 runs), eight diagnoses of the 46 h recording and, for the speedless row, two rounds of speed
-estimate and diagnosis (input_alternation): 562 s measured on 2 cores under load 0.5-5 before
-the alternation, which adds about 2 min (one more estimate and diagnosis, 130 s under load 10).
+estimate and diagnosis (input_alternation): 240 s measured on 2 cores under load 2.5 (10 passed,
+3 strict xfails), over 600 s under load 13-16).
 
 The mechanisms are chosen by the recording, not by the finder: every mechanism of the
 calibrated twin is removed and scored with the calibrated twin alone, and the rule of
@@ -20,6 +20,10 @@ import pytest
 
 from thermal_eval.fl_thermal_ablation import markdown, run
 from thermal_eval.fl_thermal_mechanisms import screen_markdown
+
+#: the module fixture (calibration, screen, eight diagnoses, the speedless alternation) is paid by
+#: the first test: 240 s at load 2.5, but over the suite's 600 s default at load 13-16 (measured)
+pytestmark = pytest.mark.timeout(2400)
 
 BEARING = "source front_bearing_friction (spindle_rpm-driven)"
 JACKET = "link motor_coolant (motor-coolant)"
