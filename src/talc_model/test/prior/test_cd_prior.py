@@ -116,17 +116,16 @@ def _state_file(tmp_path, model):
 
 
 def test_another_machines_adapted_cd_state_is_a_prior_a_run_starts_from(prior, tmp_path):
-    from talc_model.prior import load_prior
-    from thermal_comp import prior_cli
+    from talc_model.prior_cd import cd_prior_from_state
     from thermal_twin.machine_instance import machine_instance
+    from thermal_twin.machine_schema import load_machine
     src = model_from_prior("cd", {"components": COMPONENTS}, prior)
     rec = simulate(machine_instance("nmv5000", 2), make_timeline("nmv5000", "load-case-B", hours=12.0, seed=7),
                    seed=7).to_recording()
     _drive(src, rec, 12.0)                                    # past the 8-h check: measured pairs
     assert len(src.pairs["E_Y0C"]) >= src.min_pairs
-    out = tmp_path / "prior.json"
-    assert prior_cli.main(["--from-state", str(_state_file(tmp_path, src)), "--out", str(out)]) == 0
-    derived = load_prior(out)
+    state = json.loads(_state_file(tmp_path, src).read_text())       # as saved (thermal-comp prior --from-state: thermal_comp's test)
+    derived = cd_prior_from_state(state, machine="nmv5000", sensors=load_machine("nmv5000").sensor_ids)
     assert derived["model_kind"] == "cd" and derived["sources"] == ["persisted model state"]
     assert derived["change_gain"] == {c: src.change_gain(c) for c in COMPONENTS}     # its measured gain
     assert len(derived["anchors"]["u"]) == len(prior["anchors"]["u"]) + len(src.new_u)
