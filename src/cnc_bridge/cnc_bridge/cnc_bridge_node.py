@@ -77,7 +77,8 @@ def _make_backend(p: dict):
     """The backend for parameters ``p``; opcua: connected within connect_timeout_s or raise."""
     if p["backend"] == "twin":
         return TwinBackend()
-    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map, load_node_map
+    from cnc_bridge.opcua_backend import OpcUaBackend
+    from cnc_bridge.opcua_config import OpcUaConfig, default_node_map, load_node_map
     if p["node_map_file"]:
         node_map, scale = load_node_map(p["node_map_file"])
     else:

@@ -218,7 +218,8 @@ def test_opcua_backend_against_the_emulator(tmp_path, ros_domain_id):
 
 
 def test_emulator_command_line(tmp_path):
-    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig
+    from cnc_bridge.opcua_backend import OpcUaBackend
+    from cnc_bridge.opcua_config import OpcUaConfig
     help_text = subprocess.run([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--help"],
                                capture_output=True, text=True, timeout=60)
     assert help_text.returncode == 0 and "--security" in help_text.stdout

@@ -11,7 +11,8 @@ from cnc_bridge.certificates import make_certificate
 from cnc_bridge.cnc_emulator import (ENDPOINT_PATH, PROBE_METHOD_ID, PROBE_OBJECT_ID,
                                      CncEmulatorThread, EmulatorConfig, artefact_probe,
                                      compensation_node_id, free_tcp_port)
-from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, OpcUaConfigError, load_node_map
+from cnc_bridge.opcua_backend import OpcUaBackend
+from cnc_bridge.opcua_config import OpcUaConfig, OpcUaConfigError, load_node_map
 
 logging.getLogger("asyncua").setLevel(logging.ERROR)
 

@@ -13,7 +13,7 @@ from cnc_bridge.cnc_emulator import (CncEmulatorThread, EmulatorConfig, Emulator
                                      compensation_node_id)
 from cnc_bridge.cnc_emulator.access import LoginBackoff, SessionGate
 from cnc_bridge.credentials import (ENV_PASSWORD, ENV_USER, CredentialsError, load_credentials)
-from cnc_bridge.opcua_backend import OpcUaConfig, OpcUaConfigError
+from cnc_bridge.opcua_config import OpcUaConfig, OpcUaConfigError
 
 from test_opcua_backend import backend, endpoint, offset_writes, port, wait_for  # noqa: F401
 
@@ -173,7 +173,7 @@ def test_held_offset_with_compensation_off_counts_as_zero_and_connecting_never_w
     emu = CncEmulatorThread(EmulatorConfig(port=port, compensation_axes=("X",),
                                            offset_limit_mm=10.0))
     emu.start(state)
-    from cnc_bridge.opcua_backend import default_node_map
+    from cnc_bridge.opcua_config import default_node_map
     be = backend(port, node_map=default_node_map(("X",), position_axes=()))
     try:
         assert be.wait_connected(10), be.last_error

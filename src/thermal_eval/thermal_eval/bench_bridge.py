@@ -140,7 +140,8 @@ def _figures(lat: np.ndarray) -> dict:
 
 def run(args) -> dict:
     from cnc_bridge.certificates import make_certificate
-    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig
+    from cnc_bridge.opcua_backend import OpcUaBackend
+    from cnc_bridge.opcua_config import OpcUaConfig
     n = 200 if getattr(args, "quick", False) else 2000
     out_dir = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_bridge_"))
     out_dir.mkdir(parents=True, exist_ok=True)

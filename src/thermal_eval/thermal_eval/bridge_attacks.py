@@ -39,7 +39,8 @@ def _start_up(port: int, held_mm: float, enabled: int, limit_after: float | None
     """Configure (connect, read, adopt), then 20 activated steps towards +20 um (the limit
     lowered to ``limit_after`` at step 5). Returns (adoption, what the CNC applied per step,
     unsafe writes, CNC writes before the first step)."""
-    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map
+    from cnc_bridge.opcua_backend import OpcUaBackend
+    from cnc_bridge.opcua_config import OpcUaConfig, default_node_map
     from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
     emu = _emulator(port, held_mm, enabled)
     be = OpcUaBackend(OpcUaConfig(endpoint=emu.config.endpoint, timeout_s=1.0,
@@ -105,7 +106,8 @@ def _unknown_certificate(port: int) -> tuple[bool, int, str]:
 
     from cnc_bridge.certificates import make_certificate
     from cnc_bridge.cnc_emulator import CncEmulatorThread, EmulatorConfig
-    from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig
+    from cnc_bridge.opcua_backend import OpcUaBackend
+    from cnc_bridge.opcua_config import OpcUaConfig
     with tempfile.TemporaryDirectory(prefix="bench_bridge_attack_") as d:
         d = pathlib.Path(d)
         srv = make_certificate(d, "cnc", "urn:thermal-comp:cnc-emulator:server", server=True)

@@ -10,7 +10,8 @@ from asyncua import ua
 
 from cnc_bridge.cnc_emulator import CncEmulatorThread, EmulatorConfig
 from cnc_bridge.offset_backend import adopt_held_state
-from cnc_bridge.opcua_backend import OpcUaBackend, OpcUaConfig, default_node_map
+from cnc_bridge.opcua_backend import OpcUaBackend
+from cnc_bridge.opcua_config import OpcUaConfig, default_node_map
 from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
 from thermal_eval.offset_safety_checks import OffsetViolation, step_violations, written_offsets_um
 
