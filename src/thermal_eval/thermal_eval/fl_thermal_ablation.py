@@ -128,10 +128,37 @@ def _chosen(problem: FitProblem, spec_c: dict, umax: float, twin: str, at_bound:
     return rows, chosen + extra
 
 
+#: which mechanisms are also ablated on the speedless recording (``run(speedless=...)``)
+SPEEDLESS = ("bearing", "rule", "all")
+
+
+def _keeps_speed_sources(mech: Mechanism, spec_c: dict) -> bool:
+    """Whether the twin without ``mech`` keeps every speed-driven source of ``spec_c`` (the
+    sources whose heat anchors the scale of a speed estimated from the temperatures)."""
+    ablated = copy.deepcopy(spec_c)
+    mech.remove(ablated)
+    n = sum(1 for s in (spec_c.get("sources") or {}).values() if s.get("input"))
+    return n == sum(1 for s in (ablated.get("sources") or {}).values() if s.get("input"))
+
+
+def speedless_mechanisms(chosen: list[Mechanism], spec_c: dict, which: str = "bearing") -> list[Mechanism]:
+    """The mechanisms ablated with the speed column deleted, in case order: the bearing source,
+    then (``rule``) the support rule's top pick among those whose removal keeps every
+    speed-driven source (the rule of docs/diagnose.md, item 6, stated before the run), then
+    (``all``) the other chosen ones in the support rule's order."""
+    if which not in SPEEDLESS:
+        raise ValueError(f"speedless={which!r}: expected one of {', '.join(SPEEDLESS)}")
+    bearing = next(m for m in chosen if m.expect == "heat_source:front_bearing")
+    anchored = [m for m in chosen if m is not bearing and _keeps_speed_sources(m, spec_c)]
+    order = [bearing] + anchored[:1] + [m for m in chosen if m is not bearing and m not in anchored[:1]]
+    return order[:{"bearing": 1, "rule": 2, "all": len(order)}[which]]
+
+
 def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
-        twin: str = "fl-thermal-rig", only: list[int] | None = None) -> dict:
-    """Calibrate ``twin``, screen every mechanism, then ablate and diagnose the chosen ones
-    and the bearing source on the speedless recording (``only``: those case indices);
+        twin: str = "fl-thermal-rig", only: list[int] | None = None, speedless: str = "bearing") -> dict:
+    """Calibrate ``twin``, screen every mechanism, then ablate and diagnose the chosen ones on
+    FL_THERMAL (case indices 0 .. n-1) and ``speedless_mechanisms(.., speedless)`` on the
+    recording with the speed column deleted (indices n, n+1, ...; ``only``: those case indices);
     returns the table's rows, the screening rows and the calibration's figures."""
     rec = read_real_recording(str(csv or default_csv_path()), parse_mapping(None, []),
                               "temperatures", "errors/ground_truth")
@@ -143,25 +170,38 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
     problem = FitProblem(rec, chans, n_train, resolution=res)
     umax = float(np.nanmax(np.abs(rec.columns["spindle_rpm"])))
     screened, chosen = _chosen(problem, spec_c, umax, twin, cal_fig["at_bound"])
-    speedless = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "spindle_rpm"},
-                          source=rec.source + " (spindle_rpm deleted)")
+    no_speed = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "spindle_rpm"},
+                         source=rec.source + " (spindle_rpm deleted)")
     rule = {m.label for m in select(all_mechanisms(spec_c, umax), screened)}
     ident = {r["mechanism"]: r["identifiable"] for r in screened}
-    bearing = next(m for m in chosen if m.expect == "heat_source:front_bearing")
-    cases = [(m, rec) for m in chosen] + [(bearing, speedless)]
+    cases = [(m, rec) for m in chosen] + [(m, no_speed) for m in speedless_mechanisms(chosen, spec_c, speedless)]
     rows = []
     for i, (mech, r) in enumerate(cases):
         if only is not None and i not in only:
             continue
-        row = _case(mech, r, r is speedless, spec_c, problem, (chans, n_train, res, RESPONSES.get(twin, [])))
+        row = _case(mech, r, r is no_speed, spec_c, problem, (chans, n_train, res, RESPONSES.get(twin, [])))
         row["selected_by_rule"] = mech.label in rule
         row["identifiable"] = ident[mech.label]
+        row["case"] = i
         rows.append(row)
         if progress:
-            progress(f"{row['mechanism']} [{row['recording']}]: first {row['first']} (expected {row['expected']}), "
-                     f"{row['parameter']} {row['fitted']} vs {row['reference']:.4g}, restored "
-                     f"{row['restored_pct']} %, {row['diagnosis_wall_s']:.0f} s")
+            progress(_progress_line(row))
     return {"calibration": cal_fig, "screen": screened, "rows": rows}
+
+
+def _progress_line(row: dict) -> str:
+    """One case's figures as the run prints them."""
+    line = (f"[{row['case']}] {row['mechanism']} [{row['recording']}]: first {row['first']} (expected "
+            f"{row['expected']}; effect {row['effect_ok']}, target {row['target_ok']}), {row['parameter']} "
+            f"{row['fitted']} vs {row['reference']:.4g} ({row['rel_error_pct']} %), restored "
+            f"{row['restored_pct']} %, {row['diagnosis_wall_s']:.0f} s")
+    e = row.get("estimate") or {}
+    if e:
+        line += (f"; estimated heat r = {e['corr_with_true_heat']:.2f}, {e['mean_power_w']:.0f} W mean vs "
+                 f"{e['true_mean_power_w']:.0f} W, rounds {[a['first'] for a in row['alternation']]}")
+    if row.get("heat_w"):
+        line += f"; named source's mean heat {row['heat_w']['fitted_mean_w']} vs {row['heat_w']['calibrated_mean_w']:.1f} W"
+    return line
 
 
 def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: FitProblem, setup) -> dict:
@@ -199,7 +239,7 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     row["indistinguishable"] = _indistinguishable(d.report)
     row["estimate"] = est
     row["alternation"] = rounds
-    if estimate:
+    if estimate and mech.kind == "source":
         row["heat_w"] = _source_heat(d.report, mech.expect, r, spec_c, problem.recording)
     return row
 
@@ -264,9 +304,9 @@ def markdown(result: dict) -> str:
                                  for a in r.get("alternation") or [])
             hw = r.get("heat_w") or {}
             fitted = "-" if hw.get("fitted_mean_w") is None else f"{hw['fitted_mean_w']:.0f}"
+            heat = (f"; the named source's mean heat {fitted} / {hw['calibrated_mean_w']:.0f} W" if hw else "")
             ratio_note = (f" (estimated heat {e['mean_power_w']:.0f} W mean against {e['true_mean_power_w']:.0f} W, "
-                          f"r = {e['corr_with_true_heat']:.2f}; rounds: {rounds}; the named source's mean heat "
-                          f"{fitted} / {hw.get('calibrated_mean_w', float('nan')):.0f} W)")
+                          f"r = {e['corr_with_true_heat']:.2f}; rounds: {rounds}{heat})")
         else:
             ratio_note = ""
         ident = {True: "identifiable", False: "not identifiable", None: "-"}[r.get("identifiable")]
@@ -280,8 +320,10 @@ def markdown(result: dict) -> str:
 if __name__ == "__main__":
     import json
     import sys
-    only = [int(x) for x in sys.argv[2].split(",")] if len(sys.argv) > 2 else None
-    out = run(twin=sys.argv[1] if len(sys.argv) > 1 else "fl-thermal-rig", only=only)
+    # python -m thermal_eval.fl_thermal_ablation [twin] [case indices, e.g. 0,3,8] [bearing|rule|all]
+    only = [int(x) for x in sys.argv[2].split(",")] if len(sys.argv) > 2 and sys.argv[2] else None
+    out = run(twin=sys.argv[1] if len(sys.argv) > 1 else "fl-thermal-rig", only=only,
+              speedless=sys.argv[3] if len(sys.argv) > 3 else "bearing")
     print(screen_markdown(out["screen"]))
     print(markdown(out))
     print(json.dumps(out, indent=1, default=str))
