@@ -12,7 +12,9 @@ cell's environment, each transition with the node's deadline); a transition that
 hangs is one error line naming the node, the node is stopped and not restarted, and
 ``run`` exits 1. Ctrl-C or SIGTERM stops every process: SIGINT first, SIGKILL after the
 grace time, so no process is left behind; children also receive SIGTERM if the launcher
-itself dies.
+itself dies. A node's environment may set ``THERMAL_COMP_NICE`` (0-19): its process starts at
+that niceness (lower priority; raising it would need root), so that observers (recorder, viewer,
+probe cycle between probings) yield the cores to the control path in a cell.
 """
 from __future__ import annotations
 
@@ -41,6 +43,33 @@ def _die_with_parent() -> None:  # runs in the child between fork and exec
         pass
 
 
+#: a node's environment variable: the niceness (0-19) its process starts at
+NICE_ENV = "THERMAL_COMP_NICE"
+
+
+def node_niceness(label: str, env: dict[str, str]) -> int:
+    """The niceness ``env`` asks for (0 when unset); CellConfigError naming the node and value."""
+    text = env.get(NICE_ENV, "").strip()
+    if not text:
+        return 0
+    try:
+        nice = int(text)
+    except ValueError:
+        nice = -1
+    if not 0 <= nice <= 19:
+        raise CellConfigError(f"{label}: env {NICE_ENV}={text!r} is not a niceness 0-19 "
+                              f"(only lowering a node's priority needs no privilege)")
+    return nice
+
+
+def _child_setup(nice: int) -> Callable[[], None]:
+    def setup() -> None:  # runs in the child between fork and exec
+        _die_with_parent()
+        if nice:
+            os.nice(nice)
+    return setup
+
+
 @dataclass
 class ManagedProcess:
     """One node process of a cell, with its restart bookkeeping."""
@@ -54,6 +83,7 @@ class ManagedProcess:
     restarts: int = 0
     next_start: float | None = None      # monotonic time of a pending restart
     exit_codes: list[int] = field(default_factory=list)
+    nice: int = 0                        # niceness the process starts at (NICE_ENV)
     gave_up: bool = False
     lifecycle: str = ""                  # "", "activating", "active", "failed"
     lifecycle_error: str = ""
@@ -113,7 +143,8 @@ class Launcher:
                 env.setdefault("ROS_LOG_DIR", str(self.run_dir / "ros_logs"))
                 if cell.domain_id is not None:
                     env["ROS_DOMAIN_ID"] = str(cell.domain_id)
-                self.processes.append(ManagedProcess(cell, node, argv, env, cell_dir / f"{node.name}.log"))
+                self.processes.append(ManagedProcess(cell, node, argv, env, cell_dir / f"{node.name}.log",
+                                                     nice=node_niceness(f"{cell.cell}/{node.name}", env)))
 
     # ----------------------------------------------------------------------------------
     def _emit(self, label: str, line: str) -> None:
@@ -134,12 +165,13 @@ class Launcher:
     def _spawn(self, mp: ManagedProcess) -> None:
         mp.popen = subprocess.Popen(mp.argv, env=mp.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                     stdin=subprocess.DEVNULL, text=True, bufsize=1,
-                                    start_new_session=True, preexec_fn=_die_with_parent)
+                                    start_new_session=True, preexec_fn=_child_setup(mp.nice))
         mp.next_start = None
         mp._reader = threading.Thread(target=self._pump, args=(mp, mp.popen), daemon=True,
                                       name=f"log-{mp.label}")
         mp._reader.start()
-        self._emit("launch", f"started {mp.label} (pid {mp.popen.pid}): python -m {mp.node.module}")
+        self._emit("launch", f"started {mp.label} (pid {mp.popen.pid}): python -m {mp.node.module}"
+                   + (f" at nice {mp.nice}" if mp.nice else ""))
         if mp.node.lifecycle:
             mp.lifecycle = "activating"
             mp._driver = threading.Thread(target=self._bring_up, args=(mp, mp.popen), daemon=True,
