@@ -18,8 +18,9 @@ import json
 
 import pytest
 
-from thermal_eval.fl_thermal_ablation import markdown, run
-from thermal_eval.fl_thermal_mechanisms import screen_markdown
+from thermal_eval.fl_thermal_ablation import markdown, run, speedless_mechanisms
+from thermal_eval.fl_thermal_mechanisms import all_mechanisms, screen_markdown
+from thermal_twin.machine_schema import load_machine
 
 #: the module fixture (calibration, screen, eight diagnoses, the speedless alternation) is paid by
 #: the first test: 240 s at load 2.5, but over the suite's 600 s default at load 13-16 (measured)
@@ -38,6 +39,20 @@ def table(shared_dir):
     print(markdown(out))
     print(json.dumps(out["rows"], default=str))
     return out
+
+
+def test_the_asserted_speedless_row_keeps_every_speed_driven_source():
+    # the rule of docs/diagnose.md (item 6, speed deleted): after the bearing source, the first
+    # chosen mechanism whose removal leaves both speed-driven sources (bearing, motor) in the twin
+    spec = load_machine("fl-thermal-rig").to_dict()
+    by = {m.label: m for m in all_mechanisms(spec, 5000.0)}
+    motor = by["source motor_losses (spindle_rpm-driven)"]
+    chosen = [motor, by[BEARING], by[JACKET], by[HOUSING]]
+    assert [m.label for m in speedless_mechanisms(chosen, spec, "bearing")] == [BEARING]
+    assert [m.label for m in speedless_mechanisms(chosen, spec, "rule")] == [BEARING, JACKET]
+    assert [m.label for m in speedless_mechanisms(chosen, spec, "all")] == [BEARING, JACKET, motor.label, HOUSING]
+    with pytest.raises(ValueError, match="speedless='every'"):
+        speedless_mechanisms(chosen, spec, "every")
 
 
 def _row(table, label, recording="FL_THERMAL"):
