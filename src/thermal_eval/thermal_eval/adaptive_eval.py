@@ -26,7 +26,7 @@ No rclpy here.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Mapping
 
 import numpy as np
@@ -53,15 +53,31 @@ class ProbingBudget:
     min_gap_s: float = 600.0              # after the end of the previous cycle
     probe_duration_s: float = PROBE_DURATION_S
     probe_resolution_um: float = 0.0      # the user's probe: a predicted change below it is not acted on
+    phase_h: float = 0.0                  # the probing clock starts this long after calibration ends
 
     def __post_init__(self) -> None:
         for k in ("probe_every_h", "max_probes_per_h", "tolerance_um", "min_gap_s", "probe_duration_s"):
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise AdaptiveSettingsError(f"{k}: {v!r} must be a finite number > 0")
-        v = self.probe_resolution_um
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise AdaptiveSettingsError(f"probe_resolution_um: {v!r} must be a finite number >= 0")
+        for k in ("probe_resolution_um", "phase_h"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise AdaptiveSettingsError(f"{k}: {v!r} must be a finite number >= 0")
+
+    @property
+    def interval_h(self) -> float:
+        """The probing interval the budget allows: the schedule's or the cap's, the shorter."""
+        return min(self.probe_every_h, 1.0 / self.max_probes_per_h)
+
+
+def phase_budgets(budget: ProbingBudget, k: int) -> list[ProbingBudget]:
+    """The budget with its probing clock delayed by i/k of the probing interval, i = 0..k-1
+    (phase 0 is ``budget`` itself): the same schedule and cap at k phases, to score a model
+    over where its probings happen to fall rather than at one phase's luck."""
+    if not (isinstance(k, int) and k >= 1):
+        raise AdaptiveSettingsError(f"probe_phases: {k!r} must be an integer >= 1")
+    return [budget] + [replace(budget, phase_h=budget.phase_h + i * budget.interval_h / k) for i in range(1, k)]
 
 
 @dataclass
@@ -77,17 +93,19 @@ class AdaptiveResult:
 
 def probe_schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], budget: ProbingBudget) -> tuple[list[int], list[int]]:
     """Probe rows after calibration (and which of them the model asked for); uses only the
-    time, the model's prediction and the count of probings so far (never a displacement)."""
+    time, the model's prediction and the count of probings so far (never a displacement).
+    ``budget.phase_h`` delays the probing clock (schedule and cap): no probing before it."""
     t = data.time_s
     start = data.split.n_train
-    last_end = t[start - 1]                      # the calibration phase ends with a measurement
+    clock0 = t[start - 1] + 3600.0 * budget.phase_h
+    last_end = clock0                            # the calibration phase ends with a measurement
     last_row = start - 1
     rows, triggered = [], []
     for r in range(start, len(data)):
         since = t[r] - last_end
         if since < 0:
             continue
-        elapsed_h = (t[r] - t[start - 1]) / 3600.0
+        elapsed_h = (t[r] - clock0) / 3600.0
         scheduled = since >= budget.probe_every_h * 3600.0
         asks = since >= budget.min_gap_s and any(
             abs(prediction[c][r] - prediction[c][last_row]) > budget.tolerance_um for c in prediction)
@@ -201,7 +219,7 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
     measured = [start - 1] + rows
     since_h = np.nan_to_num(_since_probe_h(t, measured, start, n))
     comp, corr, hold, weights, rates = {}, {}, {}, {}, {}
-    lag_h = min(budget.probe_every_h, 1.0 / budget.max_probes_per_h)
+    lag_h = budget.interval_h
     for c, p in prediction.items():
         y = data.displacement_um[c]
         p_oof, first = oof[c]

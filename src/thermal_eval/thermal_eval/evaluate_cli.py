@@ -20,7 +20,7 @@ from thermal_comp_common.engine_options import add_engine_arguments, engine_from
 from thermal_comp_common.task_engine import TaskEngineError
 from thermal_twin.column_mapping import MappingError
 
-from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget
+from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget, phase_budgets
 from thermal_eval.evaluation_spec import SpecError, check_spec, load_evaluation_data, load_spec
 
 
@@ -56,6 +56,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--probe-resolution-um", type=float, default=0.0,
                     help="your probe's resolution: a predicted change below it (or below twice the noise of "
                          "a reading difference measured on the training rows) is not acted on (default 0)")
+    ap.add_argument("--probe-phases", type=int, default=1, metavar="K",
+                    help="score the adaptive mode at K phases of the probing clock (delayed by i/K of the "
+                         "interval, each a full run with its own probings): mean and worst per channel (default 1)")
     add_engine_arguments(ap, default_jobs=1, what="model rows")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -113,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         budget = ProbingBudget(args.probe_every_h, args.max_probes_per_h, args.tolerance_um,
                                probe_resolution_um=args.probe_resolution_um)
+        phase_budgets(budget, args.probe_phases)
         data = load_evaluation_data(args.recording, spec_from_args(args), args.map_file, args.map)
         models = available_models(data, args.models, args.also)
         engine = engine_from_args(args)
@@ -131,7 +135,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"thermal-comp evaluate: {exc}", file=sys.stderr)
         return 2
     result = evaluate(data, models=models, adaptive=not args.open_loop_only, budget=budget,
-                      show_progress=not args.no_progress, engine=engine, closed_loop=args.closed_loop)
+                      show_progress=not args.no_progress, engine=engine, closed_loop=args.closed_loop,
+                      probe_phases=args.probe_phases)
     figures = result.figures
     figures["outputs"] = {"json": str(out / "evaluation.json"), "png": str(report.plot(data, result, out))}
     if not args.no_rerun:

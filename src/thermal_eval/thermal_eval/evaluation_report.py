@@ -55,11 +55,32 @@ def print_table(figures: dict[str, Any], console=None) -> None:
                       *[("" if "failed" in v["channels"][ch] else
                          f"{v['channels'][ch]['hold_own_probes_mae_test_um']:.3f} "
                          f"[{v['channels'][ch]['hold_own_probes_mae_validation_um']:.3f}]") for ch in chs], "same")
+        if "probe_phases" in v:
+            _phase_rows(table, v, chs)
     console.print(table)
     console.print("open loop: x = MAE / best baseline's MAE on the test rows (per channel); adaptive: x = MAE / "
                   "holding the same probes. Probings counted after the training (calibration) rows.")
+    if figures.get("probe_phases", 1) > 1:
+        console.print(f"phases: the probing clock delayed by i/{figures['probe_phases']} of the interval; mean: x = "
+                      "mean MAE / holding's mean MAE; worst phase: largest MAE, x = largest ratio (test rows).")
     for f in failures:
         console.print(f"[red]failed[/red] {f}")
+
+
+def _phase_rows(table, v: dict, chs: list[str]) -> None:
+    """Under an adaptive row scored at K probe phases: the phase mean (x its ratio to holding's
+    phase mean), holding's phase mean, and the worst phase (x its largest ratio)."""
+    ph = v["probe_phases"]
+    counts = ph["probings_after_calibration"]
+    label = f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else f"{counts[0]}"
+    cells = {ch: v["channels"][ch].get("phases") for ch in chs}
+    table.add_row("", f"  mean of {ph['k']} phases",
+                  *["" if c is None else _cell(c["mean"], "ratio_to_hold_test") for c in cells.values()], label)
+    table.add_row("", "  hold, mean of phases",
+                  *["" if c is None else f"{c['mean']['hold_own_probes_mae_test_um']:.3f} "
+                    f"[{c['mean']['hold_own_probes_mae_validation_um']:.3f}]" for c in cells.values()], "same")
+    table.add_row("", "  worst phase",
+                  *["" if c is None else _cell(c["worst"], "ratio_to_hold_test") for c in cells.values()], "")
 
 
 def _json_default(o):

@@ -19,7 +19,7 @@ import numpy as np
 
 from thermal_comp_common.metrics import mae
 from thermal_comp_common.task_engine import EngineSpec, map_tasks
-from thermal_eval.adaptive_eval import ProbingBudget, probe_counts, run_adaptive
+from thermal_eval.adaptive_eval import ProbingBudget, phase_budgets, probe_counts, run_adaptive
 from thermal_eval.baselines import BASELINES
 from thermal_eval.closed_loop_rows import CLOSED_LOOP, hold_probes, run_closed_loop
 from thermal_eval.evaluation_spec import EvaluationData
@@ -86,8 +86,10 @@ class ModelRow:
     probe_rows: list[int] | None = None
 
 
-def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: ProbingBudget) -> ModelRow:
-    """Every channel of one model, open loop and (unless a plain baseline) adaptive."""
+def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: ProbingBudget,
+              probe_phases: int = 1) -> ModelRow:
+    """Every channel of one model, open loop and (unless a plain baseline) adaptive, the
+    adaptive mode at ``probe_phases`` phases of the probing clock (:func:`_adaptive_row`)."""
     s = data.split
     ol: dict[str, Any] = {"kind": model.kind, "description": model.description, "channels": {}}
     preds, oofs, regain = {}, {}, {}
@@ -110,7 +112,7 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
     ol["seconds"] = round(time.perf_counter() - t0, 1)
     row = ModelRow(model.name, ol, preds)
     if adaptive and model.name not in NOT_ADAPTIVE:
-        _adaptive_row(data, model, preds, oofs, budget, row, regain)
+        _adaptive_row(data, model, preds, oofs, budget, row, regain, probe_phases)
     return row
 
 
@@ -120,7 +122,7 @@ def _gain_update_choice(data: EvaluationData, model: ModelSpec, ch: str, params:
     budget's interval over the second half."""
     n_train = data.split.n_train
     first = int(round(OOF_MIN_FRACTION * n_train))
-    every_s = 3600.0 * min(budget.probe_every_h, 1.0 / budget.max_probes_per_h)
+    every_s = 3600.0 * budget.interval_h
     p_fit = model.predict(data, ch, params, first)
     penalty, scores = choose_penalty(data.time_s, data.displacement_um[ch], p_fit,
                                      model.contributions(data, ch, params, first), first, n_train, every_s)
@@ -129,37 +131,76 @@ def _gain_update_choice(data: EvaluationData, model: ModelSpec, ch: str, params:
     return (model.contributions(data, ch, params, n_train), penalty), info
 
 
-def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow, regain=None) -> None:
+def _beside_hold(data: EvaluationData, y: np.ndarray, compensation: np.ndarray, hold: np.ndarray) -> dict[str, Any]:
+    """One channel of one adaptive run: MAE, holding the same probes, their ratio."""
+    cell = _scores(data, y, compensation)
+    h = _scores(data, y, hold)
+    cell["hold_own_probes_mae_test_um"] = h["mae_test_um"]
+    cell["hold_own_probes_mae_validation_um"] = h["mae_validation_um"]
+    for w in ("test", "validation"):
+        cell[f"ratio_to_hold_{w}"] = (round(cell[f"mae_{w}_um"] / h[f"mae_{w}_um"], 3)
+                                      if h[f"mae_{w}_um"] > 0 else None)
+    return cell
+
+
+def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow, regain=None, probe_phases: int = 1) -> None:
+    """The adaptive row: phase 0 (the budget's own schedule) gives the row's figures and arrays;
+    with ``probe_phases`` K > 1 the whole adaptive run is repeated with the probing clock
+    delayed by i/K of the interval, and each cell gets the phases' MAE, mean and worst."""
     row: dict[str, Any] = {"kind": model.kind, "channels": {}}
     out.adaptive = row
     usable = {c: p for c, p in preds.items() if c in oofs}
     if not usable:
         row["failed"] = "no channel has an open-loop prediction"
         return
+    regain = {c: v for c, v in (regain or {}).items() if c in usable}
+    runs = []
     try:
-        ad = run_adaptive(data, usable, oofs, budget, {c: v for c, v in (regain or {}).items() if c in usable})
+        for b in phase_budgets(budget, probe_phases):
+            runs.append(run_adaptive(data, usable, oofs, b, regain))
     except Exception as exc:
         row["failed"] = _reason(exc)
         return
+    ad = runs[0]
     for ch in data.channels:
         if ch not in usable:
             row["channels"][ch] = {"failed": "no open-loop prediction"}
             continue
         y = data.displacement_um[ch]
-        cell = _scores(data, y, ad.compensation[ch])
-        h = _scores(data, y, ad.hold[ch])
-        cell["hold_own_probes_mae_test_um"] = h["mae_test_um"]
-        cell["hold_own_probes_mae_validation_um"] = h["mae_validation_um"]
+        cell = _beside_hold(data, y, ad.compensation[ch], ad.hold[ch])
         cell["corrected_model_mae_test_um"] = _scores(data, y, ad.corrected[ch])["mae_test_um"]
-        cell["ratio_to_hold_test"] = round(cell["mae_test_um"] / h["mae_test_um"], 3) if h["mae_test_um"] > 0 else None
-        cell["ratio_to_hold_validation"] = (round(cell["mae_validation_um"] / h["mae_validation_um"], 3)
-                                            if h["mae_validation_um"] > 0 else None)
         cell["model_weight"] = round(ad.weights[ch], 3)
         cell.update(ad.rates[ch])
+        if probe_phases > 1:
+            cell["phases"] = phase_summary([_beside_hold(data, y, r.compensation[ch], r.hold[ch]) for r in runs])
         row["channels"][ch] = cell
     row.update(probe_counts(data, ad.probe_rows, budget))
     row["probings_asked_by_model"] = len(ad.triggered_rows)
+    if probe_phases > 1:
+        per = [probe_counts(data, r.probe_rows, budget) for r in runs]
+        row["probe_phases"] = {"k": probe_phases, "offsets_h": [round(b.phase_h, 4) for b in phase_budgets(budget, probe_phases)],
+                               **{k: [p[k] for p in per] for k in ("probings_after_calibration", "probings_per_h_after_calibration",
+                                                                   "probings_test", "probings_validation")}}
     out.compensation, out.hold, out.probe_rows = ad.compensation, ad.hold, ad.probe_rows
+
+
+#: the figures of a phase's cell summarised over the phases
+PHASE_KEYS = ("mae_test_um", "mae_validation_um", "hold_own_probes_mae_test_um", "hold_own_probes_mae_validation_um")
+
+
+def phase_summary(cells: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Per phase, the mean over phases (its ratio: mean MAE over mean holding MAE) and the worst
+    phase (largest MAE, largest ratio to holding at that phase's own probes)."""
+    out: dict[str, Any] = {"by_phase": {k: [c[k] for c in cells] for k in PHASE_KEYS}}
+    mean = {k: round(float(np.mean([c[k] for c in cells])), 3) for k in PHASE_KEYS}
+    worst = {k: round(float(np.max([c[k] for c in cells])), 3) for k in PHASE_KEYS[:2]}
+    for w in ("test", "validation"):
+        h = mean[f"hold_own_probes_mae_{w}_um"]
+        mean[f"ratio_to_hold_{w}"] = round(mean[f"mae_{w}_um"] / h, 3) if h > 0 else None
+        ratios = [c[f"ratio_to_hold_{w}"] for c in cells if c[f"ratio_to_hold_{w}"] is not None]
+        worst[f"ratio_to_hold_{w}"] = max(ratios) if ratios else None
+    out["mean"], out["worst"] = mean, worst
+    return out
 
 
 def closed_loop_row(data: EvaluationData, name: str, budget: ProbingBudget) -> ModelRow:
@@ -176,14 +217,7 @@ def closed_loop_row(data: EvaluationData, name: str, budget: ProbingBudget) -> M
     for ch in data.channels:
         y = data.displacement_um[ch]
         hold[ch] = hold_probes(y, run["probe_rows"], n)
-        cell = _scores(data, y, run["compensation"][ch])
-        h = _scores(data, y, np.nan_to_num(hold[ch]))
-        cell["hold_own_probes_mae_test_um"] = h["mae_test_um"]
-        cell["hold_own_probes_mae_validation_um"] = h["mae_validation_um"]
-        for w in ("test", "validation"):
-            cell[f"ratio_to_hold_{w}"] = (round(cell[f"mae_{w}_um"] / h[f"mae_{w}_um"], 3)
-                                          if h[f"mae_{w}_um"] > 0 else None)
-        row["channels"][ch] = cell
+        row["channels"][ch] = _beside_hold(data, y, run["compensation"][ch], np.nan_to_num(hold[ch]))
     after = run["probe_rows_after_calibration"]
     row.update({k: v for k, v in run.items() if k not in ("compensation", "probe_rows", "probe_rows_after_calibration")})
     s = data.split
@@ -197,11 +231,11 @@ def _row_task(shared: tuple, item: str | ModelSpec | tuple) -> ModelRow:
     """Task of the engine: one model row. ``item`` is a registered model's name (so the local
     pool pickles a string, not the model's closures), ``("closed_loop", name)``, or, for a model
     outside the registry, the spec itself (serial run or dask, which pickles closures)."""
-    data, adaptive, budget = shared
+    data, adaptive, budget, probe_phases = shared
     if isinstance(item, tuple):
         return closed_loop_row(data, item[1], budget)
     model = REGISTRY[item] if isinstance(item, str) else item
-    return model_row(data, model, adaptive, budget)
+    return model_row(data, model, adaptive, budget, probe_phases)
 
 
 def _add_row(result: EvaluationResult, row: ModelRow) -> None:
@@ -236,20 +270,25 @@ def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> No
 
 def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None, adaptive: bool = True,
              budget: ProbingBudget | None = None, show_progress: bool = True,
-             engine: EngineSpec | None = None, closed_loop: Sequence[str] = ()) -> EvaluationResult:
+             engine: EngineSpec | None = None, closed_loop: Sequence[str] = (),
+             probe_phases: int = 1) -> EvaluationResult:
     """The whole evaluation (figures + arrays for the report). Model rows are independent tasks
     of :func:`thermal_comp_common.task_engine.map_tasks` (serial by default, a local pool or a
     dask cluster with ``engine``); the rows are put back in the models' order, so the figures do
     not depend on the engine. ``closed_loop``: names of :data:`closed_loop_rows.CLOSED_LOOP` (the
-    project's adaptive models with their own logic; adaptive rows only)."""
+    project's adaptive models with their own logic; adaptive rows only, at phase 0).
+    ``probe_phases`` K: the adaptive mode of every model also at K - 1 further phases of its
+    probing clock (:func:`thermal_eval.adaptive_eval.phase_budgets`); K = 1 is one run."""
     from threadpoolctl import threadpool_limits
     from tqdm import tqdm
     budget = budget or ProbingBudget()
+    phase_budgets(budget, probe_phases)          # a bad K is refused before any model runs
     engine = engine or EngineSpec()
     models = list(models) if models is not None else available_models(data)
     figures: dict[str, Any] = {"source": data.source, "rows": data.split.as_dict(), "n_rows": len(data),
                                "channels": data.channels, "temperatures": data.sensors, "inputs": data.input_names,
-                               "notes": data.notes, "budget": budget.__dict__, "engine": engine.describe(),
+                               "notes": data.notes, "budget": budget.__dict__, "probe_phases": probe_phases,
+                               "engine": engine.describe(),
                                "open_loop": {}, "adaptive": {}}
     result = EvaluationResult(figures)
     t0 = time.perf_counter()
@@ -262,7 +301,7 @@ def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None,
     rows: dict[int, ModelRow] = {}
     bar = tqdm(total=len(items), desc="evaluate", unit="model", disable=not show_progress)
     with bar, threadpool_limits(1):   # small dense problems: BLAS threads only contend
-        for i, row in map_tasks(_row_task, (data, adaptive, budget), items, engine):
+        for i, row in map_tasks(_row_task, (data, adaptive, budget, probe_phases), items, engine):
             rows[i] = row
             bar.set_postfix_str(row.name)
             bar.update()
