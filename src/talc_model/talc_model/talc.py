@@ -60,6 +60,9 @@ class TalcModel(TalcIdentification):
         #: the switch-driven probing (TalcConfig.switch_probe_input): last value per signal, pending due time
         self.switch_last: dict[str, float] = {}
         self.switch_probe_due_s: float | None = None
+        #: per-component multiples of the probe noise for the change-probing rule, derived from a
+        #: prior's training programme (talc_model.change_threshold); None = the config's one threshold
+        self.change_thresholds: np.ndarray | None = None
         self.t_last_update: float | None = None
         self.nb_max_selected = c.nb_max            # max n_b used in the last order selection
         self.out_of_sample: dict[str, list[float]] = {n: [] for n in self.component_names}
@@ -291,15 +294,16 @@ class TalcModel(TalcIdentification):
         of some component since the last probing exceeds the threshold times its probe noise,
         while Q_prod over the last 24 h with this probing stays at or above ``change_probe_min_q_prod_pct``."""
         c = self.config
-        if not math.isfinite(c.change_probe_threshold) or self.phase != PHASE_COMPENSATION or \
+        threshold = c.change_probe_threshold if self.change_thresholds is None else self.change_thresholds
+        if not np.any(np.isfinite(threshold)) or self.phase != PHASE_COMPENSATION or \
                 self.last_probe_t is None or self._in_check() or self.grid is None or \
                 t_s - self.last_probe_t < 60.0 * c.change_probe_min_interval_min:
             return False
         g = self.grid
         noise = np.sqrt([self._probe_noise_var(n) for n in self.component_names])
         return change_probe_due(g.x[: g.n], g.measured[: g.n], int(round((self.last_probe_t - self.t0) / self.step)),
-                                t_s, self.t0, self.step, noise, c.change_probe_threshold, c.probe_duration_s,
-                                c.change_probe_min_q_prod_pct)
+                                t_s, self.t0, self.step, noise, threshold, c.probe_duration_s,
+                                c.change_probe_min_q_prod_pct, self.t0 + 3600.0 * getattr(self, "check_h", 0.0))
 
     # ------------------------------------------------------------------ measurements
     def _limit(self, name: str) -> float:

@@ -69,9 +69,11 @@ def error_location(result, components: Sequence[str], top: int = 5) -> list[dict
 
 def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
              prior_overrides: Mapping[str, Any] | None = None, seed: int = RUN_SEED,
-             training: Sequence[str] | None = None) -> dict[str, Any]:
+             training: Sequence[str] | None = None, change_goal: float | None = None) -> dict[str, Any]:
     """One case: build the prior (nominal type, other programmes; ``training`` replaces the
-    default list), replay unit #1, and the figures beside probe-and-hold at the same Q_prod."""
+    default list), replay unit #1, and the figures beside probe-and-hold at the same Q_prod.
+    ``change_goal``: the change-probing rule on, its thresholds derived from the prior's
+    held-out training programme for this goal share (talc_model.change_threshold)."""
     from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
     from thermal_eval.baseline_beside import beside_probe_and_hold
     from thermal_eval.replay_summary import PROBE_RESOLUTION_UM, probe_noise
@@ -84,6 +86,7 @@ def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
                              **dict(prior_overrides or {}))
     run = _simulate(machine_instance("nmv5000", PLANT_UNIT), case, seed, cache)
     model = talc_with_prior(config, prior)
+    thresholds = derive_change_thresholds(model, recs[-1], change_goal) if change_goal else None
     noise = probe_noise(model.component_names)
     t0 = time.perf_counter()
     result = run_virtual_experiment(run, model, probe_noise_um=noise, probe_resolution_um=PROBE_RESOLUTION_UM,
@@ -99,10 +102,25 @@ def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
             "components": {c: v["p99"] for c, v in whole["model"]["components"].items()},
             "probe_and_hold_p99_lin_um": whole["probe_and_hold"]["p99_lin_um"],
             "probe_and_hold_p99_ang_um_per_m": whole["probe_and_hold"]["p99_ang_um_per_m"],
-            "ratio": whole["p99_lin_ratio"], "replay_wall_s": wall,
+            "ratio": whole["p99_lin_ratio"], "replay_wall_s": wall, "change_thresholds": thresholds,
             "no_good_at_h": [round(e["t_s"] / 3600.0 - result.time_s[0] / 3600.0, 1)
                              for e in model.events if e.get("event") == "no_good"],
             "largest_residuals": error_location(result, model.component_names)}
+
+
+def derive_change_thresholds(model, held_out, goal: float) -> dict[str, dict[str, float]]:
+    """The change-probing thresholds of ``model`` (TALC started from its prior) derived on the
+    prior's held-out training recording ``held_out`` (never the evaluated run), set on the model."""
+    from talc_model.change_threshold import prior_change_thresholds
+    from talc_model.prior import grid_from_recording
+    cfg = model.config
+    u, errors = grid_from_recording(held_out, cfg)
+    interval = max(1, int(round(cfg.post_cp_interval_h * 3600.0 / cfg.model_step_s)))
+    noise = {c: math.sqrt(model._probe_noise_var(c)) for c in model.component_names}
+    groups = {c: "angular" if c in cfg.angular_components else "linear" for c in model.component_names}
+    out = prior_change_thresholds(model.prior_models, u, errors, interval, noise, groups, goal)
+    model.change_thresholds = np.array([out[c]["threshold"] for c in model.component_names])
+    return out
 
 
 def format_row(r: Mapping[str, Any]) -> str:
@@ -124,6 +142,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "the priors' training runs use 101 on)")
     p.add_argument("--training", help="comma-separated training programmes of the priors instead of "
                    "thermal-comp prior's (the last one chooses the orders; seeds 101, 102, ... in this order)")
+    p.add_argument("--change-goal", type=float, help="the change-probing rule on, its thresholds derived from "
+                   "each prior's held-out training programme for this goal share (e.g. 0.5; default off)")
     p.add_argument("--json", type=pathlib.Path, help="write every figure here")
     p.add_argument("--detail", action="store_true", help="also print no-good times and the largest residuals")
     args = p.parse_args(argv)
@@ -145,9 +165,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = []
     for case in args.case or CASES:
         r = run_case(case, config, cache, {"na_max": args.prior_na_max, "nb_max": args.prior_nb_max},
-                     args.seed, training)
+                     args.seed, training, args.change_goal)
         rows.append(r)
         print(format_row(r), flush=True)
+        if r["change_thresholds"]:
+            print("    change thresholds (x probe noise; share, hold P99): " + ", ".join(
+                f"{c} {v['threshold']:.1f} ({v['share']:.2f}, {v['hold_p99']:.2f})"
+                for c, v in r["change_thresholds"].items()), flush=True)
         if args.detail:
             print(f"    no-good phases at h: {r['no_good_at_h']}")
             for loc in r["largest_residuals"]:
