@@ -10,7 +10,8 @@ the real recording. A row says whether the finder names the removed mechanism fi
 and target), how close its fitted parameter comes to the calibrated value, how much of the
 lost held-out fit it restores (``restored_pct``: 100 = back to the calibrated twin's held-out
 weighted SSE), what the finder marks indistinguishable from its answer, and the channels the
-removal changes most. The last row repeats the bearing case with the speed column deleted: the
+removal changes most. Then chosen mechanisms are ablated again with the speed column deleted
+(``run(speedless=...)``: the bearing source, the rule's pick of docs/diagnose.md, or all): the
 speed is estimated from the temperatures with the ablated twin, the coolant return t4 treated
 as a response of the jacket's heat, not a driver (``RESPONSES``), then again with the finder's
 augmented twin until its first answer repeats (``input_alternation.alternate``); each round's
