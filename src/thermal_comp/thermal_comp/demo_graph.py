@@ -1,5 +1,10 @@
 """Run the demo graph: the CNC emulator, the launcher with every node of the demo cell, and a
-monitor, supervised until the twin's scenario ends; ``bench graph`` measures that run."""
+monitor, supervised until the twin's scenario ends; ``bench graph`` measures that run.
+
+As a real cell would, the graph runs its observers (recorder, viewer, probe cycle between
+probings, the demo's monitor) at a lower priority (niceness ``THERMAL_COMP_OBSERVER_NICE``,
+default 10; 0 runs everything alike) than the control path sensors -> model -> bridge -> CNC,
+so that they do not take a core from it while an instant's offsets are on their way."""
 from __future__ import annotations
 
 import os
@@ -21,7 +26,7 @@ from thermal_comp.cell_config import parse_cell
 from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
 from thermal_comp.demo_monitor import DemoMonitor
 from thermal_comp.graph_profile import ack_breakdown, instant_events, latency_breakdown, stage_breakdown
-from thermal_comp.launcher import Launcher
+from thermal_comp.launcher import NICE_ENV, Launcher
 from thermal_comp_common import node_runtime as rt
 from thermal_comp_common.domain_ids import claim_domain_id
 
@@ -38,6 +43,8 @@ class RunRecord:
     cpu_s: dict[str, float] = field(default_factory=dict)
     node_exit_codes: dict[str, list[int]] = field(default_factory=dict)
     restarts: dict[str, int] = field(default_factory=dict)
+    #: niceness each process ran at (observers lowered; the rest 0)
+    niceness: dict[str, int] = field(default_factory=dict)
     #: where an instant's wall time went (thermal_comp.graph_profile), per stage and per participant
     stages: dict[str, dict[str, float]] = field(default_factory=dict)
     acks: dict[str, dict[str, float]] = field(default_factory=dict)
@@ -85,7 +92,8 @@ def _fresh_out_dir(cfg: DemoConfig) -> pathlib.Path:
     out = cfg.out_dir.resolve()
     if (out / "bag").exists():
         shutil.rmtree(out / "bag")
-    for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl", BRIDGE_PROFILE):
+    for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl", BRIDGE_PROFILE,
+                  PUBLICATION_TIMES):
         (out / stale).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     return out
@@ -116,6 +124,28 @@ def _stop_emulator(emulator: subprocess.Popen) -> None:
         emulator.kill()
 
 
+#: the demo cell's observers: off the temperature -> offsets path, started at a lower priority
+OBSERVERS = ("recorder", "viewer", "probe_cycle")
+#: environment variable: the observers' niceness (0-19; 0: every process alike)
+OBSERVER_NICE_ENV = "THERMAL_COMP_OBSERVER_NICE"
+
+
+def observer_niceness() -> int:
+    """The observers' niceness from :data:`OBSERVER_NICE_ENV` (default 10)."""
+    text = os.environ.get(OBSERVER_NICE_ENV, "10").strip()
+    if not text.isdigit() or int(text) > 19:
+        raise DemoError(f"{OBSERVER_NICE_ENV}={text!r} is not a niceness 0-19")
+    return int(text)
+
+
+def _lower_observers(doc: dict, nice: int) -> None:
+    """Start the observers of the cell document ``doc`` at niceness ``nice`` (launcher: NICE_ENV)."""
+    if nice:
+        for node in doc["nodes"]:
+            if node["name"] in OBSERVERS:
+                node.setdefault("env", {})[NICE_ENV] = str(nice)
+
+
 #: the bridge's timing of each prediction (cnc_bridge.update_profile), in the output folder
 BRIDGE_PROFILE = "bridge_profile.csv"
 
@@ -142,6 +172,8 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
     emulator, endpoint = _start_emulator(cfg, log_dir) if cfg.cnc == "opcua" else (None, None)
 
     doc = build_cell(cfg, domain_id, endpoint, live_view)
+    nice = observer_niceness()
+    _lower_observers(doc, nice)
     if profile_bridge:
         bridge = next(n for n in doc["nodes"] if n["name"] == "bridge")
         bridge["parameters"]["profile_path"] = str(out / BRIDGE_PROFILE)
@@ -157,7 +189,7 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
     t_start = time.perf_counter()
     try:
         launcher.start()
-        monitor = DemoMonitor("/" + cell.cell)
+        monitor = DemoMonitor("/" + cell.cell, nice=nice)
         if cfg.progress:
             bar = tqdm(total=round(total_h, 2), unit="sim h", desc=f"{cfg.machine} {cfg.scenario}",
                        bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim h [{elapsed}<{remaining}]")
@@ -176,6 +208,8 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
             record.acks = ack_breakdown(monitor.arrivals, monitor.acks, participants)
             monitor_arrivals = monitor.arrivals
             monitor.close()
+        if monitor_arrivals is not None and profile_bridge:
+            _write_publication_times(out / PUBLICATION_TIMES, monitor_arrivals)
         if monitor_arrivals is not None and (out / BRIDGE_PROFILE).exists():
             record.latency_parts = latency_breakdown(monitor_arrivals, read_profile(out / BRIDGE_PROFILE))
         if emulator is not None:
@@ -184,7 +218,21 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
         node_log.close()
     record.node_exit_codes = {mp.node.name: mp.exit_codes for mp in launcher.processes}
     record.restarts = {mp.node.name: mp.restarts for mp in launcher.processes}
+    record.niceness = {**{mp.node.name: mp.nice for mp in launcher.processes},
+                       **({"cnc_emulator": 0} if emulator is not None else {}), "demo monitor thread": nice}
     return record
+
+
+#: every instant's publication times as the monitor saw them (topic, stamp_ns, wall s), for
+#: lining the latency's tail up with what else ran then (e.g. a scheduler trace)
+PUBLICATION_TIMES = "publication_times.csv"
+
+
+def _write_publication_times(path: pathlib.Path, arrivals: dict[tuple[str, int], float]) -> None:
+    with open(path, "w") as f:
+        f.write("topic,stamp_ns,published_wall_s\n")
+        for (topic, stamp), t in sorted(arrivals.items(), key=lambda kv: kv[1]):
+            f.write(f"{topic},{stamp},{t:.6f}\n")
 
 
 def _participants(cell) -> list[str]:
@@ -261,6 +309,7 @@ def bench_graph(args) -> dict[str, Any]:
         "acknowledgement_after_twin_ms": record.acks,
         "latency_parts": record.latency_parts,
         "executor": os.environ.get(rt.EXECUTOR_ENV, "single"),
+        "niceness": record.niceness,
         # other processes on the 2 cores set the latency's tail: say how busy the machine was
         "load_average_1min_before_after": [round(load_before, 2), round(load_after, 2)],
     }
