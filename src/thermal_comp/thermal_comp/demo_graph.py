@@ -2,7 +2,7 @@
 monitor, supervised until the twin's scenario ends; ``bench graph`` measures that run.
 
 As a real cell would, the graph runs its observers (recorder, viewer, probe cycle between
-probings, the demo's monitor) at a lower priority (niceness ``THERMAL_COMP_OBSERVER_NICE``,
+probings) at a lower priority (niceness ``THERMAL_COMP_OBSERVER_NICE``,
 default 10; 0 runs everything alike) than the control path sensors -> model -> bridge -> CNC,
 so that they do not take a core from it while an instant's offsets are on their way."""
 from __future__ import annotations
@@ -189,7 +189,7 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
     t_start = time.perf_counter()
     try:
         launcher.start()
-        monitor = DemoMonitor("/" + cell.cell, nice=nice)
+        monitor = DemoMonitor("/" + cell.cell)
         if cfg.progress:
             bar = tqdm(total=round(total_h, 2), unit="sim h", desc=f"{cfg.machine} {cfg.scenario}",
                        bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim h [{elapsed}<{remaining}]")
@@ -219,7 +219,7 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
     record.node_exit_codes = {mp.node.name: mp.exit_codes for mp in launcher.processes}
     record.restarts = {mp.node.name: mp.restarts for mp in launcher.processes}
     record.niceness = {**{mp.node.name: mp.nice for mp in launcher.processes},
-                       **({"cnc_emulator": 0} if emulator is not None else {}), "demo monitor thread": nice}
+                       **({"cnc_emulator": 0} if emulator is not None else {})}
     return record
 
 

@@ -9,7 +9,6 @@ EventsExecutor cannot hand over the message info, so the watcher spins a
 SingleThreadedExecutor whatever the graph's nodes use."""
 from __future__ import annotations
 
-import os
 import threading
 
 import rclpy
@@ -29,9 +28,7 @@ TIMED_TOPICS = ((rt.TOPIC_TWIN_SENSORS, TemperatureArray, rt.SENSOR_QOS),
 class DemoMonitor:
     """A node in its own context, spun on a daemon thread until :meth:`close`."""
 
-    def __init__(self, namespace: str, nice: int = 0):
-        #: niceness of the spinning thread (an observer: below the graph's control path)
-        self.nice = nice
+    def __init__(self, namespace: str):
         self.ctx = rclpy.context.Context()
         rclpy.init(args=[], context=self.ctx)
         self.node = rclpy.create_node("demo_monitor", namespace=namespace, context=self.ctx,
@@ -74,8 +71,6 @@ class DemoMonitor:
         self.acks.setdefault((msg.node_name, stamp), info["source_timestamp"] * 1e-9)
 
     def _spin(self) -> None:
-        if self.nice:   # this thread only (Linux: a thread's niceness is its own)
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), self.nice)
         while not self._stop.is_set() and self.ctx.ok():
             self.executor.spin_once(timeout_sec=0.1)
 

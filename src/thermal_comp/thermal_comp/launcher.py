@@ -63,10 +63,17 @@ def node_niceness(label: str, env: dict[str, str]) -> int:
 
 
 def _child_setup(nice: int) -> Callable[[], None]:
-    def setup() -> None:  # runs in the child between fork and exec
+    def setup() -> None:  # runs in the child between fork and exec, after its setsid
         _die_with_parent()
         if nice:
             os.nice(nice)
+            # with autogroup scheduling (Linux default) every session is a group of its own and
+            # a task's niceness only weighs inside its group: the new session's group is lowered
+            try:
+                with open("/proc/self/autogroup", "w") as f:
+                    f.write(str(nice))
+            except OSError:
+                pass           # no autogroup: the niceness above is all there is
     return setup
 
 

@@ -13,7 +13,10 @@ from thermal_comp.launcher import NICE_ENV, Launcher
 
 
 def _cell(tmp_path, env: dict[str, str]):
-    (tmp_path / "print_nice.py").write_text("import os\nprint('niceness', os.nice(0), flush=True)\n")
+    (tmp_path / "print_nice.py").write_text(
+        "import os, pathlib\nprint('niceness', os.nice(0), flush=True)\n"
+        "group = pathlib.Path('/proc/self/autogroup')\n"
+        "print('autogroup', group.read_text().split()[-1] if group.exists() else 'none', flush=True)\n")
     node_env = {"PYTHONPATH": str(tmp_path), **env}
     doc = {"cell": "nicecell", "nodes": [{"name": "observer", "module": "print_nice", "env": node_env,
                                           "restart": {"enabled": False}}]}
@@ -30,6 +33,9 @@ def test_a_node_starts_at_the_niceness_of_its_environment(tmp_path, nice):
     own = os.nice(0)     # the child's niceness is the launcher's plus the node's
     assert re.search(rf"\[nicecell/observer\] niceness {min(own + nice, 19)}$", text, re.M), text
     assert (f"at nice {nice}" in text) == bool(nice), text
+    # autogroup scheduling: the node's session is a group of its own, lowered as well
+    group = re.search(r"\[nicecell/observer\] autogroup (\S+)$", text, re.M).group(1)
+    assert group in ("none", str(nice)), text
 
 
 @pytest.mark.parametrize("value", ["-5", "20", "high"])
