@@ -86,6 +86,7 @@ def prior_change_thresholds(models: Mapping[str, ArxModel], u: np.ndarray, error
         level = goal * float(np.mean([out[c]["hold_p99"] for c in members]))
         for c in members:
             resolvable = level > NOISE_P99_SIGMAS * float(noise[c])
-            limit = level / out[c]["share"] if out[c]["share"] > 0 and resolvable else math.inf
+            share = out[c]["share"]      # 0: the model predicts exactly; inf: it predicts no change
+            limit = level / share if 0 < share < math.inf and resolvable else math.inf
             out[c].update(level=level, threshold_um=limit, threshold=limit / float(noise[c]))
     return out
