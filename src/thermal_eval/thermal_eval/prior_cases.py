@@ -6,7 +6,9 @@ TALC started from a prior of the NOMINAL type, built from the training programme
 (prior_cli.TRAINING_SCENARIOS, seeds 101, 102, ...) without the evaluated programme; the demo's
 talc-178h-dry is in none of them, so its prior is the demo's. Every result is printed beside
 probe-and-hold at the model's own Q_prod (ratio = P99_lin / probe-and-hold's; goal <= 0.5). The
-tables of docs/talc.md (section "Selection consistent with the loop, ...") are its output.
+tables of docs/talc.md (sections "Selection consistent with the loop, ..." on) are its output.
+``--change-goal 0.5`` turns on the change-probing rule with thresholds derived from each prior's
+held-out training programme (talc_model.change_threshold; docs/talc.md, session 8).
 """
 from __future__ import annotations
 
