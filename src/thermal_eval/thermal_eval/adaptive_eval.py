@@ -212,7 +212,7 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
                  budget: ProbingBudget, regain: Mapping[str, tuple[np.ndarray, float]] | None = None) -> AdaptiveResult:
     """One model in adaptive mode: schedule, rates from the training rows (updated at each of
     its probings), blended compensation. ``regain``: per channel the model's per-input
-    contributions and the walk-forward's penalty; there the probes re-estimate the gains
+    contributions and the walk-forward's penalty (and forgetting); there the probes re-estimate the gains
     (:mod:`thermal_eval.probe_gain_update`) and that replaces the blend (w = 1, dead band kept)."""
     n, start, t = len(data), data.split.n_train, data.time_s
     rows, triggered = probe_schedule(data, prediction, budget)
@@ -229,8 +229,8 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         gain0 = training_gain(t, y, p_oof, first, start, lag_h, band)
         gains = online_gains(y, p, measured, gain0, band=band)
         if regain and c in regain:
-            contrib, penalty = regain[c]
-            corrected = regained_compensation(y, p, contrib, measured, start, n, penalty)
+            contrib, penalty, *forgetting = regain[c]        # (contributions, penalty[, forgetting])
+            corrected = regained_compensation(y, p, contrib, measured, start, n, penalty, *forgetting)
             gains = np.ones_like(gains)
         else:
             corrected = _piecewise_offset(y, p, measured, start, n)

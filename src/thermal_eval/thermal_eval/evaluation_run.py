@@ -24,11 +24,15 @@ from thermal_eval.baselines import BASELINES
 from thermal_eval.closed_loop_rows import CLOSED_LOOP, hold_probes, run_closed_loop
 from thermal_eval.evaluation_spec import EvaluationData
 from thermal_eval.model_selection import OOF_MIN_FRACTION, ModelSpec, checked_prediction, out_of_fold_prediction
-from thermal_eval.probe_gain_update import choose_penalty
+from thermal_eval.probe_gain_update import FORGETTINGS, PENALTIES, choose_update
 from thermal_eval.open_loop_models import MODELS, OPT_IN
 
 #: baselines whose adaptive row would only be holding again
 NOT_ADAPTIVE = ("train_mean", "hold_last_training")
+#: gain-update rows whose older probe pairs fade (penalty and forgetting chosen together on the
+#: training walk-forward averaged over this many probe phases, so the choice is not one phase's luck)
+FORGETTING_ROWS = ("arx_subgrid_gain_forgetting",)
+WALK_FORWARD_PHASES = 6
 #: every model a task may name
 REGISTRY: dict[str, ModelSpec] = {m.name: m for m in BASELINES + MODELS}
 
@@ -117,18 +121,24 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
 
 
 def _gain_update_choice(data: EvaluationData, model: ModelSpec, ch: str, params: dict, budget: ProbingBudget):
-    """The model's contributions on rows < n_train, and the gain update's penalty chosen by a
-    walk-forward inside the training rows: the model fitted on the first half, probed at the
-    budget's interval over the second half."""
+    """The model's contributions on rows < n_train, and the gain update's penalty (and, for
+    :data:`FORGETTING_ROWS`, forgetting) chosen by a walk-forward inside the training rows: the
+    model fitted on the first half, probed at the budget's interval over the second half."""
     n_train = data.split.n_train
     first = int(round(OOF_MIN_FRACTION * n_train))
     every_s = 3600.0 * budget.interval_h
     p_fit = model.predict(data, ch, params, first)
-    penalty, scores = choose_penalty(data.time_s, data.displacement_um[ch], p_fit,
-                                     model.contributions(data, ch, params, first), first, n_train, every_s)
+    fades = model.name in FORGETTING_ROWS
+    (penalty, forgetting), scores = choose_update(
+        data.time_s, data.displacement_um[ch], p_fit, model.contributions(data, ch, params, first), first, n_train,
+        every_s, PENALTIES, FORGETTINGS if fades else (1.0,), WALK_FORWARD_PHASES if fades else 1)
     info = {"penalty": penalty, "walk_forward_rows": [first, n_train],
             "walk_forward_mae_um": {k: round(v, 3) for k, v in scores.items()}}
-    return (model.contributions(data, ch, params, n_train), penalty), info
+    chosen: tuple = (penalty,)
+    if fades:
+        info.update(forgetting=forgetting, walk_forward_phases=WALK_FORWARD_PHASES)
+        chosen = (penalty, forgetting)
+    return (model.contributions(data, ch, params, n_train), *chosen), info
 
 
 def _beside_hold(data: EvaluationData, y: np.ndarray, compensation: np.ndarray, hold: np.ndarray) -> dict[str, Any]:

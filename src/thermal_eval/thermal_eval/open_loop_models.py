@@ -304,6 +304,8 @@ MODELS = [
               _arx_predict(False, True)),
     ModelSpec("arx_subgrid_gain_update", "model", "arx_subgrid; adaptive: probes re-estimate each input's gain",
               _arx_select(False), _arx_predict(False, True), contributions=_arx_contributions(False)),
+    ModelSpec("arx_subgrid_gain_forgetting", "model",
+              "arx_subgrid_gain_update; older probe pairs fade (factor by walk-forward)", _arx_select(False), _arx_predict(False, True), contributions=_arx_contributions(False)),
     ModelSpec("arx_simulation_inputs", "model", "TALC's ARX + machine inputs", _arx_select(True),
               _arx_predict(True, False), needs_inputs=True),
     ModelSpec("characteristic_diagram", "model", "characteristic diagram of medoid temperatures + 1-h low-pass",
@@ -315,7 +317,7 @@ MODELS = [
 #: time on FL_THERMAL (108-121 s of 172-297 s) and was worse than the training mean there; the
 #: lagged ridge's gain update repeats the lagged ridge's grid search and was worse than it on
 #: FL_THERMAL's held-out rows (docs/evaluate.md, session 7)
-OPT_IN = ("gp_static", "lagged_ridge_gain_update")
+OPT_IN = ("gp_static", "lagged_ridge_gain_update", "arx_subgrid_gain_forgetting")
 
 
 def lagged_ridge_model(name: str, with_inputs: bool, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID) -> ModelSpec:

@@ -12,7 +12,10 @@ probings the compensation starts from the last probe and follows the re-gained m
     c(t) = y(t_p) + [p(t) + sum_j d_j x_j(t)] - [p(t_p) + sum_j d_j x_j(t_p)].
 
 ``penalty`` is chosen on the training rows by walk-forward (:func:`choose_penalty`), never on
-held-out rows. No rclpy here.
+held-out rows. ``forgetting`` f <= 1 down-weights each older pair by f per probing (the prior is
+not forgotten), so gains that drift are followed; f = 1 is the plain update. :func:`choose_update`
+chooses penalty and forgetting together on the walk-forward averaged over probe phases.
+No rclpy here.
 """
 from __future__ import annotations
 
@@ -23,6 +26,8 @@ import numpy as np
 
 #: candidate penalties (um^2 per unit gain error), from nearly free gains to nearly fixed ones
 PENALTIES = (1.0, 10.0, 100.0, 1000.0)
+#: candidate forgetting factors per probing (1: every pair counts the same)
+FORGETTINGS = (1.0, 0.9, 0.8, 0.7, 0.5)
 
 
 class GainUpdateError(ValueError):
@@ -30,21 +35,28 @@ class GainUpdateError(ValueError):
 
 
 def gain_errors(y: np.ndarray, p: np.ndarray, contributions: np.ndarray, measured: Sequence[int],
-                penalty: float) -> np.ndarray:
+                penalty: float, forgetting: float = 1.0) -> np.ndarray:
     """The gain errors d in force after each measurement (row i: after ``measured[i]``): ridge on
-    the pairs of consecutive measurements up to it. Reads ``y`` at measured rows only."""
+    the pairs of consecutive measurements up to it, each older pair weighted ``forgetting`` times
+    less per probing. Reads ``y`` at measured rows only."""
     if not (math.isfinite(penalty) and penalty > 0):
         raise GainUpdateError(f"penalty: {penalty!r} must be a finite number > 0")
+    if not (math.isfinite(forgetting) and 0 < forgetting <= 1):
+        raise GainUpdateError(f"forgetting: {forgetting!r} must be in (0, 1]")
     x = np.nan_to_num(np.asarray(contributions, float))
     if x.ndim != 2 or x.shape[0] != len(p):
         raise GainUpdateError(f"contributions: shape {x.shape} must be (rows={len(p)}, inputs)")
     m = np.asarray(measured, int)
-    a = penalty * np.eye(x.shape[1])
+    prior = penalty * np.eye(x.shape[1])
+    a = prior.copy()                      # the prior plus the (weighted) pairs so far
     b = np.zeros(x.shape[1])
     out = [np.zeros(x.shape[1])]
     for prev, r in zip(m[:-1], m[1:]):
         dx = x[r] - x[prev]
         z = (y[r] - y[prev]) - (p[r] - p[prev])
+        if forgetting < 1:                # the pairs fade, the prior does not
+            a = prior + forgetting * (a - prior)
+            b *= forgetting
         if math.isfinite(z):
             a += np.outer(dx, dx)
             b += dx * z
@@ -53,13 +65,13 @@ def gain_errors(y: np.ndarray, p: np.ndarray, contributions: np.ndarray, measure
 
 
 def regained_compensation(y: np.ndarray, p: np.ndarray, contributions: np.ndarray, measured: Sequence[int],
-                          start: int, stop: int, penalty: float) -> np.ndarray:
+                          start: int, stop: int, penalty: float, forgetting: float = 1.0) -> np.ndarray:
     """c(t) on rows [start, stop) from the last measurement strictly before each row (a probe row
     is compensated before its probe); NaN elsewhere. ``measured[0]`` < ``start``."""
     m = np.asarray(measured, int)
     if m.size == 0 or m[0] >= start:
         raise GainUpdateError(f"measured: {m[:3].tolist()!r}... must start with a row before {start}")
-    d = gain_errors(y, p, contributions, m, penalty)
+    d = gain_errors(y, p, contributions, m, penalty, forgetting)
     x = np.nan_to_num(np.asarray(contributions, float))
     rows = np.arange(start, stop)
     seg = np.searchsorted(m, rows, side="left") - 1
@@ -69,11 +81,11 @@ def regained_compensation(y: np.ndarray, p: np.ndarray, contributions: np.ndarra
     return out
 
 
-def regular_probes(time_s: np.ndarray, start: int, stop: int, every_s: float) -> list[int]:
-    """Rows of a probing every ``every_s`` after row ``start - 1`` (the walk-forward's schedule:
-    at a budget of one per hour the cap puts the probings on the hour)."""
+def regular_probes(time_s: np.ndarray, start: int, stop: int, every_s: float, phase_s: float = 0.0) -> list[int]:
+    """Rows of a probing every ``every_s`` after row ``start - 1`` + ``phase_s`` (the walk-forward's
+    schedule: at a budget of one per hour the cap puts the probings on the hour)."""
     t = np.asarray(time_s, float)
-    rows, nxt = [], t[start - 1] + every_s
+    rows, nxt = [], t[start - 1] + phase_s + every_s
     for r in range(start, stop):
         if t[r] >= nxt:
             rows.append(r)
@@ -81,18 +93,36 @@ def regular_probes(time_s: np.ndarray, start: int, stop: int, every_s: float) ->
     return rows
 
 
+def choose_update(time_s: np.ndarray, y: np.ndarray, p_fit: np.ndarray, contributions_fit: np.ndarray,
+                  first: int, stop: int, every_s: float, penalties: Sequence[float] = PENALTIES,
+                  forgettings: Sequence[float] = (1.0,), phases: int = 1
+                  ) -> tuple[tuple[float, float], dict[str, float]]:
+    """The (penalty, forgetting) with the smallest MAE on training rows [first, stop) of a model
+    fitted on rows < ``first`` (``p_fit``, ``contributions_fit``) probed every ``every_s``, the MAE
+    averaged over ``phases`` phases of that schedule (delayed by i/phases of ``every_s``):
+    (best, mean MAE by "penalty" or "penalty/forgetting")."""
+    if not 0 < first < stop <= len(y):
+        raise GainUpdateError(f"walk-forward rows [{first}, {stop}) are not inside the {len(y)} rows")
+    schedules = [[first - 1] + regular_probes(time_s, first, stop, every_s, i * every_s / phases)
+                 for i in range(phases)]
+    scores: dict[str, float] = {}
+    key = (lambda pen, f: f"{pen:g}") if tuple(forgettings) == (1.0,) else (lambda pen, f: f"{pen:g}/{f:g}")
+    for pen in penalties:
+        for f in forgettings:
+            maes = []
+            for measured in schedules:
+                c = regained_compensation(y, p_fit, contributions_fit, measured, first, stop, pen, f)
+                e = np.abs(y[first:stop] - c[first:stop])
+                maes.append(float(np.mean(e[np.isfinite(e)])) if np.isfinite(e).any() else math.inf)
+            scores[key(pen, f)] = float(np.mean(maes))
+    best = min(((pen, f) for pen in penalties for f in forgettings), key=lambda pf: scores[key(*pf)])
+    return (float(best[0]), float(best[1])), scores
+
+
 def choose_penalty(time_s: np.ndarray, y: np.ndarray, p_fit: np.ndarray, contributions_fit: np.ndarray,
                    first: int, stop: int, every_s: float, penalties: Sequence[float] = PENALTIES
                    ) -> tuple[float, dict[str, float]]:
     """The penalty with the smallest MAE on training rows [first, stop) of a model fitted on rows
     < ``first`` (``p_fit``, ``contributions_fit``) probed every ``every_s``: (best, MAE by penalty)."""
-    if not 0 < first < stop <= len(y):
-        raise GainUpdateError(f"walk-forward rows [{first}, {stop}) are not inside the {len(y)} rows")
-    measured = [first - 1] + regular_probes(time_s, first, stop, every_s)
-    scores = {}
-    for pen in penalties:
-        c = regained_compensation(y, p_fit, contributions_fit, measured, first, stop, pen)
-        e = np.abs(y[first:stop] - c[first:stop])
-        scores[f"{pen:g}"] = float(np.mean(e[np.isfinite(e)])) if np.isfinite(e).any() else math.inf
-    best = min(penalties, key=lambda v: scores[f"{v:g}"])
-    return float(best), scores
+    (best, _), scores = choose_update(time_s, y, p_fit, contributions_fit, first, stop, every_s, penalties)
+    return best, scores

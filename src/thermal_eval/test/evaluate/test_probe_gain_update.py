@@ -112,3 +112,33 @@ def test_the_probes_recover_a_drifted_lagged_gain():
     free = regained_compensation(y, p, x, measured, 900, len(t), penalty=0.1)
     late = slice(1200, len(t))
     assert np.mean(np.abs(y[late] - free[late])) < 0.5 * np.mean(np.abs(y[late] - fixed[late]))   # 0.13 against 0.40 um
+
+
+def _jumping_gain(n=6000, seed=0):
+    """The first contribution's gain error jumps from 0 to +0.5 halfway (a changed machine)."""
+    t, x, p, _ = _drifting_gain(n=n, seed=seed)
+    x = np.column_stack([5 * np.sin(t / 5000.0), 3 * (1 - np.exp(-t / 30000.0))])
+    p = x.sum(axis=1)
+    err = np.where(t < t[n // 2], 0.0, 0.5)
+    y = p + err * x[:, 0] + np.random.default_rng(seed).normal(0, 0.01, n)
+    return t, x, p, y
+
+
+def test_forgetting_follows_a_gain_that_changes_and_one_is_the_plain_update():
+    t, x, p, y = _jumping_gain()
+    measured = [99] + regular_probes(t, 100, len(t), 3600.0)
+    plain = gain_errors(y, p, x, measured, penalty=1.0)
+    assert np.array_equal(gain_errors(y, p, x, measured, penalty=1.0, forgetting=1.0), plain)
+    fading = gain_errors(y, p, x, measured, penalty=1.0, forgetting=0.7)
+    assert abs(fading[-1][0] - 0.5) < 0.05 < abs(plain[-1][0] - 0.5)
+    with pytest.raises(GainUpdateError, match="forgetting: 1.5"):
+        gain_errors(y, p, x, measured, penalty=1.0, forgetting=1.5)
+
+
+def test_the_walk_forward_chooses_forgetting_over_phases_and_one_phase_is_choose_penalty():
+    from thermal_eval.probe_gain_update import choose_update, regular_probes as probes
+    t, x, p, y = _jumping_gain()
+    (pen, f), scores = choose_update(t, y, p, x, 1000, len(t), 3600.0, forgettings=(1.0, 0.7), phases=3)
+    assert f == 0.7 and set(scores) == {f"{a:g}/{b:g}" for a in (1, 10, 100, 1000) for b in (1, 0.7)}
+    assert probes(t, 1000, len(t), 3600.0, 1200.0)[0] == probes(t, 1000, len(t), 3600.0)[0] + 20   # 60-s rows
+    assert choose_update(t, y, p, x, 1000, len(t), 3600.0)[0][0] == choose_penalty(t, y, p, x, 1000, len(t), 3600.0)[0]

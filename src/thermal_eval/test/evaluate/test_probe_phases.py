@@ -81,3 +81,24 @@ def test_cli_prints_the_phase_rows_and_refuses_a_bad_k(tmp_path, capsys):
     assert "mean of 2 phases" in text and "worst phase" in text
     assert main([str(p), "--out", str(tmp_path / "o2"), "--probe-phases", "0", "--no-progress"]) == 2
     assert "probe_phases: 0" in capsys.readouterr().err
+
+
+def test_the_forgetting_row_is_opt_in_and_chooses_its_factor_on_the_training_rows():
+    from thermal_eval.evaluation_run import WALK_FORWARD_PHASES
+    from thermal_eval.probe_gain_update import FORGETTINGS
+    d = _data()
+    assert "arx_subgrid_gain_forgetting" not in [m.name for m in available_models(d)]
+    res = evaluate(d, models=available_models(d, ["arx_subgrid_gain_forgetting"]), show_progress=False)
+    held = dict(d.displacement_um)
+    for ch in d.channels:
+        info = res.figures["open_loop"]["arx_subgrid_gain_forgetting"]["channels"][ch]["probe_gain_update"]
+        assert info["forgetting"] in FORGETTINGS and info["walk_forward_phases"] == WALK_FORWARD_PHASES
+        assert len(info["walk_forward_mae_um"]) == 4 * len(FORGETTINGS)
+        assert "mae_test_um" in res.figures["adaptive"]["arx_subgrid_gain_forgetting"]["channels"][ch]
+    for ch in d.channels:    # the choice reads no held-out row
+        d.displacement_um[ch] = np.where(np.arange(len(d)) < d.split.n_train, held[ch], 1e6)
+    again = evaluate(d, models=available_models(d, ["arx_subgrid_gain_forgetting"]), adaptive=True, show_progress=False)
+    for ch in d.channels:
+        a = res.figures["open_loop"]["arx_subgrid_gain_forgetting"]["channels"][ch]["probe_gain_update"]
+        b = again.figures["open_loop"]["arx_subgrid_gain_forgetting"]["channels"][ch]["probe_gain_update"]
+        assert a == b
