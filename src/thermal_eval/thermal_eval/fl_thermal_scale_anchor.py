@@ -80,6 +80,11 @@ def run(csv: str | None = None, rated_max: float | None = None, progress=print) 
     row["first_selected"] = (None if d.report["selected"] == "none" else
                              {k: d.report["selected"][0].get(k) for k in ("effect", "target", "holdout_improvement_pct")})
     row["rated_max"] = rated_max
+    row["top_round1"] = [{"hypothesis": f"{h['effect']}:{h['target']}", "holdout_pct": h["holdout_improvement_pct"]}
+                         for h in d.report["hypotheses"] if h["round"] == 1][:3]
+    row["calibrated_p_at_estimated_max_w"] = float(source_power(
+        load_machine({**spec_c, "sources": {k: v for k, v in spec_c["sources"].items() if k == "front_bearing_friction"}}),
+        "spindle_rpm", [max(a["speed_max"] for a in row["rounds"][-1:])])[0])
     return row
 
 
