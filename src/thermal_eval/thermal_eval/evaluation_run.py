@@ -188,9 +188,11 @@ def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow, regain=None, 
     row["probings_asked_by_model"] = len(ad.triggered_rows)
     if probe_phases > 1:
         per = [probe_counts(data, r.probe_rows, budget) for r in runs]
-        row["probe_phases"] = {"k": probe_phases, "offsets_h": [round(b.phase_h, 4) for b in phase_budgets(budget, probe_phases)],
-                               **{k: [p[k] for p in per] for k in ("probings_after_calibration", "probings_per_h_after_calibration",
-                                                                   "probings_test", "probings_validation")}}
+        counted = ("probings_after_calibration", "probings_per_h_after_calibration", "probings_test",
+                   "probings_validation")
+        row["probe_phases"] = {"k": probe_phases,
+                               "offsets_h": [round(b.phase_h, 4) for b in phase_budgets(budget, probe_phases)],
+                               **{k: [p[k] for p in per] for k in counted}}
     out.compensation, out.hold, out.probe_rows = ad.compensation, ad.hold, ad.probe_rows
 
 
