@@ -61,6 +61,18 @@ def test_k_phases_keep_phase_0_figures_and_give_mean_and_worst_over_the_phases()
         assert ph["mean"]["ratio_to_hold_test"] == pytest.approx(
             ph["mean"]["mae_test_um"] / ph["mean"]["hold_own_probes_mae_test_um"], abs=1e-3)
     assert np.array_equal(one.adaptive["lagged_ridge"]["z_um"], three.adaptive["lagged_ridge"]["z_um"], equal_nan=True)
+    # holding beside each phase holds that phase's own probes, at its own instants
+    from thermal_comp_common.metrics import mae
+    from thermal_eval.closed_loop_rows import hold_probes
+    start = d.split.n_train
+    for i, b in enumerate(phase_budgets(ProbingBudget(), 3)):
+        rows, _ = probe_schedule(d, three.open_loop["lagged_ridge"], b)
+        assert len(rows) == a3["probe_phases"]["probings_after_calibration"][i]
+        for ch in d.channels:
+            y = d.displacement_um[ch]
+            h = hold_probes(y, [start - 1] + rows, len(d))
+            assert a3["channels"][ch]["phases"]["by_phase"]["hold_own_probes_mae_test_um"][i] == round(
+                mae(y[d.split.test], h[d.split.test]), 3)
     targets = _adaptive_targets(three.figures)["lagged_ridge"]
     assert targets["worst_channel_mae_um"] == _adaptive_targets(one.figures)["lagged_ridge"]["worst_channel_mae_um"]
     worst_mean = max(max(a3["channels"][ch]["phases"]["mean"]["mae_test_um"],
