@@ -97,3 +97,28 @@ def test_per_component_thresholds_and_inf_never_fire():
     args = (x, measured, 0, 1200.0, 0.0, 300.0, np.array([0.25, 1.2]))
     assert change_probe_due(*args, np.array([8.0, math.inf]), 95.0, 0.0) is False     # 4 sigma < 8; inf never
     assert change_probe_due(*args, np.array([3.0, math.inf]), 95.0, 0.0) is True
+
+
+def test_talc_uses_per_component_thresholds_set_on_the_model():
+    from talc_model.talc import TalcModel
+    cfg = {"component_names": ["E_X0C", "E_A0C"], "angular_components": ["E_A0C"], "input_names": ["ambient"],
+           "post_cp_interval_h": 2.0, "change_probe_min_q_prod_pct": 90.0}
+
+    def first_due(thresholds):
+        m = TalcModel(cfg)                # the config's threshold is off (inf)
+        m.models = {"E_X0C": ArxModel(ArxOrders(0, (1,)), np.array([1.0])),
+                    "E_A0C": ArxModel(ArxOrders(0, (1,)), np.array([0.0]))}
+        m.phase = "compensation"
+        m.update_inputs(0.0, {"ambient": 20.0}, {})
+        m.last_probe_t = 0.0
+        m.probe_due(0.0)
+        m.change_thresholds = None if thresholds is None else np.array(thresholds)
+        for t in np.arange(300.0, 3 * 3600.0, 300.0):
+            m.update_inputs(float(t), {"ambient": 20.0 + 0.7 * t / 3600.0}, {})   # 1 um/K on E_X0C
+            if m.probe_due(float(t)):
+                return float(t)
+        return None
+
+    assert first_due([4.0, math.inf]) == pytest.approx(90 * 60.0)     # 4 x 0.25 um after 86 min
+    assert first_due([8.0, math.inf]) == pytest.approx(2 * 3600.0 + 300.0)   # 2 um only after 171 min: schedule
+    assert first_due(None) == first_due([math.inf, math.inf]) == pytest.approx(2 * 3600.0 + 300.0)
