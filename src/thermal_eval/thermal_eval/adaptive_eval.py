@@ -33,6 +33,7 @@ import numpy as np
 
 from talc_model.uncertainty_weighted_hold import change_gain, measured_hold_rate, uncertainty_weighted_hold
 from thermal_eval.probe_gain_update import regained_compensation
+from thermal_eval.probe_refit import RidgeRefit
 from thermal_comp_common.metrics import q_prod
 from thermal_eval.evaluation_spec import EvaluationData
 
@@ -228,7 +229,10 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         q_m = measured_hold_rate(t[first:start], (y - p_oof)[first:start], start - first)
         gain0 = training_gain(t, y, p_oof, first, start, lag_h, band)
         gains = online_gains(y, p, measured, gain0, band=band)
-        if regain and c in regain:
+        if regain and c in regain and isinstance(regain[c], RidgeRefit):    # re-fitted at each probing
+            corrected = regain[c].compensation(y, measured, start, n)
+            gains = np.ones_like(gains)
+        elif regain and c in regain:
             contrib, penalty, *forgetting = regain[c]        # (contributions, penalty[, forgetting])
             corrected = regained_compensation(y, p, contrib, measured, start, n, penalty, *forgetting)
             gains = np.ones_like(gains)

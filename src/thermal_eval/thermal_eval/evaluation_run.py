@@ -25,6 +25,7 @@ from thermal_eval.closed_loop_rows import CLOSED_LOOP, hold_probes, run_closed_l
 from thermal_eval.evaluation_spec import EvaluationData
 from thermal_eval.model_selection import OOF_MIN_FRACTION, ModelSpec, checked_prediction, out_of_fold_prediction
 from thermal_eval.probe_gain_update import FORGETTINGS, PENALTIES, choose_update
+from thermal_eval.probe_refit import REFIT_ROWS, refit_choice
 from thermal_eval.open_loop_models import MODELS, OPT_IN
 
 #: baselines whose adaptive row would only be holding again
@@ -109,6 +110,10 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
                 oofs[ch] = out_of_fold_prediction(model, data, ch, params, s.n_train)
                 if model.contributions is not None:
                     regain[ch], cell["probe_gain_update"] = _gain_update_choice(data, model, ch, params, budget)
+                elif model.name in REFIT_ROWS:
+                    regain[ch], cell["probe_refit"] = refit_choice(
+                        data, ch, params, int(round(OOF_MIN_FRACTION * s.n_train)), 3600.0 * budget.interval_h,
+                        WALK_FORWARD_PHASES)
             preds[ch] = p
         except Exception as exc:   # one failing model/channel is one row with its reason
             cell = {"failed": _reason(exc)}

@@ -32,6 +32,7 @@ from talc_model.lagged_temperature_model import (CANDIDATE_TAUS_S, DEFAULT_ALPHA
                                                  default_tau_grid, exponential_filter, walk_forward_select)
 from talc_model.order_selection import select_orders
 from talc_model.sensor_selection import sensor_groups, sensor_medoids
+from thermal_eval.baselines import LOWPASS_TAU_S
 from thermal_eval.evaluation_spec import EvaluationData, input_scale
 from thermal_eval.model_selection import ModelFailure, ModelSpec
 
@@ -298,6 +299,10 @@ MODELS = [
               _lagged_predict(True), needs_inputs=True),
     ModelSpec("lagged_ridge_gain_update", "model", "lagged_ridge; adaptive: probes re-estimate each feature's gain",
               _lagged_select(False), _lagged_predict(False), contributions=_lagged_contributions),
+    ModelSpec("lagged_ridge_refit", "model", "lagged_ridge; adaptive: re-fitted with the probe rows at each probing",
+              _lagged_select(False), _lagged_predict(False)),
+    ModelSpec("lowpass_ridge_refit", "model", "lowpass_ridge; adaptive: re-fitted with the probe rows at each probing",
+              _lagged_select(False, [(LOWPASS_TAU_S,)]), _lagged_predict(False)),
     ModelSpec("arx_simulation", "model", "TALC's ARX, simulated (5-min grid held)", _arx_select(False),
               _arx_predict(False, False)),
     ModelSpec("arx_subgrid", "model", "TALC's ARX, simulated, evaluated between grid samples", _arx_select(False),
@@ -317,7 +322,8 @@ MODELS = [
 #: time on FL_THERMAL (108-121 s of 172-297 s) and was worse than the training mean there; the
 #: lagged ridge's gain update repeats the lagged ridge's grid search and was worse than it on
 #: FL_THERMAL's held-out rows (docs/evaluate.md, session 7)
-OPT_IN = ("gp_static", "lagged_ridge_gain_update", "arx_subgrid_gain_forgetting")
+OPT_IN = ("gp_static", "lagged_ridge_gain_update", "arx_subgrid_gain_forgetting", "lagged_ridge_refit",
+          "lowpass_ridge_refit")
 
 
 def lagged_ridge_model(name: str, with_inputs: bool, tau_grid=None, alpha_grid=DEFAULT_ALPHA_GRID) -> ModelSpec:
