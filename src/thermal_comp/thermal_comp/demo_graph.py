@@ -1,10 +1,11 @@
 """Run the demo graph: the CNC emulator, the launcher with every node of the demo cell, and a
 monitor, supervised until the twin's scenario ends; ``bench graph`` measures that run.
 
-As a real cell would, the graph runs its observers (recorder, viewer, probe cycle between
-probings) at a lower priority (niceness ``THERMAL_COMP_OBSERVER_NICE``,
-default 10; 0 runs everything alike) than the control path sensors -> model -> bridge -> CNC,
-so that they do not take a core from it while an instant's offsets are on their way."""
+``THERMAL_COMP_OBSERVER_NICE`` (0-19, default 0: every process alike) starts the observers
+(recorder, viewer, probe cycle) at that niceness, below the control path sensors -> model ->
+bridge -> CNC, as a real cell would, so that they do not take a core from it while an instant's
+offsets are on their way. Not the default: the recorder and the probe cycle also hold the
+lock-step, and on a loaded machine the graph ran 1.5-2.2 times slower (docs/cnc_bridge.md)."""
 from __future__ import annotations
 
 import os
@@ -131,8 +132,8 @@ OBSERVER_NICE_ENV = "THERMAL_COMP_OBSERVER_NICE"
 
 
 def observer_niceness() -> int:
-    """The observers' niceness from :data:`OBSERVER_NICE_ENV` (default 10)."""
-    text = os.environ.get(OBSERVER_NICE_ENV, "10").strip()
+    """The observers' niceness from :data:`OBSERVER_NICE_ENV` (default 0)."""
+    text = os.environ.get(OBSERVER_NICE_ENV, "0").strip()
     if not text.isdigit() or int(text) > 19:
         raise DemoError(f"{OBSERVER_NICE_ENV}={text!r} is not a niceness 0-19")
     return int(text)

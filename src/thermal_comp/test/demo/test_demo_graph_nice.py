@@ -42,6 +42,8 @@ def test_a_bad_observer_niceness_is_one_error_naming_it(monkeypatch, value):
         observer_niceness()
 
 
-def test_observer_niceness_defaults_to_ten(monkeypatch):
+def test_observer_niceness_defaults_to_every_process_alike(monkeypatch):
     monkeypatch.delenv(OBSERVER_NICE_ENV, raising=False)
+    assert observer_niceness() == 0
+    monkeypatch.setenv(OBSERVER_NICE_ENV, "10")
     assert observer_niceness() == 10
