@@ -66,21 +66,23 @@ def change_figures(dp: np.ndarray, dy: np.ndarray) -> dict[str, float]:
     return {"share": share, "hold_p99": float(np.percentile(np.abs(dy), 99))}
 
 
-def prior_change_thresholds(models: Mapping[str, ArxModel], u: np.ndarray, errors: Mapping[str, np.ndarray],
-                            interval: int, noise: Mapping[str, float], groups: Mapping[str, str],
-                            goal: float = GOAL_SHARE) -> dict[str, dict[str, float]]:
+def prior_change_thresholds(models: Mapping[str, ArxModel], u, errors, interval: int, noise: Mapping[str, float],
+                            groups: Mapping[str, str], goal: float = GOAL_SHARE) -> dict[str, dict[str, float]]:
     """Per component of ``groups`` (name -> group, e.g. "linear" / "angular"): its figures on one
-    training grid (``u``, the true ``errors``), probings every ``interval`` grid samples, the
-    group's level and the threshold in multiples of its probe noise (``inf``: no predicted change)."""
+    training grid (``u``, the true ``errors`` per component; or lists of grids and errors, pooled),
+    probings every ``interval`` grid samples, the group's level and the threshold in multiples of
+    its probe noise (``inf``: no predicted change)."""
+    us, errs = (list(u), list(errors)) if isinstance(u, (list, tuple)) else ([u], [errors])
     if not (isinstance(goal, (int, float)) and 0 < goal <= 1):
         raise ChangeThresholdError(f"goal: {goal!r} must be in (0, 1]")
     out = {}
     for c in groups:
-        if c not in models or c not in errors or c not in noise:
+        if c not in models or any(c not in e for e in errs) or c not in noise:
             raise ChangeThresholdError(f"groups: component {c!r} lacks a model, a training error or a probe noise")
         if not (math.isfinite(float(noise[c])) and float(noise[c]) > 0):
             raise ChangeThresholdError(f"noise[{c!r}]: {noise[c]!r} must be a finite number > 0")
-        out[c] = change_figures(*between_probe_changes(models[c], u, errors[c], interval))
+        pairs = [between_probe_changes(models[c], ui, e[c], interval) for ui, e in zip(us, errs)]
+        out[c] = change_figures(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]))
     for g in set(groups.values()):
         members = [c for c in groups if groups[c] == g]
         level = goal * float(np.mean([out[c]["hold_p99"] for c in members]))

@@ -71,11 +71,13 @@ def error_location(result, components: Sequence[str], top: int = 5) -> list[dict
 
 def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
              prior_overrides: Mapping[str, Any] | None = None, seed: int = RUN_SEED,
-             training: Sequence[str] | None = None, change_goal: float | None = None) -> dict[str, Any]:
+             training: Sequence[str] | None = None, change_goal: float | None = None,
+             change_from_all: bool = False) -> dict[str, Any]:
     """One case: build the prior (nominal type, other programmes; ``training`` replaces the
     default list), replay unit #1, and the figures beside probe-and-hold at the same Q_prod.
     ``change_goal``: the change-probing rule on, its thresholds derived from the prior's
-    held-out training programme for this goal share (talc_model.change_threshold)."""
+    held-out training programme (``change_from_all``: all its programmes, pooled) for this goal
+    share (talc_model.change_threshold)."""
     from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
     from thermal_eval.baseline_beside import beside_probe_and_hold
     from thermal_eval.replay_summary import PROBE_RESOLUTION_UM, probe_noise
@@ -88,7 +90,8 @@ def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
                              **dict(prior_overrides or {}))
     run = _simulate(machine_instance("nmv5000", PLANT_UNIT), case, seed, cache)
     model = talc_with_prior(config, prior)
-    thresholds = derive_change_thresholds(model, recs[-1], change_goal) if change_goal else None
+    thresholds = derive_change_thresholds(model, recs if change_from_all else recs[-1:], change_goal) \
+        if change_goal else None
     noise = probe_noise(model.component_names)
     t0 = time.perf_counter()
     result = run_virtual_experiment(run, model, probe_noise_um=noise, probe_resolution_um=PROBE_RESOLUTION_UM,
@@ -110,17 +113,18 @@ def run_case(case: str, config: Mapping[str, Any], cache: dict | None = None,
             "largest_residuals": error_location(result, model.component_names)}
 
 
-def derive_change_thresholds(model, held_out, goal: float) -> dict[str, dict[str, float]]:
+def derive_change_thresholds(model, recordings, goal: float) -> dict[str, dict[str, float]]:
     """The change-probing thresholds of ``model`` (TALC started from its prior) derived on the
-    prior's held-out training recording ``held_out`` (never the evaluated run), set on the model."""
+    prior's training ``recordings`` (pooled; never the evaluated run), set on the model."""
     from talc_model.change_threshold import prior_change_thresholds
     from talc_model.prior import grid_from_recording
     cfg = model.config
-    u, errors = grid_from_recording(held_out, cfg)
+    grids = [grid_from_recording(r, cfg) for r in recordings]
     interval = max(1, int(round(cfg.post_cp_interval_h * 3600.0 / cfg.model_step_s)))
     noise = {c: math.sqrt(model._probe_noise_var(c)) for c in model.component_names}
     groups = {c: "angular" if c in cfg.angular_components else "linear" for c in model.component_names}
-    out = prior_change_thresholds(model.prior_models, u, errors, interval, noise, groups, goal)
+    out = prior_change_thresholds(model.prior_models, [g[0] for g in grids], [g[1] for g in grids], interval,
+                                  noise, groups, goal)
     model.change_thresholds = np.array([out[c]["threshold"] for c in model.component_names])
     return out
 
@@ -146,6 +150,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "thermal-comp prior's (the last one chooses the orders; seeds 101, 102, ... in this order)")
     p.add_argument("--change-goal", type=float, help="the change-probing rule on, its thresholds derived from "
                    "each prior's held-out training programme for this goal share (e.g. 0.5; default off)")
+    p.add_argument("--change-from-all", action="store_true", help="derive them from all the prior's training "
+                   "programmes pooled instead of its held-out one")
     p.add_argument("--json", type=pathlib.Path, help="write every figure here")
     p.add_argument("--detail", action="store_true", help="also print no-good times and the largest residuals")
     args = p.parse_args(argv)
@@ -167,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows = []
     for case in args.case or CASES:
         r = run_case(case, config, cache, {"na_max": args.prior_na_max, "nb_max": args.prior_nb_max},
-                     args.seed, training, args.change_goal)
+                     args.seed, training, args.change_goal, args.change_from_all)
         rows.append(r)
         print(format_row(r), flush=True)
         if r["change_thresholds"]:

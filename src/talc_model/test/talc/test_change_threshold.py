@@ -122,3 +122,14 @@ def test_talc_uses_per_component_thresholds_set_on_the_model():
     assert first_due([4.0, math.inf]) == pytest.approx(90 * 60.0)     # 4 x 0.25 um after 86 min
     assert first_due([8.0, math.inf]) == pytest.approx(2 * 3600.0 + 300.0)   # 2 um only after 171 min: schedule
     assert first_due(None) == first_due([math.inf, math.inf]) == pytest.approx(2 * 3600.0 + 300.0)
+
+
+def test_several_training_grids_are_pooled():
+    u, y = _ramp()
+    one = prior_change_thresholds({"a": _static(2.0)}, u, {"a": y}, 24, {"a": 0.25}, {"a": "lin"})
+    steep = prior_change_thresholds({"a": _static(2.0)}, u, {"a": 3.0 * y}, 24, {"a": 0.25}, {"a": "lin"})
+    both = prior_change_thresholds({"a": _static(2.0)}, [u, u], [{"a": y}, {"a": 3.0 * y}], 24, {"a": 0.25},
+                                   {"a": "lin"})
+    assert one["a"]["share"] == pytest.approx(0.5) and steep["a"]["share"] == pytest.approx(0.5)
+    assert both["a"]["share"] == pytest.approx(0.5)       # error 1 of every predicted 2 in both
+    assert one["a"]["hold_p99"] < both["a"]["hold_p99"] < steep["a"]["hold_p99"]
