@@ -132,4 +132,4 @@ def test_several_training_grids_are_pooled():
                                    {"a": "lin"})
     assert one["a"]["share"] == pytest.approx(0.5) and steep["a"]["share"] == pytest.approx(0.5)
     assert both["a"]["share"] == pytest.approx(0.5)       # error 1 of every predicted 2 in both
-    assert one["a"]["hold_p99"] < both["a"]["hold_p99"] < steep["a"]["hold_p99"]
+    assert one["a"]["hold_p99"] < both["a"]["hold_p99"] <= steep["a"]["hold_p99"]   # P99 of the pooled changes
