@@ -49,18 +49,19 @@ def first_answer(d: Diagnosis) -> str:
 
 def alternate(spec: dict, rec: Recording, responses: list[str] = (), rounds: int = 3,
               block_s: float = 1800.0, progress: Callable[[str], None] | None = None,
-              **diagnose_kw) -> Alternation:
+              fill: Callable = fill_missing_inputs, **diagnose_kw) -> Alternation:
     """Estimate the inputs ``rec`` lacks with the current twin (first ``spec``), diagnose
     ``spec`` against ``rec`` completed with them, continue with the finder's augmented twin;
-    stop when the first answer repeats or after ``rounds`` (>= 1)."""
+    stop when the first answer repeats or after ``rounds`` (>= 1). ``fill`` makes the estimate
+    (``fill(machine, rec, channels, block_s=, responses=)`` -> (recording, estimates, notes),
+    as :func:`thermal_twin.input_estimation.fill_missing_inputs`; e.g. an anchored one)."""
     if rounds < 1:
         raise ValueError(f"rounds: {rounds!r} must be at least 1")
     out = Alternation()
     current = spec
     for k in range(rounds):
         m = load_machine(current)
-        filled, ests, notes = fill_missing_inputs(m, rec, shared_channels(m, rec), block_s=block_s,
-                                                  responses=list(responses))
+        filled, ests, notes = fill(m, rec, shared_channels(m, rec), block_s=block_s, responses=list(responses))
         if not ests:
             raise ValueError("alternate: the recording lacks no input the twin's sources need")
         d = diagnose(spec, filled, **diagnose_kw)

@@ -22,16 +22,16 @@ anchored estimate. Rule, figures and limits: docs/calibrate.md ("Inputs the reco
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from thermal_twin.input_alternation import Alternation, AlternationRound, first_answer
+from thermal_twin.input_alternation import Alternation, alternate
 from thermal_twin.input_estimation import InputEstimate, fill_missing_inputs
-from thermal_twin.machine_schema import Machine, load_machine
-from thermal_twin.mismatch_diagnosis import diagnose, shared_channels
+from thermal_twin.machine_schema import Machine
 from thermal_comp_common.recording_csv import Recording
 
 
@@ -185,28 +185,6 @@ def alternate_anchored(spec: dict, rec: Recording, balance: CoolantBalance, resp
                        rounds: int = 3, block_s: float = 1800.0, rated_max: float | None = None,
                        progress: Callable[[str], None] | None = None, **diagnose_kw) -> Alternation:
     """:func:`thermal_twin.input_alternation.alternate` (same rule, same return type) with
-    every round's estimate anchored by ``balance`` (:func:`anchored_fill`). The loop is
-    alternate's; it is written out here because alternate takes no fill function (folding
-    this in is a ``fill=`` argument there)."""
-    if rounds < 1:
-        raise ValueError(f"rounds: {rounds!r} must be at least 1")
-    out = Alternation()
-    current = spec
-    for k in range(rounds):
-        m = load_machine(current)
-        filled, ests, notes = anchored_fill(m, rec, shared_channels(m, rec), balance, block_s=block_s,
-                                            responses=list(responses), rated_max=rated_max)
-        if not ests:
-            raise ValueError("alternate_anchored: the recording lacks no input the twin's sources need")
-        d = diagnose(spec, filled, **diagnose_kw)
-        first = first_answer(d)
-        out.rounds.append(AlternationRound(first, ests[0], notes, d, filled))
-        if progress:
-            progress(f"anchored alternation round {k + 1}: first answer {first}; {notes[0]}")
-        if k > 0 and first == out.rounds[-2].first:
-            out.converged = True
-            break
-        if d.augmented_spec is None:
-            break
-        current = d.augmented_spec
-    return out
+    every round's estimate anchored by ``balance`` (:func:`anchored_fill`)."""
+    return alternate(spec, rec, responses=responses, rounds=rounds, block_s=block_s, progress=progress,
+                     fill=functools.partial(anchored_fill, balance=balance, rated_max=rated_max), **diagnose_kw)
