@@ -12,7 +12,9 @@ t_k is withheld until its result is in (or its wall-clock deadline passed: cance
 Failed, rejected, aborted, cancelled or timed-out cycles are counted and never learned from.
 
 Persistence: the state is saved atomically after every probing cycle, every ``save_period_s`` of
-model time and at shutdown, and resumed at start. **A resumed state saved at a model time after
+model time and at shutdown, and resumed at start. The periodic save waits for the bridge's offsets
+answering its instant (then acks it; :mod:`talc_model.save_schedule`): it stays off the
+temperature-to-offsets path. **A resumed state saved at a model time after
 the graph's first instant** (another run, e.g. a cell started twice with the same state_path) is
 refused with one error naming the file and both times, moved aside (``*.refused-t<s>.json``,
 nothing deleted), and the node starts fresh (``pretrained_path`` or a new model, calibration phase)
@@ -50,6 +52,7 @@ from talc_model.applied_compensation import MODES, BridgeCompensation
 from talc_model.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
 from talc_model.model_persistence import load_model, load_pretrained, save_model
 from talc_model.probing import Action, ProbeOutcome, ProbeState, ProbingStateMachine
+from talc_model.save_schedule import SaveNow, SaveSchedule
 from talc_model.state_files import move_aside, resolve_state_path, saved_time_s
 
 SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
@@ -73,7 +76,7 @@ PARAMS = [
           "cancelled and counted as failed, s", 0.1, 86400.0),
     Param("action_server_wait_s", 10.0, "wall-clock wait for the probe_cycle action server, s", 0.0, 3600.0),
     Param("offsets_wait_s", 2.0, "wall-clock wait for the bridge's offsets answering t_k before a "
-          "probe starts (only once offsets have been seen), s", 0.0, 600.0),
+          "probe starts or a periodic save runs (only once offsets have been seen), s", 0.0, 600.0),
     Param("applied_compensation", "offsets", "how the applied compensation is known", choices=MODES),
     Param("lockstep_participant", False, "publish SimSync for t_k after the prediction for t_k"),
 ]
@@ -131,7 +134,7 @@ class TalcModelNode(Node):
         self.machine_state: dict[str, float] = {}
         self.excluded: list[str] = []
         self.last_pred_msg: ThermalErrors | None = None
-        self.last_save_t = -math.inf
+        self.saves = SaveSchedule(p["save_period_s"], p["offsets_wait_s"])
         self.probe_goal_handle = None
         self.ack_pending_t: float | None = None
         self.diag.set("state", "OK", how)
@@ -170,6 +173,8 @@ class TalcModelNode(Node):
                                       f"differs from the prediction", throttle_duration_sec=60.0)
         if self.loop.offsets_arrived(self.sink.stamp_s, self._wall_s()) is Action.SEND_GOAL:
             self._send_goal()
+        if self.saves.offsets_arrived(self.sink.stamp_s):
+            self._deferred_save()
 
     def _temperatures(self, msg: TemperatureArray, t: float) -> dict[str, float] | None:
         n = len(msg.sensor_ids)
@@ -214,7 +219,8 @@ class TalcModelNode(Node):
             if step.action is Action.SEND_GOAL:
                 self._send_goal()
             self._publish_status(t)
-            if t - self.last_save_t >= self.p["save_period_s"]:
+            if self.saves.on_instant(t, self._wall_s(), self.sink.offsets_seen, self.sink.stamp_s,
+                                     self.loop.probing.busy) is SaveNow.NOW:
                 self._save(t)
         self._ack(t)
 
@@ -259,10 +265,10 @@ class TalcModelNode(Node):
                       excluded_sensors=",".join(excluded))
 
     def _ack(self, t: float) -> None:
-        """Acknowledge t to machine_sim, unless a probing cycle holds the clock."""
+        """Acknowledge t to machine_sim, unless a probing cycle or a deferred save holds the clock."""
         if self.sync_pub is None:
             return
-        if self.loop.probing.busy:
+        if self.loop.probing.busy or self.saves.pending:
             self.ack_pending_t = t if self.ack_pending_t is None else max(self.ack_pending_t, t)
             return
         stamp = s_to_stamp(t)
@@ -330,11 +336,18 @@ class TalcModelNode(Node):
         self.probe_goal_handle = None
         self._save(t)
         self._publish_status(max(t, self.loop.t_last))
+        self._release_ack()
+
+    def _release_ack(self) -> None:
         pending, self.ack_pending_t = self.ack_pending_t, None
         if pending is not None:
             self._ack(pending)
 
     def _on_wall_timer(self) -> None:
+        if self.saves.overdue(self._wall_s()):
+            self.get_logger().warning(f"no offsets for t={self.saves.pending_t:.0f} s within "
+                                      f"{self.p['offsets_wait_s']} s: saving the state and acknowledging")
+            self._deferred_save()
         waited_offsets = self.loop.probing.state is ProbeState.WAIT_OFFSETS
         action, outcome = self.loop.tick(self._wall_s())
         if action is Action.SEND_GOAL:
@@ -351,8 +364,13 @@ class TalcModelNode(Node):
         return self.wall.now().nanoseconds * 1e-9
 
     # ------------------------------------------------------------------ persistence
+    def _deferred_save(self) -> None:
+        """The periodic save held back from the offsets' path; then the held ack goes out."""
+        self._save(self.loop.t_last)     # the model's state is that of its last instant
+        self._release_ack()
+
     def _save(self, t: float) -> None:
-        self.last_save_t = t
+        self.saves.saved(t)
         if self.state_path is None:
             return
         try:
