@@ -145,16 +145,15 @@ class MachineSimNode(Node):
         r = self.runner
         self._save_checkpoint()   # before publishing: a restart never skips back past t_k
         stamp = s_to_stamp(r.t_s)
-        self.pub_clock.publish(Clock(clock=stamp))
+        # every message of t_k is built before the first goes out: once the sensor readings
+        # are out, the sensors -> model -> bridge path runs, and this process only publishes
         fields = machine_state_fields(r.inputs())
         state = MachineState(machine_busy_probing=r.busy_probing, **fields)
         state.header.stamp = stamp
-        self.pub_state.publish(state)
         readings = r.sensor_readings()
         temps = TemperatureArray(sensor_ids=list(readings), temperatures_degc=list(readings.values()),
                                  status=[TemperatureArray.STATUS_OK] * len(readings))
         temps.header.stamp = stamp
-        self.pub_sensors.publish(temps)
         truth = None
         if self.publish_truth:
             names, values, codes = error_components(r.errors(), self.units)
@@ -162,6 +161,10 @@ class MachineSimNode(Node):
                                   component_names=names, values=values, units=codes,
                                   uncertainties=[0.0] * len(values))
             truth.header.stamp = stamp
+        self.pub_clock.publish(Clock(clock=stamp))
+        self.pub_state.publish(state)
+        self.pub_sensors.publish(temps)
+        if truth is not None:
             self.pub_truth.publish(truth)
         self.last_publish_wall = self.wait_since = time.monotonic()
         self.published_t = r.t_s
