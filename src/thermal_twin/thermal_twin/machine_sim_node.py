@@ -31,6 +31,7 @@ import numpy as np
 from rclpy.clock import Clock as RclClock, ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
+from threadpoolctl import threadpool_limits
 
 from thermal_comp_common.diagnostics import ERROR, DiagnosticsPublisher
 from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
@@ -80,6 +81,11 @@ PARAMS = [
 class MachineSimNode(Node):
     def __init__(self, context=None):
         super().__init__("machine_sim", context=context)
+        # one BLAS thread: the twin's small matrix products gain nothing from a second one, and
+        # OpenBLAS's idle workers spin for a while after each call, i.e. on the other core just
+        # while the sensors -> model -> bridge path of the instant runs (docs/cnc_bridge.md,
+        # latency section, session 8; the twin's outputs are bit-identical)
+        self._blas_limit = threadpool_limits(limits=1, user_api="blas")
         p = declare_parameters(self, PARAMS)
         self.machine = load_machine(p["machine"])
         timeline = make_timeline(self.machine.name, p["scenario"], hours=p["hours"] or None,
@@ -135,6 +141,10 @@ class MachineSimNode(Node):
         self.get_logger().info(
             f"{self.machine.name}/{p['scenario']}: {len(timeline)} instants, "
             f"{'lock-step with ' + ', '.join(self.participants) if self.participants else 'free-running'}")
+
+    def destroy_node(self) -> None:
+        self._blas_limit.restore_original_limits()   # an in-process node (tests) leaves BLAS as it was
+        super().destroy_node()
 
     # ------------------------------------------------------------------ publishing
     def _save_checkpoint(self) -> None:
