@@ -23,6 +23,7 @@ and docs/diagnose.md do.
 from __future__ import annotations
 
 import copy
+import functools
 import time
 from typing import Callable
 
@@ -31,7 +32,8 @@ import numpy as np
 from thermal_twin.calibration import calibrate
 from thermal_twin.column_mapping import parse_mapping, read_real_recording
 from thermal_twin.input_alternation import alternate
-from thermal_twin.input_estimation import source_power
+from thermal_twin.input_estimation import fill_missing_inputs, source_power
+from thermal_twin.input_scale_anchor import anchored_fill, coolant_balance
 from thermal_twin.machine_schema import load_machine
 from thermal_twin.mismatch_diagnosis import diagnose, shared_channels
 from thermal_twin.mismatch_fit import FitProblem
@@ -111,6 +113,10 @@ def _calibrated(twin: str, rec: Recording, progress) -> tuple[dict, dict]:
 RESPONSES = {"fl-thermal-rig": ["coolant_degc"]}
 #: rounds of the speedless row's joint re-estimation (speed estimate <-> finder's answer)
 ALTERNATION_ROUNDS = 3
+#: the speed's scale anchor of the speedless rows (input_scale_anchor: the coolant balance W of
+#: the jacket, fitted on the training rows with the speed like every calibrated parameter):
+#: (estimated input, the boundary input whose column is the coolant return)
+ANCHORS = {"fl-thermal-rig": ("spindle_rpm", "coolant_degc")}
 
 
 def _chosen(problem: FitProblem, spec_c: dict, umax: float, twin: str, at_bound: list[str]) -> tuple[list, list]:
@@ -156,11 +162,14 @@ def speedless_mechanisms(chosen: list[Mechanism], spec_c: dict, which: str = "be
 
 
 def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
-        twin: str = "fl-thermal-rig", only: list[int] | None = None, speedless: str = "bearing") -> dict:
+        twin: str = "fl-thermal-rig", only: list[int] | None = None, speedless: str = "bearing",
+        anchor: bool = True) -> dict:
     """Calibrate ``twin``, screen every mechanism, then ablate and diagnose the chosen ones on
     FL_THERMAL (case indices 0 .. n-1) and ``speedless_mechanisms(.., speedless)`` on the
-    recording with the speed column deleted (indices n, n+1, ...; ``only``: those case indices);
-    returns the table's rows, the screening rows and the calibration's figures."""
+    recording with the speed column deleted (indices n, n+1, ...; ``only``: those case indices),
+    the estimated speed's scale anchored by the coolant balance where ``ANCHORS`` has one for
+    ``twin`` (``anchor=False``: session 7's unanchored estimate); returns the table's rows, the
+    screening rows and the calibration's figures."""
     rec = read_real_recording(str(csv or default_csv_path()), parse_mapping(None, []),
                               "temperatures", "errors/ground_truth")
     spec_c, cal_fig = _calibrated(twin, rec, progress)
@@ -176,11 +185,17 @@ def run(csv: str | None = None, progress: Callable[[str], None] | None = print,
     rule = {m.label for m in select(all_mechanisms(spec_c, umax), screened)}
     ident = {r["mechanism"]: r["identifiable"] for r in screened}
     cases = [(m, rec) for m in chosen] + [(m, no_speed) for m in speedless_mechanisms(chosen, spec_c, speedless)]
+    fill = fill_missing_inputs
+    if anchor and twin in ANCHORS:
+        balance = coolant_balance(machine, rec, *ANCHORS[twin], n_train)
+        cal_fig["coolant_balance"] = {"heat_per_kelvin_w_k": balance.heat_per_kelvin, "level_degc": balance.level,
+                                      "fit_corr": balance.fit_corr, "column": balance.column}
+        fill = functools.partial(anchored_fill, balance=balance)
     rows = []
     for i, (mech, r) in enumerate(cases):
         if only is not None and i not in only:
             continue
-        row = _case(mech, r, r is no_speed, spec_c, problem, (chans, n_train, res, RESPONSES.get(twin, [])))
+        row = _case(mech, r, r is no_speed, spec_c, problem, (chans, n_train, res, RESPONSES.get(twin, []), fill))
         row["selected_by_rule"] = mech.label in rule
         row["identifiable"] = ident[mech.label]
         row["case"] = i
@@ -207,7 +222,7 @@ def _progress_line(row: dict) -> str:
 
 def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: FitProblem, setup) -> dict:
     """Ablate ``mech`` from ``spec_c``, (estimate the missing speed,) diagnose, score."""
-    chans, n_train, res, responses = setup
+    chans, n_train, res, responses, fill = setup
     ablated = copy.deepcopy(spec_c)
     ref = mech.remove(ablated)
     note, est, rounds = "", {}, []
@@ -215,13 +230,15 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     if estimate:
         # the speed estimated with the ablated twin, the finder's answer, the speed estimated
         # again with the finder's augmented twin ... (input_alternation: until the answer repeats)
-        alt = alternate(ablated, r, responses=responses, rounds=ALTERNATION_ROUNDS)
+        alt = alternate(ablated, r, responses=responses, rounds=ALTERNATION_ROUNDS, fill=fill)
         r, d = alt.last.recording, alt.last.diagnosis
         note = "; ".join(alt.last.notes)
         est = _against_true_heat(alt.last.estimate, spec_c, problem.recording)
         rounds = [{"first": a.first, **_against_true_heat(a.estimate, spec_c, problem.recording)}
                   for a in alt.rounds]
         est["converged"] = alt.converged
+        est["anchored"] = fill is not fill_missing_inputs
+        est["speed"] = _speed_figures(alt.rounds[0].estimate, problem.recording)
     else:
         d = diagnose(ablated, r)
     wall = time.perf_counter() - t1
@@ -243,6 +260,13 @@ def _case(mech: Mechanism, r: Recording, estimate: bool, spec_c: dict, problem: 
     if estimate and mech.kind == "source":
         row["heat_w"] = _source_heat(d.report, mech.expect, r, spec_c, problem.recording)
     return row
+
+
+def _speed_figures(est, rec: Recording) -> dict:
+    """Round 1's estimated speed against the deleted one (mean, max)."""
+    u, speed = est.input_series(rec.time_s), np.asarray(rec.columns[est.input], dtype=float)
+    return {"mean": float(np.mean(u)), "max": float(np.max(u)),
+            "true_mean": float(np.mean(speed)), "true_max": float(np.max(speed))}
 
 
 def _source_heat(report: dict, expect: str, r: Recording, spec_c: dict, rec: Recording) -> dict:
