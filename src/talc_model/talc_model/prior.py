@@ -246,6 +246,9 @@ class TalcPriorModel(TalcModel):
         return self.t0 is not None and self.last_probe_t is not None and \
             self.last_probe_t - self.t0 < self.check_h * 3600.0
 
+    def _check_end_s(self) -> float:
+        return self.t0 + self.check_h * 3600.0
+
     def _interval_s(self) -> float:
         if self.phase == PHASE_COMPENSATION and self._in_check():
             return self.config.cp_interval_s      # the shortened calibration phase
