@@ -81,6 +81,13 @@ def offsets(node, t):
                                  limits_hit=[0], compensation_enabled=True))
 
 
+def answered(node, *times):
+    """Instants each answered by the bridge's offsets (the bridge is in the graph)."""
+    for t in times:
+        temps(node, t)
+        offsets(node, t)
+
+
 def test_without_a_bridge_the_save_is_at_once(node):
     n, state = node
     for k in range(4):
@@ -91,10 +98,7 @@ def test_without_a_bridge_the_save_is_at_once(node):
 
 def test_the_save_waits_for_the_offsets_and_holds_the_ack(node):
     n, state = node
-    temps(n, 0.0)
-    offsets(n, 0.0)
-    temps(n, 300.0)
-    offsets(n, 300.0)
+    answered(n, 0.0, 300.0)
     n.events.clear()
     temps(n, 600.0)                 # due: deferred, the ack of 600 withheld
     assert n.events == [] and n.saves.pending
@@ -112,8 +116,7 @@ def test_the_save_waits_for_the_offsets_and_holds_the_ack(node):
 
 def test_a_silent_bridge_releases_the_ack_at_the_deadline(node):
     n, _ = node
-    temps(n, 0.0)
-    offsets(n, 0.0)
+    answered(n, 0.0)
     n.events.clear()
     temps(n, 300.0)
     temps(n, 600.0)                 # no offsets for 300 or 600
@@ -132,25 +135,20 @@ def test_a_silent_bridge_releases_the_ack_at_the_deadline(node):
 
 def test_a_probing_cycle_at_the_same_instant_saves_once(node):
     n, _ = node
-    temps(n, 0.0)
-    offsets(n, 0.0)
-    temps(n, 300.0)
-    offsets(n, 300.0)
+    answered(n, 0.0, 300.0)
     n.events.clear()
     n.probe_at.add(600.0)
     temps(n, 600.0)                 # the cycle waits for the offsets of 600; the save is its own
     assert n.events == [] and n.loop.probing.busy and not n.saves.pending
     offsets(n, 600.0)               # goal sent, no action server: failed cycle -> its save, the ack
     assert n.events == [("save", 600.0), ("ack", 600)]
-    temps(n, 900.0)
-    offsets(n, 900.0)
+    answered(n, 900.0)
     assert n.events == [("save", 600.0), ("ack", 600), ("ack", 900)]
 
 
 def test_shutdown_saves_a_pending_save(node):
     n, state = node
-    temps(n, 0.0)
-    offsets(n, 0.0)
+    answered(n, 0.0)
     temps(n, 600.0)
     assert n.saves.pending
     n.close()
