@@ -21,6 +21,7 @@ from thermal_comp_common.task_engine import TaskEngineError
 from thermal_twin.column_mapping import MappingError
 
 from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget, phase_budgets
+from thermal_eval.open_loop_models import OPT_IN
 from thermal_eval.evaluation_spec import SpecError, check_spec, load_evaluation_data, load_spec
 
 
@@ -42,7 +43,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--test-first", action="store_true", help="the test window comes before the validation window")
     ap.add_argument("--models", nargs="+", metavar="NAME", help="only these models (baselines always run)")
     ap.add_argument("--also", nargs="+", default=[], metavar="NAME",
-                    help="the default models plus these (opt-in: gp_static)")
+                    help=f"the default models plus these (opt-in: {', '.join(OPT_IN)})")
     ap.add_argument("--closed-loop", nargs="+", default=[], metavar="NAME",
                     help="also the project's adaptive models with their own logic, within the budget: "
                          "agp_closed_loop (sigma_max recalibration), talc_closed_loop (calibration, no-good, updates); calibrated on the training rows: "
