@@ -120,9 +120,26 @@ def _fit_component(train, held_out, config: TalcConfig, n_inputs: int, max_radiu
     return m, gram
 
 
+def with_discrepancy_pole(model: ArxModel, pole: float) -> ArxModel:
+    """``model`` with A(q) and every B(q) multiplied by (1 - pole q^-1): the same input-output
+    map (identical predictions from a consistent start), one pole more. A probe's correction of
+    the state then persists with that pole instead of the model's own: a model fitted exactly
+    on the nominal twin's soft sensors has a pole near 0 (the error map is static), which would
+    forget a probe within one step; the unit's discrepancy from its type is what the probes
+    measure, and it changes slowly (docs/talc.md, session 9)."""
+    o = model.orders
+    factor = np.array([1.0, -float(pole)])
+    a = np.convolve(np.concatenate(([1.0], model.a)), factor)[1:]
+    bs = [np.convolve(b, factor) if b.size else b for b in model.b]
+    orders = ArxOrders(o.na + 1, tuple(b.size for b in bs), o.nk, o.intercept)
+    theta = np.concatenate([a] + bs + ([np.array([model.c * (1.0 - pole)])] if o.intercept else []))
+    return ArxModel(orders, theta, model.residual_std, model.n_fit_samples,
+                    {**model.extra, "discrepancy_pole": float(pole)})
+
+
 def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | TalcConfig,
                      machine: str = "", sources: Sequence[str] = (), na_max: int = 1,
-                     nb_max: int = 8) -> dict[str, Any]:
+                     nb_max: int = 8, discrepancy_tau_h: float | None = None) -> dict[str, Any]:
     """The prior (a JSON-serialisable dict) from training recordings of the nominal type.
 
     The last recording is held out to choose the orders n_a <= ``na_max``, n_b <= ``nb_max``
@@ -143,10 +160,16 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
     probe = TalcModel(cfg)
     max_radius = probe._max_pole_radius()
     models, grams = {}, {}
+    if discrepancy_tau_h is not None and not (math.isfinite(discrepancy_tau_h) and discrepancy_tau_h > 0):
+        raise PriorError(f"prior: discrepancy_tau_h {discrepancy_tau_h!r} must be a finite number > 0 (None: off)")
     for c in cfg.component_names:
         data = [(u, e[c]) for u, e in grids]
         models[c], grams[c] = _fit_component(data[:-1], data[-1:], cfg, len(cfg.input_names), max_radius,
                                                    na_max, nb_max)
+        if discrepancy_tau_h is not None:
+            models[c] = with_discrepancy_pole(models[c], math.exp(-cfg.model_step_s / (discrepancy_tau_h * 3600.0)))
+            phi, _ = _stack(data, models[c].orders)
+            grams[c] = (phi.T @ phi) / phi.shape[0]
     probe.models = models
     probe.phase = PHASE_COMPENSATION
     # adaptation defaults (docs/prior.md). state_gain 1: TALC's observer weighs each probe by its

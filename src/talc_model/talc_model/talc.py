@@ -27,6 +27,7 @@ from talc_model.talc_config import PRESETS, TalcConfig, input_signal, parse_inpu
 from talc_model.talc_grid import ModelGrid
 from talc_model.talc_identification import TalcIdentification
 from talc_model.talc_probing_schedule import TalcProbingSchedule
+from talc_model.type_inputs import restore_soft_sensors, soft_sensors_for
 
 STATE_VERSION = 1
 
@@ -70,6 +71,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         self.observer: dict[str, tuple[int, np.ndarray]] = {}
         self.message = "calibration phase: waiting for the first measurement"
         self.events: list[dict] = []               # phase transitions and updates (for reports)
+        self.soft_sensors = soft_sensors_for(c)    # the machine type's twin (type_model), or None
         if self.input_names:
             self._init_grid()
 
@@ -107,6 +109,8 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         self._advance(t_s, inclusive=False)
         signals = dict(machine_state)
         signals.update(temperatures)
+        if self.soft_sensors is not None:
+            signals.update(self.soft_sensors.update(t_s, temperatures, machine_state))
         held = []
         for name in self.input_names:
             v = input_signal(name, signals)
@@ -351,7 +355,9 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
             training_samples=int(self.grid.n) if self.grid is not None else 0,
             q_prod_pct=self.q_prod_pct(float(t_s)), next_probing_due_s=self.next_probe_due_s(),
             max_uncertainty=max(unc) if unc else math.nan,
-            excluded_sensor_ids=list(self.held_inputs), message=self.message)
+            excluded_sensor_ids=list(self.held_inputs) + [f"{n} (type twin input, held)" for n in
+                                                          (self.soft_sensors.held_now if self.soft_sensors else [])],
+            message=self.message)
 
     # ------------------------------------------------------------------ persistence
     def to_state(self) -> dict:
@@ -371,6 +377,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
             "out_of_sample": {n: list(v) for n, v in self.out_of_sample.items()},
             "observer": {n: {"k": k, "p": p.tolist()} for n, (k, p) in self.observer.items()},
             "message": self.message, "events": list(self.events),
+            "soft_sensors": self.soft_sensors.to_state() if self.soft_sensors is not None else None,
         }
 
     @classmethod
@@ -413,7 +420,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         model.out_of_sample = {n: [float(x) for x in v] for n, v in state["out_of_sample"].items()}
         model.observer = {n: (int(d["k"]), np.asarray(d["p"], float).reshape(len(d["p"]), len(d["p"])))
                           for n, d in (state.get("observer") or {}).items()}
-        model.message = state.get("message", "")
+        model.message = state.get("message", "") + restore_soft_sensors(model.soft_sensors, state)
         model.events = list(state.get("events", []))
         return model
 

@@ -20,8 +20,13 @@ class TalcConfig:
     post-CP interval 2 h, NG 12 x 10 min, update interval 24 h)."""
 
     component_names: list[str] = field(default_factory=lambda: list(FIVE_AXIS_COMPONENTS))
-    #: sensor ids / machine-state keys (or "a - b"); empty = all temperatures of the first update
+    #: sensor ids / machine-state keys (or "a - b"); empty = all temperatures of the first update;
+    #: ``twin:<node>`` / ``twin:<error>``: a soft sensor of the machine type (``type_model``)
     input_names: list[str] = field(default_factory=list)
+    #: the machine type whose NOMINAL twin, stepped online from the inputs TALC receives, gives
+    #: the soft sensors ``twin:...`` (a twin preset name or machine YAML; talc_model.type_inputs,
+    #: docs/talc.md "session 9"); "" = none
+    type_model: str = ""
     angular_components: list[str] = field(default_factory=lambda: list(ANGULAR_COMPONENTS))
     model_step_s: float = 300.0            # model / prediction grid (thesis: 5 min)
     # --- Table 6.1
@@ -119,6 +124,8 @@ class TalcConfig:
         self.input_names = [str(c) for c in self.input_names]
         self.angular_components = [str(c) for c in self.angular_components]
         self.switch_probe_input = str(self.switch_probe_input)
+        if not isinstance(self.type_model, str):
+            raise ValueError(f"TALC config 'type_model': {self.type_model!r} must be a preset name or YAML path")
         for name in ("model_step_s", "cp_interval_s", "ng_interval_min", "probe_duration_s",
                      "forgetting_period_h", "cp_min_samples_per_parameter", "switch_probe_delay_min",
                      "change_probe_min_interval_min"):

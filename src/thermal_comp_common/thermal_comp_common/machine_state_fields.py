@@ -42,6 +42,23 @@ def machine_state_fields(inputs: Mapping[str, float]) -> dict:
     }
 
 
+def message_input_name(name: str) -> str:
+    """The name under which a twin input ``name`` reaches a model through the MachineState
+    message (:func:`machine_state_fields`, then ``machine_inputs.machine_state_inputs``):
+    ``c_speed_rpm`` -> ``C_axis_rpm``, ``<d>_w`` -> ``<d>_power_w``, ``coolant_temp_degc`` /
+    ``oil_temp_degc`` -> ``coolant_temperature_degc``, ``oil_on`` -> ``coolant_on``; spindles and
+    the rest keep their name. (A replay of a recording gives the twin's own names.)"""
+    if name.endswith("_speed_rpm") and len(name) == len("x_speed_rpm"):
+        return f"{name[0].upper()}_axis_rpm"
+    if name.endswith("_w"):
+        return f"{name[: -len('_w')]}_power_w"
+    if name in ("coolant_temp_degc", "oil_temp_degc"):
+        return "coolant_temperature_degc"
+    if name == "oil_on":
+        return "coolant_on"
+    return name
+
+
 def component_name(error_name: str) -> str:
     return error_name[: -len("_um")] if error_name.endswith("_um") else error_name
 

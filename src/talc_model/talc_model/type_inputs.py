@@ -1,0 +1,58 @@
+"""TALC's inputs from the machine type: the soft sensors of the type's nominal twin
+(:mod:`thermal_twin.type_soft_sensors`) named ``twin:<node>`` or ``twin:<error>`` in
+``TalcConfig.input_names``, the type named by ``TalcConfig.type_model`` (preset name or YAML
+path). TALC steps them once per :meth:`update_inputs` instant and adds their values to the
+signals its inputs are read from; their state is part of TALC's persisted state.
+docs/talc.md, "session 9". No rclpy here.
+"""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from thermal_twin.machine_spec import MachineSpecError
+from thermal_twin.type_soft_sensors import PREFIX, TypeSoftSensors
+
+from talc_model.talc_config import TalcConfig, parse_input
+
+
+def twin_signal_names(input_names: list[str]) -> list[str]:
+    """The soft-sensor signals (``twin:...``) that TALC inputs read (factors of products and
+    both sides of differences included)."""
+    out = []
+    for name in input_names:
+        for factor in name.split(" * "):
+            out += [s for s in parse_input(factor) if s is not None and s.startswith(PREFIX)]
+    return list(dict.fromkeys(out))
+
+
+def soft_sensors_for(config: TalcConfig) -> TypeSoftSensors | None:
+    """The type's soft sensors for ``config`` (None without ``type_model``); an input naming a
+    soft sensor the type does not have, or one without ``type_model``, raises ValueError."""
+    wanted = twin_signal_names(config.input_names)
+    if not config.type_model:
+        if wanted:
+            raise ValueError(f"TALC config 'input_names': {wanted} are soft sensors of the machine type, but "
+                             "'type_model' names no type (a preset name or a machine YAML)")
+        return None
+    try:
+        sensors = TypeSoftSensors(config.type_model)
+    except (MachineSpecError, OSError, ValueError) as exc:
+        raise ValueError(f"TALC config 'type_model': {config.type_model!r}: {exc}") from None
+    unknown = [n for n in wanted if n not in sensors.names]
+    if unknown:
+        raise ValueError(f"TALC config 'input_names': {unknown} are not soft sensors of the type "
+                         f"{sensors.machine.name!r} (it has {sensors.names})")
+    return sensors
+
+
+def restore_soft_sensors(sensors: TypeSoftSensors | None, state: Mapping[str, Any]) -> str:
+    """Resume ``sensors`` from a TALC ``state``; returns a note for the model's message when the
+    state has none (saved before the soft sensors: they start steady at the next instant)."""
+    if sensors is None:
+        return ""
+    saved = state.get("soft_sensors")
+    if saved is None:
+        return (f"; the state has no soft sensors of {sensors.machine.name}: they start at the type's steady "
+                "state of the next instant")
+    sensors.restore(saved)
+    return ""
