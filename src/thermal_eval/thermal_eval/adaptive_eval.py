@@ -32,6 +32,7 @@ from typing import Mapping
 import numpy as np
 
 from talc_model.uncertainty_weighted_hold import change_gain, measured_hold_rate, uncertainty_weighted_hold
+from thermal_eval.load_probing import bucket_schedule, input_steps
 from thermal_eval.probe_gain_update import regained_compensation
 from thermal_eval.probe_refit import RidgeRefit
 from thermal_comp_common.metrics import q_prod
@@ -55,6 +56,10 @@ class ProbingBudget:
     probe_duration_s: float = PROBE_DURATION_S
     probe_resolution_um: float = 0.0      # the user's probe: a predicted change below it is not acted on
     phase_h: float = 0.0                  # the probing clock starts this long after calibration ends
+    #: the load-change rule (:mod:`thermal_eval.load_probing`): a probing due this long after a
+    #: machine-input step, all probings from a token bucket of this depth; None: off (the cap above)
+    load_delay_min: float | None = None
+    bucket_depth: float = 1.0
 
     def __post_init__(self) -> None:
         for k in ("probe_every_h", "max_probes_per_h", "tolerance_um", "min_gap_s", "probe_duration_s"):
@@ -65,6 +70,12 @@ class ProbingBudget:
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
                 raise AdaptiveSettingsError(f"{k}: {v!r} must be a finite number >= 0")
+        d = self.load_delay_min
+        if d is not None and not (isinstance(d, (int, float)) and math.isfinite(d) and d >= 0):
+            raise AdaptiveSettingsError(f"load_delay_min: {d!r} must be None or a finite number >= 0")
+        b = self.bucket_depth
+        if not (isinstance(b, (int, float)) and math.isfinite(b) and b >= 1):
+            raise AdaptiveSettingsError(f"bucket_depth: {b!r} must be a finite number >= 1")
 
     @property
     def interval_h(self) -> float:
@@ -90,15 +101,34 @@ class AdaptiveResult:
     triggered_rows: list[int]
     weights: dict[str, float]                # w = q_y / (q_y + q_m) per channel
     rates: dict[str, dict[str, float]] = field(default_factory=dict)
+    load_rows: list[int] = field(default_factory=list)   # probings due after a machine-input step
 
 
 def probe_schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], budget: ProbingBudget) -> tuple[list[int], list[int]]:
     """Probe rows after calibration (and which of them the model asked for); uses only the
-    time, the model's prediction and the count of probings so far (never a displacement).
-    ``budget.phase_h`` delays the probing clock (schedule and cap): no probing before it."""
+    time, the model's prediction, the machine inputs and the count of probings so far (never a
+    displacement). ``budget.phase_h`` delays the probing clock (schedule and cap): no probing
+    before it. With ``budget.load_delay_min`` the load-change rule and its token bucket decide
+    (:func:`thermal_eval.load_probing.bucket_schedule`) instead of the cumulative cap."""
+    rows, asked, _ = _schedule(data, prediction, budget)
+    return rows, asked
+
+
+def _asks(prediction: Mapping[str, np.ndarray], tolerance_um: float):
+    return lambda r, last: any(abs(prediction[c][r] - prediction[c][last]) > tolerance_um for c in prediction)
+
+
+def _schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], budget: ProbingBudget
+              ) -> tuple[list[int], list[int], list[int]]:
+    """:func:`probe_schedule` and the probings due after a machine-input step."""
     t = data.time_s
     start = data.split.n_train
     clock0 = t[start - 1] + 3600.0 * budget.phase_h
+    if budget.load_delay_min is not None:
+        return bucket_schedule(t, start, clock0, input_steps(data.inputs, start), budget.max_probes_per_h,
+                               budget.bucket_depth, 60.0 * budget.load_delay_min, budget.min_gap_s,
+                               3600.0 * budget.probe_every_h, budget.probe_duration_s,
+                               _asks(prediction, budget.tolerance_um))
     last_end = clock0                            # the calibration phase ends with a measurement
     last_row = start - 1
     rows, triggered = [], []
@@ -116,7 +146,7 @@ def probe_schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], b
             if not scheduled:
                 triggered.append(r)
             last_end, last_row = t[r] + budget.probe_duration_s, r
-    return rows, triggered
+    return rows, triggered, []
 
 
 def _piecewise_offset(y: np.ndarray, p: np.ndarray, measured: list[int], start: int, n: int) -> np.ndarray:
@@ -216,7 +246,7 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
     contributions and the walk-forward's penalty (and forgetting); there the probes re-estimate the gains
     (:mod:`thermal_eval.probe_gain_update`) and that replaces the blend (w = 1, dead band kept)."""
     n, start, t = len(data), data.split.n_train, data.time_s
-    rows, triggered = probe_schedule(data, prediction, budget)
+    rows, triggered, load = _schedule(data, prediction, budget)
     measured = [start - 1] + rows
     since_h = np.nan_to_num(_since_probe_h(t, measured, start, n))
     comp, corr, hold, weights, rates = {}, {}, {}, {}, {}
@@ -250,7 +280,7 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         weights[c] = float(np.mean(gains))
         rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),
                     "training_gain": round(gain0, 3), "dead_band_um": round(band, 4)}
-    return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates)
+    return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates, load)
 
 
 def probe_counts(data: EvaluationData, rows: list[int], budget: ProbingBudget) -> dict:

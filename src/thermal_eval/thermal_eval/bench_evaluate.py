@@ -111,13 +111,14 @@ def _adaptive_targets(figures: dict) -> dict:
 
 
 def run_fl_thermal(csv: str | None, every: int, show_progress: bool, engine: EngineSpec | None = None,
-                   probe_phases: int = 1) -> dict[str, Any]:
+                   probe_phases: int = 1, load_probing: bool = False) -> dict[str, Any]:
     from thermal_eval.fl_thermal_data import default_csv_path
     t0 = time.perf_counter()
     data = thinned(load_evaluation_data(csv or default_csv_path(), FL_THERMAL_SPEC), every, FL_THERMAL_SPEC["split"])
     load_s = time.perf_counter() - t0
     result = evaluate(data, budget=ProbingBudget(probe_every_h=2.0, max_probes_per_h=1.0, tolerance_um=1.0),
-                      show_progress=show_progress, engine=engine, probe_phases=probe_phases)
+                      show_progress=show_progress, engine=engine, probe_phases=probe_phases,
+                      load_probing=load_probing)
     f = result.figures
     print_table(f)
     f["load_seconds"] = round(load_s, 1)
@@ -166,12 +167,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ap.add_argument("--jobs", type=int, default=2, help="model rows on N local processes (default 2: the 2 cores)")
     ap.add_argument("--probe-phases", type=int, default=1, metavar="K",
                     help="FL_THERMAL's adaptive rows also at K phases of the probing clock (mean and worst)")
+    ap.add_argument("--load-probing", action="store_true",
+                    help="FL_THERMAL's adaptive rows may also probe after spindle-speed steps (token bucket; "
+                         "chosen per model on the training rows)")
     opts = ap.parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
     every = 4 if getattr(args, "quick", False) else 1
     t0 = time.perf_counter()
     engine = EngineSpec("local", workers=opts.jobs)
     figures = {"fl_thermal": run_fl_thermal(opts.csv, every, show_progress=True, engine=engine,
-                                               probe_phases=opts.probe_phases)}
+                                               probe_phases=opts.probe_phases, load_probing=opts.load_probing)}
     figures["fl_thermal_seconds"] = round(time.perf_counter() - t0, 1)
     figures["engine"] = engine.describe()
     if not opts.no_plateau:

@@ -60,6 +60,10 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--probe-phases", type=int, default=1, metavar="K",
                     help="score the adaptive mode at K phases of the probing clock (delayed by i/K of the "
                          "interval, each a full run with its own probings): mean and worst per channel (default 1)")
+    ap.add_argument("--load-probing", action="store_true",
+                    help="each model may also probe a few minutes after a machine-input step (spindle speed, "
+                         "coolant...), from a token bucket: at most 1 + max-probes-per-h x the hours after "
+                         "calibration; off/on, delay and bucket depth chosen per model on the training rows")
     add_engine_arguments(ap, default_jobs=1, what="model rows")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -137,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     result = evaluate(data, models=models, adaptive=not args.open_loop_only, budget=budget,
                       show_progress=not args.no_progress, engine=engine, closed_loop=args.closed_loop,
-                      probe_phases=args.probe_phases)
+                      probe_phases=args.probe_phases, load_probing=args.load_probing)
     figures = result.figures
     figures["outputs"] = {"json": str(out / "evaluation.json"), "png": str(report.plot(data, result, out))}
     if not args.no_rerun:

@@ -26,6 +26,8 @@ from thermal_eval.evaluation_spec import EvaluationData
 from thermal_eval.model_selection import OOF_MIN_FRACTION, ModelSpec, checked_prediction, out_of_fold_prediction
 from thermal_eval.probe_gain_update import FORGETTINGS, PENALTIES, choose_update
 from thermal_eval.probe_refit import REFIT_ROWS, refit_choice
+from thermal_eval.load_probing import input_steps
+from thermal_eval.load_probing_choice import choose_load_probing, fitted_on_first
 from thermal_eval.open_loop_models import MODELS, OPT_IN
 
 #: baselines whose adaptive row would only be holding again
@@ -92,12 +94,17 @@ class ModelRow:
 
 
 def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: ProbingBudget,
-              probe_phases: int = 1) -> ModelRow:
+              probe_phases: int = 1, load_probing: bool = False) -> ModelRow:
     """Every channel of one model, open loop and (unless a plain baseline) adaptive, the
-    adaptive mode at ``probe_phases`` phases of the probing clock (:func:`_adaptive_row`)."""
+    adaptive mode at ``probe_phases`` phases of the probing clock (:func:`_adaptive_row`).
+    ``load_probing``: the load-change rule off or on (delay, bucket depth) as the training-row
+    walk-forward chooses (:mod:`thermal_eval.load_probing_choice`)."""
     s = data.split
     ol: dict[str, Any] = {"kind": model.kind, "description": model.description, "channels": {}}
-    preds, oofs, regain = {}, {}, {}
+    preds, oofs, regain, fits = {}, {}, {}, {}
+    first = int(round(OOF_MIN_FRACTION * s.n_train))
+    load = (adaptive and load_probing and model.name not in NOT_ADAPTIVE
+            and bool(np.sum(input_steps(data.inputs, s.n_train) < s.n_train)))
     t0 = time.perf_counter()
     for ch in data.channels:
         y = data.displacement_um[ch]
@@ -114,6 +121,8 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
                     regain[ch], cell["probe_refit"] = refit_choice(
                         data, ch, params, int(round(OOF_MIN_FRACTION * s.n_train)), 3600.0 * budget.interval_h,
                         WALK_FORWARD_PHASES)
+                if load:
+                    fits[ch] = fitted_on_first(data, model, ch, params, first, regain.get(ch))
             preds[ch] = p
         except Exception as exc:   # one failing model/channel is one row with its reason
             cell = {"failed": _reason(exc)}
@@ -121,7 +130,13 @@ def model_row(data: EvaluationData, model: ModelSpec, adaptive: bool, budget: Pr
     ol["seconds"] = round(time.perf_counter() - t0, 1)
     row = ModelRow(model.name, ol, preds)
     if adaptive and model.name not in NOT_ADAPTIVE:
+        choice = None
+        if load_probing:
+            fits = {c: f for c, f in fits.items() if c in preds}
+            budget, choice = choose_load_probing(data, first, fits, budget, WALK_FORWARD_PHASES)
         _adaptive_row(data, model, preds, oofs, budget, row, regain, probe_phases)
+        if choice is not None:
+            row.adaptive["load_probing"] = choice
     return row
 
 
@@ -191,13 +206,15 @@ def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow, regain=None, 
         row["channels"][ch] = cell
     row.update(probe_counts(data, ad.probe_rows, budget))
     row["probings_asked_by_model"] = len(ad.triggered_rows)
+    row["probings_after_input_steps"] = len(ad.load_rows)
     if probe_phases > 1:
         per = [probe_counts(data, r.probe_rows, budget) for r in runs]
         counted = ("probings_after_calibration", "probings_per_h_after_calibration", "probings_test",
                    "probings_validation")
         row["probe_phases"] = {"k": probe_phases,
                                "offsets_h": [round(b.phase_h, 4) for b in phase_budgets(budget, probe_phases)],
-                               **{k: [p[k] for p in per] for k in counted}}
+                               **{k: [p[k] for p in per] for k in counted},
+                               "probings_after_input_steps": [len(r.load_rows) for r in runs]}
     out.compensation, out.hold, out.probe_rows = ad.compensation, ad.hold, ad.probe_rows
 
 
@@ -248,11 +265,11 @@ def _row_task(shared: tuple, item: str | ModelSpec | tuple) -> ModelRow:
     """Task of the engine: one model row. ``item`` is a registered model's name (so the local
     pool pickles a string, not the model's closures), ``("closed_loop", name)``, or, for a model
     outside the registry, the spec itself (serial run or dask, which pickles closures)."""
-    data, adaptive, budget, probe_phases = shared
+    data, adaptive, budget, probe_phases, load_probing = shared
     if isinstance(item, tuple):
         return closed_loop_row(data, item[1], budget)
     model = REGISTRY[item] if isinstance(item, str) else item
-    return model_row(data, model, adaptive, budget, probe_phases)
+    return model_row(data, model, adaptive, budget, probe_phases, load_probing)
 
 
 def _add_row(result: EvaluationResult, row: ModelRow) -> None:
@@ -288,14 +305,17 @@ def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> No
 def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None, adaptive: bool = True,
              budget: ProbingBudget | None = None, show_progress: bool = True,
              engine: EngineSpec | None = None, closed_loop: Sequence[str] = (),
-             probe_phases: int = 1) -> EvaluationResult:
+             probe_phases: int = 1, load_probing: bool = False) -> EvaluationResult:
     """The whole evaluation (figures + arrays for the report). Model rows are independent tasks
     of :func:`thermal_comp_common.task_engine.map_tasks` (serial by default, a local pool or a
     dask cluster with ``engine``); the rows are put back in the models' order, so the figures do
     not depend on the engine. ``closed_loop``: names of :data:`closed_loop_rows.CLOSED_LOOP` (the
     project's adaptive models with their own logic; adaptive rows only, at phase 0).
     ``probe_phases`` K: the adaptive mode of every model also at K - 1 further phases of its
-    probing clock (:func:`thermal_eval.adaptive_eval.phase_budgets`); K = 1 is one run."""
+    probing clock (:func:`thermal_eval.adaptive_eval.phase_budgets`); K = 1 is one run.
+    ``load_probing``: every open-loop model's adaptive mode may also probe after machine-input
+    steps from a token bucket, if its training-row walk-forward says so
+    (:mod:`thermal_eval.load_probing_choice`)."""
     from threadpoolctl import threadpool_limits
     from tqdm import tqdm
     budget = budget or ProbingBudget()
@@ -305,6 +325,7 @@ def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None,
     figures: dict[str, Any] = {"source": data.source, "rows": data.split.as_dict(), "n_rows": len(data),
                                "channels": data.channels, "temperatures": data.sensors, "inputs": data.input_names,
                                "notes": data.notes, "budget": budget.__dict__, "probe_phases": probe_phases,
+                               "load_probing": load_probing,
                                "engine": engine.describe(),
                                "open_loop": {}, "adaptive": {}}
     result = EvaluationResult(figures)
@@ -318,7 +339,7 @@ def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None,
     rows: dict[int, ModelRow] = {}
     bar = tqdm(total=len(items), desc="evaluate", unit="model", disable=not show_progress)
     with bar, threadpool_limits(1):   # small dense problems: BLAS threads only contend
-        for i, row in map_tasks(_row_task, (data, adaptive, budget, probe_phases), items, engine):
+        for i, row in map_tasks(_row_task, (data, adaptive, budget, probe_phases, load_probing), items, engine):
             rows[i] = row
             bar.set_postfix_str(row.name)
             bar.update()

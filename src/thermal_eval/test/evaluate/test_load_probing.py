@@ -1,0 +1,121 @@
+"""evaluate --load-probing: a probing D minutes after a machine-input step, from a token bucket."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from synthetic_recording import synthetic
+from thermal_comp_common.recording_csv import Recording
+from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget, phase_budgets, probe_schedule
+from thermal_eval.evaluation_run import available_models, evaluate
+from thermal_eval.evaluation_spec import evaluation_data
+from thermal_eval.load_probing import LoadProbingError, bucket_schedule, input_steps, within_bucket_bound
+from thermal_eval.load_probing_choice import choose_load_probing
+
+
+def _data(**spec):
+    cols = synthetic()
+    return evaluation_data(Recording(cols.pop("time_s"), cols), spec)
+
+
+def test_input_steps_are_the_level_changes_of_any_input_column():
+    d = _data()                                       # the load steps every 2 h: rows 120, 240, ...
+    assert input_steps(d.inputs, d.split.n_train).tolist() == list(range(120, 900, 120))
+    flat = np.column_stack([np.full(50, 3.0), np.r_[np.zeros(20), np.full(30, 5.0)]])
+    assert input_steps(flat, 10).tolist() == []       # constant on the training rows: no steps
+    assert input_steps(flat, 30).tolist() == [20]
+    assert input_steps(None, 10).size == 0
+    with pytest.raises(LoadProbingError, match="fraction"):
+        input_steps(flat, 30, fraction=0.0)
+
+
+def test_a_step_makes_a_probing_due_d_minutes_later():
+    d = _data()
+    quiet = {"z_um": np.zeros(len(d))}               # never asks: the rule alone (the schedule is far)
+    b = ProbingBudget(probe_every_h=100.0, load_delay_min=10.0, bucket_depth=2.0)
+    rows, asked = probe_schedule(d, quiet, b)
+    assert rows == [610, 730, 850] and asked == rows  # steps at 600, 720, 840 (60-s rows) + 10 min
+    assert probe_schedule(d, quiet, ProbingBudget(probe_every_h=100.0))[0] == []     # off: nothing asks
+
+
+def test_the_bucket_never_exceeds_its_bound():
+    rng = np.random.default_rng(3)
+    t = np.arange(3000) * 60.0
+    steps = np.sort(rng.choice(np.arange(1, 3000), 200, replace=False))   # a busy machine
+    for rate, depth, delay in ((1.0, 1.0, 5.0), (1.0, 3.0, 0.0), (0.5, 2.0, 10.0), (2.0, 4.0, 20.0)):
+        clock0 = t[99] + 600.0
+        rows, asked, load = bucket_schedule(t, 100, clock0, steps, rate, depth, 60.0 * delay, 60.0, 3600.0, 95.0,
+                                            lambda r, last: True)       # the model always asks
+        assert rows and set(load) <= set(asked) <= set(rows) and rows == sorted(rows)
+        assert t[rows[0]] >= clock0
+        assert within_bucket_bound(t, rows, clock0, rate)
+        assert len(rows) <= 1 + rate * (t[-1] - clock0) / 3600.0
+        assert len(rows) >= rate * (t[-1] - clock0) / 3600.0 - depth   # the bucket is spent, not hoarded
+    assert not within_bucket_bound(t, [200, 201, 202], t[199], 1.0)
+    with pytest.raises(LoadProbingError, match="depth"):
+        bucket_schedule(t, 100, t[99], steps, 1.0, 0.5, 0.0, 60.0, 3600.0, 95.0, lambda r, last: True)
+    with pytest.raises(AdaptiveSettingsError, match="bucket_depth"):
+        ProbingBudget(bucket_depth=0.0)
+    with pytest.raises(AdaptiveSettingsError, match="load_delay_min"):
+        ProbingBudget(load_delay_min=-1.0)
+
+
+def test_phases_shift_only_the_clock():
+    d = _data()
+    quiet = {"z_um": np.zeros(len(d))}
+    b = ProbingBudget(probe_every_h=1.0, max_probes_per_h=2.0, load_delay_min=10.0, bucket_depth=3.0, min_gap_s=60.0)
+    loads, regular = [], []
+    for ph in phase_budgets(b, 3):
+        rows, asked = probe_schedule(d, quiet, ph)
+        clock0 = d.time_s[d.split.n_train - 1] + 3600.0 * ph.phase_h
+        assert d.time_s[rows[0]] >= clock0 and within_bucket_bound(d.time_s, rows, clock0, 2.0)
+        loads.append(asked)
+        regular.append([r for r in rows if r not in asked])
+    for asked in loads:              # at the machine's steps + 10 min (a cycle just before: + its 95 s + gap)
+        assert [r - s for r, s in zip(asked, (600, 720, 840))] in ([10, 10, 10], [12, 10, 10])
+    assert regular[0] != regular[1] != regular[2]                   # the clock's probings moved
+
+
+def test_no_inputs_means_the_rule_is_off():
+    d = _data(inputs=[])
+    assert d.inputs is None
+    models = available_models(d, ["lagged_ridge"])
+    off = evaluate(d, models=models, show_progress=False)
+    on = evaluate(d, models=models, show_progress=False, load_probing=True)
+    a_off, a_on = off.figures["adaptive"]["lagged_ridge"], dict(on.figures["adaptive"]["lagged_ridge"])
+    assert a_on.pop("load_probing") == {"chosen": "off", "why": "no machine inputs"}
+    assert a_on == a_off and a_on["probings_after_input_steps"] == 0
+
+
+def test_the_choice_is_made_on_the_training_rows_only():
+    d = _data()
+    models = available_models(d, ["lowpass_ridge_refit"])
+    res = evaluate(d, models=models, show_progress=False, load_probing=True)
+    row = res.figures["adaptive"]["lowpass_ridge_refit"]
+    choice = row["load_probing"]
+    assert choice["walk_forward_rows"] == [270, 540] and choice["steps_on_training_rows"] == 4
+    assert choice["chosen"] == min(choice["walk_forward_mae_um"], key=choice["walk_forward_mae_um"].get)
+    poisoned = evaluate(_poisoned(d), models=models, show_progress=False, load_probing=True)
+    assert poisoned.figures["adaptive"]["lowpass_ridge_refit"]["load_probing"] == choice
+    if choice["chosen"] != "off":
+        assert row["probings_after_input_steps"] >= 1
+    hours = (d.time_s[-1] - d.time_s[d.split.n_train - 1]) / 3600.0
+    assert row["probings_after_calibration"] <= 1 + 1.0 * hours
+
+
+def _poisoned(d):
+    """The held-out displacements replaced by a huge ramp: a choice that read them would change."""
+    from dataclasses import replace
+    n = d.split.n_train
+    disp = {c: np.r_[y[:n], 1e3 * np.arange(len(y) - n)] for c, y in d.displacement_um.items()}
+    return replace(d, displacement_um=disp)
+
+
+def test_choose_without_steps_on_the_training_rows_is_off():
+    d = _data()
+    flat = np.r_[np.full(d.split.n_train, 3000.0), np.full(len(d) - d.split.n_train, 900.0)]
+    from dataclasses import replace
+    d2 = replace(d, inputs=flat[:, None])
+    budget, info = choose_load_probing(d2, 270, {}, ProbingBudget(), 6)
+    assert budget.load_delay_min is None and info == {"chosen": "off",
+                                                      "why": "no machine-input step on the training rows"}
