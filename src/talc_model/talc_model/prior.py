@@ -24,6 +24,7 @@ from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION
 from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, regression_matrix, solve_wls
 from talc_model.talc import TalcModel
 from talc_model.talc_config import TalcConfig
+from talc_model.type_inputs import twin_signal_names
 
 PRIOR_VERSION = 1
 #: ridge added to the prior's normalised Gram matrix (fraction of its mean diagonal)
@@ -139,7 +140,7 @@ def with_discrepancy_pole(model: ArxModel, pole: float) -> ArxModel:
 
 def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | TalcConfig,
                      machine: str = "", sources: Sequence[str] = (), na_max: int = 1,
-                     nb_max: int = 8, discrepancy_tau_h: float | None = None) -> dict[str, Any]:
+                     nb_max: int = 8) -> dict[str, Any]:
     """The prior (a JSON-serialisable dict) from training recordings of the nominal type.
 
     The last recording is held out to choose the orders n_a <= ``na_max``, n_b <= ``nb_max``
@@ -160,14 +161,16 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
     probe = TalcModel(cfg)
     max_radius = probe._max_pole_radius()
     models, grams = {}, {}
-    if discrepancy_tau_h is not None and not (math.isfinite(discrepancy_tau_h) and discrepancy_tau_h > 0):
-        raise PriorError(f"prior: discrepancy_tau_h {discrepancy_tau_h!r} must be a finite number > 0 (None: off)")
+    # soft sensors of the machine type as inputs: the fit is the (static) error map, pole near 0;
+    # the discrepancy pole makes a probe's correction persist (with_discrepancy_pole)
+    pole = math.exp(-cfg.model_step_s / (cfg.type_discrepancy_tau_h * 3600.0)) \
+        if twin_signal_names(cfg.input_names) else None
     for c in cfg.component_names:
         data = [(u, e[c]) for u, e in grids]
         models[c], grams[c] = _fit_component(data[:-1], data[-1:], cfg, len(cfg.input_names), max_radius,
                                                    na_max, nb_max)
-        if discrepancy_tau_h is not None:
-            models[c] = with_discrepancy_pole(models[c], math.exp(-cfg.model_step_s / (discrepancy_tau_h * 3600.0)))
+        if pole is not None:
+            models[c] = with_discrepancy_pole(models[c], pole)
             phi, _ = _stack(data, models[c].orders)
             grams[c] = (phi.T @ phi) / phi.shape[0]
     probe.models = models

@@ -27,6 +27,10 @@ class TalcConfig:
     #: the soft sensors ``twin:...`` (a twin preset name or machine YAML; talc_model.type_inputs,
     #: docs/talc.md "session 9"); "" = none
     type_model: str = ""
+    #: time constant of the unit's discrepancy from its type: a prior whose inputs are soft
+    #: sensors gets this pole (talc_model.prior.with_discrepancy_pole), so a probe's correction
+    #: persists; just under ``max_time_constant_h`` (24 h) so updates keep it admissible
+    type_discrepancy_tau_h: float = 23.0
     angular_components: list[str] = field(default_factory=lambda: list(ANGULAR_COMPONENTS))
     model_step_s: float = 300.0            # model / prediction grid (thesis: 5 min)
     # --- Table 6.1
@@ -128,7 +132,7 @@ class TalcConfig:
             raise ValueError(f"TALC config 'type_model': {self.type_model!r} must be a preset name or YAML path")
         for name in ("model_step_s", "cp_interval_s", "ng_interval_min", "probe_duration_s",
                      "forgetting_period_h", "cp_min_samples_per_parameter", "switch_probe_delay_min",
-                     "change_probe_min_interval_min"):
+                     "change_probe_min_interval_min", "type_discrepancy_tau_h"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"TALC config '{name}': {v!r} must be a finite number > 0")
