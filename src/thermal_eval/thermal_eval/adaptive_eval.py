@@ -60,6 +60,7 @@ class ProbingBudget:
     #: machine-input step, all probings from a token bucket of this depth; None: off (the cap above)
     load_delay_min: float | None = None
     bucket_depth: float = 1.0
+    bucket_credit: float = 1.0            # probings the bucket holds when the clock starts (0 or 1)
 
     def __post_init__(self) -> None:
         for k in ("probe_every_h", "max_probes_per_h", "tolerance_um", "min_gap_s", "probe_duration_s"):
@@ -76,6 +77,9 @@ class ProbingBudget:
         b = self.bucket_depth
         if not (isinstance(b, (int, float)) and math.isfinite(b) and b >= 1):
             raise AdaptiveSettingsError(f"bucket_depth: {b!r} must be a finite number >= 1")
+        c = self.bucket_credit
+        if not (isinstance(c, (int, float)) and math.isfinite(c) and 0 <= c <= 1):
+            raise AdaptiveSettingsError(f"bucket_credit: {c!r} must be a number in [0, 1]")
 
     @property
     def interval_h(self) -> float:
@@ -128,7 +132,7 @@ def _schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], budget
         return bucket_schedule(t, start, clock0, input_steps(data.inputs, start), budget.max_probes_per_h,
                                budget.bucket_depth, 60.0 * budget.load_delay_min, budget.min_gap_s,
                                3600.0 * budget.probe_every_h, budget.probe_duration_s,
-                               _asks(prediction, budget.tolerance_um))
+                               _asks(prediction, budget.tolerance_um), budget.bucket_credit)
     last_end = clock0                            # the calibration phase ends with a measurement
     last_row = start - 1
     rows, triggered = [], []

@@ -111,12 +111,13 @@ def _adaptive_targets(figures: dict) -> dict:
 
 
 def run_fl_thermal(csv: str | None, every: int, show_progress: bool, engine: EngineSpec | None = None,
-                   probe_phases: int = 1, load_probing: bool = False) -> dict[str, Any]:
+                   probe_phases: int = 1, load_probing: bool = False, bucket_credit: float = 1.0) -> dict[str, Any]:
     from thermal_eval.fl_thermal_data import default_csv_path
     t0 = time.perf_counter()
     data = thinned(load_evaluation_data(csv or default_csv_path(), FL_THERMAL_SPEC), every, FL_THERMAL_SPEC["split"])
     load_s = time.perf_counter() - t0
-    result = evaluate(data, budget=ProbingBudget(probe_every_h=2.0, max_probes_per_h=1.0, tolerance_um=1.0),
+    budget = ProbingBudget(probe_every_h=2.0, max_probes_per_h=1.0, tolerance_um=1.0, bucket_credit=bucket_credit)
+    result = evaluate(data, budget=budget,
                       show_progress=show_progress, engine=engine, probe_phases=probe_phases,
                       load_probing=load_probing)
     f = result.figures
@@ -170,12 +171,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ap.add_argument("--load-probing", action="store_true",
                     help="FL_THERMAL's adaptive rows may also probe after spindle-speed steps (token bucket; "
                          "chosen per model on the training rows)")
+    ap.add_argument("--bucket-credit", type=float, default=1.0, choices=(0.0, 1.0),
+                    help="with --load-probing: probings the bucket holds when calibration ends (0: never above "
+                         "one per hour on average)")
     opts = ap.parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
     every = 4 if getattr(args, "quick", False) else 1
     t0 = time.perf_counter()
     engine = EngineSpec("local", workers=opts.jobs)
     figures = {"fl_thermal": run_fl_thermal(opts.csv, every, show_progress=True, engine=engine,
-                                               probe_phases=opts.probe_phases, load_probing=opts.load_probing)}
+                                               probe_phases=opts.probe_phases, load_probing=opts.load_probing,
+                                               bucket_credit=opts.bucket_credit)}
     figures["fl_thermal_seconds"] = round(time.perf_counter() - t0, 1)
     figures["engine"] = engine.describe()
     if not opts.no_plateau:

@@ -64,6 +64,9 @@ def parser() -> argparse.ArgumentParser:
                     help="each model may also probe a few minutes after a machine-input step (spindle speed, "
                          "coolant...), from a token bucket: at most 1 + max-probes-per-h x the hours after "
                          "calibration; off/on, delay and bucket depth chosen per model on the training rows")
+    ap.add_argument("--bucket-credit", type=float, default=1.0, choices=(0.0, 1.0),
+                    help="with --load-probing: probings the bucket holds when calibration ends (1: the total may "
+                         "exceed max-probes-per-h x hours by one; 0: never more than the rate on average)")
     add_engine_arguments(ap, default_jobs=1, what="model rows")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -120,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         return 3
     try:
         budget = ProbingBudget(args.probe_every_h, args.max_probes_per_h, args.tolerance_um,
-                               probe_resolution_um=args.probe_resolution_um)
+                               probe_resolution_um=args.probe_resolution_um, bucket_credit=args.bucket_credit)
         phase_budgets(budget, args.probe_phases)
         data = load_evaluation_data(args.recording, spec_from_args(args), args.map_file, args.map)
         models = available_models(data, args.models, args.also)

@@ -4,10 +4,10 @@ A step of a machine-input column (spindle speed, coolant, door: whatever inputs 
 has) changes the heat flows, and the model is least sure after it; the twin's TALC has the same
 rule for coolant switches (``switch_probe_delay_min``). So a step makes a probing due
 ``delay_min`` later. The budget is a **token bucket**: it fills at ``max_probes_per_h`` per hour
-up to ``depth`` probings and holds one probing at the start of the probing clock; every probing
+up to ``depth`` probings and holds ``credit`` (one, or none) probing at the start of the probing clock; every probing
 (scheduled, asked for by the model's predicted change, or due after a step) spends one token and
 none happens without one, so after the clock starts the probings never exceed
-``1 + max_probes_per_h x elapsed hours``. The regular probings (the model's predicted change, as
+``credit + max_probes_per_h x elapsed hours`` (credit 0: never more than one per hour on average). The regular probings (the model's predicted change, as
 without the rule) spend only a full bucket, so ``depth - 1`` probings stay saved for the steps.
 No inputs, or no step, and the rule never fires. Pure functions; no rclpy here.
 """
@@ -58,16 +58,18 @@ def input_steps(inputs: np.ndarray | None, n_train: int, fraction: float = STEP_
 
 def bucket_schedule(time_s: np.ndarray, start: int, clock0_s: float, steps: np.ndarray, rate_per_h: float,
                     depth: float, delay_s: float, min_gap_s: float, probe_every_s: float, probe_duration_s: float,
-                    asks: Callable[[int, int], bool]) -> tuple[list[int], list[int], list[int]]:
+                    asks: Callable[[int, int], bool], credit: float = 1.0) -> tuple[list[int], list[int], list[int]]:
     """Probe rows >= ``start`` (nothing before ``clock0_s``), the rows not scheduled (asked for
     by ``asks(row, last_probe_row)`` or due after a step) and those due after a step. Reads the
     time, the step rows and ``asks`` only (never a displacement)."""
     if not (math.isfinite(depth) and depth >= 1):
         raise LoadProbingError(f"depth: {depth!r} must be a finite number >= 1")
+    if not (math.isfinite(credit) and 0 <= credit <= 1):
+        raise LoadProbingError(f"credit: {credit!r} must be in [0, 1]")
     if not (math.isfinite(delay_s) and delay_s >= 0):
         raise LoadProbingError(f"delay_s: {delay_s!r} must be a finite number >= 0")
     t = np.asarray(time_s, float)
-    tokens, last_t = 1.0, clock0_s              # the bucket holds one probing when the clock starts
+    tokens, last_t = float(credit), clock0_s    # the bucket holds the credit when the clock starts
     last_end, last_row = clock0_s, start - 1    # the calibration phase ends with a measurement
     steps = np.asarray(steps, int)
     before = steps[(steps < start) & (t[np.minimum(steps, len(t) - 1)] + delay_s > t[start - 1])]
@@ -100,6 +102,7 @@ def bucket_schedule(time_s: np.ndarray, start: int, clock0_s: float, steps: np.n
     return rows, asked, load
 
 
-def within_bucket_bound(time_s: np.ndarray, rows: list[int], clock0_s: float, rate_per_h: float) -> bool:
-    """Whether every prefix of the probings stays within 1 + rate x the hours since the clock started."""
-    return all(i + 1 <= 1.0 + rate_per_h * (time_s[r] - clock0_s) / 3600.0 + 1e-9 for i, r in enumerate(rows))
+def within_bucket_bound(time_s: np.ndarray, rows: list[int], clock0_s: float, rate_per_h: float,
+                        credit: float = 1.0) -> bool:
+    """Whether every prefix of the probings stays within credit + rate x the hours since the clock started."""
+    return all(i + 1 <= credit + rate_per_h * (time_s[r] - clock0_s) / 3600.0 + 1e-9 for i, r in enumerate(rows))

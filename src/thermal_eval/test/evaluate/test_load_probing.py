@@ -42,18 +42,23 @@ def test_the_bucket_never_exceeds_its_bound():
     rng = np.random.default_rng(3)
     t = np.arange(3000) * 60.0
     steps = np.sort(rng.choice(np.arange(1, 3000), 200, replace=False))   # a busy machine
-    for rate, depth, delay in ((1.0, 1.0, 5.0), (1.0, 3.0, 0.0), (0.5, 2.0, 10.0), (2.0, 4.0, 20.0)):
+    for rate, depth, delay, credit in ((1.0, 1.0, 5.0, 1.0), (1.0, 3.0, 0.0, 1.0), (0.5, 2.0, 10.0, 1.0),
+                                       (2.0, 4.0, 20.0, 1.0), (1.0, 2.0, 5.0, 0.0)):
         clock0 = t[99] + 600.0
         rows, asked, load = bucket_schedule(t, 100, clock0, steps, rate, depth, 60.0 * delay, 60.0, 3600.0, 95.0,
-                                            lambda r, last: True)       # the model always asks
+                                            lambda r, last: True, credit)   # the model always asks
         assert rows and set(load) <= set(asked) <= set(rows) and rows == sorted(rows)
-        assert t[rows[0]] >= clock0
-        assert within_bucket_bound(t, rows, clock0, rate)
-        assert len(rows) <= 1 + rate * (t[-1] - clock0) / 3600.0
+        assert t[rows[0]] >= clock0 + (0.0 if credit else 3600.0 / rate)
+        assert within_bucket_bound(t, rows, clock0, rate, credit)
+        assert len(rows) <= credit + rate * (t[-1] - clock0) / 3600.0
         assert len(rows) >= rate * (t[-1] - clock0) / 3600.0 - depth   # the bucket is spent, not hoarded
     assert not within_bucket_bound(t, [200, 201, 202], t[199], 1.0)
     with pytest.raises(LoadProbingError, match="depth"):
         bucket_schedule(t, 100, t[99], steps, 1.0, 0.5, 0.0, 60.0, 3600.0, 95.0, lambda r, last: True)
+    with pytest.raises(LoadProbingError, match="credit"):
+        bucket_schedule(t, 100, t[99], steps, 1.0, 2.0, 0.0, 60.0, 3600.0, 95.0, lambda r, last: True, 2.0)
+    with pytest.raises(AdaptiveSettingsError, match="bucket_credit"):
+        ProbingBudget(bucket_credit=1.5)
     with pytest.raises(AdaptiveSettingsError, match="bucket_depth"):
         ProbingBudget(bucket_depth=0.0)
     with pytest.raises(AdaptiveSettingsError, match="load_delay_min"):
