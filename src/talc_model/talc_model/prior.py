@@ -338,7 +338,7 @@ class TalcPriorModel(TalcModel):
             model.prior = dict(state["prior"])
             models = model.models
             model._install_prior()
-            model.models, model.phase = models, base.phase
+            model.models, model.phase, model.message = models, base.phase, base.message
         return model
 
 
