@@ -33,7 +33,8 @@ TRAINING_SCENARIOS = {
 #: Seeds of the training runs: 101, 102, ... (the demo's runs use seeds 0-99).
 SEED_BASE = 101
 #: the modules each kind's prior is fitted and run by (their source is part of the cache key)
-PRIOR_MODULES = {"talc": ["talc_model.prior", "talc_model.talc"],
+PRIOR_MODULES = {"talc": ["talc_model.prior", "talc_model.talc", "talc_model.type_inputs",
+                          "thermal_twin.type_soft_sensors"],
                  "agp": ["talc_model.prior_agp", "talc_model.agp", "talc_model.gaussian_process"],
                  "cd": ["talc_model.prior_cd", "talc_model.cd_model", "talc_model.characteristic_diagram",
                         "talc_model.cd_input_selection", "talc_model.uncertainty_weighted_hold"]}
@@ -120,6 +121,8 @@ def _cache_key(machine: str, config: dict, scenarios: list[str], seed_base: int,
                          "na_max": na_max, "nb_max": nb_max, "kind": kind}, sort_keys=True, default=str).encode(),
              preset.read_bytes() if preset.is_file() else machine.encode()]
     parts += [pathlib.Path(importlib.import_module(m).__file__).read_bytes() for m in PRIOR_MODULES[kind]]
+    type_yaml = pathlib.Path(str(config.get("type_model") or ""))    # TALC's soft sensors from a type's YAML
+    parts += [type_yaml.read_bytes()] if type_yaml.suffix in (".yaml", ".yml") and type_yaml.is_file() else []
     h = hashlib.sha256()
     for part in parts:
         h.update(hashlib.sha256(part).digest())
