@@ -50,6 +50,8 @@ def print_table(figures: dict[str, Any], console=None) -> None:
             failures.append(f"adaptive {name}: {v['failed']}")
             continue
         probes = f"{v['probings_after_calibration']} ({v['probings_per_h_after_calibration']:.2f})"
+        if "load_probing" in v:         # the load-change rule the walk-forward chose: off, or delay/depth
+            probes += f", after steps {v['probings_after_input_steps']} ({v['load_probing']['chosen']})"
         table.add_row("adaptive", name, *[_cell(v["channels"][ch], "ratio_to_hold_test") for ch in chs], probes)
         table.add_row("", f"  hold {name}'s probes",
                       *[("" if "failed" in v["channels"][ch] else

@@ -124,3 +124,18 @@ def test_choose_without_steps_on_the_training_rows_is_off():
     budget, info = choose_load_probing(d2, 270, {}, ProbingBudget(), 6)
     assert budget.load_delay_min is None and info == {"chosen": "off",
                                                       "why": "no machine-input step on the training rows"}
+
+
+def test_the_cli_takes_the_rule_and_a_zero_credit_keeps_the_average(tmp_path):
+    import json
+
+    from synthetic_recording import write_csv
+    from thermal_eval.evaluate_cli import main
+    write_csv(tmp_path / "r.csv", synthetic())
+    assert main([str(tmp_path / "r.csv"), "--out", str(tmp_path / "o"), "--models", "lagged_ridge", "--load-probing",
+                 "--bucket-credit", "0", "--probe-phases", "3", "--no-rerun", "--no-progress"]) == 0
+    f = json.loads((tmp_path / "o" / "evaluation.json").read_text())
+    assert f["load_probing"] is True and f["budget"]["bucket_credit"] == 0.0
+    row = f["adaptive"]["lagged_ridge"]
+    assert row["load_probing"]["chosen"] in row["load_probing"]["walk_forward_mae_um"]
+    assert all(p <= 1.0 for p in row["probe_phases"]["probings_per_h_after_calibration"])
