@@ -13,6 +13,7 @@ of another machine's TALC model (:func:`prior_from_state`). docs/prior.md. No rc
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -155,6 +156,8 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
         raise PriorError(f"prior: {len(recordings)} training recording(s); need at least 2 "
                          "(one is held out to choose the orders)")
     cfg = config if isinstance(config, TalcConfig) else TalcConfig.from_mapping(config)
+    if cfg.type_input_names:          # the inputs of runs started from a prior of the type
+        cfg = dataclasses.replace(cfg, input_names=list(cfg.type_input_names))
     if not cfg.input_names:
         raise PriorError("prior: the TALC configuration names no 'input_names'")
     grids = [grid_from_recording(r, cfg) for r in recordings]
@@ -343,10 +346,15 @@ class TalcPriorModel(TalcModel):
 
 
 def talc_with_prior(config: Mapping[str, Any], prior: Mapping[str, Any], **kwargs) -> TalcPriorModel:
-    """TALC with ``prior``; the model's ``input_names`` default to the prior's, the adaptation
-    settings (prior_samples, check_h, state_gain) to the prior's ``adaptation`` mapping."""
+    """TALC with ``prior``; the model's ``input_names`` default to the prior's (and are the
+    prior's when they are the configuration's ``type_input_names``: the type's inputs of a run
+    started from its prior), the adaptation settings (prior_samples, check_h, state_gain) to
+    the prior's ``adaptation`` mapping."""
     cfg = dict(config)
-    cfg.setdefault("input_names", list(prior["talc_state"]["input_names"]))
+    inputs = list(prior["talc_state"]["input_names"])
+    if list(cfg.get("type_input_names") or []) == inputs:
+        cfg["input_names"] = inputs
+    cfg.setdefault("input_names", inputs)
     settings = dict(prior.get("adaptation") or {})
     settings.update(kwargs)
     return TalcPriorModel(cfg, prior, **settings)

@@ -27,6 +27,12 @@ class TalcConfig:
     #: the soft sensors ``twin:...`` (a twin preset name or machine YAML; talc_model.type_inputs,
     #: docs/talc.md "session 9"); "" = none
     type_model: str = ""
+    #: TALC's inputs when it starts from a prior of the machine type: ``build_talc_prior`` fits
+    #: the prior on them and ``talc_with_prior`` runs on them (e.g. the type's soft sensors
+    #: ``twin:<node>``); a run without a prior (the thesis's protocol: calibration phase, order
+    #: growth) keeps ``input_names`` (from zero, six soft sensors need a long calibration and
+    #: measured worse: docs/talc.md, session 9). [] = ``input_names`` in both
+    type_input_names: list[str] = field(default_factory=list)
     #: time constant of the unit's discrepancy from its type: a prior whose inputs are soft
     #: sensors gets this pole (talc_model.prior.with_discrepancy_pole), so a probe's correction
     #: persists; just under ``max_time_constant_h`` (24 h) so updates keep it admissible
@@ -126,8 +132,10 @@ class TalcConfig:
     def __post_init__(self) -> None:
         self.component_names = [str(c) for c in self.component_names]
         self.input_names = [str(c) for c in self.input_names]
+        self.type_input_names = [str(c) for c in (self.type_input_names or [])]
         self.angular_components = [str(c) for c in self.angular_components]
         self.switch_probe_input = str(self.switch_probe_input)
+        self.type_model = "" if self.type_model is None else self.type_model
         if not isinstance(self.type_model, str):
             raise ValueError(f"TALC config 'type_model': {self.type_model!r} must be a preset name or YAML path")
         for name in ("model_step_s", "cp_interval_s", "ng_interval_min", "probe_duration_s",

@@ -29,20 +29,21 @@ def soft_sensors_for(config: TalcConfig) -> TypeSoftSensors | None:
     """The type's soft sensors for ``config`` (None without ``type_model``); an input naming a
     soft sensor the type does not have, or one without ``type_model``, raises ValueError."""
     wanted = twin_signal_names(config.input_names)
+    named = wanted + twin_signal_names(config.type_input_names)
     if not config.type_model:
-        if wanted:
-            raise ValueError(f"TALC config 'input_names': {wanted} are soft sensors of the machine type, but "
-                             "'type_model' names no type (a preset name or a machine YAML)")
+        if named:
+            raise ValueError(f"TALC config 'input_names' / 'type_input_names': {named} are soft sensors of the "
+                             "machine type, but 'type_model' names no type (a preset name or a machine YAML)")
         return None
     try:
         sensors = TypeSoftSensors(config.type_model)
     except (MachineSpecError, OSError, ValueError) as exc:
         raise ValueError(f"TALC config 'type_model': {config.type_model!r}: {exc}") from None
-    unknown = [n for n in wanted if n not in sensors.names]
+    unknown = [n for n in named if n not in sensors.names]
     if unknown:
-        raise ValueError(f"TALC config 'input_names': {unknown} are not soft sensors of the type "
-                         f"{sensors.machine.name!r} (it has {sensors.names})")
-    return sensors
+        raise ValueError(f"TALC config 'input_names' / 'type_input_names': {unknown} are not soft sensors of the "
+                         f"type {sensors.machine.name!r} (it has {sensors.names})")
+    return sensors if wanted else None     # stepped only when the model's own inputs read it
 
 
 def restore_soft_sensors(sensors: TypeSoftSensors | None, state: Mapping[str, Any]) -> str:

@@ -98,3 +98,16 @@ def test_a_prior_on_soft_sensors_persists_probes_and_round_trips(recordings):
     again = TalcModel.from_state(old)
     assert again.soft_sensors.stepper is None
     assert "start at the type's steady state of the next instant" in again.message
+
+
+def test_type_input_names_are_the_inputs_of_runs_started_from_the_prior(recordings):
+    thesis = ["ambient", "ws_mwf", "c_coolant_delta", "coolant_on"]
+    cfg = {**CFG, "input_names": thesis, "type_input_names": NODES}
+    alone = TalcModel(cfg)                      # the thesis's protocol: its own inputs, no twin stepped
+    assert alone.input_names == thesis and alone.soft_sensors is None
+    prior = build_talc_prior(recordings, cfg, machine="nmv5000")
+    assert prior["talc_state"]["input_names"] == NODES
+    model = talc_with_prior(cfg, prior)
+    assert model.input_names == NODES and model.soft_sensors is not None
+    with pytest.raises(ValueError, match="'type_input_names'.*twin:nowhere"):
+        TalcModel({**cfg, "type_input_names": ["twin:nowhere"]})
