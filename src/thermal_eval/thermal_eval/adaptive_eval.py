@@ -7,7 +7,9 @@ After the training rows (the calibration phase) a probing measures every displac
 - **the model's own**: when the model predicts a change of more than ``tolerance_um`` on any
   channel since the last probing (it sees a load change the held probe cannot), at the
   earliest ``min_gap_s`` after the previous cycle, and only while the probings after
-  calibration stay within ``max_probes_per_h`` x elapsed hours: the budget is a hard cap.
+  calibration stay within ``max_probes_per_h`` x elapsed hours: the budget is a hard cap;
+- with ``load_delay_min`` (``--load-probing``): also D minutes after a machine-input step, all
+  probings then drawn from a token bucket (:mod:`thermal_eval.load_probing`) instead of the cap.
 
 Between probings the compensation is the **uncertainty-weighted hold**
 (:func:`talc_model.uncertainty_weighted_hold`): the held probe y_p moved towards the model

@@ -13,6 +13,8 @@ Figures:
   held-out rows are a long steady state: adaptive MAE over holding (target <= 1.10);
 - ``--probe-phases K``: FL_THERMAL's adaptive rows also scored with the probing clock delayed by
   i/K of the interval; ``adaptive_targets`` then says the target at phase 0 and on the phase mean;
+- ``--load-probing``: FL_THERMAL's adaptive rows may also probe after spindle-speed steps
+  (:mod:`thermal_eval.load_probing`; ``--bucket-credit=0``: never above one per hour on average);
 - ``*.seconds`` per model: what dominates the wall time (target < 300 s on FL_THERMAL).
 
 ``--quick``: every 4th FL_THERMAL row (a smoke run; its figures differ from the full run).
