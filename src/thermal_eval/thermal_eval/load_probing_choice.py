@@ -73,6 +73,8 @@ def choose_load_probing(data: EvaluationData, first: int, fits: Mapping[str, tup
     if in_train == 0:
         why = "no machine inputs" if data.inputs is None else "no machine-input step on the training rows"
         return replace(budget, load_delay_min=None), {"chosen": "off", "why": why}
+    if not fits:
+        return replace(budget, load_delay_min=None), {"chosen": "off", "why": "no channel has a fitted model"}
     wf = training_rows(data, first)
     preds = {c: f[0] for c, f in fits.items()}
     oofs = {c: f[1] for c, f in fits.items()}
