@@ -7,6 +7,9 @@ TALC started from a prior of the NOMINAL type, built from the training programme
 talc-178h-dry is in none of them, so its prior is the demo's. Every result is printed beside
 probe-and-hold at the model's own Q_prod (ratio = P99_lin / probe-and-hold's; goal <= 0.5). The
 tables of docs/talc.md (sections "Selection consistent with the loop, ..." on) are its output.
+With the shipped configuration the prior and TALC run on the machine type's soft sensors
+(``type_input_names``, docs/talc.md "session 9"); ``--set type_input_names=[]`` gives the
+thesis's inputs and the MWF flag (the defaults before session 9).
 ``--change-goal 0.5`` turns on the change-probing rule with thresholds derived from each prior's
 held-out training programme (talc_model.change_threshold; docs/talc.md, session 8).
 """
