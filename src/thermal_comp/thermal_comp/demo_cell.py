@@ -19,7 +19,12 @@ MACHINES: dict[str, dict[str, Any]] = {
     "nmv5000": {"scenario": "talc-178h-dry", "model_kind": "talc", "artefact": "sphere",
                 "sensor_config": "nmv5000", "step_s": 300.0, "compensation_mode": "kinematic",
                 "model_config": "talc_nmv5000.yaml",
-                "offset_axes": list(FIVE_AXIS_COMPONENTS)},
+                "offset_axes": list(FIVE_AXIS_COMPONENTS),
+                # the bridge's absolute offset limit for this type: above its own thermal error
+                # (thesis Table 6.5: uncompensated P99 of E_Z0T 27.5 um on the real machine; unit #1
+                # reaches 35 um in talc-178h-dry), so the bound catches a runaway model without
+                # clamping legitimate compensation (the bridge's default, 30 um, did: 81 steps)
+                "abs_limit_um": 50.0},
     "swiss-lathe": {"scenario": "lathe-random-speed", "model_kind": "agp", "artefact": "guide_bush",
                     "sensor_config": "swiss_lathe", "step_s": 60.0, "tool_position": "GB",
                     "offset_axes": ["GB_X"]},
@@ -88,6 +93,8 @@ def _bridge_parameters(cfg: DemoConfig, out: pathlib.Path, endpoint: str | None)
         bridge["offset_axes"] = m["offset_axes"]
     if m.get("compensation_mode"):
         bridge["compensation_mode"] = m["compensation_mode"]
+    if m.get("abs_limit_um"):
+        bridge["abs_limit_um"] = float(m["abs_limit_um"])
     if endpoint:
         bridge["endpoint"] = endpoint
     return bridge
