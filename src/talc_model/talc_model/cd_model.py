@@ -14,6 +14,10 @@ measurements of the running load case. As an adaptive model:
   measurements since the base was fitted (the paper found repeating an update on the same load
   case gains nothing, so one update model is kept and replaced).
 
+With ``type_model`` and ``type_inputs`` the candidates also hold soft sensors of the machine
+type (``twin:<node>`` / ``twin:<error>``, :mod:`talc_model.type_inputs`: the type's nominal twin
+stepped from the machine inputs), as levels; their state is part of the model's.
+
 CDs carry no predictive variance; the reported std is the RMS of the last
 ``uncertainty_window`` prediction errors seen by the probe *before* learning from them (an
 honest out-of-sample figure), NaN until there are any. Inputs outside the grid are clamped.
@@ -31,6 +35,7 @@ import numpy as np
 from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION, ModelStatusData, register_model
 from talc_model.cd_input_selection import forward_selection
 from talc_model.characteristic_diagram import CharacteristicDiagram, load_case_update
+from talc_model.type_inputs import load_soft_sensors, restore_soft_sensors
 from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 
@@ -47,6 +52,10 @@ class CdConfig:
     #: first-order low-passes of every temperature (time constants, s): candidates that carry the
     #: structure's thermal lag, which static maps of the present temperatures miss (docs/prior.md)
     lowpass_time_constants_s: list[float] = field(default_factory=list)
+    #: the machine type (preset name or YAML) whose soft sensors ``type_inputs`` names
+    type_model: str = ""
+    #: soft sensors of ``type_model`` that are candidate inputs (levels, after the low-passes)
+    type_inputs: list[str] = field(default_factory=list)
     max_inputs: int = 3
     n_intervals: int = 4
     smoothing: float = 1e-4
@@ -84,6 +93,9 @@ class CdConfig:
         if not (isinstance(cfg.update_rmse_floor, (int, float)) and math.isfinite(cfg.update_rmse_floor)
                 and cfg.update_rmse_floor >= 0):
             raise CdModelError(f"cd config: 'update_rmse_floor' must be a number >= 0, got {cfg.update_rmse_floor!r}")
+        if cfg.type_inputs and not cfg.type_model:
+            raise CdModelError(f"cd config: 'type_inputs' {cfg.type_inputs} are soft sensors of the machine type, "
+                               "but 'type_model' names no type (a preset name or a machine YAML)")
         if not (isinstance(cfg.min_calibration_s, (int, float)) and cfg.min_calibration_s >= 0):
             raise CdModelError(f"cd config: 'min_calibration_s' must be >= 0, got {cfg.min_calibration_s!r}")
         return cfg
@@ -122,6 +134,9 @@ class CharacteristicDiagramModel:
         self.parameter_updates = 0
         self.pending_since_update = 0
         self.message = "calibration: collecting measurements"
+        #: the machine type's soft sensors (``type_inputs``), stepped at every update_inputs
+        self.soft_sensors = (load_soft_sensors(self.config.type_model, self.config.type_inputs, "cd config",
+                                               "'type_inputs'") if self.config.type_inputs else None)
         self._key = 0
         self._cache: tuple[int, dict, dict] | None = None
 
@@ -132,15 +147,18 @@ class CharacteristicDiagramModel:
     # ------------------------------------------------------------------ inputs
     @property
     def candidate_names(self) -> list[str]:
-        """temperatures, their low-passes (``T~tau``, tau in h), their gradients (``dT/dt``)."""
+        """temperatures, their low-passes (``T~tau``, tau in h), the type's soft sensors
+        (``type_inputs``), the temperatures' gradients (``dT/dt``)."""
         names = list(self.sensor_names or [])
         lows = [f"{n}~{tau / 3600.0:g}h" for tau in self.config.lowpass_time_constants_s for n in names]
-        return names + lows + ([f"d{n}/dt" for n in names] if self.config.use_gradients else [])
+        return names + lows + list(self.config.type_inputs) + (
+            [f"d{n}/dt" for n in names] if self.config.use_gradients else [])
 
     @property
     def level_columns(self) -> int:
-        """How many leading candidates are temperature levels (the temperatures and their low-passes)."""
-        return len(self.sensor_names or []) * (1 + len(self.config.lowpass_time_constants_s))
+        """How many leading candidates are levels (the temperatures, their low-passes, the soft sensors)."""
+        return len(self.sensor_names or []) * (1 + len(self.config.lowpass_time_constants_s)) + len(
+            self.config.type_inputs)
 
     def update_inputs(self, t_s: float, temperatures: Mapping[str, float],
                       machine_state: Mapping[str, float]) -> None:
@@ -169,7 +187,7 @@ class CharacteristicDiagramModel:
         else:
             self.lowpass = self.lowpass + (temps - self.lowpass) * (1.0 - np.exp(-max(t_s - self.t_input, 0.0) / taus))
         self.t_input = float(t_s)
-        levels = np.concatenate([temps, self.lowpass.ravel()])
+        levels = np.concatenate([temps, self.lowpass.ravel(), self._soft_values(t_s, temperatures, machine_state)])
         self.recent.append((float(t_s), temps))
         while len(self.recent) > 2 and t_s - self.recent[1][0] >= self.config.gradient_window_s:
             self.recent.popleft()
@@ -180,6 +198,14 @@ class CharacteristicDiagramModel:
         else:
             self.current = levels
         self._key += 1
+
+    def _soft_values(self, t_s: float, temperatures: Mapping[str, float],
+                     machine_state: Mapping[str, float]) -> np.ndarray:
+        """The ``type_inputs`` soft sensors at ``t_s`` (the type's twin stepped to it)."""
+        if self.soft_sensors is None:
+            return np.zeros(0)
+        values = self.soft_sensors.update(t_s, temperatures, machine_state)
+        return np.asarray([values[n] for n in self.config.type_inputs], float)
 
     # ------------------------------------------------------------------ prediction
     def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
@@ -293,7 +319,8 @@ class CharacteristicDiagramModel:
             parameter_updates=self.parameter_updates, training_samples=len(self.base_u) + len(self.new_u),
             q_prod_pct=100.0 if elapsed <= 0 else max(0.0, 100.0 * (1.0 - probing / elapsed)),
             next_probing_due_s=(self.t_start or 0.0) if self.t_last_probe is None else self.t_last_probe + self._interval(),
-            max_uncertainty=max(finite) if finite else math.nan, excluded_sensor_ids=list(self.excluded),
+            max_uncertainty=max(finite) if finite else math.nan, excluded_sensor_ids=list(self.excluded) + [
+                f"{n} (type twin input, held)" for n in (self.soft_sensors.held_now if self.soft_sensors else [])],
             message=self.message)
 
     def to_state(self) -> dict:
@@ -309,7 +336,8 @@ class CharacteristicDiagramModel:
                 "t_start": self.t_start, "t_last_probe": self.t_last_probe,
                 "probing_cycles": self.probing_cycles, "failed_probing_cycles": self.failed_probing_cycles,
                 "parameter_updates": self.parameter_updates, "pending_since_update": self.pending_since_update,
-                "message": self.message}
+                "message": self.message,
+                "soft_sensors": None if self.soft_sensors is None else self.soft_sensors.to_state()}
 
     @classmethod
     def from_state(cls, state: dict) -> "CharacteristicDiagramModel":
@@ -332,6 +360,7 @@ class CharacteristicDiagramModel:
             m.base = {c: CharacteristicDiagram.from_state(s) for c, s in state["base"].items()}
             m.update = {c: CharacteristicDiagram.from_state(s) for c, s in state["update"].items()}
             m.errors = {c: deque(e, maxlen=m.config.uncertainty_window) for c, e in state["errors"].items()}
+            m.message += restore_soft_sensors(m.soft_sensors, state)
         except KeyError as exc:
             raise CdModelError(f"model state: missing key {exc}") from None
         return m

@@ -27,6 +27,7 @@ from talc_model.cd_model import CdConfig, CharacteristicDiagramModel
 from talc_model.characteristic_diagram import CharacteristicDiagram
 from talc_model.prior import PRIOR_VERSION, PriorError
 from talc_model.prior_agp import error_deltas, restore_with_prior
+from talc_model.type_inputs import load_soft_sensors
 from talc_model.uncertainty_weighted_hold import change_gain
 from thermal_comp_common.probe_and_hold import table_5_4_noise
 
@@ -53,8 +54,11 @@ CHANGE_LAGS_H = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 #: held-out programme, which estimates the structure's lag per component
 PRIOR_LOWPASS_S = (3600.0, 7200.0, 14400.0, 28800.0)
 #: the CD structure is the prior's: these run-configuration keys are taken from it
-STRUCTURE_KEYS = ("sensors", "use_gradients", "gradient_window_s", "lowpass_time_constants_s", "max_inputs",
-                  "n_intervals", "smoothing")
+STRUCTURE_KEYS = ("sensors", "use_gradients", "gradient_window_s", "lowpass_time_constants_s", "type_model",
+                  "type_inputs", "max_inputs", "n_intervals", "smoothing")
+#: the prior's candidates include every soft sensor of the machine type (``type_model``: the
+#: prior's machine unless the configuration names one) unless the configuration sets ``type_inputs``
+PRIOR_SOFT_SENSORS = False
 
 
 def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.ndarray]:
@@ -63,9 +67,11 @@ def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.nda
     the gradient window are the model's), temperatures as deltas from the first complete row."""
     probe = CharacteristicDiagramModel(asdict(config))
     sensors = {c[:-2]: np.asarray(recording.columns[c], float) for c in recording.names("sensor")}
+    inputs = {c: np.asarray(recording.columns[c], float) for c in recording.names("input")}
     rows = []
     for k, t in enumerate(np.asarray(recording.time_s, float)):
-        probe.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()}, {})
+        probe.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()},
+                            {s: float(v[k]) for s, v in inputs.items()})
         rows.append(probe.current.copy())
     x = np.asarray(rows)
     n = probe.level_columns
@@ -73,6 +79,20 @@ def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.nda
     if ok.any():
         x[:, :n] -= x[ok][0, :n]
     return list(probe.sensor_names), probe.candidate_names, x
+
+
+def prior_config(config: Mapping[str, Any] | None, machine: str) -> dict[str, Any]:
+    """The CD configuration a prior is built with: the prior's low-pass time constants and, with
+    ``PRIOR_SOFT_SENSORS``, every soft sensor of the type (``type_model``, default ``machine``) as
+    candidates, unless ``config`` sets them (``type_inputs: []``: none)."""
+    cfg = {"lowpass_time_constants_s": list(PRIOR_LOWPASS_S), **dict(config or {})}
+    if PRIOR_SOFT_SENSORS and "type_inputs" not in cfg:
+        cfg["type_model"] = cfg.get("type_model") or machine
+        try:
+            cfg["type_inputs"] = load_soft_sensors(cfg["type_model"], [], "cd prior", "'type_inputs'").names
+        except ValueError as exc:
+            raise PriorError(f"{exc} (give 'type_model' in the configuration, or 'type_inputs: []')") from None
+    return cfg
 
 
 def _training_parts(recordings: Sequence[Any], cfg: CdConfig, every_s: float):
@@ -147,8 +167,7 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
     """The CD prior from nominal recordings (module docstring): inputs chosen on the last
     recording held out, whose RMS is the ``validation_rms``; diagrams fitted on all of them;
     ``anchors``: the training points (thinned evenly) the load-case updates keep close to."""
-    cfg = config if isinstance(config, CdConfig) else CdConfig.from_mapping(
-        {"lowpass_time_constants_s": list(PRIOR_LOWPASS_S), **dict(config or {})})
+    cfg = config if isinstance(config, CdConfig) else CdConfig.from_mapping(prior_config(config, machine))
     if len(recordings) < 2:
         raise PriorError(f"cd prior: needs >= 2 training recordings (one held out), got {len(recordings)}")
     if not (math.isfinite(every_s) and every_s > 0):

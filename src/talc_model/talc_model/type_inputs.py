@@ -2,12 +2,13 @@
 (:mod:`thermal_twin.type_soft_sensors`) named ``twin:<node>`` or ``twin:<error>`` in
 ``TalcConfig.input_names``, the type named by ``TalcConfig.type_model`` (preset name or YAML
 path). TALC steps them once per :meth:`update_inputs` instant and adds their values to the
-signals its inputs are read from; their state is part of TALC's persisted state.
+signals its inputs are read from; their state is part of TALC's persisted state. :func:`load_soft_sensors` and
+:func:`restore_soft_sensors` serve the characteristic-diagram model too (``CdConfig.type_inputs``).
 docs/talc.md, "session 9". No rclpy here.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from thermal_twin.machine_spec import MachineSpecError
 from thermal_twin.type_soft_sensors import PREFIX, TypeSoftSensors
@@ -35,15 +36,23 @@ def soft_sensors_for(config: TalcConfig) -> TypeSoftSensors | None:
             raise ValueError(f"TALC config 'input_names' / 'type_input_names': {named} are soft sensors of the "
                              "machine type, but 'type_model' names no type (a preset name or a machine YAML)")
         return None
-    try:
-        sensors = TypeSoftSensors(config.type_model)
-    except (MachineSpecError, OSError, ValueError) as exc:
-        raise ValueError(f"TALC config 'type_model': {config.type_model!r}: {exc}") from None
-    unknown = [n for n in named if n not in sensors.names]
-    if unknown:
-        raise ValueError(f"TALC config 'input_names' / 'type_input_names': {unknown} are not soft sensors of the "
-                         f"type {sensors.machine.name!r} (it has {sensors.names})")
+    sensors = load_soft_sensors(config.type_model, named, "TALC config", "'input_names' / 'type_input_names'")
     return sensors if wanted else None     # stepped only when the model's own inputs read it
+
+
+def load_soft_sensors(type_model: str, names: Sequence[str], where: str, field: str) -> TypeSoftSensors:
+    """The soft sensors of the type ``type_model`` (preset name or machine YAML); every one of
+    ``names`` must be among them. A bad type or name raises ValueError naming ``where`` (e.g.
+    "TALC config", "cd config") and ``field`` (the key that named them). Used by TALC and the CD model."""
+    try:
+        sensors = TypeSoftSensors(type_model)
+    except (MachineSpecError, OSError, ValueError) as exc:
+        raise ValueError(f"{where} 'type_model': {type_model!r}: {exc}") from None
+    unknown = [n for n in names if n not in sensors.names]
+    if unknown:
+        raise ValueError(f"{where} {field}: {unknown} are not soft sensors of the "
+                         f"type {sensors.machine.name!r} (it has {sensors.names})")
+    return sensors
 
 
 def restore_soft_sensors(sensors: TypeSoftSensors | None, state: Mapping[str, Any]) -> str:
