@@ -37,7 +37,8 @@ PRIOR_MODULES = {"talc": ["talc_model.prior", "talc_model.talc", "talc_model.typ
                           "thermal_twin.type_soft_sensors"],
                  "agp": ["talc_model.prior_agp", "talc_model.agp", "talc_model.gaussian_process"],
                  "cd": ["talc_model.prior_cd", "talc_model.cd_model", "talc_model.characteristic_diagram",
-                        "talc_model.cd_input_selection", "talc_model.uncertainty_weighted_hold"]}
+                        "talc_model.cd_input_selection", "talc_model.uncertainty_weighted_hold",
+                        "talc_model.type_inputs", "thermal_twin.type_soft_sensors"]}
 
 
 def type_name(machine: str) -> str:
