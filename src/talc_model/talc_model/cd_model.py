@@ -56,6 +56,10 @@ class CdConfig:
     type_model: str = ""
     #: soft sensors of ``type_model`` that are candidate inputs (levels, after the low-passes)
     type_inputs: list[str] = field(default_factory=list)
+    #: beyond the training range the diagrams continue linearly along the soft-sensor inputs
+    #: (the type's predicted error stays a linear map of the unit's; clamping it cut a 60-um
+    #: excursion to the prior's 40 um) and clamp along the others (the papers')
+    extrapolate_type_inputs: bool = False
     max_inputs: int = 3
     n_intervals: int = 4
     smoothing: float = 1e-4
@@ -99,6 +103,14 @@ class CdConfig:
         if not (isinstance(cfg.min_calibration_s, (int, float)) and cfg.min_calibration_s >= 0):
             raise CdModelError(f"cd config: 'min_calibration_s' must be >= 0, got {cfg.min_calibration_s!r}")
         return cfg
+
+
+def extrapolated_axes(config: CdConfig, candidate_names: list[str], cols: list[int] | None) -> list[bool] | bool:
+    """Per chosen column: does the diagram extrapolate along it (a soft sensor, with
+    ``extrapolate_type_inputs``)? False for all without columns."""
+    if cols is None or not config.extrapolate_type_inputs:
+        return False
+    return [candidate_names[i] in config.type_inputs for i in cols]
 
 
 @register_model("cd")
@@ -284,8 +296,11 @@ class CharacteristicDiagramModel:
             self.message = f"load-case update at t={t_s:.0f} s from {len(self.new_u)} measurements"
         self._cache = None
 
-    def _make_cd(self) -> CharacteristicDiagram:
-        return CharacteristicDiagram(n_intervals=self.config.n_intervals, smoothing=self.config.smoothing)
+    def _make_cd(self, cols: list[int] | None = None) -> CharacteristicDiagram:
+        """A diagram of the configured grid; on the candidate columns ``cols`` it extrapolates
+        along the soft sensors with ``extrapolate_type_inputs``."""
+        return CharacteristicDiagram(n_intervals=self.config.n_intervals, smoothing=self.config.smoothing,
+                                     extrapolate=extrapolated_axes(self.config, self.candidate_names, cols))
 
     def _fit_base(self) -> None:
         u = np.asarray(self.base_u)
@@ -294,7 +309,7 @@ class CharacteristicDiagramModel:
             steps = forward_selection(u, y, max_inputs=self.config.max_inputs, make_cd=self._make_cd,
                                       seed=self.config.seed, min_relative_gain=0.05)
             self.inputs[c] = list(steps[-1].subset)
-            self.base[c] = self._make_cd().fit(u[:, self.inputs[c]], y)
+            self.base[c] = self._make_cd(self.inputs[c]).fit(u[:, self.inputs[c]], y)
         self.update = {}
         self.parameter_updates += 1
 

@@ -73,12 +73,16 @@ class CharacteristicDiagram(BaseEstimator):
     smoothing: dimensionless smoothing weight lambda (scalar or one per input; 0 = none).
     ridge: tiny Tikhonov weight relative to the data term, pins the smoothing null space.
     bounds: optional (lower, upper) arrays of the grid domain; default the training range.
+    extrapolate: per input (or one for all): beyond the grid, continue the boundary cell linearly
+        instead of clamping (for an input that is itself a model's prediction of the output, e.g. a
+        soft sensor of the machine type, whose map stays linear beyond the training range).
     """
 
     n_intervals: int | Sequence[int] = 4
     smoothing: float | Sequence[float] = 1e-4
     ridge: float = 1e-9
     bounds: tuple[Sequence[float], Sequence[float]] | None = None
+    extrapolate: bool | Sequence[bool] = False
     # fitted state (scikit-learn convention: set by fit, trailing underscore, not a parameter)
     lower_: np.ndarray | None = field(default=None, init=False, repr=False)
     upper_: np.ndarray | None = field(default=None, init=False, repr=False)
@@ -94,15 +98,17 @@ class CharacteristicDiagram(BaseEstimator):
         return len(self.shape_)
 
     def _cells(self, u: np.ndarray, count_out_of_range: bool = True):
-        """Cell index and local coordinate tau in [0,1] per sample and input (clamped)."""
+        """Cell index and local coordinate tau in [0,1] per sample and input (clamped; beyond
+        [0,1] along the ``extrapolate`` inputs: the boundary cell continued linearly)."""
         lo, hi = self.lower_, self.upper_
         n = np.asarray(self.shape_) - 1
         s = (u - lo) / (hi - lo) * n
         outside = (s < -1e-9) | (s > n + 1e-9)
         if count_out_of_range:
             self.out_of_range_count_ += int(np.any(outside, axis=1).sum())
-        s = np.clip(s, 0.0, n)
-        idx = np.minimum(np.floor(s).astype(int), n - 1)
+        free = np.asarray(self.extrapolate, bool)
+        s = np.where(free, s, np.clip(s, 0.0, n))
+        idx = np.clip(np.floor(s).astype(int), 0, n - 1)
         tau = s - idx
         return idx, tau
 
@@ -181,7 +187,7 @@ class CharacteristicDiagram(BaseEstimator):
         return self
 
     def predict(self, u) -> np.ndarray:
-        """Evaluate the diagram; inputs outside the grid are clamped (and counted)."""
+        """Evaluate the diagram; inputs outside the grid are clamped or extrapolated (and counted)."""
         if self.coef_ is None:
             raise CharacteristicDiagramError("characteristic diagram is not fitted")
         u = as_2d(u, "u")
@@ -208,7 +214,8 @@ class CharacteristicDiagram(BaseEstimator):
         return {"n_intervals": [s - 1 for s in self.shape_],
                 "smoothing": np.atleast_1d(self.smoothing).tolist(), "ridge": self.ridge,
                 "lower": self.lower_.tolist(), "upper": self.upper_.tolist(),
-                "coef": self.coef_.tolist()}
+                "coef": self.coef_.tolist(), "extrapolate": np.broadcast_to(
+                    np.asarray(self.extrapolate, bool), (len(self.shape_),)).tolist()}
 
     @classmethod
     def from_state(cls, state: dict) -> "CharacteristicDiagram":
@@ -219,6 +226,8 @@ class CharacteristicDiagram(BaseEstimator):
             cd.upper_ = np.asarray(state["upper"], dtype=float)
             cd.shape_ = tuple(int(v) + 1 for v in state["n_intervals"])
             cd.coef_ = np.asarray(state["coef"], dtype=float)
+            cd.extrapolate = list(state.get("extrapolate", False)) if isinstance(state.get("extrapolate"), list) \
+                else bool(state.get("extrapolate", False))
         except KeyError as exc:
             raise CharacteristicDiagramError(f"characteristic diagram state: missing key {exc}") from None
         if cd.coef_.size != int(np.prod(cd.shape_)):

@@ -3,12 +3,14 @@
 ``build_cd_prior`` fits one CD per error component on virtual experiments of the NOMINAL type
 (other load programmes and seeds than the run; ``thermal-comp prior --model cd``): the
 candidate inputs are exactly the CD model's online ones (every temperature as a delta from the
-run's first row, and its gradient), chosen by the forward heuristic scored on the LAST
-training recording held out (a prior must generalise to an unseen programme), then fitted on
-all recordings. ``CdPriorModel`` (kind ``cd``) compensates with those diagrams from the first
-instant, probes at the calibration interval for ``check_s`` and then at the longest interval
-its measured change gain allows (:func:`interval_from_gain`, at most the update interval), and
-predicts the last probe plus the diagrams' change since it times that gain.
+run's first row, its low-passes and gradient, and, with :data:`PRIOR_SOFT_SENSORS`, every soft
+sensor of the type: its nominal twin stepped from the machine inputs), chosen by the forward
+heuristic scored on the LAST training recording held out (a prior must generalise to an unseen
+programme), then fitted on all recordings. ``CdPriorModel`` (kind ``cd``) compensates with those
+diagrams from the first instant, probes at the calibration interval for ``check_s`` and then
+every ``update_probe_interval_s`` (or, opt-in, at the longest interval its measured change gain
+allows: :func:`interval_from_gain`), and predicts the last probe plus the diagrams' change since
+it times that gain.
 :func:`cd_prior_from_state` turns another machine's persisted CD model into a prior. No rclpy
 here. docs/prior.md, docs/agp_cd.md.
 """
@@ -23,7 +25,7 @@ import numpy as np
 
 from talc_model.adaptive_model import PHASE_COMPENSATION
 from talc_model.cd_input_selection import forward_selection
-from talc_model.cd_model import CdConfig, CharacteristicDiagramModel
+from talc_model.cd_model import CdConfig, CharacteristicDiagramModel, extrapolated_axes
 from talc_model.characteristic_diagram import CharacteristicDiagram
 from talc_model.prior import PRIOR_VERSION, PriorError
 from talc_model.prior_agp import error_deltas, restore_with_prior
@@ -55,10 +57,10 @@ CHANGE_LAGS_H = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0)
 PRIOR_LOWPASS_S = (3600.0, 7200.0, 14400.0, 28800.0)
 #: the CD structure is the prior's: these run-configuration keys are taken from it
 STRUCTURE_KEYS = ("sensors", "use_gradients", "gradient_window_s", "lowpass_time_constants_s", "type_model",
-                  "type_inputs", "max_inputs", "n_intervals", "smoothing")
+                  "type_inputs", "extrapolate_type_inputs", "max_inputs", "n_intervals", "smoothing")
 #: the prior's candidates include every soft sensor of the machine type (``type_model``: the
 #: prior's machine unless the configuration names one) unless the configuration sets ``type_inputs``
-PRIOR_SOFT_SENSORS = False
+PRIOR_SOFT_SENSORS = True
 
 
 def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.ndarray]:
@@ -84,14 +86,20 @@ def cd_inputs(recording, config: CdConfig) -> tuple[list[str], list[str], np.nda
 def prior_config(config: Mapping[str, Any] | None, machine: str) -> dict[str, Any]:
     """The CD configuration a prior is built with: the prior's low-pass time constants and, with
     ``PRIOR_SOFT_SENSORS``, every soft sensor of the type (``type_model``, default ``machine``) as
-    candidates, unless ``config`` sets them (``type_inputs: []``: none)."""
+    candidates unless ``config`` sets them (``type_inputs: []``: none); with soft sensors the
+    diagrams extrapolate along them (``extrapolate_type_inputs``, unless set)."""
     cfg = {"lowpass_time_constants_s": list(PRIOR_LOWPASS_S), **dict(config or {})}
     if PRIOR_SOFT_SENSORS and "type_inputs" not in cfg:
         cfg["type_model"] = cfg.get("type_model") or machine
+        if not cfg["type_model"]:
+            raise PriorError("cd prior: no machine type for the soft sensors: give 'machine', 'type_model' in "
+                             "the configuration, or 'type_inputs: []'")
         try:
             cfg["type_inputs"] = load_soft_sensors(cfg["type_model"], [], "cd prior", "'type_inputs'").names
         except ValueError as exc:
             raise PriorError(f"{exc} (give 'type_model' in the configuration, or 'type_inputs: []')") from None
+    if cfg.get("type_inputs"):
+        cfg.setdefault("extrapolate_type_inputs", True)
     return cfg
 
 
@@ -167,9 +175,9 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
     """The CD prior from nominal recordings (module docstring): inputs chosen on the last
     recording held out, whose RMS is the ``validation_rms``; diagrams fitted on all of them;
     ``anchors``: the training points (thinned evenly) the load-case updates keep close to."""
-    cfg = config if isinstance(config, CdConfig) else CdConfig.from_mapping(prior_config(config, machine))
     if len(recordings) < 2:
         raise PriorError(f"cd prior: needs >= 2 training recordings (one held out), got {len(recordings)}")
+    cfg = config if isinstance(config, CdConfig) else CdConfig.from_mapping(prior_config(config, machine))
     if not (math.isfinite(every_s) and every_s > 0):
         raise PriorError(f"cd prior: every_s {every_s!r} must be a positive number")
     parts, names = _training_parts(recordings, cfg, every_s)
@@ -180,8 +188,9 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
         raise PriorError(f"cd prior: only {x.shape[0]} training points ({n_held} held out; every_s {every_s})")
     split = (np.arange(x.shape[0] - n_held), np.arange(x.shape[0] - n_held, x.shape[0]))
 
-    def make() -> CharacteristicDiagram:
-        return CharacteristicDiagram(n_intervals=cfg.n_intervals, smoothing=cfg.smoothing)
+    def make(cols: list[int] | None = None) -> CharacteristicDiagram:
+        return CharacteristicDiagram(n_intervals=cfg.n_intervals, smoothing=cfg.smoothing,
+                                     extrapolate=extrapolated_axes(cfg, names, cols))
 
     inputs, cds, held, gain, stats = {}, {}, {}, {}, {}
     for c in cfg.components:
@@ -190,9 +199,9 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
         cols = list(steps[-1].subset)
         inputs[c] = cols
         held[c] = float(steps[-1].score)            # RMS on the held-out programme, fitted without it
-        cds[c] = make().fit(x[:, cols], y[c]).to_state()
+        cds[c] = make(cols).fit(x[:, cols], y[c]).to_state()
         lag = max(1, int(round(cfg.calibration_probe_interval_s / every_s)))
-        without = make().fit(x[split[0]][:, cols], y[c][split[0]])
+        without = make(cols).fit(x[split[0]][:, cols], y[c][split[0]])
         gain[c] = held_out_change_gain(without, x[split[1]][:, cols], y[c][split[1]], lag)
         stats[c] = held_out_change_stats(without, x[split[1]][:, cols], y[c][split[1]], every_s)
     thin = np.unique(np.linspace(0, x.shape[0] - 1, min(max_anchor_points, x.shape[0])).round().astype(int))
@@ -240,7 +249,7 @@ def _prior_of_adapted(model: "CdPriorModel") -> dict[str, Any]:
     if model.update:
         u = np.asarray(prior["anchors"]["u"], float)
         make = model._make_cd
-        prior["cds"] = {**prior["cds"], **{c: make().fit(u[:, model.inputs[c]], [model._diagrams(r)[c] for r in u])
+        prior["cds"] = {**prior["cds"], **{c: make(model.inputs[c]).fit(u[:, model.inputs[c]], [model._diagrams(r)[c] for r in u])
                                            .to_state() for c in model.update}}
     return prior
 
@@ -250,7 +259,7 @@ def _prior_of_plain(model: CharacteristicDiagramModel) -> dict[str, Any]:
     n = model.level_columns
     u[:, :n] -= u[0, :n]                              # deltas from the first probe, as a prior's inputs
     y = {c: np.asarray(model.base_y[c] + model.new_y[c], float) for c in model.component_names}
-    cds = {c: model._make_cd().fit(u[:, model.inputs[c]], y[c]) for c in model.component_names}
+    cds = {c: model._make_cd(model.inputs[c]).fit(u[:, model.inputs[c]], y[c]) for c in model.component_names}
     gain = {c: change_gain(np.diff(y[c]), np.diff(cds[c].predict(u[:, model.inputs[c]]))) for c in cds}
     names = model.candidate_names
     return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "cd", "sensors": list(model.sensor_names),

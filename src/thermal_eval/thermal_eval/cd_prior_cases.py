@@ -7,10 +7,12 @@ builds, per case, the CD prior of the NOMINAL nmv5000 from ``thermal-comp prior 
 training programmes without the case (seeds 101, 102, ...), replays **unit #1** (run seed S,
 Table 5.4 probe noise and resolution) with ``CdPriorModel`` and prints P99_lin / P99_ang over the
 whole run and its first 8 h, probe-and-hold at the model's own Q_prod over the same instants,
-the ratio (goal <= 0.5), Q_prod and probes, for two variants: ``temperatures`` (the session-5..8
-candidates: temperatures, their low-passes and gradients; ``type_inputs: []``) and ``soft
-sensors`` (those plus every soft sensor of the type, ``twin:<node>`` / ``twin:<error>``). The
-forward selection on the prior's held-out programme picks the inputs in both.
+the ratio (goal <= 0.5), Q_prod and probes, for three variants: ``temperatures`` (the session-5..8
+candidates: temperatures, their low-passes and gradients; ``type_inputs: []``), ``soft sensors,
+clamped`` (those plus every soft sensor of the type, ``twin:<node>`` / ``twin:<error>``, the
+diagrams clamped at the grid) and ``soft sensors`` (extrapolating linearly along the soft
+sensors: the CD prior's default). The forward selection on the prior's held-out programme picks
+the inputs in all.
 """
 from __future__ import annotations
 
@@ -33,7 +35,8 @@ def variants() -> dict[str, dict[str, Any]]:
     from talc_model.type_inputs import load_soft_sensors
     names = load_soft_sensors("nmv5000", [], "cd_prior_cases", "'type_inputs'").names
     return {"temperatures": {"type_inputs": []},
-            "soft sensors": {"type_model": "nmv5000", "type_inputs": names}}
+            "soft sensors, clamped": {"type_model": "nmv5000", "type_inputs": names, "extrapolate_type_inputs": False},
+            "soft sensors": {"type_model": "nmv5000", "type_inputs": names, "extrapolate_type_inputs": True}}
 
 
 def _simulate(machine, scenario: str, seed: int, hours: float | None, cache: dict):
@@ -91,7 +94,7 @@ def run_case(case: str, seed: int, hours: float | None, config: dict, cache: dic
 
 
 def format_row(variant: str, r: dict[str, Any]) -> str:
-    return (f"{r['case']:<14} seed {r['seed']} {variant:<12} P99_lin {r['p99_lin_um']:5.2f} / P99_ang "
+    return (f"{r['case']:<14} seed {r['seed']} {variant:<21} P99_lin {r['p99_lin_um']:5.2f} / P99_ang "
             f"{r['p99_ang_um_per_m']:5.2f}  first 8 h {r['first_8h_p99_lin_um']:5.2f} / "
             f"{r['first_8h_p99_ang_um_per_m']:5.2f}  probe-and-hold {r['probe_and_hold_p99_lin_um']:5.2f} / "
             f"{r['probe_and_hold_p99_ang_um_per_m']:5.2f}  ratio {r['ratio']:.2f}  Q_prod {r['q_prod_pct']:.2f} % "

@@ -67,6 +67,24 @@ def test_out_of_grid_inputs_are_clamped_and_counted_and_state_round_trips():
     assert np.isnan(cd.predict([[np.nan, 0.5]])[0])
 
 
+def test_extrapolating_inputs_continue_the_boundary_cell_linearly_the_others_clamp():
+    rng = np.random.default_rng(3)
+    u = rng.uniform(0, 1, (200, 2))
+    lin = lambda v: 2.0 + 3.0 * v[:, 0] - 1.0 * v[:, 1]            # in the smoothing null space: exact
+    cd = CharacteristicDiagram(n_intervals=4, smoothing=1.0, bounds=([0, 0], [1, 1]), extrapolate=[True, False])
+    cd.fit(u, lin(u))
+    out = np.array([[3.0, 0.5], [-2.0, 0.5], [0.5, 4.0]])
+    np.testing.assert_allclose(cd.predict(out[:2]), lin(out[:2]), atol=1e-5)   # along input 0: the line
+    assert cd.predict(out[2:])[0] == pytest.approx(lin(np.array([[0.5, 1.0]]))[0], abs=1e-5)   # input 1 clamps
+    assert cd.out_of_range_count_ == 3
+    back = CharacteristicDiagram.from_state(json.loads(json.dumps(cd.to_state())))
+    assert back.to_state()["extrapolate"] == [True, False]
+    np.testing.assert_allclose(back.predict(out), cd.predict(out))
+    old = {k: v for k, v in cd.to_state().items() if k != "extrapolate"}     # saved before the option: clamps
+    assert CharacteristicDiagram.from_state(old).predict(out[:1])[0] == pytest.approx(lin(np.array([[1.0, 0.5]]))[0],
+                                                                                      abs=1e-5)
+
+
 def test_bad_input_names_the_argument():
     cd = CharacteristicDiagram()
     with pytest.raises(CharacteristicDiagramError, match="y: 3 values for 4 samples"):

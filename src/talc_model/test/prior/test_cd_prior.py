@@ -53,11 +53,14 @@ def test_prior_structure_and_bad_priors(prior):
 
 def _drive(model, rec, until_h):
     sensors = {c[:-2]: rec.columns[c] for c in rec.names("sensor")}
+    inputs = {c: rec.columns[c] for c in rec.names("input")}
     preds = []
     for k, t in enumerate(rec.time_s):
         if t > until_h * 3600.0:
             break
-        model.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()}, {})
+        if model.t_input is not None and t <= model.t_input:     # driven that far already: continue after it
+            continue
+        model.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()}, {s: float(v[k]) for s, v in inputs.items()})
         if model.probe_due(float(t)):
             model.add_measurement(float(t), {c: float(rec.columns[c][k] - rec.columns[c][0]) for c in COMPONENTS}, {})
         preds.append(model.predict(float(t))[0]["E_Y0C"])

@@ -10,6 +10,7 @@ import pytest
 
 from talc_model.adaptive_model import model_from_state
 from talc_model.cd_model import CdModelError, CharacteristicDiagramModel
+from talc_model.prior import PriorError
 from talc_model.prior_agp import model_from_prior
 from talc_model.prior_cd import CdPriorModel, build_cd_prior
 from talc_model.type_inputs import load_soft_sensors
@@ -53,6 +54,7 @@ def _drive(model, rec, rows, rename=lambda n: n):
 
 def test_the_held_out_selection_picks_the_types_soft_sensors(prior):
     assert prior["cd_config"]["type_inputs"] == SOFT and prior["cd_config"]["type_model"] == "nmv5000"
+    assert prior["cd_config"]["extrapolate_type_inputs"] is True          # the prior's default with soft sensors
     for c in COMPONENTS:
         assert prior["input_names"][c][0] == f"twin:{c}"       # the type's own prediction of the error first
         assert prior["validation_rms"][c] < 0.1                  # the nominal type: its error map, exactly
@@ -87,6 +89,18 @@ def test_the_soft_sensors_resume_with_the_model(prior, run):
     assert _drive(back, run, range(half, len(run))) == _drive(model, run, range(half, len(run)))
     old = {k: v for k, v in state.items() if k != "soft_sensors"}   # saved before the soft sensors
     assert "they start at the type's steady state" in model_from_state(old).message
+
+
+def test_the_default_prior_has_the_types_soft_sensors_and_extrapolates_along_them_only():
+    recs = [_sim("nmv5000", s, 101 + i, 12.0) for i, s in enumerate(["load-case-A", "load-case-B"])]
+    p = build_cd_prior(recs, {"components": ["E_Y0C", "E_R0T"]}, machine="nmv5000")
+    assert p["cd_config"]["type_model"] == "nmv5000" and p["cd_config"]["type_inputs"] == SOFT
+    assert p["cd_config"]["extrapolate_type_inputs"] is True
+    for c in ("E_Y0C", "E_R0T"):
+        flags = p["cds"][c]["extrapolate"]
+        assert flags == [n.startswith("twin:") for n in p["input_names"][c]] and any(flags)
+    with pytest.raises(PriorError, match="no machine type for the soft sensors"):
+        build_cd_prior(recs, {"components": ["E_Y0C"]})
 
 
 def test_bad_soft_sensor_configurations_name_the_key():
