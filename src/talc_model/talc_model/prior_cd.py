@@ -249,7 +249,8 @@ def _prior_of_adapted(model: "CdPriorModel") -> dict[str, Any]:
     if model.update:
         u = np.asarray(prior["anchors"]["u"], float)
         make = model._make_cd
-        prior["cds"] = {**prior["cds"], **{c: make(model.inputs[c]).fit(u[:, model.inputs[c]], [model._diagrams(r)[c] for r in u])
+        prior["cds"] = {**prior["cds"], **{c: make(model.inputs[c]).fit(u[:, model.inputs[c]],
+                                                                         [model._diagrams(r)[c] for r in u])
                                            .to_state() for c in model.update}}
     return prior
 

@@ -60,7 +60,8 @@ def _drive(model, rec, until_h):
             break
         if model.t_input is not None and t <= model.t_input:     # driven that far already: continue after it
             continue
-        model.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()}, {s: float(v[k]) for s, v in inputs.items()})
+        model.update_inputs(float(t), {s: float(v[k]) for s, v in sensors.items()},
+                            {s: float(v[k]) for s, v in inputs.items()})
         if model.probe_due(float(t)):
             model.add_measurement(float(t), {c: float(rec.columns[c][k] - rec.columns[c][0]) for c in COMPONENTS}, {})
         preds.append(model.predict(float(t))[0]["E_Y0C"])

@@ -40,7 +40,8 @@ def _p99(model, rec):
     true = {c: np.asarray(rec.columns[c], float) - rec.columns[c][0] for c in LINEAR}
     pred = {c: np.zeros(len(rec)) for c in LINEAR}
     for k, t in enumerate(np.asarray(rec.time_s, float)):
-        model.update_inputs(t, {s: float(v[k]) for s, v in sensors.items()}, {s: float(v[k]) for s, v in inputs.items()})
+        model.update_inputs(t, {s: float(v[k]) for s, v in sensors.items()},
+                            {s: float(v[k]) for s, v in inputs.items()})
         if model.probe_due(t):
             applied = model.predict(t)[0]
             measured = {c: np.round((true[c][k] - applied[c] + rng.normal(0, NOISE_UM)) / 0.25) * 0.25 for c in LINEAR}

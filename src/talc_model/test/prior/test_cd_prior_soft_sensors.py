@@ -45,7 +45,8 @@ def _drive(model, rec, rows, rename=lambda n: n):
     out = []
     for k in rows:
         t = float(rec.time_s[k])
-        model.update_inputs(t, {s: float(v[k]) for s, v in sensors.items()}, {s: float(v[k]) for s, v in inputs.items()})
+        model.update_inputs(t, {s: float(v[k]) for s, v in sensors.items()},
+                            {s: float(v[k]) for s, v in inputs.items()})
         if model.probe_due(t):
             model.add_measurement(t, {c: float(rec.columns[c][k] - rec.columns[c][0]) for c in COMPONENTS}, {})
         out.append(model.predict(t)[0])
