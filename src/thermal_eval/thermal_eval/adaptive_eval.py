@@ -121,6 +121,8 @@ def probe_schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], b
 
 
 def _asks(prediction: Mapping[str, np.ndarray], tolerance_um: float):
+    """The model's own rule: it asks for a probing when its prediction of some channel moved by
+    more than ``tolerance_um`` since the last probing (row ``last``)."""
     return lambda r, last: any(abs(prediction[c][r] - prediction[c][last]) > tolerance_um for c in prediction)
 
 
@@ -130,11 +132,12 @@ def _schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], budget
     t = data.time_s
     start = data.split.n_train
     clock0 = t[start - 1] + 3600.0 * budget.phase_h
+    model_asks = _asks(prediction, budget.tolerance_um)
     if budget.load_delay_min is not None:
         return bucket_schedule(t, start, clock0, input_steps(data.inputs, start), budget.max_probes_per_h,
                                budget.bucket_depth, 60.0 * budget.load_delay_min, budget.min_gap_s,
                                3600.0 * budget.probe_every_h, budget.probe_duration_s,
-                               _asks(prediction, budget.tolerance_um), budget.bucket_credit)
+                               model_asks, budget.bucket_credit)
     last_end = clock0                            # the calibration phase ends with a measurement
     last_row = start - 1
     rows, triggered = [], []
@@ -144,8 +147,7 @@ def _schedule(data: EvaluationData, prediction: Mapping[str, np.ndarray], budget
             continue
         elapsed_h = (t[r] - clock0) / 3600.0
         scheduled = since >= budget.probe_every_h * 3600.0
-        asks = since >= budget.min_gap_s and any(
-            abs(prediction[c][r] - prediction[c][last_row]) > budget.tolerance_um for c in prediction)
+        asks = since >= budget.min_gap_s and model_asks(r, last_row)
         within = len(rows) + 1 <= budget.max_probes_per_h * elapsed_h
         if scheduled or (asks and within):
             rows.append(r)
