@@ -35,7 +35,7 @@ import numpy as np
 from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION, ModelStatusData, register_model
 from talc_model.cd_input_selection import forward_selection
 from talc_model.characteristic_diagram import CharacteristicDiagram, load_case_update
-from talc_model.type_inputs import load_soft_sensors, restore_soft_sensors
+from talc_model.type_inputs import held_input_labels, load_soft_sensors, restore_soft_sensors
 from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 
@@ -334,8 +334,8 @@ class CharacteristicDiagramModel:
             parameter_updates=self.parameter_updates, training_samples=len(self.base_u) + len(self.new_u),
             q_prod_pct=100.0 if elapsed <= 0 else max(0.0, 100.0 * (1.0 - probing / elapsed)),
             next_probing_due_s=(self.t_start or 0.0) if self.t_last_probe is None else self.t_last_probe + self._interval(),
-            max_uncertainty=max(finite) if finite else math.nan, excluded_sensor_ids=list(self.excluded) + [
-                f"{n} (type twin input, held)" for n in (self.soft_sensors.held_now if self.soft_sensors else [])],
+            max_uncertainty=max(finite) if finite else math.nan,
+            excluded_sensor_ids=list(self.excluded) + held_input_labels(self.soft_sensors),
             message=self.message)
 
     def to_state(self) -> dict:

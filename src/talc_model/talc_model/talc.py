@@ -27,7 +27,7 @@ from talc_model.talc_config import PRESETS, TalcConfig, input_signal, parse_inpu
 from talc_model.talc_grid import ModelGrid
 from talc_model.talc_identification import TalcIdentification
 from talc_model.talc_probing_schedule import TalcProbingSchedule
-from talc_model.type_inputs import restore_soft_sensors, soft_sensors_for
+from talc_model.type_inputs import held_input_labels, restore_soft_sensors, soft_sensors_for
 
 STATE_VERSION = 1
 
@@ -355,8 +355,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
             training_samples=int(self.grid.n) if self.grid is not None else 0,
             q_prod_pct=self.q_prod_pct(float(t_s)), next_probing_due_s=self.next_probe_due_s(),
             max_uncertainty=max(unc) if unc else math.nan,
-            excluded_sensor_ids=list(self.held_inputs) + [f"{n} (type twin input, held)" for n in
-                                                          (self.soft_sensors.held_now if self.soft_sensors else [])],
+            excluded_sensor_ids=list(self.held_inputs) + held_input_labels(self.soft_sensors),
             message=self.message)
 
     # ------------------------------------------------------------------ persistence

@@ -66,3 +66,9 @@ def restore_soft_sensors(sensors: TypeSoftSensors | None, state: Mapping[str, An
                 "state of the next instant")
     sensors.restore(saved)
     return ""
+
+
+def held_input_labels(sensors: TypeSoftSensors | None) -> list[str]:
+    """The soft sensors' inputs held at the last instant, as the ModelStatus lists them
+    (``excluded_sensor_ids``: "<input> (type twin input, held)"); [] without soft sensors."""
+    return [f"{n} (type twin input, held)" for n in (sensors.held_now if sensors is not None else [])]
