@@ -93,6 +93,33 @@ def stop_processes(procs) -> None:
         print(p.stdout.read())
 
 
+def _answered_round_trip(ex, client, procs, end: float, per_try_s: float = 5.0) -> None:
+    """Wait until the server answers this client, not only until the graph lists it.
+
+    ``server_is_ready`` reads the graph; on a loaded machine Fast DDS may not yet have matched
+    the server's response writers to this client's readers, and a goal sent then is answered
+    into the void (CI saw a goal unanswered for 180 s). A cancel request and a result request
+    for an unknown goal id are answered at once and change nothing on the server; they are
+    repeated until both come back, so the first real goal travels a matched path.
+    """
+    import uuid
+    import pytest
+    from rclpy.action.client import ClientGoalHandle
+    from unique_identifier_msgs.msg import UUID
+    while True:
+        probe = ClientGoalHandle(client, UUID(uuid=list(uuid.uuid4().bytes)), None)
+        futs = [client._cancel_goal_async(probe), client._get_result_async(probe)]
+        try_end = time.monotonic() + per_try_s
+        while not all(f.done() for f in futs) and time.monotonic() < try_end:
+            ex.spin_once(timeout_sec=0.05)
+        if all(f.done() for f in futs):
+            return
+        for p in procs:
+            if p.poll() is not None:
+                pytest.fail(f"process exited early (code {p.returncode}): {p.args}")
+        assert time.monotonic() < end, "probe_cycle action server never answered a request"
+
+
 @contextlib.contextmanager
 def probe_action_client(namespace: str, name: str, procs, wait_s: float = 120.0):
     """``(executor, client)``: a ProbeCycle action client in its own context, yielded once the
@@ -117,6 +144,7 @@ def probe_action_client(namespace: str, name: str, procs, wait_s: float = 120.0)
                     pytest.fail(f"process exited early (code {p.returncode}): {p.args}")
             assert time.monotonic() < end, "probe_cycle action server did not appear"
             ex.spin_once(timeout_sec=0.1)
+        _answered_round_trip(ex, client, procs, end)
         yield ex, client
     finally:
         client.destroy()
