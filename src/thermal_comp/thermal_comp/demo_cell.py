@@ -53,6 +53,8 @@ class DemoConfig:
     unit: int | None = None
     #: prior file (thermal-comp prior: TALC or AGP, the machine's model) the model starts from; None = the thesis's start
     prior: str | None = None
+    #: at most this many simulated s per wall s (machine_sim's lock-step ceiling); 0 = as fast as possible
+    real_time_factor: float = 0.0
 
 
 def scenario_hours(machine: str, scenario: str, hours: float | None) -> float:
@@ -113,7 +115,8 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
                         "lockstep_participants": participants, "shutdown_when_done": True,
                         # the first instant waits until the recorder (a participant) subscribes
                         "wait_for_subscribers": ["recorder"],
-                        "state_path": str(out / "twin_state.pkl")}},
+                        "state_path": str(out / "twin_state.pkl"),
+                        "real_time_factor": float(cfg.real_time_factor)}},
         {"name": "sensors", "module": "thermal_sensors.temperature_publisher_node",
          "parameters": {"source": "twin", "sensor_config": m["sensor_config"], "lockstep_participant": True}},
         {"name": "probe_cycle", "module": "probe_cycle.probe_cycle_node", "parameters": {"backend": "twin"}},

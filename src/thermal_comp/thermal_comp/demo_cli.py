@@ -28,14 +28,7 @@ def run_demo(cfg: DemoConfig, compare_no_prior: bool = False) -> dict[str, Any]:
     if cfg.machine not in MACHINES:
         raise DemoError(f"--machine: {cfg.machine!r} is not one of {sorted(MACHINES)}")
     cfg.scenario = cfg.scenario or MACHINES[cfg.machine]["scenario"]
-    note = None
-    if cfg.prior == DEFAULT_PRIOR:
-        note = _no_default_prior_reason(cfg)
-        cfg.prior = None if note else BUILD_PRIOR
-        if note:
-            print(f"no prior: {note}", flush=True)
-    if cfg.prior == BUILD_PRIOR:
-        cfg.prior = str(_build_prior(cfg))
+    note = resolve_prior(cfg)
     summary = _run_and_summarise(cfg)
     if note:
         summary["prior_note"] = note
@@ -64,6 +57,21 @@ def _run_and_summarise(cfg: DemoConfig) -> dict[str, Any]:
 BUILD_PRIOR = "build"
 #: no ``--prior`` / ``--no-prior``: the type's prior where one applies, else none (said why)
 DEFAULT_PRIOR = "default"
+
+
+def resolve_prior(cfg: DemoConfig) -> str | None:
+    """Turn ``cfg.prior`` DEFAULT_PRIOR / BUILD_PRIOR into a prior file (cached or built, copied
+    into the run's folder) or None; returns why the default has none (None: it has one or
+    ``cfg.prior`` was a file or None already). ``cfg.scenario`` must be set."""
+    note = None
+    if cfg.prior == DEFAULT_PRIOR:
+        note = _no_default_prior_reason(cfg)
+        cfg.prior = None if note else BUILD_PRIOR
+        if note:
+            print(f"no prior: {note}", flush=True)
+    if cfg.prior == BUILD_PRIOR:
+        cfg.prior = str(_build_prior(cfg))
+    return note
 
 
 def _no_default_prior_reason(cfg: DemoConfig) -> str | None:
@@ -145,7 +153,20 @@ def _parser() -> argparse.ArgumentParser:
                     help="also run the same plant without the prior (into OUT/no_prior) and print both")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--wall-timeout", type=float, default=3600.0, help="give up after this many wall seconds")
+    ap.add_argument("--real-time-factor", type=_positive_or_zero, default=0.0, metavar="X",
+                    help="at most X simulated s per wall s, to watch the cell live (default 0: as fast as "
+                         "the graph goes)")
     return ap
+
+
+def _positive_or_zero(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not (v >= 0.0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number >= 0")
+    return v
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -153,7 +174,8 @@ def main(argv: list[str] | None = None) -> int:
     a = _parser().parse_args(argv)
     cfg = DemoConfig(machine=a.machine, scenario=a.scenario, hours=a.hours, seed=a.seed, step_s=a.step_s,
                      out_dir=pathlib.Path(a.out), view=a.view, cnc=a.cnc, progress=not a.no_progress,
-                     wall_timeout_s=a.wall_timeout, unit=a.unit, prior=a.prior)
+                     wall_timeout_s=a.wall_timeout, unit=a.unit, prior=a.prior,
+                     real_time_factor=a.real_time_factor)
     if a.compare_no_prior and a.prior is None:
         print("thermal-comp demo: --compare-no-prior compares against the prior; it cannot go with --no-prior",
               file=sys.stderr)

@@ -18,7 +18,8 @@ import numpy as np
 from rclpy.serialization import deserialize_message
 
 from cnc_bridge.audit_log import read_audit_log
-from thermal_comp.demo_cell import DemoConfig
+from thermal_comp.demo_cell import MACHINES, DemoConfig
+from thermal_comp.demo_cli import DEFAULT_PRIOR, resolve_prior
 from thermal_comp.demo_graph import run_graph
 from thermal_comp.demo_series import read_series
 from thermal_comp.demo_summary import compensation_in_effect, summarise
@@ -34,6 +35,8 @@ class Kill:
     node: str
     at_sim_s: float
     done_wall: float | None = None
+    #: the simulated time the supervisor saw when it killed (the plan's instant or a little later)
+    done_sim_s: float | None = None
     pid: int | None = None
     restarted_pid: int | None = None
 
@@ -57,6 +60,7 @@ class KillPlan:
                 except ProcessLookupError:
                     continue
                 k.done_wall = time.monotonic()
+                k.done_sim_s = float(sim_s)
             elif k.done_wall is not None and k.restarted_pid is None and mp.running() and mp.pid != k.pid:
                 k.restarted_pid = mp.pid
 
@@ -65,11 +69,22 @@ class KillPlan:
         return all(k.done_wall is not None for k in self.kills)
 
 
-#: The bridge's envelope in the demo cell (cnc_bridge_node defaults) for the audit-log check.
+#: simulated s per wall s while kills are planned: a 300-s instant takes 0.3 wall s, about one
+#: supervision poll, so a kill lands at the instant planned or the next
+KILL_PACE = 1000.0
+
+#: The bridge's envelope in the demo cell (cnc_bridge_node defaults) for the audit-log check;
+#: a machine of demo_cell.MACHINES may set its own ``abs_limit_um`` (see :func:`demo_envelope`).
 DEMO_ENVELOPE = {"max_rate_um_per_s": 0.5, "abs_limit_um": 30.0, "max_step_s": 600.0}
 
 
-def _audit_check(audit_log: pathlib.Path, truth: set[int], first_pred: int):
+def demo_envelope(machine: str) -> dict[str, float]:
+    """The envelope the demo cell gives the bridge of ``machine``."""
+    return {**DEMO_ENVELOPE, "abs_limit_um": float(MACHINES[machine].get("abs_limit_um",
+                                                                          DEMO_ENVELOPE["abs_limit_um"]))}
+
+
+def _audit_check(audit_log: pathlib.Path, truth: set[int], first_pred: int, envelope: Mapping[str, float]):
     """The bridge's audit log: its rows, the writes that broke the demo envelope, and the
     instants (s) after the first prediction that no audit row covers."""
     rows = read_audit_log(audit_log)
@@ -79,7 +94,7 @@ def _audit_check(audit_log: pathlib.Path, truth: set[int], first_pred: int):
     for r in rows:
         a = applied.setdefault(r["axis"], np.full(len(times), np.nan))
         a[index[float(r["time_s"])]] = float(r["applied_um"]) if r["applied_um"] else np.nan
-    violations = offset_violations(times, applied, **DEMO_ENVELOPE)
+    violations = offset_violations(times, applied, **envelope)
     audited = {round(t, 3) for t in times}
     missing = sorted(t / 1e9 for t in truth if t >= first_pred and round(t / 1e9, 3) not in audited)
     return rows, violations, missing
@@ -87,9 +102,15 @@ def _audit_check(audit_log: pathlib.Path, truth: set[int], first_pred: int):
 
 def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: int = 0,
                      wall_timeout_s: float = 600.0, progress: bool = False,
-                     p99_until_h: float | None = None) -> dict:
+                     p99_until_h: float | None = None, prior: str | None = DEFAULT_PRIOR,
+                     real_time_factor: float | None = None) -> dict:
     """The demo graph (nmv5000, talc-178h-dry shortened to ``hours``, OPC UA to the CNC
     emulator) under the launcher with restarts enabled, ``kills`` performed mid-run.
+    ``prior``: as the demo's (default: the machine type's prior; None: the thesis's start,
+    whose model leaves calibration only after about 5 h). ``real_time_factor``: machine_sim's
+    lock-step ceiling; None = KILL_PACE with kills (the launcher polls at about 4 Hz, so a kill
+    lands within an instant or two of ``at_sim_s``; unpaced, 6 h can pass between two polls),
+    else as fast as possible.
 
     Returns the demo summary plus what the faults did: restarts per node, whether the model
     resumed from its saved state (and never went back to calibration), instants that lack
@@ -101,6 +122,9 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
                      wall_timeout_s=wall_timeout_s,
                      restart={"enabled": True, "max_restarts": 3, "backoff_s": 0.5})
     cfg.scenario = "talc-178h-dry"
+    cfg.prior = prior
+    cfg.real_time_factor = (KILL_PACE if kills else 0.0) if real_time_factor is None else real_time_factor
+    resolve_prior(cfg)
     plan = KillPlan([Kill(k.node, k.at_sim_s) for k in kills])
     record = run_graph(cfg, on_poll=plan.poll)
     contents = read_bag(out / "bag")
@@ -124,7 +148,8 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
         p == ModelStatus.PHASE_CALIBRATION for p in phases[left_calibration:])
     counter_regressions = sum(1 for a, b in zip(probing, probing[1:]) if b < a)
     log_text = (out / "logs" / "nodes.log").read_text(errors="replace")
-    rows, violations, audit_missing = _audit_check(out / "cnc_audit.log", truth, first_pred)
+    rows, violations, audit_missing = _audit_check(out / "cnc_audit.log", truth, first_pred,
+                                                 demo_envelope(cfg.machine))
     series = read_series(out / "bag")
     summary = summarise(series, cfg, record)
     p99_until = None
@@ -134,7 +159,9 @@ def run_graph_faults(out_dir, hours: float, kills: Sequence[Kill] = (), seed: in
         p99_until = {c: round(metrics.p99(series.true[c][keep], comp[c][keep]), 3) for c in series.components}
     return {
         "summary": summary,
-        "kills": [{"node": k.node, "at_sim_h": round(k.at_sim_s / 3600.0, 2), "killed": k.done_wall is not None,
+        "kills": [{"node": k.node, "at_sim_h": round(k.at_sim_s / 3600.0, 2),
+                   "killed_at_sim_h": None if k.done_sim_s is None else round(k.done_sim_s / 3600.0, 2),
+                   "killed": k.done_wall is not None,
                    "restarted": k.restarted_pid is not None} for k in plan.kills],
         "restarts": dict(record.restarts),
         "model_resumed": log_text.count("model: resumed from"),

@@ -14,7 +14,9 @@ Every step it publishes /clock, ``machine_state``, ``twin/sensor_readings`` and 
   log and on ``/diagnostics``, and ``on_late`` decides: ``stop`` the graph with one error
   (exit code 3), ``drop`` the participant and go on without it, or ``wait`` and report again
   after every further deadline (docs/reliability.md);
-- free-running otherwise, at ``real_time_factor`` (0 = as fast as possible).
+- free-running otherwise, at ``real_time_factor`` (0 = as fast as possible); in lock-step
+  ``real_time_factor`` > 0 is a ceiling: an instant is never published sooner than
+  ``step_s / real_time_factor`` wall seconds after the previous one.
 It keeps the offsets applied by the CNC (``offsets``) and answers ``twin/touch_probe``: the
 twin idles for the request's ``duration_s`` (programme paused, hall goes on), then
 ``thermal_twin.artefact_geometry.touch_trigger_position`` says where the probe triggers
@@ -59,8 +61,8 @@ PARAMS = [
     Param("wait_for_subscribers", [""],
           "node names (e.g. a bag recorder) that must subscribe to errors/ground_truth before the first "
           "instant: a recorder that starts after the graph would miss the first instants"),
-    Param("real_time_factor", 0.0, "free-running speed: simulated s per wall s (0 = as fast as possible)",
-          0.0, 1.0e6),
+    Param("real_time_factor", 0.0, "simulated s per wall s: the free-running speed, in lock-step a ceiling "
+          "(watching live, or faults at a chosen instant); 0 = as fast as possible", 0.0, 1.0e6),
     Param("resend_after_s", 2.0, "lock-step: re-send the current instant after this many wall s without "
           "all acknowledgements", 0.1, 600.0),
     Param("lockstep_deadline_s", 120.0, "lock-step: wall s to wait for a participant to join or to "
@@ -68,6 +70,9 @@ PARAMS = [
     Param("on_late", "stop", "lock-step: what a late or inconsistent participant causes: stop the graph "
           "(exit code 3), drop it from the lock-step and go on, or wait and report again",
           choices=("stop", "drop", "wait")),
+    Param("probe_offsets_wait_s", 5.0, "a touch probe at instant t_k first waits (wall s, bounded) for the "
+          "offsets the bridge wrote for t_k, as a CNC applies them before the probing cycle moves "
+          "(0 = measure against whatever offsets arrived)", 0.0, 600.0),
     Param("probe_noise", True, "touch probe repeatability scatter (False: ideal probe, readout still quantised)"),
     Param("shutdown_when_done", False, "stop the node when the scenario has ended"),
     Param("state_path", "", "checkpoint file: written atomically before every published instant and "
@@ -106,6 +111,8 @@ class MachineSimNode(Node):
         self.probe_rng = np.random.default_rng([p["seed"], 7]) if p["probe_noise"] else None
         self.units = {e: s.unit for e, s in self.machine.errors.items()}
         self.applied_offsets: dict[str, float] = {}
+        self.offsets_wait_s = p["probe_offsets_wait_s"]
+        self.offsets_stamp_s: float | None = None      # stamp of the last offsets (None: no bridge yet)
         if resumed is not None:
             self.runner, self.probe_rng, self.applied_offsets = resumed
         self.acks: dict[str, float] = {}
@@ -119,7 +126,7 @@ class MachineSimNode(Node):
         self.pub_state = self.create_publisher(MachineState, TOPIC_MACHINE_STATE, SENSOR_QOS)
         self.pub_sensors = self.create_publisher(TemperatureArray, TOPIC_TWIN_SENSORS, SENSOR_QOS)
         self.pub_truth = self.create_publisher(ThermalErrors, TOPIC_ERRORS_TRUE, EVENT_QOS)
-        self.create_subscription(AxisOffsets, TOPIC_OFFSETS, self._on_offsets, EVENT_QOS)
+        self.offsets_sub = self.create_subscription(AxisOffsets, TOPIC_OFFSETS, self._on_offsets, EVENT_QOS)
         self.create_subscription(SimSync, TOPIC_SIM_SYNC, self._on_sync, EVENT_QOS)
         self.create_service(TouchProbe, SERVICE_TOUCH_PROBE, self._on_touch_probe)
         self.diag = DiagnosticsPublisher(self, hardware_id=f"{self.machine.name}/{p['scenario']}")
@@ -129,11 +136,14 @@ class MachineSimNode(Node):
         # the owner of simulated time paces itself on the steady clock (with use_sim_time a
         # ROS-time timer would wait for the /clock this node has yet to publish)
         self.wall_clock = RclClock(clock_type=ClockType.STEADY_TIME)
+        rtf = p["real_time_factor"]
+        step = float(timeline.time_s[1] - timeline.time_s[0]) if len(timeline) > 1 else 1.0
+        #: lock-step pacing: the least wall time between two published instants (0: none)
+        self.min_interval_s = step / rtf if rtf > 0 else 0.0
         if self.participants:
-            self.timer = self.create_timer(0.05, self._lockstep_tick, clock=self.wall_clock)
+            self.timer = self.create_timer(min(0.05, self.min_interval_s or 0.05), self._lockstep_tick,
+                                           clock=self.wall_clock)
         else:
-            rtf = p["real_time_factor"]
-            step = float(timeline.time_s[1] - timeline.time_s[0]) if len(timeline) > 1 else 1.0
             self.timer = self.create_timer(step / rtf if rtf > 0 else 0.001, self._free_tick, clock=self.wall_clock)
         if resumed is not None:
             self.get_logger().warning(f"resumed from {p['state_path']} at t = {self.runner.t_s:.0f} s "
@@ -243,6 +253,10 @@ class MachineSimNode(Node):
         t = self.published_t
         return all(self.acks.get(n, -math.inf) >= t - 1e-6 for n in self.participants)
 
+    def _due(self) -> bool:
+        """Lock-step pacing: the next instant may go out (``real_time_factor`` ceiling)."""
+        return time.monotonic() - self.last_publish_wall >= self.min_interval_s
+
     def _lockstep_tick(self) -> None:
         if not self.started:
             if self._participants_present() and self._observers_present():
@@ -257,7 +271,8 @@ class MachineSimNode(Node):
                 f"t = {t:.0f} s" for _, t in sorted(self.ahead.items())) + ", ahead of the graph "
                 "(its state is from another run?)")
         elif self._all_acked():
-            self._advance_lockstep()
+            if self._due():
+                self._advance_lockstep()
         elif time.monotonic() - self.wait_since > self.deadline_s:
             self._late(self._unacked(), "has not acknowledged it")
         elif time.monotonic() - self.last_publish_wall > self.resend_after_s and not self.runner.done:
@@ -307,7 +322,7 @@ class MachineSimNode(Node):
                 self.ahead[msg.node_name] = t     # reported (by name) on the next tick
                 return
             self.acks[msg.node_name] = max(t, self.acks.get(msg.node_name, -math.inf))
-        if self.started and self.participants and not self.ahead and self._all_acked():
+        if self.started and self.participants and not self.ahead and self._all_acked() and self._due():
             self._advance_lockstep()
 
     def _advance_lockstep(self) -> None:
@@ -331,9 +346,35 @@ class MachineSimNode(Node):
             else:
                 self.get_logger().error(f"offsets: axis '{name}' applied offset {v!r} is not finite; "
                                         "keeping the previous value")
+        t = stamp_to_s(msg.header.stamp)
+        self.offsets_stamp_s = t if self.offsets_stamp_s is None else max(t, self.offsets_stamp_s)
+
+    def _offsets_of_this_instant(self) -> None:
+        """Before a touch at instant t_k: the offsets the bridge wrote for t_k (a CNC applies
+        them before the probing cycle starts). They travel on a topic, the touch request through
+        the model and probe_cycle: on a loaded machine the request can arrive first, and the probe
+        then measured against the previous instant's compensation (the run's figures changed
+        with the load). So they are taken from the subscription here, bounded by
+        ``probe_offsets_wait_s`` (no bridge yet: nothing to wait for). A coroutine cannot wait
+        instead: the events executor the demo uses does not run coroutine callbacks."""
+        t = self.published_t
+        end = time.monotonic() + self.offsets_wait_s
+        while self.offsets_stamp_s is not None and self.offsets_stamp_s < t - 1e-6:
+            with self.offsets_sub.handle:
+                taken = self.offsets_sub.handle.take_message(AxisOffsets, False)
+            if taken is not None:
+                self._on_offsets(taken[0])
+            elif time.monotonic() >= end:
+                self.get_logger().warning(
+                    f"touch probe at t = {t:.0f} s: no offsets for this instant within probe_offsets_wait_s = "
+                    f"{self.offsets_wait_s:g} s (last stamped {self.offsets_stamp_s:.0f} s); measuring against those")
+                return
+            else:
+                time.sleep(0.001)
 
     def _on_touch_probe(self, request: TouchProbe.Request, response: TouchProbe.Response):
         from thermal_twin.artefact_geometry import touch_trigger_position
+        self._offsets_of_this_instant()
         r = self.runner
 
         def touch(rng):

@@ -47,3 +47,15 @@ def test_observer_niceness_defaults_to_every_process_alike(monkeypatch):
     assert observer_niceness() == 0
     monkeypatch.setenv(OBSERVER_NICE_ENV, "10")
     assert observer_niceness() == 10
+
+
+def test_the_real_time_factor_reaches_machine_sim_and_a_bad_one_is_refused(tmp_path, capsys):
+    from thermal_comp.demo_cli import _parser
+    a = _parser().parse_args(["--real-time-factor", "600"])
+    cfg = DemoConfig(out_dir=tmp_path, scenario="talc-178h-dry", real_time_factor=a.real_time_factor)
+    sim = {n["name"]: n for n in build_cell(cfg, 0, None, False)["nodes"]}["machine_sim"]["parameters"]
+    assert sim["real_time_factor"] == 600.0
+    for bad in ("-1", "nan", "fast"):
+        with pytest.raises(SystemExit):
+            _parser().parse_args(["--real-time-factor", bad])
+        assert f"{bad!r} is not a number >= 0" in capsys.readouterr().err

@@ -63,6 +63,7 @@ def test_machine_sim_lockstep_probe_and_offsets():
         [sys.executable, "-m", "thermal_twin.machine_sim_node", "--ros-args",
          "-p", "machine:=nmv5000", "-p", "scenario:=talc-178h-dry", "-p", f"hours:={HOURS}", "-p", "seed:=3",
          "-p", "lockstep_participants:=['twin_test_participant']", "-p", "probe_noise:=false",
+         "-p", "probe_offsets_wait_s:=0.2",   # its offsets stay stamped 0 (a bridge that answered once)
          "-p", "shutdown_when_done:=true"],
         env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctx = rclpy.context.Context()
