@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 import pytest
 
 import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 
 from thermal_comp_common.node_runtime import EVENT_QOS, TOPIC_OFFSETS, s_to_stamp  # noqa: E402
 from thermal_comp_msgs.msg import AxisOffsets  # noqa: E402
-from thermal_comp_msgs.srv import TouchProbe  # noqa: E402
+from test_machine_sim_resend import _touch
 
 NS = "/probe_offsets_test"
 
@@ -50,14 +49,7 @@ def _offsets(t_s: float, z_um: float) -> AxisOffsets:
 
 
 def _touch_z(node) -> float:
-    from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, nominal_sphere_centre
-    c = nominal_sphere_centre(0.0)
-    req = TouchProbe.Request(artefact=0, c_axis_deg=0.0, b_axis_deg=0.0,
-                             start_mm=list(c + np.array([0.0, 0.0, DEFAULT_GEOMETRY.contact_radius_mm + 5.0])),
-                             direction=[0.0, 0.0, -1.0], max_travel_mm=20.0, duration_s=0.0)
-    res = node._on_touch_probe(req, TouchProbe.Response())
-    assert res.triggered, res.message
-    return float(res.trigger_position_mm[2])
+    return float(_touch(node).trigger_position_mm[2])
 
 
 def _next_instant_with_offsets_queued(node, pub, z_um: float) -> float:

@@ -60,6 +60,7 @@ def _touch(node):
                              direction=[0.0, 0.0, -1.0], max_travel_mm=20.0, duration_s=2.0)
     res = node._on_touch_probe(req, TouchProbe.Response())
     assert res.triggered, res.message
+    return res
 
 
 def test_resend_repeats_every_topic_of_the_instant(sim):
