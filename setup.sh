@@ -148,7 +148,7 @@ fi
 
 # ---------------------------------------------------------------------------------------
 STEP="install our packages (editable)"
-PKGS=(thermal_comp_common thermal_twin thermal_sensors probe_cycle talc_model cnc_bridge thermal_comp thermal_eval)
+PKGS=(thermal_comp_common thermal_comp_testing thermal_twin thermal_sensors probe_cycle talc_model cnc_bridge thermal_comp thermal_eval)
 h=$(for p in "${PKGS[@]}"; do cat "$ROOT/src/$p/setup.py" "$ROOT/src/$p/setup.cfg" "$ROOT/src/$p/package.xml"; done | sha256sum | cut -d' ' -f1)
 if ! stamp_ok packages "$h" || ! [ -x "$VENV/bin/thermal-comp" ]; then
   say "installing ${PKGS[*]} (editable)"
@@ -161,7 +161,7 @@ fi
 STEP="check the installation"
 "$PY" - <<'EOF'
 import importlib
-for m in ["rclpy", "thermal_comp_msgs.msg", "thermal_comp_msgs.action", "thermal_comp_common", "thermal_comp", "thermal_eval",
+for m in ["rclpy", "thermal_comp_msgs.msg", "thermal_comp_msgs.action", "thermal_comp_common", "thermal_comp_testing.pytest_plugin", "thermal_comp", "thermal_eval",
           "thermal_twin", "thermal_sensors", "probe_cycle", "talc_model", "cnc_bridge",
           "mcap_ros2", "rosbags", "rerun", "asyncua", "pymodbus", "sklearn"]:
     importlib.import_module(m)

@@ -24,7 +24,7 @@ cleanup() {   # stop what this script started (by pid): the nodes first, the rec
   [ -n "$REC" ] && kill -INT "$REC" 2>/dev/null && wait "$REC" 2>/dev/null || true
 }
 trap cleanup EXIT
-$PY -m thermal_comp.record_cli "$OUT" > "$LOG_DIR/record.log" 2>&1 & REC=$!
+$PY -m thermal_comp.bags.record_cli "$OUT" > "$LOG_DIR/record.log" 2>&1 & REC=$!
 $PY -m thermal_sensors.temperature_publisher_node --ros-args -r __node:=sensors -p source:=twin \
     -p sensor_config:="$SENSORS" -p lockstep_participant:=true $SIM > "$LOG_DIR/sensors.log" 2>&1 & NODES+=($!)
 $PY -m probe_cycle.probe_cycle_node --ros-args -p backend:=twin $SIM > "$LOG_DIR/probe.log" 2>&1 & NODES+=($!)

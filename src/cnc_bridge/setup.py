@@ -23,7 +23,7 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-            "cnc-emulator = cnc_bridge.cnc_emulator:main",
+            "cnc-emulator = cnc_bridge.cnc_emulator.cli:main",
         ],
         "console_scripts": [
             "cnc_bridge = cnc_bridge.cnc_bridge_node:main",

@@ -15,7 +15,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", sorted(glob(f"{PACKAGE}/config/*.yaml"))),
     ],
-    install_requires=["setuptools", "numpy", "pyyaml", "scikit-learn", "scipy", "threadpoolctl"],
+    install_requires=["setuptools", "numpy", "pyyaml", "scikit-learn", "scipy"],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",

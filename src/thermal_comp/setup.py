@@ -30,26 +30,26 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-            "launch = thermal_comp.launcher:main",
-            "topics = thermal_comp.inspect_cli:topics_main",
-            "echo = thermal_comp.inspect_cli:echo_main",
-            "nodes = thermal_comp.inspect_cli:nodes_main",
-            "demo = thermal_comp.demo_cli:main",
-            "record = thermal_comp.record_cli:main",
-            "play = thermal_comp.play_cli:main",
-            "import-csv = thermal_comp.import_csv_cli:main",
-            "view = thermal_comp.view_cli:main",
-            "prior = thermal_comp.prior_cli:main",
+            "launch = thermal_comp.cell.launcher:main",
+            "topics = thermal_comp.cell.inspect_cli:topics_main",
+            "echo = thermal_comp.cell.inspect_cli:echo_main",
+            "nodes = thermal_comp.cell.inspect_cli:nodes_main",
+            "demo = thermal_comp.demo.cli:main",
+            "record = thermal_comp.bags.record_cli:main",
+            "play = thermal_comp.bags.play_cli:main",
+            "import-csv = thermal_comp.bags.import_csv_cli:main",
+            "view = thermal_comp.view.cli:main",
+            "prior = thermal_comp.prior.cli:main",
         ],
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [
-            "graph = thermal_comp.demo_graph:bench_graph",
+            "graph = thermal_comp.demo.graph:bench_graph",
         ],
         "console_scripts": [
             "thermal-comp = thermal_comp.cli:main",
-            "bag_recorder = thermal_comp.bag_recorder_node:main",
-            "bag_player = thermal_comp.bag_player_node:main",
-            "rerun_view = thermal_comp.rerun_view_node:main",
+            "bag_recorder = thermal_comp.bags.recorder_node:main",
+            "bag_player = thermal_comp.bags.player_node:main",
+            "rerun_view = thermal_comp.view.rerun_view_node:main",
         ],
     },
 )

@@ -13,7 +13,7 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
     install_requires=[
-        "setuptools", "dask", "distributed", "mcap", "numpy", "pytest", "pyyaml", "rosbags",
+        "setuptools", "dask", "distributed", "mcap", "numpy", "pyyaml", "rosbags",
         "threadpoolctl",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
@@ -22,7 +22,4 @@ setup(
     maintainer_email="thermal-comp@example.org",
     description="Ground floor of the thermal-comp graph: node runtime, topic names, QoS, message and bag helpers, the recording format.",
     license="Apache-2.0",
-    entry_points={
-        "pytest11": ["thermal_comp_testing = thermal_comp_common.pytest_plugin"],
-    },
 )

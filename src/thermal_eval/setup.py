@@ -14,7 +14,7 @@ setup(
     ],
     install_requires=[
         "setuptools", "asyncua", "distributed", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich",
-        "rosbags", "scikit-learn", "scipy", "statsmodels", "sysidentpy", "threadpoolctl", "tqdm",
+        "rosbags", "scikit-learn", "scipy", "statsmodels", "sysidentpy", "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
@@ -26,27 +26,28 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-            "bench = thermal_eval.bench:main",
-            "evaluate = thermal_eval.evaluate_cli:main",
-            "replay = thermal_eval.replay_cli:main",
-            "sweep = thermal_eval.sweep_cli:main",
+            "bench = thermal_eval.bench.cli:main",
+            "evaluate = thermal_eval.evaluate.cli:main",
+            "replay = thermal_eval.replay.cli:main",
+            "sweep = thermal_eval.sweep.cli:main",
         ],
         # `thermal-comp bench SUITE`: "suite = module:function" where function(args) -> dict of figures.
         "thermal_comp.bench": [
-            "bags = thermal_eval.bench_bags:run",
-            "bridge = thermal_eval.bench_bridge:run",
-            "diagnose = thermal_eval.bench_diagnose:run",
-            "evaluate = thermal_eval.bench_evaluate:run",
-            "faults = thermal_eval.bench_faults:run",
-            "fl-thermal = thermal_eval.fl_thermal_benchmark:run",
-            "model = thermal_eval.bench_model:run",
-            "models = thermal_eval.bench_sweep:run",
-            "probe = thermal_eval.bench_probe:run",
-            "scale = thermal_eval.bench_scale:run",
-            "sensors = thermal_eval.bench_sensors:run",
-            "twin = thermal_eval.bench_twin:run",
+            "bags = thermal_eval.bench.bags:run",
+            "bridge = thermal_eval.bench.bridge:run",
+            "cli = thermal_eval.bench.cli_start:run",
+            "diagnose = thermal_eval.bench.diagnose:run",
+            "evaluate = thermal_eval.bench.evaluate:run",
+            "faults = thermal_eval.bench.faults:run",
+            "fl-thermal = thermal_eval.fl_thermal.benchmark:run",
+            "model = thermal_eval.bench.model:run",
+            "models = thermal_eval.bench.sweep:run",
+            "probe = thermal_eval.bench.probe:run",
+            "scale = thermal_eval.bench.scale:run",
+            "sensors = thermal_eval.bench.sensors:run",
+            "twin = thermal_eval.bench.twin:run",
         ],
-        # twin scenarios a dataset owns: "name = module:SCENARIO" (thermal_twin.scenarios.PLUGIN_GROUP)
-        "thermal_twin.scenarios": ["fl-thermal-programme = thermal_eval.fl_thermal_scenario:SCENARIO"],
+        # twin scenarios a dataset owns: "name = module:SCENARIO" (thermal_twin.sim.scenarios.PLUGIN_GROUP)
+        "thermal_twin.sim.scenarios": ["fl-thermal-programme = thermal_eval.fl_thermal.scenario:SCENARIO"],
     },
 )

@@ -17,7 +17,7 @@ setup(
     ],
     install_requires=[
         "setuptools", "matplotlib", "numpy", "pyyaml", "rerun-sdk", "scikit-learn", "scipy", "statsmodels",
-        "threadpoolctl", "tqdm",
+        "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
@@ -29,9 +29,9 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-            "calibrate = thermal_twin.calibrate_cli:main",
-            "diagnose = thermal_twin.diagnose_cli:main",
-            "sim = thermal_twin.sim_cli:main",
+            "calibrate = thermal_twin.calibrate.cli:main",
+            "diagnose = thermal_twin.diagnose.cli:main",
+            "sim = thermal_twin.sim.cli:main",
         ],
         "console_scripts": [
             "machine_sim = thermal_twin.machine_sim_node:main",

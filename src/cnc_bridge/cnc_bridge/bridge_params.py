@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import replace
 from typing import Any, Mapping
 
-from thermal_comp_common.node_runtime import Param
+from thermal_comp_common.runtime.node_runtime import Param
 
 from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, CONVENTION_RIGID, CONVENTIONS,
                                         DEFAULT_SPHERE_RADIUS_MM)

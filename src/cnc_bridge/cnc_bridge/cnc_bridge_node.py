@@ -1,7 +1,8 @@
 """The ``cnc_bridge`` node: predicted errors -> bounded, rate-limited offsets on the machine.
 
-A managed (lifecycle) node, thin ROS shell around :mod:`error_transform`,
-:mod:`safety_envelope`, :mod:`audit_log` and an :mod:`offset_backend` (``twin`` or ``opcua``).
+A managed (lifecycle) node, thin ROS shell around :mod:`bridge_core` (the write path through
+:mod:`error_transform`, :mod:`safety_envelope`, an :mod:`offset_backend`, ``twin`` or
+``opcua``, and :mod:`audit_log`).
 Run: ``python -m cnc_bridge.cnc_bridge_node`` (then ``configure`` and ``activate``; the
 launcher drives them, ``autostart:=true`` does it without a manager).
 
@@ -39,6 +40,7 @@ import gc
 import math
 import time
 
+import yaml
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -48,20 +50,20 @@ from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 from std_msgs.msg import Header
 
-from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
+from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC,
                                        declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
 
 from cnc_bridge.audit_log import AuditLog
+from cnc_bridge.bridge_core import (NOT_CONFIRMED, POSITIONS_ASSUMED, RAMP_DONE, TRANSFORM_FAILED,
+                                    WRITE_FAILED, BridgeCore, BridgeUpdate)
 from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
                                       loosening)
-from cnc_bridge.credentials import SECRET_NAMES, load_credentials
-from cnc_bridge.error_transform import (ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, HtmGeometry,
-                                        LatheToolOffsets, TransformInputError, offsets_from_errors)
-from cnc_bridge.offset_backend import TwinBackend, adopt_held_state
-from cnc_bridge.safety_envelope import (LIMIT_WRITE_FAILED, EnvelopeConfigError, SafetyEnvelope,
-                                        flag_names)
+from cnc_bridge.credentials import SECRET_NAMES
+from cnc_bridge.error_transform import ANGULAR_COMPONENTS, HtmGeometry, LatheToolOffsets
+from cnc_bridge.offset_backend import make_backend
+from cnc_bridge.safety_envelope import EnvelopeConfigError, SafetyEnvelope, flag_names
 from cnc_bridge.update_profile import UpdateProfile
 
 #: the launcher drives configure/activate/deactivate of a node module that says this
@@ -71,36 +73,6 @@ SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FA
 #: wall-clock period at which a backend whose I/O runs in the node's thread is served between
 #: writes (OPC UA: health check, keep-alive, positions, reconnection), s
 SERVE_PERIOD_S = 0.05
-
-
-def _make_backend(p: dict):
-    """The backend for parameters ``p``; opcua: connected within connect_timeout_s or raise."""
-    if p["backend"] == "twin":
-        return TwinBackend()
-    from cnc_bridge.opcua_backend import OpcUaBackend
-    from cnc_bridge.opcua_config import OpcUaConfig, default_node_map, load_node_map
-    if p["node_map_file"]:
-        node_map, scale = load_node_map(p["node_map_file"])
-    else:
-        axes = tuple(a for a in p["offset_axes"] if a)
-        if p["compensation_mode"] == "kinematic" and axes == ("X", "Y", "Z"):
-            axes = FIVE_AXIS_COMPONENTS   # one CNC parameter per location error
-        node_map, scale = default_node_map(axes), 0.001
-    creds = load_credentials(p["credentials_file"] or None)
-    backend = OpcUaBackend(OpcUaConfig(
-        endpoint=p["endpoint"], node_map=node_map, offset_units_per_um=scale,
-        user=creds.user, password=creds.password,
-        certificate=p["certificate"] or None, private_key=creds.private_key,
-        server_certificate=p["server_certificate"] or None,
-        server_trust=(p["server_trust"],) if p["server_trust"] else (),
-        security_required=p["security_required"], timeout_s=p["request_timeout_s"]),
-        inline=True)      # the client's loop runs in the node's thread: no hop per write
-    if not backend.wait_connected(p["connect_timeout_s"]):
-        error = backend.last_error or "no answer"
-        backend.close()
-        raise ConnectionError(f"not connected to {p['endpoint']} within "
-                              f"{p['connect_timeout_s']} s: {error}")
-    return backend
 
 
 class CncBridgeNode(LifecycleNode):
@@ -122,11 +94,8 @@ class CncBridgeNode(LifecycleNode):
         self.envelope: SafetyEnvelope | None = None
         self.backend = None
         self.audit: AuditLog | None = None
-        self.lathe = None
+        self.core: BridgeCore | None = None   # the write path of a configured node
         self.adopted = []                 # HeldAdoption per axis from the last configure
-        self._adoption_flags: dict[str, int] = {}
-        self._active = False              # writes follow the predictions
-        self._ramping_down = False        # deactivated, offsets still on their way to zero
         self._entities = []               # publishers, subscriptions, timer of a configured node
         self.offsets_pub = self.sync_pub = None
         #: timed only with profile_path: between predictions (no begin) its laps do nothing
@@ -146,28 +115,30 @@ class CncBridgeNode(LifecycleNode):
         p = self._p
         try:
             self.envelope = SafetyEnvelope(envelope_config(p, self.kinematic), enabled=False)
-            self.lathe = self._load_lathe(p["lathe_tools_file"])
+            lathe = self._load_lathe(p["lathe_tools_file"])
             self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
-            self.backend = _make_backend(p)
+            self.backend = make_backend(p)
         except (ValueError, OSError, ConnectionError) as exc:
             self._configure_error = str(exc)
             self.get_logger().error(f"configure failed, nothing written: {exc}")
             self._release()
             return FAILURE
-        self.adopted = adopt_held_state(self.envelope, self.backend)
-        # the first offsets message after activation carries what the adoption limited
-        self._adoption_flags = {a.axis: a.flags for a in self.adopted if a.flags}
+        self.core = BridgeCore(
+            self.envelope, self.backend, self.audit, kinematic=self.kinematic,
+            sphere_radius_mm=p["sphere_radius_mm"], lathe=lathe, htm=self.htm,
+            convention=p["htm_convention"], positions_required=p["positions_required"],
+            profile=self.profile, now=lambda: self.get_clock().now().nanoseconds * 1e-9,
+            report=self._report)
+        # audited by the core; the first offsets message after activation carries the flags
+        self.adopted = self.core.adopt_held()
         for a in self.adopted:
             text = "start-up: " + a.describe()
             if a.flags:      # rclpy: one severity per call site
                 self.get_logger().warning(text)
             else:
                 self.get_logger().info(text)
-            self._audit_event(a.axis, text, a.flags)
         self._positions: dict[str, float] = {}
         self._errors: dict[str, float] | None = None
-        self._last_update_t: float | None = None
-        self._warned_positions = False
         # subscriptions first: the lock-step counts a participant present once its SimSync
         # publisher appears, and the first prediction must then find the subscription
         self._entities = [self.create_subscription(MachineState, TOPIC_MACHINE_STATE, self._on_state,
@@ -190,8 +161,7 @@ class CncBridgeNode(LifecycleNode):
         return SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.envelope.set_enabled(bool(self.get_parameter("enable").value))
-        self._active, self._ramping_down = True, False
+        self.core.activate(bool(self.get_parameter("enable").value))
         # what start-up allocated (modules, the client, the node) stays out of the garbage
         # collector's passes: a full collection over it is a pause on the offsets' path
         gc.freeze()
@@ -201,14 +171,12 @@ class CncBridgeNode(LifecycleNode):
         return SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._active = False
-        self.envelope.set_enabled(False)
-        self._ramping_down = any(abs(v) > 0 for v in self.envelope.applied.values())
+        ramping_down = self.core.deactivate()
         text = (f"deactivate: compensation off, offsets ramp to zero at "
                 f"{self.envelope.config.disable_ramp_um_per_s} um/s from {self._fmt(self.envelope.applied)}")
         self._audit_event("", text)
         self.get_logger().info(text)
-        if self._ramping_down and not self._p["lockstep"] and \
+        if ramping_down and not self._p["lockstep"] and \
                 not self.get_parameter("use_sim_time").value:
             self._ramp_down_for(self._p["deactivate_wait_s"])
         return SUCCESS
@@ -217,12 +185,12 @@ class CncBridgeNode(LifecycleNode):
         """Step the ramp to zero in real time (the executor is ours meanwhile) until every
         offset is at zero or ``wait_s`` passed; the ramp goes on after that on the timer."""
         deadline = time.monotonic() + wait_s
-        while self._ramping_down and time.monotonic() < deadline:
+        while self.core.ramping_down and time.monotonic() < deadline:
             # pacing a physical ramp in wall time: the rate limit is per second of real time
             time.sleep(min(self._p["update_period_s"], max(0.0, deadline - time.monotonic())))
             t = self.get_clock().now().nanoseconds * 1e-9
             self._update(t, s_to_stamp(t), fresh=False)
-        if self._ramping_down:
+        if self.core.ramping_down:
             self.get_logger().warning(
                 f"deactivate: not at zero after {wait_s:g} s ({self._fmt(self.envelope.applied)}); "
                 f"the ramp goes on while the node runs, a stop now leaves these offsets held")
@@ -241,7 +209,8 @@ class CncBridgeNode(LifecycleNode):
 
     def _release(self, why: str = "") -> None:
         """Drop the connection and the ROS entities without writing (the CNC keeps its offsets)."""
-        self._active = self._ramping_down = False
+        if self.core is not None:
+            self.core.active = self.core.ramping_down = False
         if why and self.envelope is not None:
             held = self._fmt(self.envelope.applied)
             self._audit_event("", f"{why}: released without writing; the CNC keeps {held}")
@@ -260,12 +229,12 @@ class CncBridgeNode(LifecycleNode):
         if self.audit is not None:
             self.audit.close()
             self.audit = None
+        self.core = None
 
     @staticmethod
     def _load_lathe(path: str):
         if not path:
             return None
-        import yaml
         try:
             with open(path, encoding="utf-8") as f:
                 return LatheToolOffsets.from_mapping(yaml.safe_load(f))
@@ -278,8 +247,24 @@ class CncBridgeNode(LifecycleNode):
                          for a, v in sorted(values.items())) or "nothing"
 
     def _audit_event(self, axis: str, text: str, flags: int = 0) -> None:
-        if self.audit is not None:
-            self.audit.log_event(self.get_clock().now().nanoseconds * 1e-9, axis, text, flags)
+        if self.core is not None:
+            self.core.audit_event(axis, text, flags)
+
+    def _report(self, kind: str, text: str) -> None:
+        """The core's problems in the log; rclpy throttles per call site, so one per kind."""
+        log = self.get_logger()
+        if kind == TRANSFORM_FAILED:
+            log.error(text, throttle_duration_sec=10.0)
+        elif kind == WRITE_FAILED:
+            log.error(text, throttle_duration_sec=10.0)
+        elif kind == NOT_CONFIRMED:
+            log.warning(text, throttle_duration_sec=5.0)
+        elif kind == POSITIONS_ASSUMED:
+            log.warning(text)
+        elif kind == RAMP_DONE:
+            log.info(text)
+        else:
+            log.error(text)
 
     # ------------------------------------------------------------------ parameters
     def _check_params(self, params: list[Parameter]) -> SetParametersResult:
@@ -347,15 +332,21 @@ class CncBridgeNode(LifecycleNode):
         self.profile.end()
 
     @property
+    def _active(self) -> bool:
+        """Writes follow the predictions."""
+        return self.core is not None and self.core.active
+
+    @property
     def _writing(self) -> bool:
         """Active, or deactivated with offsets still ramping to zero."""
-        return self._active or self._ramping_down
+        return self.core is not None and self.core.writing
 
     def _on_timer(self) -> None:
         if not self._writing:
             return
         t = self.get_clock().now().nanoseconds * 1e-9
-        if self._last_update_t is not None and t - self._last_update_t < self._p["update_period_s"]:
+        last = self.core.last_update_t
+        if last is not None and t - last < self._p["update_period_s"]:
             return
         self._update(t, s_to_stamp(t), fresh=False)
 
@@ -381,86 +372,24 @@ class CncBridgeNode(LifecycleNode):
         return errors
 
     # ------------------------------------------------------------------ the update
-    def _positions_now(self) -> dict[str, float]:
-        pos = dict(self.backend.axis_positions())
-        pos.update(self._positions)           # machine_state wins where it reports the axis
-        if self._p["positions_required"] or self._errors is None or \
-                not any(c in self._errors for c in FIVE_AXIS_COMPONENTS):
-            return pos
-        missing = [a for a in ("X", "Y", "Z") if a not in pos]
-        if missing:
-            origin = self.htm.origin_at_mm(pos.get("B", 0.0))
-            for a in missing:
-                pos[a] = float(origin["XYZ".index(a)])
-            if not self._warned_positions:
-                self._warned_positions = True
-                self.get_logger().warning(
-                    f"no position for axis {missing} from machine_state or the CNC: offsets are "
-                    f"evaluated at the HTM origin {list(self.htm.origin_mm)} mm")
-        return pos
-
     def _update(self, t: float, stamp, fresh: bool) -> None:
-        commanded = None
-        if self._errors is not None and self.kinematic:
-            # the CNC's kinematic model takes the location errors themselves
-            commanded = dict(self._errors)
-        elif self._errors is not None:
-            try:
-                commanded = offsets_from_errors(self._errors, self._positions_now(),
-                                                self._p["sphere_radius_mm"], self.lathe, self.htm,
-                                                self._p["htm_convention"])
-            except TransformInputError as exc:
-                self.get_logger().error(f"offsets at t={t:.3f}: {exc}; holding", throttle_duration_sec=10.0)
-                fresh = False
-        prof = self.profile
-        prof.lap("transform")
-        try:
-            decisions = self.envelope.step(t, commanded, fresh)
-        except ValueError as exc:
-            self.get_logger().error(f"offsets at t={t:.3f}: {exc}; holding")
-            return
-        prof.lap("envelope")
-        self._last_update_t = t
-        if not decisions:
-            return
-        try:
-            readback = self.backend.write_offsets({d.axis: d.applied_um for d in decisions})
-        except ValueError as exc:            # e.g. an axis without an offset node in the map
-            self.get_logger().error(f"offsets at t={t:.3f} not written: {exc}",
-                                    throttle_duration_sec=10.0)
-            readback = {d.axis: None for d in decisions}
-        prof.lap("cnc_call")
-        prof.note(round_trip_ms=getattr(self.backend, "last_round_trip_s", 0.0) * 1e3,
-                  round_trips=getattr(self.backend, "last_round_trips", 0))
-        msg = AxisOffsets(header=Header(stamp=stamp), compensation_enabled=self.envelope.enabled)
-        entries = []
-        for d in decisions:
-            back = readback.get(d.axis)
-            self.envelope.confirm(d.axis, back)
-            flags = d.flags | (LIMIT_WRITE_FAILED if back is None else 0) | \
-                self._adoption_flags.pop(d.axis, 0)
-            msg.axis_names.append(d.axis)
-            msg.commanded_offsets_um.append(d.commanded_um)
-            msg.applied_offsets_um.append(self.envelope.applied[d.axis])
-            msg.applied.append(back is not None)
-            msg.limits_hit.append(flags)
-            entries.append((d.axis, d.commanded_um, back, flags))
-            if flags & LIMIT_WRITE_FAILED:
-                self.get_logger().warning(
-                    f"axis {d.axis}: write of {d.applied_um:.3f} um not confirmed "
-                    f"({getattr(self.backend, 'last_error', '')})", throttle_duration_sec=5.0)
-        # what the CNC confirmed goes out first; the audit line is on disk before this returns,
-        # so before the lock-step acknowledgement that lets the simulation go on
-        self.offsets_pub.publish(msg)
-        prof.lap("publish")
-        if self.audit is not None:
-            self.audit.log_write(t, entries)
-        prof.lap("audit")
-        if self._ramping_down and all(v == 0.0 for v in self.envelope.applied.values()):
-            self._ramping_down = False
-            self._audit_event("", "deactivated: every offset is at zero; writes stopped")
-            self.get_logger().info("deactivated: every offset is at zero; writes stopped")
-        self.get_logger().debug(" ".join(f"{e[0]}={e[2]} [{flag_names(e[3])}]" for e in entries))
+        """One core update with the last good prediction; its offsets published with ``stamp``."""
+        update = self.core.update(t, self._errors, self._positions, fresh,
+                                  publish=lambda u: self.offsets_pub.publish(self._offsets_msg(u, stamp)))
+        if update is not None:
+            self.get_logger().debug(" ".join(f"{a.axis}={a.read_back_um} [{flag_names(a.flags)}]"
+                                             for a in update.axes))
+
+    @staticmethod
+    def _offsets_msg(update: BridgeUpdate, stamp) -> AxisOffsets:
+        msg = AxisOffsets(header=Header(stamp=stamp), compensation_enabled=update.compensation_enabled)
+        for a in update.axes:
+            msg.axis_names.append(a.axis)
+            msg.commanded_offsets_um.append(a.commanded_um)
+            msg.applied_offsets_um.append(a.applied_um)
+            msg.applied.append(a.confirmed)
+            msg.limits_hit.append(a.flags)
+        return msg
 
     def close(self) -> None:
         """Process exit (run_node): release without writing, like shutdown."""

@@ -2,7 +2,7 @@
 
 Subscribes to machine_sim's ``machine_state`` (axis positions -> the emulator's
 ``Axis.<A>.Position`` nodes) and ``errors/ground_truth`` (the true thermal errors that the
-emulator's ``ProbeMove`` answers from, through ``thermal_twin.artefact_geometry`` and the
+emulator's ``ProbeMove`` answers from, through ``thermal_twin.machine.artefact_geometry`` and the
 compensation the emulator applies at that moment). So an OPC UA client - the cnc_bridge
 node writing offsets, the probe cycle's ``cnc`` backend probing - talks to the twin as to a
 real controller.
@@ -16,10 +16,10 @@ from typing import Callable
 
 from rclpy.node import Node
 
-from thermal_comp_common.node_runtime import SENSOR_QOS, TOPIC_ERRORS_TRUE, TOPIC_MACHINE_STATE, EVENT_QOS
+from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, TOPIC_ERRORS_TRUE, TOPIC_MACHINE_STATE, EVENT_QOS
 from thermal_comp_msgs.msg import MachineState, ThermalErrors
 
-from cnc_bridge.cnc_emulator import CncEmulatorThread
+from cnc_bridge.cnc_emulator.thread import CncEmulatorThread
 
 
 class CncTwinFeed(Node):

@@ -17,6 +17,8 @@ import stat
 from dataclasses import dataclass
 from typing import Mapping
 
+import yaml
+
 ENV_USER = "THERMAL_COMP_OPCUA_USER"
 ENV_PASSWORD = "THERMAL_COMP_OPCUA_PASSWORD"
 ENV_PRIVATE_KEY = "THERMAL_COMP_OPCUA_PRIVATE_KEY"
@@ -59,7 +61,6 @@ def check_private_file(path: str | os.PathLike, what: str) -> pathlib.Path:
 def load_credentials(path: str | os.PathLike | None = None,
                      environ: Mapping[str, str] | None = None) -> Credentials:
     """Credentials from ``path`` (if given) or the environment; see the module docstring."""
-    import yaml
     if path:
         p = check_private_file(path, "credentials file")
         try:

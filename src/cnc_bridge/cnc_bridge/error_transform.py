@@ -32,6 +32,7 @@ from typing import Mapping
 
 import numpy as np
 from thermal_comp_common.components import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, LINEAR_COMPONENTS
+from thermal_comp_common.kinematics import TransformInputError, finite_input, rot_y
 
 #: The seven C-axis / table errors of a 5-axis machine, in the order of the thesis.
 #: Axes the 5-axis offsets are written to (B and C are not compensated: their 0.001 deg
@@ -41,17 +42,6 @@ FIVE_AXIS_OFFSET_AXES = ("X", "Y", "Z")
 DEFAULT_SPHERE_RADIUS_MM = 160.0
 
 _UM_PER_M_TIMES_MM_TO_UM = 1e-3
-
-
-class TransformInputError(ValueError):
-    """An error component or axis position is missing or not a finite number."""
-
-
-def _finite(name: str, value: float) -> float:
-    v = float(value)
-    if not math.isfinite(v):
-        raise TransformInputError(f"'{name}' must be a finite number, got {value!r}")
-    return v
 
 
 #: Conventions for eq. 6.3-6.5 (see :func:`five_axis_offsets_um`).
@@ -88,11 +78,6 @@ class HtmGeometry:
         return np.array([x_mm, y_mm, z_mm]) - self.origin_at_mm(b_deg)
 
 
-def _rot_y(b: float) -> np.ndarray:
-    c, s = math.cos(b), math.sin(b)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
 def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, z_mm: float,
                          b_deg: float, sphere_radius_mm: float = DEFAULT_SPHERE_RADIUS_MM,
                          convention: str = CONVENTION_RIGID) -> dict[str, float]:
@@ -105,7 +90,7 @@ def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, 
 
     * ``"printed"``: eq. 6.3-6.5 exactly as printed in the thesis.
     * ``"rigid"`` (default): the rigid-body homogeneous transformation with the error
-      definitions of the probing cycle (eq. 5.4-5.10, as ``thermal_twin.artefact_geometry``
+      definitions of the probing cycle (eq. 5.4-5.10, as ``thermal_twin.machine.artefact_geometry``
       implements them): in the table frame (position p_t = R_y(B)^T p) the error is
       ``(E_X0C, E_Y0C, E_Z0T) + E_R0T (x_t, y_t, 0)/(d/2) + w x p_t`` with the small
       rotation ``w = (E_A0C, E_B0C, -E_C0C) * 1e-6`` rad, then turned by R_y(B) into machine
@@ -125,9 +110,9 @@ def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, 
         if name not in errors:
             raise TransformInputError(
                 f"error component '{name}' missing (got {sorted(errors)})")
-        e[name] = _finite(name, errors[name])
-    x, y, z = _finite("X", x_mm), _finite("Y", y_mm), _finite("Z", z_mm)
-    b = math.radians(_finite("B", b_deg))
+        e[name] = finite_input(name, errors[name])
+    x, y, z = finite_input("X", x_mm), finite_input("Y", y_mm), finite_input("Z", z_mm)
+    b = math.radians(finite_input("B", b_deg))
     k = _UM_PER_M_TIMES_MM_TO_UM
     r = sphere_radius_mm
     ex, ey, ezt, ert = e["E_X0C"], e["E_Y0C"], e["E_Z0T"], e["E_R0T"]
@@ -144,32 +129,13 @@ def five_axis_offsets_um(errors: Mapping[str, float], x_mm: float, y_mm: float, 
                  + (ezt + ea * y * k) * cb
                  + (-ex + ert * z / r + ec * y * k) * sb)
         return {"X": off_x, "Y": off_y, "Z": off_z}
-    rot = _rot_y(b)
+    rot = rot_y(b)
     p_t = rot.T @ np.array([x, y, z])
     w = np.array([ea, eb, -ec]) * k              # um/m * mm * 1e-3 = um per mm of lever
     e_t = (np.array([ex, ey, ezt]) + ert * np.array([p_t[0], p_t[1], 0.0]) / r
            + np.cross(w, p_t))
     off = rot @ e_t
     return {"X": float(off[0]), "Y": float(off[1]), "Z": float(off[2])}
-
-
-def applied_offsets_in_component_space(applied_offsets_um: Mapping[str, float],
-                                       b_deg: float = 0.0) -> dict[str, float]:
-    """What constant X/Y/Z offsets compensate, expressed as the seven 5-axis components.
-
-    A probing cycle that touches the artefact at several C indexings with the same X/Y/Z
-    offsets held sees them as a pure translation of the table frame: it lowers the measured
-    E_X0C, E_Y0C, E_Z0T by ``R_y(B)^T * offset`` and leaves E_R0T, E_A0C, E_B0C, E_C0C
-    untouched (they come from differences between indexings). So a model that rebuilds the
-    total error as "measured residual + applied compensation" must add back exactly this,
-    not its whole prediction (the rest was never applied where the probe looks).
-    Missing axes count as 0.
-    """
-    off = np.array([_finite(f"applied_offsets_um.{a}", applied_offsets_um.get(a, 0.0))
-                    for a in ("X", "Y", "Z")])
-    t = _rot_y(math.radians(_finite("B", b_deg))).T @ off
-    return {"E_X0C": float(t[0]), "E_Y0C": float(t[1]), "E_Z0T": float(t[2]),
-            "E_R0T": 0.0, "E_A0C": 0.0, "E_B0C": 0.0, "E_C0C": 0.0}
 
 
 @dataclass(frozen=True)
@@ -218,11 +184,11 @@ class LatheToolOffsets:
         if self.tls_component not in errors:
             raise TransformInputError(
                 f"TLS component '{self.tls_component}' missing (got {sorted(errors)})")
-        e_tls = _finite(self.tls_component, errors[self.tls_component])
+        e_tls = finite_input(self.tls_component, errors[self.tls_component])
         out = {self.tls_component: e_tls}
         for tool, model in self.tools.items():
             if tool in errors:      # the error model already predicted this tool position
-                out[tool] = _finite(tool, errors[tool])
+                out[tool] = finite_input(tool, errors[tool])
             else:
                 out[tool] = e_tls + model.delta_um(e_tls)
         return out
@@ -246,8 +212,8 @@ class LatheToolOffsets:
                 raise TransformInputError(
                     f"lathe tool offsets: tools.{name}: unknown key(s) {sorted(unknown)}")
             tools[str(name)] = ToolOffsetModel(
-                intercept_um=_finite(f"tools.{name}.intercept_um", m.get("intercept_um", 0.0)),
-                gain=_finite(f"tools.{name}.gain", m.get("gain", 0.0)))
+                intercept_um=finite_input(f"tools.{name}.intercept_um", m.get("intercept_um", 0.0)),
+                gain=finite_input(f"tools.{name}.gain", m.get("gain", 0.0)))
         return LatheToolOffsets(tls_component=tls, tools=tools)
 
 
@@ -269,9 +235,9 @@ def offsets_from_errors(errors: Mapping[str, float], axis_positions: Mapping[str
                 raise TransformInputError(
                     f"axis position '{axis}' unknown (machine_state gave {sorted(axis_positions)})")
             pos[axis] = axis_positions[axis]
-        b = _finite("B", axis_positions.get("B", 0.0))
+        b = finite_input("B", axis_positions.get("B", 0.0))
         rel = (geometry or HtmGeometry()).relative_position_mm(
-            _finite("X", pos["X"]), _finite("Y", pos["Y"]), _finite("Z", pos["Z"]), b)
+            finite_input("X", pos["X"]), finite_input("Y", pos["Y"]), finite_input("Z", pos["Z"]), b)
         return five_axis_offsets_um(errors, *rel, b_deg=b, sphere_radius_mm=sphere_radius_mm,
                                     convention=convention)
     return (lathe or LatheToolOffsets()).offsets_um(errors)

@@ -9,10 +9,14 @@ node never talks to a machine any other way.
   so publishing *is* the write and the read-back is the value itself.
 * ``opcua`` (:class:`cnc_bridge.opcua_backend.OpcUaBackend`): an asyncua client against a
   real (or emulated) CNC.
+
+:func:`make_backend` builds either from the bridge's parameters (asyncua loads only for opcua).
 """
 from __future__ import annotations
 
-from typing import Mapping, Protocol
+from typing import Any, Mapping, Protocol
+
+from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
 
 class CncBackend(Protocol):
@@ -63,3 +67,37 @@ def adopt_held_state(envelope, backend) -> list:
     if hasattr(backend, "adopt"):
         backend.adopt({a.axis: a.adopted_um for a in adopted})
     return adopted
+
+
+def make_backend(p: Mapping[str, Any]):
+    """The backend for the bridge parameters ``p`` (:mod:`cnc_bridge.bridge_params`); opcua:
+    connected within ``connect_timeout_s`` or :class:`ConnectionError`, its client's event
+    loop run in the caller's thread (call its ``serve`` between writes)."""
+    if p["backend"] == "twin":
+        return TwinBackend()
+    # heavy: asyncua (and the credentials' YAML) only for an opcua backend
+    from cnc_bridge.credentials import load_credentials
+    from cnc_bridge.opcua_backend import OpcUaBackend
+    from cnc_bridge.opcua_config import OpcUaConfig, default_node_map, load_node_map
+    if p["node_map_file"]:
+        node_map, scale = load_node_map(p["node_map_file"])
+    else:
+        axes = tuple(a for a in p["offset_axes"] if a)
+        if p["compensation_mode"] == "kinematic" and axes == ("X", "Y", "Z"):
+            axes = FIVE_AXIS_COMPONENTS   # one CNC parameter per location error
+        node_map, scale = default_node_map(axes), 0.001
+    creds = load_credentials(p["credentials_file"] or None)
+    backend = OpcUaBackend(OpcUaConfig(
+        endpoint=p["endpoint"], node_map=node_map, offset_units_per_um=scale,
+        user=creds.user, password=creds.password,
+        certificate=p["certificate"] or None, private_key=creds.private_key,
+        server_certificate=p["server_certificate"] or None,
+        server_trust=(p["server_trust"],) if p["server_trust"] else (),
+        security_required=p["security_required"], timeout_s=p["request_timeout_s"]),
+        inline=True)      # the client's loop runs in the caller's thread: no hop per write
+    if not backend.wait_connected(p["connect_timeout_s"]):
+        error = backend.last_error or "no answer"
+        backend.close()
+        raise ConnectionError(f"not connected to {p['endpoint']} within "
+                              f"{p['connect_timeout_s']} s: {error}")
+    return backend

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 from asyncua import ua
+import yaml
 
 
 class OpcUaConfigError(ValueError):
@@ -54,7 +55,6 @@ def load_node_map(path: str | pathlib.Path) -> tuple[dict[str, AxisNodes], float
               enable: "...", position: "ns=2;s=Axis.X.Position"}
           B: {position: "ns=2;s=Axis.B.Position"}
     """
-    import yaml
     p = pathlib.Path(path)
     try:
         spec = yaml.safe_load(p.read_text())

@@ -6,7 +6,7 @@ read-back (the backend call as the node sees it, and the round trip(s) as the OP
 client's event loop sees them; the difference is the call's own work around them), the ``offsets`` publication, the audit log line (flushed and fsync'ed) and the
 SimSync acknowledgement. One CSV row per prediction, written when the node exits; the wall
 clock of the callback start lets ``bench graph`` join it to the DDS publication times of the
-same instant (thermal_comp.graph_profile) and so measure the DDS hop into the bridge too.
+same instant (thermal_comp.demo.graph_profile) and so measure the DDS hop into the bridge too.
 """
 from __future__ import annotations
 

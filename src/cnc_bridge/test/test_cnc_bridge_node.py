@@ -45,7 +45,7 @@ class Cell:
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
 
-        from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
+        from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                                TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC)
         from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
         self.ctx = rclpy.context.Context()
@@ -76,7 +76,7 @@ class Cell:
                         timeout_s, "the bridge")
 
     def state(self, t: float, **axes):
-        from thermal_comp_common.node_runtime import s_to_stamp
+        from thermal_comp_common.runtime.node_runtime import s_to_stamp
         m = self.MachineState()
         m.header.stamp = s_to_stamp(t)
         m.axis_names = list(axes)
@@ -84,7 +84,7 @@ class Cell:
         self.state_pub.publish(m)
 
     def predict(self, t: float, **errors):
-        from thermal_comp_common.node_runtime import s_to_stamp
+        from thermal_comp_common.runtime.node_runtime import s_to_stamp
         E = self.ThermalErrors
         m = E(source=E.SOURCE_PREDICTED, model_kind="test")
         m.header.stamp = s_to_stamp(t)
@@ -97,7 +97,7 @@ class Cell:
         self.pred_pub.publish(m)
 
     def answer_for(self, t: float, timeout_s=15.0):
-        from thermal_comp_common.node_runtime import stamp_to_s
+        from thermal_comp_common.runtime.node_runtime import stamp_to_s
         self.spin_until(lambda: any(abs(stamp_to_s(s.processed_until) - t) < 1e-9 for s in self.syncs),
                         timeout_s, f"SimSync for t={t}")
         self.spin_until(lambda: any(abs(stamp_to_s(o.header.stamp) - t) < 1e-9 for o in self.offsets),
@@ -171,7 +171,7 @@ def test_twin_backend_in_lockstep(tmp_path, ros_domain_id):
         assert msg.applied_offsets_um[msg.axis_names.index("Z")] == pytest.approx(15.0)
         # predictions stop: machine_state instants drive the watchdog (last fresh one at 150 s,
         # timeout 30 s, no hold): at 200 s it ramps 1 um/s over the capped 10 s step
-        from thermal_comp_common.node_runtime import stamp_to_s
+        from thermal_comp_common.runtime.node_runtime import stamp_to_s
         cell.state(200.0)
         cell.spin_until(lambda: stamp_to_s(cell.offsets[-1].header.stamp) == 200.0, 15, "watchdog")
         msg = cell.offsets[-1]
@@ -253,8 +253,8 @@ def test_emulator_fed_by_the_twin_answers_probe_moves_from_ground_truth(ros_doma
     from asyncua import Client, ua
 
     from cnc_bridge.cnc_emulator import PROBE_METHOD_ID, PROBE_OBJECT_ID, position_node_id
-    from thermal_comp_common.node_runtime import EVENT_QOS, TOPIC_ERRORS_TRUE, s_to_stamp
-    from thermal_twin.artefact_geometry import nominal_sphere_centre, touch_trigger_position
+    from thermal_comp_common.runtime.node_runtime import EVENT_QOS, TOPIC_ERRORS_TRUE, s_to_stamp
+    from thermal_twin.machine.artefact_geometry import nominal_sphere_centre, touch_trigger_position
 
     port = free_tcp_port()
     proc = subprocess.Popen([sys.executable, "-m", "cnc_bridge.cnc_emulator", "--twin", "--port",
@@ -314,7 +314,7 @@ def test_credentials_as_parameters_are_refused(ros_domain_id):
 
 
 def test_managed_bridge_never_writes_before_activate_and_honours_runtime_limits(tmp_path, ros_domain_id):
-    """Issue 23 end to end: the CNC holds X = -5 mm with compensation off. Configure connects
+    """End to end: the CNC holds X = -5 mm with compensation off. Configure connects
     and reads, writes nothing; activate writes from zero, rate-limited (no 5 mm step); a limit
     set at run time applies to the next write; a read-only parameter is refused; deactivate
     ramps to zero."""

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from cnc_bridge.error_transform import (FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
-                                        applied_offsets_in_component_space,
                                         ToolOffsetModel, TransformInputError, fit_tool_offset_model,
                                         five_axis_offsets_um, offsets_from_errors)
+from thermal_comp_common.kinematics import applied_offsets_in_component_space
 
 POS = dict(x_mm=100.0, y_mm=200.0, z_mm=300.0)   # mm; sphere radius d/2 = 160 mm
 C30, S30 = math.cos(math.radians(30)), 0.5
@@ -80,7 +80,7 @@ def test_each_error_alone_rigid(name, value, b_deg, expected):
 def test_rigid_offsets_cancel_what_the_twins_probe_sees(name, b_deg):
     """Offsets at the sphere centre, with the origin where the errors are defined, cancel
     the sphere's displacement in the twin's probing model at every C indexing."""
-    from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, true_sphere_centre
+    from thermal_twin.machine.artefact_geometry import DEFAULT_GEOMETRY, true_sphere_centre
     s = DEFAULT_GEOMETRY.sphere
     geometry = HtmGeometry(origin_mm=(*s.c_axis_xy_mm, s.centre_z_mm),
                            b_pivot_xz_mm=(s.c_axis_xy_mm[0], s.b_pivot_z_mm))
@@ -165,7 +165,7 @@ def test_lathe_spec_from_mapping_names_bad_keys():
 def test_applied_offsets_in_component_space_is_what_the_probe_cycle_stops_seeing(b_deg):
     """Hold constant offsets, probe the twin's sphere at the four C indexings, evaluate the
     cycle (eq. 5.4-5.7 style averages): only E_X0C/E_Y0C/E_Z0T drop, by exactly this mapping."""
-    from thermal_twin.artefact_geometry import true_sphere_centre
+    from thermal_twin.machine.artefact_geometry import true_sphere_centre
     errors = dict(E_X0C=3.0, E_Y0C=-7.0, E_Z0T=12.0, E_R0T=4.0, E_A0C=-15.0, E_B0C=6.0, E_C0C=9.0)
     offsets = {"X": 2.0, "Y": -5.0, "Z": 8.0}
     centres = {c: np.array(true_sphere_centre(c, b_deg, errors, offsets))

@@ -191,7 +191,7 @@ def test_unsigned_connection_refused_when_security_is_required(tmp_path, port):
 def test_probe_move_answers_through_opcua_with_the_applied_compensation(port):
     """The probing interface other nodes use: a real method call, answered by the twin geometry."""
     from asyncua import Client, ua
-    from thermal_twin.artefact_geometry import nominal_sphere_centre
+    from thermal_twin.machine.artefact_geometry import nominal_sphere_centre
 
     emu = CncEmulatorThread(EmulatorConfig(port=port),
                             probe_move=artefact_probe(lambda: {"E_Z0T": 10.0})).start()

@@ -215,7 +215,7 @@ def test_held_offsets_are_adopted_only_within_the_envelope(held, on, adopted, fl
 
 
 def test_start_with_5mm_held_and_compensation_off_never_jumps():
-    """Issue 23: the CNC held X = -5 mm with compensation off; every write after start-up stays
+    """The CNC held X = -5 mm with compensation off; every write after start-up stays
     within rate * dt of zero."""
     env = SafetyEnvelope(EnvelopeConfig(abs_limit_um=30.0, max_rate_um_per_s=0.5, max_step_s=10.0))
     env.adopt_held({"X": -5000.0}, {"X": False})

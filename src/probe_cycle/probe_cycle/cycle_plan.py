@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thermal_twin.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
+from thermal_twin.machine.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
                                             ArtefactGeometry, nominal_sphere_centre)
 
 DEFAULT_C_ANGLES_DEG = (0.0, 90.0, 180.0, 270.0, 360.0)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thermal_twin.artefact_geometry import SPHERE_COMPONENTS
+from thermal_twin.machine.artefact_geometry import SPHERE_COMPONENTS
 
 #: C index of the sphere positions k = 1..4 used by eq. 5.4-5.10.
 EQUATION_C_ANGLES_DEG = (0.0, 90.0, 180.0, 270.0)

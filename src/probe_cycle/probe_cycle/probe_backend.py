@@ -13,7 +13,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from thermal_twin.artefact_geometry import ArtefactGeometry, touch_trigger_position
+from thermal_twin.machine.artefact_geometry import ArtefactGeometry, touch_trigger_position
 
 from probe_cycle.cycle_plan import TouchMove
 

@@ -15,7 +15,7 @@ import os
 from dataclasses import dataclass
 from typing import Callable
 
-from thermal_twin.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
+from thermal_twin.machine.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
                                             GUIDE_BUSH_COMPONENT, ArtefactGeometry)
 
 from probe_cycle.cycle_plan import (DEFAULT_C_ANGLES_DEG, DEFAULT_GUIDE_BUSH_REPEATS,

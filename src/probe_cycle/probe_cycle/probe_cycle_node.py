@@ -25,12 +25,12 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
-from thermal_comp_common.diagnostics import DiagnosticsPublisher
-from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, Param, declare_parameters,
+from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
+from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, Param, declare_parameters,
                                        run_node, s_to_stamp)
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import ThermalErrors
-from thermal_twin.artefact_geometry import (ARTEFACT_SPHERE, ArtefactGeometry,
+from thermal_twin.machine.artefact_geometry import (ARTEFACT_SPHERE, ArtefactGeometry,
                                             GuideBushArtefact, SphereArtefact,
                                             TouchProbeModel)
 
@@ -38,8 +38,10 @@ from probe_cycle.cycle_plan import GuideBushTiming, SphereTiming
 from probe_cycle.cycle_result import UNIT_UM_PER_M, CycleLimits, CycleResult
 from probe_cycle.probe_backend import ProbeBackend
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine
+from probe_cycle.sim_clock_follower import SimClockFollower
+from probe_cycle.twin_backend import TwinProbeBackend
 
-# defaults of the geometry: those of thermal_twin.artefact_geometry (what machine_sim uses)
+# defaults of the geometry: those of thermal_twin.machine.artefact_geometry (what machine_sim uses)
 _S, _P, _G = SphereArtefact(), TouchProbeModel(), GuideBushArtefact()
 
 PARAMS = [
@@ -107,7 +109,6 @@ class ProbeCycleNode(Node):
         super().__init__("probe_cycle", context=context)
         self._clock_follower = None
         if self.get_parameter("use_sim_time").value:
-            from probe_cycle.sim_clock_follower import SimClockFollower
             self._clock_follower = SimClockFollower(self)
         p = declare_parameters(self, PARAMS)
         self.engine = ProbeCycleEngine(
@@ -135,8 +136,8 @@ class ProbeCycleNode(Node):
 
     def _make_backend(self, p: dict) -> ProbeBackend:
         if p["backend"] == "twin":
-            from probe_cycle.twin_backend import TwinProbeBackend
             return TwinProbeBackend(self, p["touch_timeout_s"], p["service_wait_s"])
+        # heavy: asyncua only for the CNC backend
         from probe_cycle.cnc_probe_backend import CncProbeBackend, CncProbeNodes
         user = p["cnc_user"] or None
         return CncProbeBackend(

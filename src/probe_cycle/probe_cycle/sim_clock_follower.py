@@ -2,11 +2,10 @@
 
 With ``use_sim_time`` rclpy subscribes the node to ``/clock`` in the node's own executor. In
 probe_cycle's MultiThreadedExecutor (needed so a cancel or a stop reaches a cycle in flight)
-that subscription kept the main thread yielding clock handlers (some 300,000 in a one-minute
-run with a few thousand ``/clock`` messages): it spun one core and, holding the GIL, delayed
-the touch-probe client's thread, so a 2 ms service round trip took 80 ms to 3.7 s now and
-then. Measured with ``thermal-comp bench graph --quick`` on a quiet 2-core machine:
-55 s wall and 47 s of probe_cycle CPU with rclpy's subscription, 11 s and 2 s without it.
+that subscription keeps the main thread yielding clock handlers (hundreds of thousands per
+minute with a few thousand ``/clock`` messages): it spins one core and, holding the GIL, delays
+the touch-probe client's thread, so a millisecond service round trip can take seconds
+(figures: docs/cnc_bridge.md, "Quiet figures").
 
 :class:`SimClockFollower` keeps ``use_sim_time`` applied: the node's clock still follows
 ``/clock``, but through a private node (same context and namespace) spun by its own

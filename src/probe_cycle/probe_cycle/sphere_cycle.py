@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thermal_twin.artefact_geometry import ANGULAR_COMPONENTS, SPHERE_COMPONENTS
+from thermal_twin.machine.artefact_geometry import ANGULAR_COMPONENTS, SPHERE_COMPONENTS
 
 from probe_cycle.cycle_plan import CyclePlan
 from probe_cycle.cycle_reference import SphereReference

@@ -2,7 +2,7 @@
 
 Each request carries the move and its ``duration_s``. machine_sim advances the twin by
 that much simulated time, with the machine idle and the currently applied offsets, and
-answers from the true geometry at that instant (thermal_twin.artefact_geometry). So the
+answers from the true geometry at that instant (thermal_twin.machine.artefact_geometry). So the
 cycle's 95 s are spent in simulated time, and the reply's stamp is the simulated instant
 of the trigger.
 
@@ -25,7 +25,7 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
-from thermal_comp_common.node_runtime import SERVICE_TOUCH_PROBE, stamp_to_s
+from thermal_comp_common.runtime.node_runtime import SERVICE_TOUCH_PROBE, stamp_to_s
 from thermal_comp_msgs.srv import TouchProbe
 
 from probe_cycle.cycle_plan import TouchMove

@@ -9,7 +9,7 @@ import pytest
 
 from probe_cycle.probe_backend import ArtefactModelBackend
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine
-from thermal_twin.artefact_geometry import (ArtefactGeometry, GuideBushArtefact, SPHERE_COMPONENTS,
+from thermal_twin.machine.artefact_geometry import (ArtefactGeometry, GuideBushArtefact, SPHERE_COMPONENTS,
                                             TouchProbeModel, split_compensation)
 
 IDEAL = ArtefactGeometry(

@@ -17,7 +17,7 @@ import pytest
 
 from action_msgs.msg import GoalStatus  # noqa: E402
 
-from thermal_comp_common.node_runtime import stamp_to_s  # noqa: E402
+from thermal_comp_common.runtime.node_runtime import stamp_to_s  # noqa: E402
 from thermal_comp_msgs.action import ProbeCycle  # noqa: E402
 from thermal_comp_msgs.msg import ThermalErrors  # noqa: E402
 from touch_probe_provider import probe_action_client, stop_processes

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from thermal_twin.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
+from thermal_twin.machine.artefact_geometry import (ARTEFACT_GUIDE_BUSH, ARTEFACT_SPHERE,
                                             SPHERE_COMPONENTS, ArtefactGeometry,
                                             GuideBushArtefact, SphereArtefact, TouchProbeModel,
                                             nominal_sphere_centre, touch_trigger_position)

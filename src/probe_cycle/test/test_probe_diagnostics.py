@@ -8,7 +8,7 @@ import pytest
 
 import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 from thermal_comp_msgs.action import ProbeCycle  # noqa: E402
-from thermal_twin.artefact_geometry import touch_trigger_position  # noqa: E402
+from thermal_twin.machine.artefact_geometry import touch_trigger_position  # noqa: E402
 from probe_cycle.probe_backend import ProbeBackend, ProbeBackendError, TouchReply  # noqa: E402
 
 pytestmark = [pytest.mark.ros]

@@ -23,12 +23,12 @@ from action_msgs.msg import GoalStatus  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
-from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, SENSOR_QOS,  # noqa: E402
+from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, SENSOR_QOS,  # noqa: E402
                                        TOPIC_SIM_SYNC, TOPIC_TWIN_SENSORS, s_to_stamp,
                                        stamp_to_s)
 from thermal_comp_msgs.action import ProbeCycle  # noqa: E402
 from thermal_comp_msgs.msg import SimSync, TemperatureArray  # noqa: E402
-from thermal_twin.artefact_geometry import (DEFAULT_GEOMETRY, SPHERE_COMPONENTS,  # noqa: E402
+from thermal_twin.machine.artefact_geometry import (DEFAULT_GEOMETRY, SPHERE_COMPONENTS,  # noqa: E402
                                             touch_trigger_position)
 from probe_cycle.probe_backend import ProbeBackend, TouchReply  # noqa: E402
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine  # noqa: E402
@@ -48,9 +48,9 @@ class OfflineTwin(ProbeBackend):
     name = "offline_twin"
 
     def __init__(self):
-        from thermal_twin.machine_schema import load_machine
-        from thermal_twin.scenario_runner import ScenarioRunner
-        from thermal_twin.scenarios import make_timeline
+        from thermal_twin.machine.schema import load_machine
+        from thermal_twin.sim.scenario_runner import ScenarioRunner
+        from thermal_twin.sim.scenarios import make_timeline
         m = load_machine(MACHINE)
         self.runner = ScenarioRunner(m, make_timeline(m.name, SCENARIO, hours=HOURS, seed=SEED),
                                      seed=SEED)

@@ -15,7 +15,7 @@ from rclpy.parameter import Parameter  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 
 from probe_cycle.sim_clock_follower import SimClockFollower  # noqa: E402
-from thermal_comp_common.node_runtime import SENSOR_QOS, s_to_stamp  # noqa: E402
+from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, s_to_stamp  # noqa: E402
 
 
 @pytest.mark.ros

@@ -19,10 +19,10 @@ import numpy as np
 from rclpy.node import Node
 from rclpy.task import Future
 
-from thermal_comp_common.node_runtime import (SERVICE_TOUCH_PROBE, Param, declare_parameters,
+from thermal_comp_common.runtime.node_runtime import (SERVICE_TOUCH_PROBE, Param, declare_parameters,
                                        run_node, s_to_stamp)
 from thermal_comp_msgs.srv import TouchProbe
-from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, touch_trigger_position
+from thermal_twin.machine.artefact_geometry import DEFAULT_GEOMETRY, touch_trigger_position
 
 
 class TouchProbeProvider(Node):
@@ -128,7 +128,7 @@ def probe_action_client(namespace: str, name: str, procs, wait_s: float = 120.0)
     import rclpy
     from rclpy.action import ActionClient
     from rclpy.executors import SingleThreadedExecutor
-    from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE
+    from thermal_comp_common.runtime.node_runtime import ACTION_PROBE_CYCLE
     from thermal_comp_msgs.action import ProbeCycle
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)

@@ -24,7 +24,10 @@ in memory (models and their parts: ARX models, GPs, characteristic diagrams), an
 Concrete models register themselves with ``@register_model("kind")``;
 :func:`make_model` builds one from a kind and a configuration mapping. A kind that is not
 registered yet is looked up by importing ``talc_model.<module>`` from
-:data:`PROVIDER_MODULES` (so neither model module has to import the other).
+:data:`PROVIDER_MODULES` (so neither model module has to import the other). A model started
+from a prior of its type (``talc_model.prior``) registers with ``@register_prior_model("kind")``;
+the base class's ``from_state`` hands a state that carries a ``prior`` to that class, found the
+same way (:data:`PRIOR_PROVIDER_MODULES`), so a base model never imports its prior variant.
 """
 from __future__ import annotations
 
@@ -39,10 +42,6 @@ PHASE_CALIBRATION = "calibration"
 PHASE_COMPENSATION = "compensation"
 PHASE_NO_GOOD = "no_good"
 PHASES = (PHASE_CALIBRATION, PHASE_COMPENSATION, PHASE_NO_GOOD)
-
-#: The seven thermal location errors of the C axis / table (Blaser thesis §0, Table 5.2).
-
-#: Components measured in um/m (all others in um).
 
 
 @dataclass
@@ -101,10 +100,13 @@ MODEL_REGISTRY: dict[str, type] = {}
 
 #: kind -> module that registers it when imported (lazy, avoids import cycles).
 PROVIDER_MODULES: dict[str, str] = {
-    "talc": "talc_model.talc",
-    "agp": "talc_model.agp",
-    "gp_static": "talc_model.agp",
-    "cd": "talc_model.cd_model",
+    "talc": "talc_model.talc.model",
+    "agp": "talc_model.agp.model",
+    "gp_static": "talc_model.agp.model",
+    "cd": "talc_model.cd.model",
+    "probe_gain_update": "talc_model.open_loop.probe_gain_update",
+    "probe_refit": "talc_model.open_loop.probe_refit",
+    "load_bucket": "talc_model.open_loop.load_probing",
 }
 
 
@@ -127,15 +129,45 @@ def register_model(kind: str) -> Callable[[type], type]:
     return _register
 
 
+def _registered(registry: dict[str, type], providers: Mapping[str, str], kind: str, what: str) -> type:
+    """``registry[kind]``, importing its provider module first if it is not registered yet."""
+    if kind not in registry and kind in providers:
+        importlib.import_module(providers[kind])
+    try:
+        return registry[kind]
+    except KeyError:
+        known = sorted(set(registry) | set(providers))
+        raise ValueError(f"model_kind: {kind!r} is not a known {what} (known: {known})") from None
+
+
 def model_class(kind: str) -> type:
     """The class registered for ``kind`` (importing its provider module if needed)."""
-    if kind not in MODEL_REGISTRY and kind in PROVIDER_MODULES:
-        importlib.import_module(PROVIDER_MODULES[kind])
-    try:
-        return MODEL_REGISTRY[kind]
-    except KeyError:
-        known = sorted(set(MODEL_REGISTRY) | set(PROVIDER_MODULES))
-        raise ValueError(f"model_kind: {kind!r} is not a known model kind (known: {known})") from None
+    return _registered(MODEL_REGISTRY, PROVIDER_MODULES, kind, "model kind")
+
+
+#: kind -> the class of a model of that kind started from a prior. Filled by :func:`register_prior_model`.
+PRIOR_MODEL_REGISTRY: dict[str, type] = {}
+
+#: kind -> module that registers its prior-started class when imported.
+PRIOR_PROVIDER_MODULES: dict[str, str] = {
+    "talc": "talc_model.prior.talc",
+    "agp": "talc_model.prior.agp",
+    "cd": "talc_model.prior.cd",
+}
+
+
+def register_prior_model(kind: str) -> Callable[[type], type]:
+    """Class decorator: ``cls`` (a subclass of the ``kind`` model) restores every state of
+    ``kind`` that carries a ``prior``; the base class's ``from_state`` delegates to it."""
+    def _register(cls: type) -> type:
+        PRIOR_MODEL_REGISTRY[kind] = cls
+        return cls
+    return _register
+
+
+def prior_model_class(kind: str) -> type:
+    """The class registered for models of ``kind`` started from a prior."""
+    return _registered(PRIOR_MODEL_REGISTRY, PRIOR_PROVIDER_MODULES, kind, "model kind with a prior")
 
 
 def make_model(kind: str, config: Mapping[str, Any] | None = None) -> AdaptiveModel:

@@ -2,7 +2,7 @@
 
 A save is due at instant t once ``period_s`` of model time passed since the last one. Saving
 right after t's prediction would take the CPU while the bridge computes and writes t's offsets
-(docs/cnc_bridge.md, latency section), so the save waits until the bridge's offsets answering t
+(the bridge's documentation, latency section), so the save waits until the bridge's offsets answering t
 have arrived; the node withholds its lock-step ack of t until then. Nothing waits forever: after
 ``wait_s`` wall seconds without those offsets the save runs anyway. A node that has never seen
 offsets (no bridge) saves at once. A probing cycle at t saves when it ends, so no second save is

@@ -3,9 +3,9 @@
 Run: ``python -m talc_model.talc_model_node --ros-args -p model_kind:=talc
 -p model_config:=talc.yaml -p state_path:=nmv5000/model.json``
 
-The loop itself is :class:`talc_model.closed_loop.ClosedLoop` (ROS-free); this node wires it:
+The loop itself is :class:`talc_model.loop.closed_loop.ClosedLoop` (ROS-free); this node wires it:
 ``temperatures`` (non-OK sensors -> NaN: excluded and held, listed in ModelStatus), ``machine_state``
-(flattened inputs) and ``offsets`` (what the bridge applied: :mod:`talc_model.applied_compensation`)
+(flattened inputs) and ``offsets`` (what the bridge applied: :mod:`talc_model.loop.applied_compensation`)
 in; ``errors/predicted``, ``errors/measured``, ``model_status``, ``/diagnostics`` and the lock-step
 ``SimSync`` ack out. When the model asks for a probe, a ``ProbeCycle`` goal starts and the ack of
 t_k is withheld until its result is in (or its wall-clock deadline passed: cancelled, failed).
@@ -36,9 +36,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
-from thermal_comp_common.diagnostics import DiagnosticsPublisher
+from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.machine_inputs import machine_state_inputs
-from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
+from thermal_comp_common.sensor_readings import model_temperatures
+from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
                                               TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
                                               TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
                                               TOPIC_SIM_SYNC, TOPIC_TEMPERATURES, Param,
@@ -48,10 +49,10 @@ from thermal_comp_msgs.msg import (AxisOffsets, MachineState, ModelStatus, SimSy
                                    TemperatureArray, ThermalErrors)
 
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
-from talc_model.applied_compensation import MODES, BridgeCompensation
-from talc_model.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
+from talc_model.loop.applied_compensation import MODES, BridgeCompensation
+from talc_model.loop.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
 from talc_model.model_persistence import load_model, load_pretrained, save_model
-from talc_model.probing import Action, ProbeOutcome, ProbeState, ProbingStateMachine
+from talc_model.probing.cycle_state import Action, ProbeOutcome, ProbeState, ProbingStateMachine
 from talc_model.save_schedule import SaveNow, SaveSchedule
 from talc_model.state_files import move_aside, resolve_state_path, saved_time_s
 
@@ -149,8 +150,9 @@ class TalcModelNode(Node):
 
     def _fresh_model(self):
         if self.p["prior_path"]:
-            from talc_model.prior import load_prior
-            from talc_model.prior_agp import model_from_prior
+            # heavy: scipy.signal, scikit-learn only with a prior
+            from talc_model.prior.talc import load_prior
+            from talc_model.prior.dispatch import model_from_prior
             return model_from_prior(self.kind, self.config, load_prior(self.p["prior_path"])), f"prior {self.p['prior_path']}"
         if self.p["pretrained_path"]:
             return (load_pretrained(self.p["pretrained_path"], self.config, expected_kind=self.kind),
@@ -182,13 +184,7 @@ class TalcModelNode(Node):
             self.get_logger().error(f"temperatures at {t:.3f} s: {n} sensor_ids, {len(msg.temperatures_degc)} "
                                     f"values, {len(msg.status)} status entries: ignored")
             return None
-        temps, excluded = {}, []
-        for sid, v, st in zip(msg.sensor_ids, msg.temperatures_degc, msg.status):
-            ok = st == TemperatureArray.STATUS_OK and math.isfinite(v)
-            temps[sid] = float(v) if ok else math.nan
-            if not ok:
-                excluded.append(sid)
-        self.excluded = excluded
+        temps, self.excluded = model_temperatures(msg.sensor_ids, msg.temperatures_degc, msg.status)
         return temps
 
     def _step(self, t: float, temps: dict[str, float]):

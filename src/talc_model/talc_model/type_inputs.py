@@ -1,19 +1,19 @@
 """TALC's inputs from the machine type: the soft sensors of the type's nominal twin
-(:mod:`thermal_twin.type_soft_sensors`) named ``twin:<node>`` or ``twin:<error>`` in
+(:mod:`thermal_twin.sim.type_soft_sensors`) named ``twin:<node>`` or ``twin:<error>`` in
 ``TalcConfig.input_names``, the type named by ``TalcConfig.type_model`` (preset name or YAML
 path). TALC steps them once per :meth:`update_inputs` instant and adds their values to the
 signals its inputs are read from; their state is part of TALC's persisted state. :func:`load_soft_sensors` and
 :func:`restore_soft_sensors` serve the characteristic-diagram model too (``CdConfig.type_inputs``).
-docs/talc.md, "session 9". No rclpy here.
+docs/talc.md, "The machine type's physics as TALC's inputs". No rclpy here.
 """
 from __future__ import annotations
 
 from typing import Any, Mapping, Sequence
 
-from thermal_twin.machine_spec import MachineSpecError
-from thermal_twin.type_soft_sensors import PREFIX, TypeSoftSensors
+from thermal_twin.machine.spec import MachineSpecError
+from thermal_twin.sim.type_soft_sensors import PREFIX, TypeSoftSensors
 
-from talc_model.talc_config import TalcConfig, parse_input
+from talc_model.talc.config import TalcConfig, parse_input
 
 
 def twin_signal_names(input_names: list[str]) -> list[str]:

@@ -1,11 +1,11 @@
 """Launch one machine cell from its cell file: ``ros2 launch thermal_comp cell.launch.py cell_file:=CELL.yaml``.
 
 The same nodes, namespace, parameters, arguments and ROS_DOMAIN_ID as
-``thermal-comp launch CELL.yaml``: both read the file with ``thermal_comp.cell_config`` and the
-node list comes from ``thermal_comp.cell_launch.launch_plan``. Differences that launch imposes:
+``thermal-comp launch CELL.yaml``: both read the file with ``thermal_comp.cell.config`` and the
+node list comes from ``thermal_comp.cell.launch_plan.launch_plan``. Differences that launch imposes:
 a crashed node is respawned after a fixed ``backoff_s`` (the launcher doubles it per crash), and a
 managed (lifecycle) node is configured and activated once after its start by the same driver the
-launcher runs (``thermal_comp.lifecycle_driver``, one deadline per transition); after a respawn it
+launcher runs (``thermal_comp.cell.lifecycle_driver``, one deadline per transition); after a respawn it
 stays unconfigured (writes nothing) and the lock-step deadline names it.
 """
 import pathlib
@@ -17,8 +17,8 @@ from launch.actions import DeclareLaunchArgument, ExecuteProcess, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from thermal_comp.cell_config import load_cell
-from thermal_comp.cell_launch import launch_plan
+from thermal_comp.cell.config import load_cell
+from thermal_comp.cell.launch_plan import launch_plan
 
 
 def _cell_actions(context):
@@ -49,6 +49,6 @@ def _cell_actions(context):
 
 def generate_launch_description():
     return LaunchDescription([
-        DeclareLaunchArgument("cell_file", description="cell YAML (see thermal_comp.cell_config)"),
+        DeclareLaunchArgument("cell_file", description="cell YAML (see thermal_comp.cell.config)"),
         OpaqueFunction(function=_cell_actions),
     ])

@@ -3,11 +3,11 @@ demo (a compensated cell end to end on the twin). Cells and the demo need ROS 2 
 from thermal_comp_common.public_api import lazy_exports
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, {
-    "cell_config": ["CellConfig", "CellConfigError", "load_cell", "parse_cell"],
-    "launcher": ["Launcher"],
-    "demo_cell": ["DemoConfig", "DemoError", "build_cell"],
-    "demo_graph": ["RunRecord", "run_graph"],
-    "demo_series": ["DemoSeries", "read_series"],
-    "demo_summary": ["compensation_in_effect", "summarise"],
-    "demo_cli": ["run_demo"],
+    "cell.config": ["CellConfig", "CellConfigError", "load_cell", "parse_cell"],
+    "cell.launcher": ["Launcher"],
+    "demo.cell": ["DemoConfig", "DemoError", "build_cell"],
+    "demo.graph": ["RunRecord", "run_graph"],
+    "demo.series": ["DemoSeries", "read_series"],
+    "demo.summary": ["compensation_in_effect", "summarise"],
+    "demo.run": ["run_demo"],
 })

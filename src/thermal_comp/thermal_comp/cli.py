@@ -2,10 +2,15 @@
 
 Each package registers subcommands in the entry-point group ``thermal_comp.commands``
 (``name = module:function``, function(argv: list[str]) -> int), so a package owns its
-own command-line code and this dispatcher never needs editing.
+own command-line code and this dispatcher never needs editing. The named module is a light
+command-line module (argparse and constants; the work is imported by ``function`` once the
+arguments are parsed), and ``thermal-comp --help`` reads each one's summary (the first line of
+its docstring) from the source without importing it: both keep the start of the command fast.
 """
 from __future__ import annotations
 
+import ast
+import importlib.util
 import sys
 from importlib.metadata import entry_points
 
@@ -17,10 +22,14 @@ def _commands() -> dict:
 
 
 def _summary(ep) -> str:
+    """The first line of the docstring of the entry point's module, read without running it."""
     module = ep.value.split(":")[0]
     try:
-        import importlib
-        doc = (importlib.import_module(module).__doc__ or "").strip().splitlines()
+        spec = importlib.util.find_spec(module)
+        source = spec.loader.get_source(module) if spec and spec.loader else None
+        if source is None:
+            raise ImportError(f"no source of {module}")
+        doc = (ast.get_docstring(ast.parse(source)) or "").strip().splitlines()
         return doc[0] if doc else ""
     except Exception as exc:  # a broken subcommand must not break --help of the others
         return f"(unavailable: {exc.__class__.__name__}: {exc})"

@@ -8,7 +8,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.executors import SingleThreadedExecutor
 
-from thermal_comp_common.diagnostics import (DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS,
+from thermal_comp_common.runtime.diagnostics import (DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS,
                                              DiagnosticsPublisher, level_of)
 
 pytestmark = [pytest.mark.ros]
@@ -75,7 +75,7 @@ def test_python_logging_reaches_rosout(ros_context):
 
     from rcl_interfaces.msg import Log
 
-    from thermal_comp_common.node_runtime import install_rosout_handler
+    from thermal_comp_common.runtime.node_runtime import install_rosout_handler
     node = rclpy.create_node("logging_under_test", context=ros_context)
     listener = rclpy.create_node("rosout_listener", context=ros_context)
     got: list = []
@@ -110,7 +110,7 @@ def test_library_info_records_stay_off_rosout():
     """asyncua logs every read and write at INFO: only our packages' INFO records go out."""
     import logging
 
-    from thermal_comp_common.node_runtime import RosoutHandler
+    from thermal_comp_common.runtime.node_runtime import RosoutHandler
 
     sent: list = []
 
@@ -132,7 +132,7 @@ def test_library_info_records_stay_off_rosout():
 
 
 def test_an_unknown_executor_stops_the_node_in_one_line(monkeypatch, capsys):
-    from thermal_comp_common.node_runtime import EXECUTOR_ENV, run_node
+    from thermal_comp_common.runtime.node_runtime import EXECUTOR_ENV, run_node
     monkeypatch.setenv(EXECUTOR_ENV, "fancy")
     assert run_node(lambda context: None, ["x"]) == 2
     assert capsys.readouterr().err.strip() == (f"environment {EXECUTOR_ENV}: 'fancy' is not one of "

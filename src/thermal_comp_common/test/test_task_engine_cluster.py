@@ -7,7 +7,7 @@ import resource
 
 import pytest
 
-from thermal_comp_common.task_engine import EngineSpec, map_tasks, start_local_cluster
+from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks, start_local_cluster
 
 ARRAY_BYTES = 1 << 20          # above glibc's initial 128 KiB mmap threshold
 PAGE_BYTES = os.sysconf("SC_PAGE_SIZE")

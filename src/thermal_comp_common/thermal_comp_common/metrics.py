@@ -27,6 +27,8 @@ import numpy as np
 
 #: Cycle duration of the sphere probing cycle with two tool changes (thesis §5.4), s.
 PROBE_CYCLE_DURATION_S = 95.0
+#: The production-quality constraint of the parameter sweep: Q_prod >= 95 % (thesis §6.3).
+Q_PROD_MIN_PCT = 95.0
 
 
 def _pair(e, e_hat) -> tuple[np.ndarray, np.ndarray]:

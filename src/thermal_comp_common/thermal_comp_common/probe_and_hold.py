@@ -1,4 +1,4 @@
-"""Probe-and-hold: the baseline every adaptive model must beat (issue 22).
+"""Probe-and-hold: the baseline every adaptive model must beat.
 
 No model at all: probe evenly, at the interval that gives the same productivity Q_prod as the
 model (Eq. 6.1: interval = t_M / (1 - Q_prod)), with the same probe noise and resolution, and

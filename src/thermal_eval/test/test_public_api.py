@@ -38,8 +38,8 @@ def test_ros_free_public_names_do_not_import_rclpy(package):
 
 def test_a_submodule_import_does_not_load_the_package_api():
     """Importing one module (as a node does) does not import every exported module."""
-    code = ("import sys\nimport thermal_twin.presets\n"
-            "print('thermal_twin.mismatch_diagnosis' in sys.modules)")
+    code = ("import sys\nimport thermal_twin.machine.presets\n"
+            "print('thermal_twin.diagnose.diagnosis' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"

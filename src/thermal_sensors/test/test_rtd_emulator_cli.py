@@ -81,7 +81,7 @@ def test_serves_the_live_twin_readings(tmp_path, ports, ros_context):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
     from std_msgs.msg import Header
-    from thermal_comp_common.node_runtime import SENSOR_QOS, s_to_stamp
+    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, s_to_stamp
     from thermal_comp_msgs.msg import TemperatureArray
 
     cfg = tmp_path / "s.yaml"

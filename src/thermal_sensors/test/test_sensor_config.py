@@ -23,7 +23,7 @@ def test_good_config_parses_with_defaults():
     c = parse_sensor_config(GOOD)
     assert c.sensor_ids == ("ambient", "nozzle")
     assert c.sensors[1].csv_column == "mwf_nozzle_c" and c.sensors[0].csv_column == "ambient_c"
-    assert c.sensors[0].calibration.gain == 0.998 and c.sensors[1].range_degc == (-50.0, 150.0)
+    assert c.sensors[0].gain_offset.gain == 0.998 and c.sensors[1].range_degc == (-50.0, 150.0)
     assert c.sensors[1].modbus.effective_fault_raw == 65535
     assert c.module("rtd1").timeout_s == 0.5 and c.module("rtd1").transport == "tcp"
     require_modbus(c)

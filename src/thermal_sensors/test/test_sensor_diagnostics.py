@@ -7,7 +7,7 @@ import math
 import pytest
 
 import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
-from thermal_comp_common.node_runtime import s_to_stamp  # noqa: E402
+from thermal_comp_common.runtime.node_runtime import s_to_stamp  # noqa: E402
 from thermal_comp_msgs.msg import TemperatureArray  # noqa: E402
 
 pytestmark = [pytest.mark.ros]

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from thermal_sensors.calibration import Calibration
+from thermal_sensors.gain_offset import GainOffset
 from thermal_sensors.sensor_config import parse_sensor_config
 from thermal_sensors.sensor_status import SensorStatus, SensorStatusTracker, StatusRule
 from thermal_sensors.temperature_frame import TemperatureFrameBuilder
@@ -76,20 +76,20 @@ def test_time_going_backwards_resets_the_history():
     assert tr.update(0.0, 21.0)[1] == SensorStatus.OK     # a replay restarted
 
 
-def test_calibration_offset_gain_and_two_point_fit():
-    cal = Calibration(offset_degc=-0.4, gain=1.002)
+def test_gain_offset_correction_and_two_point_fit():
+    cal = GainOffset(offset_degc=-0.4, gain=1.002)
     assert cal.apply(25.0) == pytest.approx(1.002 * 25.0 - 0.4)
     assert cal.invert(cal.apply(31.7)) == pytest.approx(31.7)
     assert math.isnan(cal.apply(math.nan))
-    fit = Calibration.from_two_points(0.3, 0.0, 99.5, 100.0)
+    fit = GainOffset.from_two_points(0.3, 0.0, 99.5, 100.0)
     assert fit.apply(0.3) == pytest.approx(0.0) and fit.apply(99.5) == pytest.approx(100.0)
     with pytest.raises(ValueError, match="gain"):
-        Calibration(gain=0.0)
+        GainOffset(gain=0.0)
     with pytest.raises(ValueError, match="equal"):
-        Calibration.from_two_points(1.0, 0.0, 1.0, 100.0)
+        GainOffset.from_two_points(1.0, 0.0, 1.0, 100.0)
 
 
-def test_frame_builder_calibrates_before_checking_the_range():
+def test_frame_builder_corrects_before_checking_the_range():
     config = parse_sensor_config({"sensors": [
         {"id": "a", "range_degc": [0, 30], "calibration": {"offset_degc": 2.0, "gain": 1.0}},
         {"id": "b", "range_degc": [0, 30]}]})

@@ -84,7 +84,7 @@ def test_twin_source_in_lockstep_with_a_simulated_machine(setup, ros_context, ex
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Header
-    from thermal_comp_common.node_runtime import SENSOR_QOS, s_to_stamp, stamp_to_s
+    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, s_to_stamp, stamp_to_s
     from thermal_comp_msgs.msg import SimSync, TemperatureArray
     from thermal_sensors.temperature_publisher_node import CLOCK_QOS, SIM_SYNC_QOS
 
@@ -139,7 +139,7 @@ def test_replay_as_time_master_waits_for_its_lockstep_participant(setup, ros_con
     from rclpy.node import Node
     from rosgraph_msgs.msg import Clock
     from std_msgs.msg import Header
-    from thermal_comp_common.node_runtime import SENSOR_QOS, stamp_to_s
+    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, stamp_to_s
     from thermal_comp_msgs.msg import SimSync, TemperatureArray
     from thermal_sensors.temperature_publisher_node import CLOCK_QOS, SIM_SYNC_QOS
 
@@ -184,7 +184,7 @@ def test_replay_as_time_master_waits_for_its_lockstep_participant(setup, ros_con
 def test_modbus_source_node_flags_a_silent_module_and_keeps_publishing(setup, ros_context):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from thermal_comp_common.node_runtime import SENSOR_QOS
+    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS
     from thermal_comp_msgs.msg import TemperatureArray
     from thermal_sensors.rtd_emulator import RtdEmulator
 
@@ -234,7 +234,7 @@ def test_with_the_real_machine_sim_in_lockstep(ros_context):
     every twin reading comes out once, stamped alike, uncalibrated values unchanged."""
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
-    from thermal_comp_common.node_runtime import SENSOR_QOS
+    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS
     from thermal_comp_msgs.msg import TemperatureArray
 
     node = Node("observer", context=ros_context)
@@ -243,7 +243,7 @@ def test_with_the_real_machine_sim_in_lockstep(ros_context):
     twin, temps = {}, {}
     # the observer takes part in the lock-step too, so machine_sim cannot run ahead of its
     # discovery on a loaded machine (it re-sends an instant until every participant acked it)
-    from thermal_comp_common.node_runtime import EVENT_QOS
+    from thermal_comp_common.runtime.node_runtime import EVENT_QOS
     from thermal_comp_msgs.msg import SimSync
     sync = node.create_publisher(SimSync, "sim_sync", EVENT_QOS)
 

@@ -1,5 +1,5 @@
 """Temperature sources (twin, CSV/bag replay, Modbus RTD modules), their configuration,
-calibration and status; ROS-free (the publisher node lives in
+gain/offset correction and status; ROS-free (the publisher node lives in
 ``thermal_sensors.temperature_publisher_node``). See docs/sensors.md."""
 from thermal_comp_common.public_api import lazy_exports
 
@@ -12,6 +12,6 @@ __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     "modbus_source": ["ModbusLink", "ModbusSource"],
     "temperature_frame": ["TemperatureFrame", "TemperatureFrameBuilder"],
     "sensor_status": ["SensorStatus", "SensorStatusTracker"],
-    "calibration": ["Calibration"],
+    "gain_offset": ["GainOffset"],
     "rtd_emulator": ["RtdEmulator"],
 })

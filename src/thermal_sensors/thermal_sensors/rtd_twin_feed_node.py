@@ -15,7 +15,7 @@ import math
 
 from rclpy.node import Node
 
-from thermal_comp_common.node_runtime import (SENSOR_QOS, TOPIC_TWIN_SENSORS, Param, declare_parameters,
+from thermal_comp_common.runtime.node_runtime import (SENSOR_QOS, TOPIC_TWIN_SENSORS, Param, declare_parameters,
                                        run_node)
 from thermal_comp_msgs.msg import TemperatureArray
 from thermal_sensors.rtd_emulator import RtdEmulator

@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from thermal_sensors.calibration import Calibration
+from thermal_sensors.gain_offset import GainOffset
 
 REGISTER_KINDS = ("input", "holding")
 REGISTER_TYPES = ("int16", "uint16")
@@ -85,7 +85,7 @@ class SensorSpec:
     range_degc: tuple[float, float] = (-50.0, 150.0)
     stale_after_s: float = 0.0
     stale_tolerance_degc: float = 0.0
-    calibration: Calibration = field(default_factory=Calibration)
+    gain_offset: GainOffset = field(default_factory=GainOffset)   # YAML key ``calibration``
     modbus: ModbusRegister | None = None
 
     @property
@@ -212,7 +212,7 @@ def _parse_sensor(d: Any, where: str) -> SensorSpec:
             or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in rng)
             or not rng[0] < rng[1]):
         raise _fail(where, "range_degc", rng, "must be [low, high] with finite low < high")
-    cal = Calibration()
+    cal = GainOffset()
     if "calibration" in d:
         cw = f"{where}calibration."
         c = _mapping(d["calibration"], cw)
@@ -220,14 +220,14 @@ def _parse_sensor(d: Any, where: str) -> SensorSpec:
         gain = _number(c, "gain", 1.0, cw)
         if gain == 0:
             raise _fail(cw, "gain", c.get("gain"), "must not be 0")
-        cal = Calibration(offset_degc=_number(c, "offset_degc", 0.0, cw), gain=gain)
+        cal = GainOffset(offset_degc=_number(c, "offset_degc", 0.0, cw), gain=gain)
     reg = _parse_register(d["modbus"], f"{where}modbus.") if "modbus" in d else None
     return SensorSpec(
         id=sid, channel=_string(d, "channel", sid, where),
         range_degc=(float(rng[0]), float(rng[1])),
         stale_after_s=_number(d, "stale_after_s", 0.0, where, lo=0.0),
         stale_tolerance_degc=_number(d, "stale_tolerance_degc", 0.0, where, lo=0.0),
-        calibration=cal, modbus=reg)
+        gain_offset=cal, modbus=reg)
 
 
 def _parse_module(d: Any, where: str) -> ModbusModule:

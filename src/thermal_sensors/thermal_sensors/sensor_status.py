@@ -5,7 +5,7 @@ Rules, in order of precedence (the first that applies wins):
 1. FAILED: the read failed (error, timeout, fault code), the value is NaN/inf, or the
    newest reading is older than ``max_age_s`` (the source produced nothing new: an old
    value is never repeated as ok). The published value is NaN.
-2. OUT_OF_RANGE: the calibrated value lies outside the sensor's measuring range.
+2. OUT_OF_RANGE: the corrected value (gain/offset applied) lies outside the sensor's measuring range.
 3. STALE: the value has not changed by more than ``stale_tolerance_degc`` for longer
    than ``stale_after_s`` (a stuck transmitter or a frozen gateway). 0 disables the rule;
    set it well above the longest plateau a healthy (quantised) sensor shows.

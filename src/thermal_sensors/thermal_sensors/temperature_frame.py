@@ -1,4 +1,4 @@
-"""From a source's raw sample to the published frame: calibration, then status.
+"""From a source's raw sample to the published frame: gain/offset correction, then status.
 
 The frame is the plain-data content of a ``TemperatureArray`` message; the node only
 copies it into the message.
@@ -49,8 +49,8 @@ class TemperatureFrameBuilder:
         status = np.zeros(n, np.uint8)
         reasons = []
         for i, (spec, tracker) in enumerate(zip(self.config.sensors, self.trackers)):
-            calibrated = float(spec.calibration.apply(sample.values_degc[i]))
-            v, st = tracker.update(sample.t_s, calibrated, bool(sample.read_ok[i]),
+            corrected = float(spec.gain_offset.apply(sample.values_degc[i]))
+            v, st = tracker.update(sample.t_s, corrected, bool(sample.read_ok[i]),
                                    float(sample.acquired_t_s[i]), sample.reasons[i])
             values[i] = v
             status[i] = int(st)

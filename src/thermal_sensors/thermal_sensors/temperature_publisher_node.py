@@ -30,8 +30,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
-from thermal_comp_common.diagnostics import DiagnosticsPublisher
-from thermal_comp_common.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
+from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
+from thermal_comp_common.runtime.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                        TOPIC_TWIN_SENSORS, Param, declare_parameters, run_node,
                                        s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import SimSync, TemperatureArray
@@ -92,7 +92,7 @@ class TemperaturePublisher(Node):
         else:
             if self.period_s <= 0:
                 raise ValueError("parameter 'period_s': must be > 0 for source 'modbus'")
-            from thermal_sensors.modbus_source import ModbusSource
+            from thermal_sensors.modbus_source import ModbusSource  # heavy: pymodbus only for source modbus
             logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # failures go to status
             self.source = ModbusSource(config)
             self.source.start()

@@ -19,7 +19,7 @@ Every step it publishes /clock, ``machine_state``, ``twin/sensor_readings`` and 
   ``step_s / real_time_factor`` wall seconds after the previous one.
 It keeps the offsets applied by the CNC (``offsets``) and answers ``twin/touch_probe``: the
 twin idles for the request's ``duration_s`` (programme paused, hall goes on), then
-``thermal_twin.artefact_geometry.touch_trigger_position`` says where the probe triggers
+``thermal_twin.machine.artefact_geometry.touch_trigger_position`` says where the probe triggers
 (true error minus applied compensation). The physics is in scenario_runner / simulate.
 
 Run: python -m thermal_twin.machine_sim_node --ros-args -p machine:=nmv5000 -p scenario:=talc-178h-dry
@@ -31,21 +31,23 @@ import time
 
 import numpy as np
 from rclpy.clock import Clock as RclClock, ClockType
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from threadpoolctl import threadpool_limits
 
-from thermal_comp_common.diagnostics import ERROR, DiagnosticsPublisher
-from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
+from thermal_comp_common.runtime.blas_threads import single_thread_blas
+from thermal_comp_common.runtime.diagnostics import ERROR, DiagnosticsPublisher
+from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC, TOPIC_TWIN_SENSORS,
-                                       Param, declare_parameters, s_to_stamp, stamp_to_s)
+                                       Param, declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, TemperatureArray, ThermalErrors
 from thermal_comp_msgs.srv import TouchProbe
-from thermal_twin.machine_schema import load_machine
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.machine.artefact_geometry import touch_trigger_position
 from thermal_comp_common.machine_state_fields import error_components, machine_state_fields
-from thermal_twin.scenario_runner import ScenarioRunner
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.twin_checkpoint import TwinCheckpoint, shared_objects
+from thermal_twin.sim.scenario_runner import ScenarioRunner
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.checkpoint import TwinCheckpoint, shared_objects
 
 PARAMS = [
     Param("machine", "nmv5000", "machine preset (nmv5000, swiss-lathe, spindle-stand, fe-three-body) or YAML path"),
@@ -89,8 +91,8 @@ class MachineSimNode(Node):
         # one BLAS thread: the twin's small matrix products gain nothing from a second one, and
         # OpenBLAS's idle workers spin for a while after each call, i.e. on the other core just
         # while the sensors -> model -> bridge path of the instant runs (docs/cnc_bridge.md,
-        # latency section, session 8; the twin's outputs are bit-identical)
-        self._blas_limit = threadpool_limits(limits=1, user_api="blas")
+        # latency section; the twin's outputs are bit-identical)
+        self._blas_limit = single_thread_blas()
         p = declare_parameters(self, PARAMS)
         self.machine = load_machine(p["machine"])
         timeline = make_timeline(self.machine.name, p["scenario"], hours=p["hours"] or None,
@@ -213,7 +215,6 @@ class MachineSimNode(Node):
         if self.shutdown_when_done:
             # a reader on another host may not hold the last instants yet: shutting down drops
             # what its reliable writers still owe; wait for the acknowledgements (bounded, 5 s each)
-            from rclpy.duration import Duration
             for pub in (self.pub_clock, self.pub_state, self.pub_sensors, self.pub_truth):
                 if not pub.wait_for_all_acked(Duration(seconds=5.0)):
                     self.get_logger().warning(f"{pub.topic_name}: a subscriber did not acknowledge the last "
@@ -373,7 +374,6 @@ class MachineSimNode(Node):
                 time.sleep(0.001)
 
     def _on_touch_probe(self, request: TouchProbe.Request, response: TouchProbe.Response):
-        from thermal_twin.artefact_geometry import touch_trigger_position
         self._offsets_of_this_instant()
         r = self.runner
 
@@ -413,7 +413,6 @@ class MachineSimNode(Node):
 
 
 def main(args=None) -> int:
-    from thermal_comp_common.node_runtime import run_node
     return run_node(MachineSimNode, args)
 
 

@@ -32,19 +32,22 @@ given angles (the ``Axis.C/B.Position`` nodes follow), then moves from ``start_m
 nothing triggered). The arguments follow thermal_comp_msgs/TouchProbe.srv (artefact 0 =
 sphere, 1 = guide bush). The answer comes from the Python callable
 ``probe_move(ProbeRequest) -> (bool, position_mm[3])``; :func:`artefact_probe` builds one
-from ``thermal_twin.artefact_geometry`` and a provider of the true errors, with the
+from ``thermal_twin.machine.artefact_geometry`` and a provider of the true errors, with the
 compensation the emulator currently applies.
 
 Modules, one concept each: :mod:`.nodes` (ids, accepted values), :mod:`.access` (sessions,
 login back-off), :mod:`.probe` (ProbeMove), :mod:`.server` (the asyncua server),
-:mod:`.thread` (synchronous driver), :mod:`.cli` (the command). Security and value checks:
-docs/security.md and docs/cnc_bridge.md.
+:mod:`.thread` (synchronous driver), :mod:`.cli` (the command); the names below load on first
+use. Security and value checks: docs/security.md and docs/cnc_bridge.md.
 """
-from cnc_bridge.cnc_emulator.nodes import (COMPENSATION_NODES, DEFAULT_COMPENSATION_AXES,  # noqa: F401
-                                           DEFAULT_POSITION_AXES, ENDPOINT_PATH, NAMESPACE_URI,
-                                           PROBE_METHOD_ID, PROBE_OBJECT_ID, UM_PER_MM,
-                                           compensation_node_id, free_tcp_port, position_node_id)
-from cnc_bridge.cnc_emulator.probe import ProbeMove, ProbeRequest, artefact_probe  # noqa: F401
-from cnc_bridge.cnc_emulator.server import CncEmulator, EmulatorConfig, EmulatorState  # noqa: F401
-from cnc_bridge.cnc_emulator.thread import CncEmulatorThread  # noqa: F401
-from cnc_bridge.cnc_emulator.cli import main  # noqa: F401,E402  (entry point thermal-comp cnc-emulator)
+from thermal_comp_common.public_api import lazy_exports
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, {
+    "axes": ["DEFAULT_COMPENSATION_AXES", "DEFAULT_POSITION_AXES"],
+    "nodes": ["COMPENSATION_NODES", "ENDPOINT_PATH", "NAMESPACE_URI", "PROBE_METHOD_ID", "PROBE_OBJECT_ID",
+              "UM_PER_MM", "compensation_node_id", "free_tcp_port", "position_node_id"],
+    "probe": ["ProbeMove", "ProbeRequest", "artefact_probe"],
+    "server": ["CncEmulator", "EmulatorConfig", "EmulatorState"],
+    "thread": ["CncEmulatorThread"],
+    "cli": ["main"],      # the entry point thermal-comp cnc-emulator
+})

@@ -13,11 +13,11 @@ import socket
 
 from asyncua import ua
 
+from cnc_bridge.cnc_emulator.axes import DEFAULT_COMPENSATION_AXES, DEFAULT_POSITION_AXES  # noqa: F401 (exported here)
+
 NAMESPACE_URI = "urn:thermal-comp:cnc-emulator"
 ENDPOINT_PATH = "/thermal-comp/cnc"
 COMPENSATION_NODES = ("SD43900", "SD43910", "SD43920", "MD32750")
-DEFAULT_POSITION_AXES = ("X", "Y", "Z", "B", "C")
-DEFAULT_COMPENSATION_AXES = ("X", "Y", "Z")
 UM_PER_MM = 1000.0
 PROBE_OBJECT_ID = "ns=2;s=Probe"
 PROBE_METHOD_ID = "ns=2;s=Probe.ProbeMove"

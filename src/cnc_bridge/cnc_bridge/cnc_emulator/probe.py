@@ -37,7 +37,8 @@ def artefact_probe(true_errors: Callable[[], Mapping[str, float]], geometry=None
     ``true_errors()`` returns the current true thermal errors (the twin's ground truth in
     the demo; constants from the command line otherwise).
     """
-    from thermal_twin.artefact_geometry import touch_trigger_position
+    # the twin's geometry is loaded only by an emulator that answers probes
+    from thermal_twin.machine.artefact_geometry import touch_trigger_position
 
     def probe(req: ProbeRequest):
         return touch_trigger_position(req.artefact, req.c_axis_deg, req.b_axis_deg,

@@ -9,11 +9,11 @@ import pytest
 
 from agp_cd_synthetic import lathe_recording
 from talc_model.adaptive_model import AdaptiveModel, make_model, model_from_state
-from talc_model.agp import AdaptiveGaussianProcess, AgpConfigError, StaticGaussianProcess
-from talc_model.gaussian_process import ArdGaussianProcess
-from talc_model.offset_model import OffsetModel
-from talc_model.sensor_selection import SensorSelectionError, calibration_points_needed, sensor_groups
-from thermal_eval.virtual_experiment import run_virtual_experiment
+from talc_model.agp.model import AdaptiveGaussianProcess, AgpConfigError, StaticGaussianProcess
+from talc_model.agp.gaussian_process import ArdGaussianProcess
+from talc_model.agp.offset_model import OffsetModel
+from talc_model.open_loop.sensor_selection import SensorSelectionError, calibration_points_needed, sensor_groups
+from thermal_eval.replay.virtual_experiment import run_virtual_experiment
 
 
 def test_gp_uncertainty_rises_off_the_training_data():

@@ -9,8 +9,8 @@ import pytest
 
 from agp_cd_synthetic import lathe_recording
 from talc_model.adaptive_model import AdaptiveModel, make_model, model_from_state
-from talc_model.cd_model import CdModelError, CharacteristicDiagramModel
-from thermal_eval.virtual_experiment import run_virtual_experiment
+from talc_model.cd.model import CdModelError, CharacteristicDiagramModel
+from thermal_eval.replay.virtual_experiment import run_virtual_experiment
 
 CFG = {"components": ["GB_X"], "calibration_probe_interval_s": 600.0, "min_calibration_s": 4 * 3600.0,
        "update_probe_interval_s": 1800.0, "update_batch": 4}

@@ -6,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from talc_model.cd_input_selection import StabilityIndex, forward_selection, stability_selection
-from talc_model.cd_measurement_update import measurement_update
-from talc_model.characteristic_diagram import (CharacteristicDiagram, CharacteristicDiagramError,
+from talc_model.cd.input_selection import StabilityIndex, forward_selection, stability_selection
+from talc_model.cd.measurement_update import measurement_update
+from talc_model.cd.diagram import (CharacteristicDiagram, CharacteristicDiagramError,
                                                fit_with_grid_refinement, load_case_update, second_difference_operator)
 from thermal_comp_common.metrics import rmse
 

@@ -8,7 +8,7 @@ import pytest
 
 from agp_cd_synthetic import lathe_recording
 from talc_model.adaptive_model import ModelStatusData
-from thermal_eval.virtual_experiment import (ReplayColumns, VirtualExperimentError, plot_virtual_experiment,
+from thermal_eval.replay.virtual_experiment import (ReplayColumns, VirtualExperimentError, plot_virtual_experiment,
                                            run_virtual_experiment)
 
 

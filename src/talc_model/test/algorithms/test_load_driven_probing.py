@@ -4,7 +4,7 @@ import math
 import pytest
 
 from talc_model.adaptive_model import ModelStatusData
-from talc_model.load_driven_probing import LoadDrivenProbing
+from talc_model.probing.load_driven import LoadDrivenProbing
 
 
 class EveryTwoHours:

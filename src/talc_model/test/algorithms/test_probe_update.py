@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.probe_update import ProbeSchedule, ProbeUpdateError, q_prod_pct, run_probe_updates
-from talc_model.slow_error_filter import SlowErrorError, SlowErrorFilter
+from talc_model.probing.probe_update import ProbeSchedule, ProbeUpdateError, q_prod_pct, run_probe_updates
+from talc_model.loop.slow_error_filter import SlowErrorError, SlowErrorFilter
 
 DT = 15.0
 

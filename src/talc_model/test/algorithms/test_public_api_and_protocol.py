@@ -35,7 +35,7 @@ def test_the_public_names_need_no_rclpy_and_the_talc_module_no_scikit_learn():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"
-    code = "import sys\nimport talc_model.talc\nprint('sklearn' in sys.modules)"
+    code = "import sys\nimport talc_model.talc.model\nprint('sklearn' in sys.modules)"
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "False"

@@ -6,9 +6,9 @@ import math
 import pytest
 
 from talc_model.adaptive_model import ModelStatusData
-from talc_model.closed_loop import (ClosedLoop, HeldCompensation, ProbeFailed, ResumedState,
+from talc_model.loop.closed_loop import (ClosedLoop, HeldCompensation, ProbeFailed, ResumedState,
                                     ResumedStateMismatch, StepKind)
-from talc_model.probing import Action, ProbeState, ProbingStateMachine
+from talc_model.probing.cycle_state import Action, ProbeState, ProbingStateMachine
 
 
 class LearnsTotalModel:

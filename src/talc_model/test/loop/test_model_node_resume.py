@@ -36,7 +36,7 @@ def node_with_state(tmp_path, ros_domain_id):
 
 def test_a_state_from_a_later_time_is_refused_moved_aside_and_the_instant_goes_on(node_with_state):
     from std_msgs.msg import Header
-    from thermal_comp_common.node_runtime import s_to_stamp
+    from thermal_comp_common.runtime.node_runtime import s_to_stamp
     from thermal_comp_msgs.msg import SimSync, TemperatureArray
 
     node, state = node_with_state

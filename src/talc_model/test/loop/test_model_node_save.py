@@ -66,7 +66,7 @@ def node(tmp_path, ros_domain_id):
 
 def temps(node, t):
     from std_msgs.msg import Header
-    from thermal_comp_common.node_runtime import s_to_stamp
+    from thermal_comp_common.runtime.node_runtime import s_to_stamp
     from thermal_comp_msgs.msg import TemperatureArray
     node._on_temperatures(TemperatureArray(header=Header(stamp=s_to_stamp(t)), sensor_ids=["a", "b"],
                                            temperatures_degc=[20.0 + t / 1e4, 21.0], status=[0, 0]))
@@ -74,7 +74,7 @@ def temps(node, t):
 
 def offsets(node, t):
     from std_msgs.msg import Header
-    from thermal_comp_common.node_runtime import s_to_stamp
+    from thermal_comp_common.runtime.node_runtime import s_to_stamp
     from thermal_comp_msgs.msg import AxisOffsets
     node._on_offsets(AxisOffsets(header=Header(stamp=s_to_stamp(t)), axis_names=["E_X0C"],
                                  commanded_offsets_um=[1.0], applied_offsets_um=[1.0], applied=[True],

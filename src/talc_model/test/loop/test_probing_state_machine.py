@@ -5,7 +5,7 @@ import math
 
 import pytest
 
-from talc_model.probing import Action, ProbeState, ProbingError, ProbingStateMachine
+from talc_model.probing.cycle_state import Action, ProbeState, ProbingError, ProbingStateMachine
 
 
 def test_happy_path_goes_idle_wait_accept_running_idle():

@@ -3,10 +3,10 @@ path goes through model_from_state, which dispatches on the kind only)."""
 import json
 
 from talc_model.adaptive_model import model_from_state
-from talc_model.agp import AdaptiveGaussianProcess
-from talc_model.prior_agp import AgpPriorModel, agp_with_prior, build_agp_prior
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from talc_model.agp.model import AdaptiveGaussianProcess
+from talc_model.prior.agp import AgpPriorModel, agp_with_prior, build_agp_prior
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 
 def test_agp_state_with_a_prior_resumes_with_it():

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from talc_model.adaptive_model import PHASE_COMPENSATION, model_from_state
-from talc_model.cd_model import CharacteristicDiagramModel
-from talc_model.prior import PriorError
-from talc_model.prior_agp import model_from_prior
-from talc_model.prior_cd import CdPriorModel, build_cd_prior, cd_inputs, change_gain
-from talc_model.cd_model import CdConfig
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from talc_model.cd.model import CharacteristicDiagramModel
+from talc_model.prior.common import PriorError
+from talc_model.prior.dispatch import model_from_prior
+from talc_model.prior.cd import CdPriorModel, build_cd_prior, cd_inputs, change_gain
+from talc_model.cd.model import CdConfig
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 COMPONENTS = ["E_X0C", "E_Y0C"]
 
@@ -120,9 +120,9 @@ def _state_file(tmp_path, model):
 
 
 def test_another_machines_adapted_cd_state_is_a_prior_a_run_starts_from(prior, tmp_path):
-    from talc_model.prior_cd import cd_prior_from_state
-    from thermal_twin.machine_instance import machine_instance
-    from thermal_twin.machine_schema import load_machine
+    from talc_model.prior.cd import cd_prior_from_state
+    from thermal_twin.machine.instance import machine_instance
+    from thermal_twin.machine.schema import load_machine
     src = model_from_prior("cd", {"components": COMPONENTS}, prior)
     rec = simulate(machine_instance("nmv5000", 2), make_timeline("nmv5000", "load-case-B", hours=12.0, seed=7),
                    seed=7).to_recording()
@@ -142,7 +142,7 @@ def test_another_machines_adapted_cd_state_is_a_prior_a_run_starts_from(prior, t
 
 
 def test_a_plain_cd_state_becomes_a_prior_on_temperature_deltas(tmp_path):
-    from talc_model.prior_cd import cd_prior_from_state
+    from talc_model.prior.cd import cd_prior_from_state
     rec = simulate("nmv5000", make_timeline("nmv5000", "load-case-A", hours=8.0, seed=9), seed=9).to_recording()
     plain = CharacteristicDiagramModel({"components": COMPONENTS, "min_calibration_s": 5 * 3600.0})
     _drive(plain, rec, 8.0)
@@ -153,7 +153,7 @@ def test_a_plain_cd_state_becomes_a_prior_on_temperature_deltas(tmp_path):
     du = u.copy()
     du[:, :plain.level_columns] -= u[0, :plain.level_columns]
     for c in COMPONENTS:                                      # the same diagrams, on deltas from its first probe
-        from talc_model.characteristic_diagram import CharacteristicDiagram
+        from talc_model.cd.diagram import CharacteristicDiagram
         cols = plain.inputs[c]
         shifted = CharacteristicDiagram.from_state(derived["cds"][c]).predict(du[:, cols])
         assert np.allclose(shifted, plain.base[c].predict(u[:, cols]), atol=1e-6)
@@ -161,7 +161,7 @@ def test_a_plain_cd_state_becomes_a_prior_on_temperature_deltas(tmp_path):
 
 
 def test_from_state_refuses_other_kinds_calibrating_models_and_other_types_channels(prior):
-    from talc_model.prior_cd import cd_prior_from_state
+    from talc_model.prior.cd import cd_prior_from_state
     with pytest.raises(PriorError, match="'kind' is 'talc'"):
         cd_prior_from_state({"kind": "talc"})
     calibrating = CharacteristicDiagramModel({"components": COMPONENTS})
@@ -174,7 +174,7 @@ def test_from_state_refuses_other_kinds_calibrating_models_and_other_types_chann
 
 
 def test_interval_from_gain_probes_more_often_with_a_low_gain():
-    from talc_model.prior_cd import interval_from_gain
+    from talc_model.prior.cd import interval_from_gain
     lags = [0.5, 1.0, 2.0, 4.0]
     # a drift the diagrams predict exactly: yy = yp = pp, growing as the lag squared
     st = {"E": {"lags_h": lags, "yy": [l * l for l in lags], "yp": [l * l for l in lags], "pp": [l * l for l in lags]}}

@@ -1,4 +1,4 @@
-"""The CD prior's gain in the first hours (issue 22): on a shortened run of a machine INSTANCE
+"""The CD prior's gain in the first hours: on a shortened run of a machine INSTANCE
 (unit #1, not the nominal type the prior was made from, a programme the prior never saw), the
 CD model started from the prior, probing as often as the CD model without it (every 30 min),
 has a lower P99 of the linear components than that model's calibration (probe-and-hold).
@@ -6,13 +6,13 @@ Figures of the full runs: docs/prior.md, "Characteristic diagrams"."""
 import numpy as np
 import pytest
 
-from talc_model.cd_model import CharacteristicDiagramModel
-from talc_model.prior_agp import model_from_prior
-from talc_model.prior_cd import build_cd_prior
+from talc_model.cd.model import CharacteristicDiagramModel
+from talc_model.prior.dispatch import model_from_prior
+from talc_model.prior.cd import build_cd_prior
 from thermal_comp_common import metrics
-from thermal_twin.machine_instance import machine_instance
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from thermal_twin.machine.instance import machine_instance
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 LINEAR = ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T"]
 HOURS = 8.0
@@ -59,7 +59,7 @@ def test_prior_beats_the_calibration_with_the_same_probes_in_the_first_hours(set
     model = model_from_prior("cd", {"components": LINEAR}, prior)     # default check phase: 8 h every 30 min
     p_with = _p99(model, rec)
     assert model.probing_cycles == without.probing_cycles           # the same probes
-    # measured with the type's soft sensors (the prior's default since session 9): P99_lin 1.35 -> 0.64 um;
+    # measured with the type's soft sensors (the prior's default): P99_lin 1.35 -> 0.64 um;
     # E_Y0C 1.58 -> 0.84, E_Z0T 2.18 -> 0.51 um (temperatures only, type_inputs []: 0.71; 0.72, 0.79 um)
     assert metrics.p99_group(p_with, LINEAR) < 0.7 * metrics.p99_group(p_without, LINEAR)
     for c in ("E_Y0C", "E_Z0T"):

@@ -2,22 +2,22 @@
 type_inputs): the forward selection on the held-out programme picks them, the model reads the
 machine inputs under MachineState names as under a replay's, bad configurations name the key,
 and the soft sensors' state resumes with the model (an old state without it says so).
-Figures: docs/prior.md, "Characteristic diagrams" (session 9)."""
+Figures: docs/prior.md, "Characteristic diagrams"."""
 import json
 
 import numpy as np
 import pytest
 
 from talc_model.adaptive_model import model_from_state
-from talc_model.cd_model import CdModelError, CharacteristicDiagramModel
-from talc_model.prior import PriorError
-from talc_model.prior_agp import model_from_prior
-from talc_model.prior_cd import CdPriorModel, build_cd_prior
+from talc_model.cd.model import CdModelError, CharacteristicDiagramModel
+from talc_model.prior.common import PriorError
+from talc_model.prior.dispatch import model_from_prior
+from talc_model.prior.cd import CdPriorModel, build_cd_prior
 from talc_model.type_inputs import load_soft_sensors
 from thermal_comp_common.machine_state_fields import message_input_name
-from thermal_twin.machine_instance import machine_instance
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from thermal_twin.machine.instance import machine_instance
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 COMPONENTS = ["E_X0C", "E_Y0C"]
 SOFT = load_soft_sensors("nmv5000", [], "test", "'type_inputs'").names

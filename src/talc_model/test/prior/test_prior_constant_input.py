@@ -4,7 +4,7 @@ import math
 
 import numpy as np
 
-from talc_model.prior import build_talc_prior
+from talc_model.prior.talc import build_talc_prior
 from thermal_comp_common.recording_csv import Recording
 
 CFG = {"component_names": ["E_X0C"], "angular_components": [], "input_names": ["amb", "flag"],

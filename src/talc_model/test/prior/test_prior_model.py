@@ -1,4 +1,4 @@
-"""talc_model.prior on a synthetic first-order plant: the prior recovers it, TALC with the prior
+"""talc_model.prior.talc on a synthetic first-order plant: the prior recovers it, TALC with the prior
 compensates from the start, updates are pulled towards the prior, the state round-trips."""
 import json
 import math
@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from talc_model.adaptive_model import PHASE_COMPENSATION
-from talc_model.prior import (PriorError, TalcPriorModel, build_talc_prior, load_prior, prior_from_state,
-                              save_prior, talc_with_prior)
-from talc_model.talc import TalcModel
+from talc_model.prior.common import PriorError
+from talc_model.prior.talc import (TalcPriorModel, build_talc_prior, load_prior, prior_from_state, save_prior,
+                                   talc_with_prior)
+from talc_model.talc.model import TalcModel
 from thermal_comp_common.recording_csv import Recording
 
 CFG = {"component_names": ["E_X0C"], "angular_components": [], "input_names": ["amb"],
@@ -154,7 +155,7 @@ def test_instants_lost_before_a_resume_are_interpolated(prior, tmp_path, monkeyp
     new instant, so the first prediction after the resume stays at the uninterrupted one; held
     inputs would step at the resume and the ARX answer with its own lag (3.4 um in the demo
     graph after a model kill, docs/reliability.md)."""
-    import talc_model.talc as talc
+    import talc_model.talc.model as talc
     going, interpolated = _resumed_after_lost_instants(prior, tmp_path)
     monkeypatch.setattr(talc, "GAP_STEPS", math.inf)
     _, held = _resumed_after_lost_instants(prior, tmp_path)

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.prior import build_talc_prior, talc_with_prior, with_discrepancy_pole
-from talc_model.talc import TalcModel
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
-from thermal_twin.type_soft_sensors import TypeSoftSensors
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.prior.talc import build_talc_prior, talc_with_prior, with_discrepancy_pole
+from talc_model.talc.model import TalcModel
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
+from thermal_twin.sim.type_soft_sensors import TypeSoftSensors
 
 NODES = ["twin:table", "twin:cradle", "twin:cradle_jet", "twin:column", "twin:c_rotor", "twin:bed"]
 CFG = {"preset": "table_6_4_178h", "component_names": ["E_Y0C", "E_Z0T", "E_C0C"], "angular_components": ["E_C0C"],

@@ -26,7 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
-from thermal_comp_common.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
+from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_SIM_SYNC, TOPIC_TEMPERATURES, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import SimSync, TemperatureArray, ThermalErrors

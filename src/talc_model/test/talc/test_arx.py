@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, fit_arx, regression_matrix, solve_wls
+from talc_model.arx.model import ArxModel, ArxOrders, RankDeficientError, fit_arx, regression_matrix, solve_wls
 
 
 def _simulate_true(theta, orders, u, noise=None):

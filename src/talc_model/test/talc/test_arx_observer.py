@@ -1,4 +1,4 @@
-"""The observer-style state update (talc_model.arx_observer) against the thesis's replacement of
+"""The observer-style state update (talc_model.arx.observer) against the thesis's replacement of
 the newest output: stable for n_a > 1 where the replacement diverges, the same as the
 replacement for n_a = 1 with exact probes, and the covariance it keeps is a covariance."""
 import json
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from talc_model.adaptive_model import PHASE_COMPENSATION
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.arx_observer import K_MIN, ObserverError, companion, observer_predictions, observer_update
-from talc_model.talc import TalcModel
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.arx.observer import K_MIN, ObserverError, companion, observer_predictions, observer_update
+from talc_model.talc.model import TalcModel
 
 STEP = 300.0
 POLES = (0.995, 0.99)          # two slow thermal time constants (8.3 h and 8.3 / 2 h at 5 min)
@@ -160,8 +160,8 @@ def test_order_selection_can_score_with_the_observer():
     """select_with_state_updates scores candidates with the loop's observer predictor: the
     selection equals the per-candidate reference, and its validation RMS is the observer's,
     not the replacement's."""
-    from talc_model.arx_observer import ObserverScoring
-    from talc_model.order_selection import _select_orders_reference, select_orders
+    from talc_model.arx.observer import ObserverScoring
+    from talc_model.arx.order_selection import _select_orders_reference, select_orders
     amb = _ambient(120.0)
     plant = _arx(POLES, 4.0)
     y = plant.simulate(amb[:, None], np.zeros(2), 2)
@@ -181,7 +181,7 @@ def test_order_selection_can_score_with_the_observer():
 def test_talc_selects_with_the_state_update_it_runs():
     base = {"component_names": ["E_X0C"], "angular_components": [], "input_names": ["amb"],
             "select_with_state_updates": True}
-    from talc_model.arx_observer import ObserverScoring
+    from talc_model.arx.observer import ObserverScoring
     m = TalcModel(base)
     assert m._scoring("E_X0C") is False                 # calibration phase: pure simulation
     m.phase = PHASE_COMPENSATION

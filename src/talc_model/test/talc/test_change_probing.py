@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.talc import TalcModel
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.talc.model import TalcModel
 
 H = 3600.0
 CFG = {"component_names": ["E_X0C", "E_A0C"], "angular_components": ["E_A0C"], "input_names": ["ambient"],

@@ -1,13 +1,13 @@
-"""The change-probing threshold derived from a prior's training programme (talc_model.change_threshold)
+"""The change-probing threshold derived from a prior's training programme (talc_model.probing.change_threshold)
 and the budget that does not charge a prior's check phase (change_probing.change_probe_due)."""
 import math
 
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.change_probing import change_probe_due
-from talc_model.change_threshold import (ChangeThresholdError, between_probe_changes, change_figures,
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.probing.change_probing import change_probe_due
+from talc_model.probing.change_threshold import (ChangeThresholdError, between_probe_changes, change_figures,
                                          prior_change_thresholds)
 
 
@@ -100,7 +100,7 @@ def test_per_component_thresholds_and_inf_never_fire():
 
 
 def test_talc_uses_per_component_thresholds_set_on_the_model():
-    from talc_model.talc import TalcModel
+    from talc_model.talc.model import TalcModel
     cfg = {"component_names": ["E_X0C", "E_A0C"], "angular_components": ["E_A0C"], "input_names": ["ambient"],
            "post_cp_interval_h": 2.0, "change_probe_min_q_prod_pct": 90.0}
 

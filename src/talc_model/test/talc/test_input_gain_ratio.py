@@ -4,9 +4,9 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.order_selection import _select_orders_reference, select_orders
-from talc_model.talc_config import TalcConfig
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.arx.order_selection import _select_orders_reference, select_orders
+from talc_model.talc.config import TalcConfig
 
 
 def _plant(seed=0, n=900):

@@ -3,8 +3,8 @@ import math
 
 import pytest
 
-from talc_model.talc import TalcModel
-from talc_model.talc_config import input_signal
+from talc_model.talc.model import TalcModel
+from talc_model.talc.config import input_signal
 
 SIGNALS = {"ambient": 20.0, "ws_mwf": 27.5, "coolant_on": 1.0, "c_out": 21.0, "c_in": 19.5}
 

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.order_selection import select_orders
-from talc_model.talc import TalcModel
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.arx.order_selection import select_orders
+from talc_model.talc.model import TalcModel
 
 
 def test_pole_checks_real_positive_and_time_constant():

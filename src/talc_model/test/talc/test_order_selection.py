@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders, RankDeficientError
-from talc_model.order_selection import criterion_value, select_orders
+from talc_model.arx.model import ArxModel, ArxOrders, RankDeficientError
+from talc_model.arx.order_selection import criterion_value, select_orders
 
 
 def _known_system(seed, n=400, noise=0.01):

@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.arx import ArxModel, ArxOrders, RankDeficientError, fit_arx
-from talc_model.arx_batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
-from talc_model.order_selection import (_BatchedScorer, _PerCandidateScorer, _scoring_problem,
+from talc_model.arx.model import ArxModel, ArxOrders, RankDeficientError, fit_arx
+from talc_model.arx.batch import SharedRegression, input_lag_matrix, poles_inside, simulate_batch
+from talc_model.arx.order_selection import (_BatchedScorer, _PerCandidateScorer, _scoring_problem,
                                         _select_orders_reference, select_orders)
 
 REL = 1e-9
@@ -335,7 +335,7 @@ def test_bad_input_is_named():
 def test_small_solver_rank_and_solution_are_lstsq_s(padded):
     """Condition numbers from 1 to singular, around lstsq's tolerance eps * max(rows, p) too
     (decided there by the SVD fallback), with and without padding columns."""
-    from talc_model.arx_batch import _solve_small
+    from talc_model.arx.batch import _solve_small
     rng = np.random.default_rng(70)
     k, p, n_rows = 30, 8, 500
     limit = 1.0 / (np.finfo(float).eps * n_rows)

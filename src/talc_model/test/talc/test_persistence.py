@@ -5,7 +5,7 @@ import os
 import pytest
 
 from talc_model.model_persistence import ModelStateError, load_model, load_pretrained, read_state, save_model
-from talc_model.talc import TalcModel
+from talc_model.talc.model import TalcModel
 from test_talc import COMPONENTS, STEP, config, plant, run
 
 

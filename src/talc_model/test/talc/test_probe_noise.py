@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from talc_model.adaptive_model import ModelStatusData
-from thermal_eval.synthetic_plant import make_plant
-from thermal_eval.virtual_experiment import (VirtualExperimentError, probe_noise_by_component,
+from thermal_twin.sim.synthetic_plant import make_plant
+from thermal_eval.replay.virtual_experiment import (VirtualExperimentError, probe_noise_by_component,
                                            run_virtual_experiment)
 
 COMPONENTS = ["E_X0C", "E_A0C"]

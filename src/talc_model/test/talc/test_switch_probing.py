@@ -4,7 +4,7 @@ import math
 
 import pytest
 
-from talc_model.talc import TalcModel
+from talc_model.talc.model import TalcModel
 
 H = 3600.0
 CFG = {"component_names": ["E_X0C"], "input_names": ["ambient"], "post_cp_interval_h": 2.0,

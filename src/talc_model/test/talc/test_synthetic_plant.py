@@ -1,7 +1,7 @@
 """The synthetic C-axis plant used by the refit benchmark."""
 import numpy as np
 
-from thermal_eval.synthetic_plant import TABLE_6_5_P99, make_plant
+from thermal_twin.sim.synthetic_plant import TABLE_6_5_P99, make_plant
 
 
 def test_plant_is_reproducible_and_scaled_to_table_6_5():

@@ -2,7 +2,7 @@
 every regressor): the same model structure must give the same one-step predictions."""
 import numpy as np
 
-from talc_model.arx import ArxOrders, fit_arx, regression_matrix
+from talc_model.arx.model import ArxOrders, fit_arx, regression_matrix
 
 
 def test_ols_arx_matches_sysidentpy():

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from talc_model.adaptive_model import AdaptiveModel, make_model
-from talc_model.arx import ArxModel, ArxOrders
-from talc_model.talc import TalcModel
-from talc_model.talc_config import PRESETS, TalcConfig
+from talc_model.arx.model import ArxModel, ArxOrders
+from talc_model.talc.model import TalcModel
+from talc_model.talc.config import PRESETS, TalcConfig
 
 STEP = 300.0
 COMPONENTS = ["E_X0C", "E_A0C"]            # one linear (5 um limit), one angular (15 um/m)
@@ -229,8 +229,8 @@ def test_shipped_config_is_valid_and_complete():
 
 def test_periodic_update_is_gated_but_no_good_update_is_not(monkeypatch):
     """A periodic update that would predict the measured history worse is refused."""
-    import talc_model.talc_identification as talc_mod
-    from talc_model.order_selection import OrderSelection
+    import talc_model.talc.identification as talc_mod
+    from talc_model.arx.order_selection import OrderSelection
     u, errors = plant(200)
     m = run(TalcModel(config(update_interval_h=2.0)), u, errors, 0, 60)
     good = {n: mm.theta.copy() for n, mm in m.models.items()}

@@ -62,7 +62,7 @@ def test_probe_scheduling_in_lockstep_with_failures(tmp_path, ros_context):
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
-    from thermal_comp_common.node_runtime import (EVENT_QOS, LATCHED_QOS, SENSOR_QOS, TOPIC_ERRORS_MEASURED,
+    from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, LATCHED_QOS, SENSOR_QOS, TOPIC_ERRORS_MEASURED,
                                            TOPIC_ERRORS_PREDICTED, TOPIC_MODEL_STATUS, TOPIC_TEMPERATURES,
                                            stamp_to_s)
     from thermal_comp_msgs.msg import ModelStatus, TemperatureArray, ThermalErrors

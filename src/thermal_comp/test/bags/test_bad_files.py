@@ -8,9 +8,13 @@ import sys
 
 import pytest
 
-from thermal_comp import import_csv_cli, play_cli, view_cli
-from thermal_comp_common.bag_reader import BagReadError, read_bag
-from thermal_comp_common.msg_definitions import typestore
+from thermal_comp.bags import import_csv_cli
+
+from thermal_comp.bags import play_cli
+
+from thermal_comp.view import cli as view_cli
+from thermal_comp_common.bags.reader import BagReadError, read_bag
+from thermal_comp_common.bags.msg_definitions import typestore
 from thermal_comp_common.recording_csv import RecordingError, read_recording_csv
 
 
@@ -105,10 +109,10 @@ def test_play_exit_codes_match_its_help(tmp_path):
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(bytes(range(256)) * 8)
     for bag in (garbage, tmp_path / "missing"):
-        r = subprocess.run([sys.executable, "-m", "thermal_comp.play_cli", str(bag), "--as-fast-as-possible"],
+        r = subprocess.run([sys.executable, "-m", "thermal_comp.bags.play_cli", str(bag), "--as-fast-as-possible"],
                            capture_output=True, text=True, timeout=120)
         assert r.returncode == 2, r.stderr
         assert "Traceback" not in r.stderr and str(bag.name) in r.stderr
-    r = subprocess.run([sys.executable, "-m", "thermal_comp.play_cli", str(garbage), "--rate", "0"],
+    r = subprocess.run([sys.executable, "-m", "thermal_comp.bags.play_cli", str(garbage), "--rate", "0"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "--rate" in r.stderr

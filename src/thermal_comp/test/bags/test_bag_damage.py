@@ -7,8 +7,8 @@ import pytest
 from mcap.reader import make_reader
 
 from bags_helpers import small_recording_csv
-from thermal_comp_common.bag_reader import BagReadError, read_bag
-from thermal_comp_common.csv_to_bag import csv_to_bag
+from thermal_comp_common.bags.reader import BagReadError, read_bag
+from thermal_comp_common.bags.csv_to_bag import csv_to_bag
 
 
 @pytest.fixture(scope="module")

@@ -10,10 +10,10 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2 import Reader
 
 from bags_helpers import small_recording_csv
-from thermal_comp_common import msg_definitions as md
-from thermal_comp_common.bag_reader import read_bag
-from thermal_comp_common.bag_writer import BagWriteError, BagWriter, TopicInfo, stamp_from_cdr
-from thermal_comp_common.csv_to_bag import csv_to_bag
+from thermal_comp_common.bags import msg_definitions as md
+from thermal_comp_common.bags.reader import read_bag
+from thermal_comp_common.bags.writer import BagWriteError, BagWriter, TopicInfo, stamp_from_cdr
+from thermal_comp_common.bags.csv_to_bag import csv_to_bag
 from thermal_comp_common.recording_csv import read_recording_csv
 
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 import pytest
 from rosbags.rosbag2 import Reader
 
-from thermal_comp import record_cli
-from thermal_comp_common.bag_reader import instants, read_bag
-from thermal_comp_common.bag_repair import repair_bag
-from thermal_comp_common.bag_writer import BagWriter, TopicInfo
-from thermal_comp_common.msg_definitions import typestore
+from thermal_comp.bags import record_cli
+from thermal_comp_common.bags.reader import instants, read_bag
+from thermal_comp_common.bags.repair import repair_bag
+from thermal_comp_common.bags.writer import BagWriter, TopicInfo
+from thermal_comp_common.bags.msg_definitions import typestore
 
 
 def _temps_cdr(t_s: int, value: float) -> bytes:

@@ -15,9 +15,9 @@ import textwrap
 
 import pytest
 
-from thermal_comp_common.bag_reader import read_bag
-from thermal_comp_common.bag_repair import repair_bag
-from thermal_comp_common.bag_writer import BagWriter, TopicInfo
+from thermal_comp_common.bags.reader import read_bag
+from thermal_comp_common.bags.repair import repair_bag
+from thermal_comp_common.bags.writer import BagWriter, TopicInfo
 
 TYPE = "thermal_comp_msgs/msg/MachineState"
 
@@ -36,7 +36,7 @@ KILL_AFTER_CREATING = """
 def _die(out, body: str) -> None:
     code = textwrap.dedent("""
         import os, signal, sys
-        from thermal_comp_common.bag_writer import BagWriter, TopicInfo
+        from thermal_comp_common.bags.writer import BagWriter, TopicInfo
         out, TYPE = sys.argv[1], sys.argv[2]
     """) + textwrap.dedent(body)
     r = subprocess.run([sys.executable, "-c", code, str(out), TYPE], capture_output=True, text=True, timeout=120)
@@ -68,7 +68,7 @@ def test_a_kill_right_after_the_bag_is_created_leaves_a_bag_with_its_header(tmp_
 @pytest.mark.ros
 def test_a_recorder_refused_for_a_parameter_leaves_no_bag(tmp_path):
     import rclpy
-    from thermal_comp.bag_recorder_node import BagRecorderNode
+    from thermal_comp.bags.recorder_node import BagRecorderNode
     out = tmp_path / "bag"
     ctx = rclpy.context.Context()
     rclpy.init(args=["rec", "--ros-args", "-p", f"output:={out}", "-p", "lockstep_participant:=true",

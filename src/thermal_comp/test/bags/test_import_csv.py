@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from bags_helpers import env, small_recording_csv
-from thermal_comp_common import msg_definitions as md
-from thermal_comp_common.bag_reader import read_bag
-from thermal_comp_common.csv_to_bag import CsvImportError, csv_to_bag, represented_inputs
+from thermal_comp_common.bags import msg_definitions as md
+from thermal_comp_common.bags.reader import read_bag
+from thermal_comp_common.bags.csv_to_bag import CsvImportError, csv_to_bag, represented_inputs
 from thermal_comp_common.recording_csv import read_recording_csv, write_recording_csv
 
 
@@ -76,13 +76,13 @@ def test_cli_reports_a_truncated_csv_and_keeps_the_rows_before(tmp_path):
     csv = small_recording_csv(tmp_path / "r.csv", rows=20)
     text = csv.read_text()
     csv.write_text(text[: text.rstrip("\n").rfind("\n") + 8])   # last line cut short
-    p = subprocess.run([sys.executable, "-m", "thermal_comp.import_csv_cli", str(csv), str(tmp_path / "bag"),
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.bags.import_csv_cli", str(csv), str(tmp_path / "bag"),
                         "--no-progress"], env=env(), capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert "truncated" in p.stderr and "19 rows" in p.stdout
     bad = tmp_path / "bad.csv"
     bad.write_text("time_s,a_c\n0,1\n1,x\n")
-    p = subprocess.run([sys.executable, "-m", "thermal_comp.import_csv_cli", str(bad), str(tmp_path / "bag2"),
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.bags.import_csv_cli", str(bad), str(tmp_path / "bag2"),
                         "--no-progress"], env=env(), capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "line 3: column 'a_c': 'x' is not a number" in p.stderr
     assert not (tmp_path / "bag2").exists()

@@ -1,7 +1,7 @@
 """Schema texts and type hashes of our message types."""
 import pytest
 
-from thermal_comp_common import msg_definitions as md
+from thermal_comp_common.bags import msg_definitions as md
 def test_every_own_type_is_found():
     types = md.own_message_types()
     assert "thermal_comp_msgs/msg/TemperatureArray" in types
@@ -46,7 +46,7 @@ def test_unknown_type_names_the_type():
 def test_rihs01_hash_equals_the_one_the_running_typesupport_announces(ros_context):
     """The middleware's own type hash (from the compiled typesupport) of each of our types."""
     import rclpy
-    from thermal_comp.bag_recorder_node import message_class
+    from thermal_comp.bags.recorder_node import message_class
     node = rclpy.create_node("hash_probe", context=ros_context)
     try:
         for i, t in enumerate(md.own_message_types() + ["rosgraph_msgs/msg/Clock"]):

@@ -11,9 +11,9 @@ from rosgraph_msgs.msg import Clock
 from thermal_comp_msgs.msg import MachineState, TemperatureArray, ThermalErrors
 
 from bags_helpers import small_recording_csv, spawn, stop, wait_for
-from thermal_comp_common import node_runtime as rt
-from thermal_comp_common.bag_reader import read_bag
-from thermal_comp_common.csv_to_bag import csv_to_bag
+from thermal_comp_common.runtime import node_runtime as rt
+from thermal_comp_common.bags.reader import read_bag
+from thermal_comp_common.bags.csv_to_bag import csv_to_bag
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -59,7 +59,7 @@ def _meta_count(bag) -> int:
 
 def _record(tmp_path, ros_context, n: int, sig):
     bag = tmp_path / "rec"
-    proc = spawn(["-m", "thermal_comp.record_cli", str(bag), "temperatures", "machine_state",
+    proc = spawn(["-m", "thermal_comp.bags.record_cli", str(bag), "temperatures", "machine_state",
                   "--flush-period", "0.1"])
     s = Spinner(ros_context, "test_publisher")
     try:
@@ -90,7 +90,7 @@ def test_recorder_records_everything_published_after_start(tmp_path, ros_context
     assert got[3].status[1] == 3 and got[24].temperatures_degc[0] == pytest.approx(22.4)
     # the recorded bag is a rosbag2 bag for the ecosystem's readers too
     from rosbags.rosbag2 import Reader
-    from thermal_comp_common import msg_definitions as md
+    from thermal_comp_common.bags import msg_definitions as md
     with Reader(bag) as reader:
         assert reader.message_count == 25
         conn = next(c for c in reader.connections if c.topic == "/temperatures")
@@ -125,7 +125,7 @@ def test_player_republishes_every_message_as_fast_as_possible(tmp_path, ros_cont
     received: dict = {}
     try:
         _subscribe_all(s, received)
-        proc = spawn(["-m", "thermal_comp.play_cli", str(bag), "--as-fast-as-possible",
+        proc = spawn(["-m", "thermal_comp.bags.play_cli", str(bag), "--as-fast-as-possible",
                       "--wait-for-subscribers", "1"])
         out = proc.communicate(timeout=60)[0]
         assert proc.returncode == 0, out
@@ -151,7 +151,7 @@ def test_player_at_a_rate_drives_clock_between_messages(tmp_path, ros_context):
     received: dict = {}
     try:
         _subscribe_all(s, received)
-        proc = spawn(["-m", "thermal_comp.play_cli", str(bag), "--rate", "900",
+        proc = spawn(["-m", "thermal_comp.bags.play_cli", str(bag), "--rate", "900",
                       "--wait-for-subscribers", "1", "--clock-hz", "50"])
         out = proc.communicate(timeout=60)[0]
         assert proc.returncode == 0, out
@@ -172,7 +172,7 @@ def test_player_replays_a_truncated_bag_up_to_the_damage(tmp_path, ros_context):
     f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
     kept = read_bag(bag)
     assert 0 < len(kept.messages) < 300
-    proc = spawn(["-m", "thermal_comp.play_cli", str(bag), "--as-fast-as-possible"])
+    proc = spawn(["-m", "thermal_comp.bags.play_cli", str(bag), "--as-fast-as-possible"])
     out = proc.communicate(timeout=60)[0]
     assert proc.returncode == 3, out
     assert f"replayed {len(kept.messages)} messages" in out
@@ -181,9 +181,9 @@ def test_player_replays_a_truncated_bag_up_to_the_damage(tmp_path, ros_context):
 
 
 def test_play_and_record_reject_bad_arguments(tmp_path):
-    for args, text in ((["-m", "thermal_comp.play_cli", str(tmp_path / "nope")], "no such bag"),
-                       (["-m", "thermal_comp.play_cli", str(tmp_path), "--rate", "0"], "--rate 0.0"),
-                       (["-m", "thermal_comp.record_cli", str(tmp_path / "x"), "unknown_topic"],
+    for args, text in ((["-m", "thermal_comp.bags.play_cli", str(tmp_path / "nope")], "no such bag"),
+                       (["-m", "thermal_comp.bags.play_cli", str(tmp_path), "--rate", "0"], "--rate 0.0"),
+                       (["-m", "thermal_comp.bags.record_cli", str(tmp_path / "x"), "unknown_topic"],
                         "'unknown_topic' is not a known topic")):
         proc = spawn(args)
         out = proc.communicate(timeout=60)[0]
@@ -210,7 +210,7 @@ def test_lockstep_participant_paces_the_replay_so_a_depth_one_subscriber_misses_
     s.node.create_subscription(TemperatureArray, rt.TOPIC_TEMPERATURES, on_temps,
                                QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE))
     try:
-        proc = spawn(["-m", "thermal_comp.play_cli", str(bag), "--as-fast-as-possible", "--topics",
+        proc = spawn(["-m", "thermal_comp.bags.play_cli", str(bag), "--as-fast-as-possible", "--topics",
                       "/temperatures", "--wait-for-subscribers", "1", "--lockstep", "test_participant"])
         out = proc.communicate(timeout=60)[0]
         assert proc.returncode == 0, out
@@ -226,10 +226,10 @@ def test_play_into_record_reproduces_the_bag(tmp_path):
     csv_to_bag(small_recording_csv(tmp_path / "rec.csv", rows=50), src)
     original = read_bag(src)
     copy = tmp_path / "copy"
-    rec = spawn(["-m", "thermal_comp.record_cli", str(copy), "temperatures", "machine_state",
+    rec = spawn(["-m", "thermal_comp.bags.record_cli", str(copy), "temperatures", "machine_state",
                  "errors/ground_truth", "--flush-period", "0.1"])
     try:
-        player = spawn(["-m", "thermal_comp.play_cli", str(src), "--as-fast-as-possible",
+        player = spawn(["-m", "thermal_comp.bags.play_cli", str(src), "--as-fast-as-possible",
                         "--wait-for-subscribers", "1"])
         out = player.communicate(timeout=60)[0]
         assert player.returncode == 0, out

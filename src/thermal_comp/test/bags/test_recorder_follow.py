@@ -25,8 +25,8 @@ class Cell:
 
     def __init__(self, tmp_path, name: str, follow_timeout_s: float = 10.0, start: str = ""):
         from rclpy.executors import SingleThreadedExecutor
-        from thermal_comp.bag_recorder_node import BagRecorderNode
-        from thermal_comp_common import node_runtime as rt
+        from thermal_comp.bags.recorder_node import BagRecorderNode
+        from thermal_comp_common.runtime import node_runtime as rt
         from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, TemperatureArray
         ns = f"/follow_{name}"
         self.rt = rt
@@ -77,7 +77,7 @@ class Cell:
         self.rec.destroy_node()
         self.src.destroy_node()
         self.ctx.try_shutdown()
-        from thermal_comp_common.bag_reader import read_bag
+        from thermal_comp_common.bags.reader import read_bag
         return {(m.topic.rsplit("/", 1)[-1], m.stamp_ns) for m in read_bag(self.out).messages}
 
 
@@ -114,7 +114,7 @@ def test_a_topic_never_published_holds_nothing_and_one_that_stops_is_named_after
     c.publish(600.0, rt.TOPIC_TEMPERATURES)
     c.spin_until(lambda: c.acks == [0.0, 300.0, 600.0])
     assert c.rec.follow_dropped == [(f"/follow_stops/{rt.TOPIC_OFFSETS}", 600 * S)]
-    from thermal_comp_common.diagnostics import WARN
+    from thermal_comp_common.runtime.diagnostics import WARN
     assert c.rec.diag.level("recorder") == WARN
     c.twin(900.0)                          # no longer expected: acknowledged without waiting
     c.publish(900.0, rt.TOPIC_TEMPERATURES)
@@ -139,7 +139,7 @@ def test_expect_from_start_holds_the_first_instant_until_its_offsets_are_written
 
 
 def test_expect_from_start_naming_a_topic_not_recorded_is_one_clear_error(tmp_path):
-    from thermal_comp.bag_recorder_node import BagRecorderNode
+    from thermal_comp.bags.recorder_node import BagRecorderNode
     ctx = rclpy.context.Context()
     rclpy.init(args=["rec", "--ros-args", "-p", f"output:={tmp_path / 'bag'}",
                      "-p", "lockstep_participant:=true", "-p", "expect_from_start:=['ofsets']"], context=ctx)

@@ -15,8 +15,8 @@ pytestmark = pytest.mark.ros
 
 def _record(tmp_path, keep_resends: bool):
     from rclpy.executors import SingleThreadedExecutor
-    from thermal_comp.bag_recorder_node import BagRecorderNode
-    from thermal_comp_common import node_runtime as rt
+    from thermal_comp.bags.recorder_node import BagRecorderNode
+    from thermal_comp_common.runtime import node_runtime as rt
     from thermal_comp_msgs.msg import MachineState, ModelStatus, SimSync, TemperatureArray, ThermalErrors
     ns = f"/resend_{str(keep_resends).lower()}"
     out = tmp_path / f"bag_{keep_resends}"
@@ -74,7 +74,7 @@ def _record(tmp_path, keep_resends: bool):
 @pytest.mark.parametrize("keep", [False, True], ids=["once", "keep_resends"])
 def test_a_resent_instant_is_written_once_and_acknowledged_again(tmp_path, keep):
     from collections import Counter
-    from thermal_comp_common.bag_reader import read_bag
+    from thermal_comp_common.bags.reader import read_bag
     out, acks = _record(tmp_path, keep)
     assert acks == [0.0, 0.0, 0.0, 300.0]          # a copy is acknowledged like the first
     bag = read_bag(out)

@@ -8,9 +8,9 @@ import rerun as rr
 
 from bags_helpers import small_recording_csv
 from test_rerun_view import RERUN, _env, _synthetic_messages
-from thermal_comp.rerun_logging import RerunLogger, schematic_layout
-from thermal_comp.view_cli import bag_to_rrd
-from thermal_comp_common.csv_to_bag import csv_to_bag
+from thermal_comp.view.rerun_logging import RerunLogger, schematic_layout
+from thermal_comp.view.run import bag_to_rrd
+from thermal_comp_common.bags.csv_to_bag import csv_to_bag
 
 
 class _Capture:

@@ -1,5 +1,5 @@
 """Health in rerun: /diagnostics statuses and /rosout lines become text logs with levels
-(thermal_comp.rerun_logging), and the live view subscribes to both."""
+(thermal_comp.view.rerun_logging), and the live view subscribes to both."""
 import subprocess
 import sys
 
@@ -8,10 +8,8 @@ import pytest
 from bags_helpers import stop, wait_for
 from test_rerun_columns import _Capture
 from test_rerun_view import _entities, _env
-from thermal_comp.rerun_logging import RerunLogger
-from thermal_comp_common import msg_definitions as md
-
-
+from thermal_comp.view.rerun_logging import RerunLogger
+from thermal_comp_common.bags import msg_definitions as md
 def _diagnostics(store, t, level, message):
     T, H = store.types["builtin_interfaces/msg/Time"], store.types["std_msgs/msg/Header"]
     S, KV = store.types["diagnostic_msgs/msg/DiagnosticStatus"], store.types["diagnostic_msgs/msg/KeyValue"]
@@ -54,9 +52,9 @@ def test_diagnostics_and_rosout_become_text_logs_with_levels(columnar):
 @pytest.mark.ros
 def test_live_view_shows_diagnostics_and_rosout(tmp_path, ros_context):
     import rclpy
-    from thermal_comp_common.diagnostics import DiagnosticsPublisher
+    from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
     out = tmp_path / "live.rrd"
-    proc = subprocess.Popen([sys.executable, "-m", "thermal_comp.rerun_view_node", "--ros-args",
+    proc = subprocess.Popen([sys.executable, "-m", "thermal_comp.view.rerun_view_node", "--ros-args",
                              "-p", "spawn:=false", "-p", f"rrd:={out}"], env=_env(tmp_path),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     node = rclpy.create_node("health_source", context=ros_context)
@@ -79,7 +77,7 @@ def test_live_view_shows_diagnostics_and_rosout(tmp_path, ros_context):
 @pytest.mark.ros
 def test_the_recorder_records_health_when_asked(tmp_path):
     import rclpy
-    from thermal_comp.bag_recorder_node import BagRecorderNode
+    from thermal_comp.bags.recorder_node import BagRecorderNode
     topics = {}
     for health in (False, True):
         ctx = rclpy.context.Context()

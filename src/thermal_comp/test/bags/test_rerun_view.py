@@ -16,9 +16,9 @@ import pytest
 import rerun as rr
 
 from bags_helpers import small_recording_csv, wait_for
-from thermal_comp_common import msg_definitions as md
-from thermal_comp_common.csv_to_bag import csv_to_bag
-from thermal_comp.rerun_logging import (COLOURS, LayoutError, RerunLogger, load_layout,
+from thermal_comp_common.bags import msg_definitions as md
+from thermal_comp_common.bags.csv_to_bag import csv_to_bag
+from thermal_comp.view.rerun_logging import (COLOURS, LayoutError, RerunLogger, load_layout,
                                         schematic_layout, split_topic)
 
 RERUN = pathlib.Path(sys.executable).parent / "rerun"
@@ -156,7 +156,7 @@ def test_rerun_itself_loads_and_decodes_our_bag(tmp_path, bag):
 
 def test_view_converts_a_bag_to_a_verified_rrd(tmp_path, bag):
     out = tmp_path / "view.rrd"
-    p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--rrd", str(out),
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.view.cli", str(bag), "--rrd", str(out),
                         "--no-progress"], env=_env(tmp_path), capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert "90 messages logged" in p.stdout
@@ -168,7 +168,7 @@ def test_view_converts_a_bag_to_a_verified_rrd(tmp_path, bag):
 
 
 def test_view_rejects_bad_input(tmp_path):
-    p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(tmp_path / "nope"), "--rrd",
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.view.cli", str(tmp_path / "nope"), "--rrd",
                         str(tmp_path / "x.rrd"), "--no-progress"], env=_env(tmp_path),
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "no such bag" in p.stderr and "Traceback" not in p.stderr
@@ -194,7 +194,7 @@ def test_served_web_viewer_shows_our_entities_in_headless_chromium(tmp_path, bag
         pytest.skip("/usr/bin/chromium is missing: install Debian's 'chromium' package")
     import websocket
     web, grpc = _free_port(), _free_port()
-    viewer = subprocess.Popen([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--serve-web",
+    viewer = subprocess.Popen([sys.executable, "-m", "thermal_comp.view.cli", str(bag), "--serve-web",
                                "--web-port", str(web), "--grpc-port", str(grpc), "--no-progress"],
                               env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     profile = tmp_path / "chromium"
@@ -257,12 +257,12 @@ def test_served_web_viewer_shows_our_entities_in_headless_chromium(tmp_path, bag
 @pytest.mark.parametrize("how", ["view_cli", "node"])
 def test_live_view_logs_published_topics_to_an_rrd(tmp_path, ros_context, how):
     import rclpy
-    from thermal_comp_common import node_runtime as rt
+    from thermal_comp_common.runtime import node_runtime as rt
     from thermal_comp_msgs.msg import TemperatureArray, ThermalErrors
     from bags_helpers import stop
     out = tmp_path / "live.rrd"
-    cmd = (["-m", "thermal_comp.view_cli", "--rrd", str(out)] if how == "view_cli" else
-           ["-m", "thermal_comp.rerun_view_node", "--ros-args", "-p", "spawn:=false", "-p", f"rrd:={out}"])
+    cmd = (["-m", "thermal_comp.view.cli", "--rrd", str(out)] if how == "view_cli" else
+           ["-m", "thermal_comp.view.rerun_view_node", "--ros-args", "-p", "spawn:=false", "-p", f"rrd:={out}"])
     proc = subprocess.Popen([sys.executable, *cmd], env=_env(tmp_path), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     node = rclpy.create_node("live_source", context=ros_context)
@@ -301,7 +301,7 @@ def test_view_shows_a_truncated_bag_up_to_the_damage(tmp_path):
     f = bag / "bag_0.mcap"
     f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
     out = tmp_path / "cut.rrd"
-    p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--rrd", str(out),
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.view.cli", str(bag), "--rrd", str(out),
                         "--no-progress"], env=_env(tmp_path), capture_output=True, text=True, timeout=120)
     assert p.returncode == 3, p.stderr
     assert "bag damaged, shown up to there" in p.stderr and "stopped at byte" in p.stderr
@@ -314,13 +314,13 @@ def test_spawning_without_a_display_is_refused_with_a_hint(tmp_path, bag):
     env = _env(tmp_path)
     env.pop("DISPLAY", None)
     env.pop("WAYLAND_DISPLAY", None)
-    p = subprocess.run([sys.executable, "-m", "thermal_comp.view_cli", str(bag), "--spawn"], env=env,
+    p = subprocess.run([sys.executable, "-m", "thermal_comp.view.cli", str(bag), "--spawn"], env=env,
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "no display" in p.stderr and "--serve-web" in p.stderr
 
 
 def test_layout_comes_from_the_twin_preset_whose_sensors_match():
-    from thermal_comp.rerun_logging import preset_layout_for, resolve_layout
+    from thermal_comp.view.rerun_logging import preset_layout_for, resolve_layout
     lay = preset_layout_for(["ambient", "ws_mwf", "c_coolant_delta", "c_motor_internal"])
     assert lay is not None and "nmv5000" in lay.source and "not measured" in lay.source
     assert lay.positions_m == resolve_layout("nmv5000").positions_m

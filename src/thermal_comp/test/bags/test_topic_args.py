@@ -1,7 +1,7 @@
 """Topic arguments of the recorder: known topics by name, others with their type."""
 import pytest
 
-from thermal_comp.bag_recorder_node import DEFAULT_TOPICS, parse_topic_arg, starts_with_stamp
+from thermal_comp.bags.recorder_node import DEFAULT_TOPICS, parse_topic_arg, starts_with_stamp
 
 
 def test_known_topics_relative_and_in_a_namespace():

@@ -6,10 +6,10 @@ import io
 
 import pytest
 
-from thermal_comp.cell_config import parse_cell
-from thermal_comp.demo_cell import MACHINES, DemoConfig, DemoError, build_cell
-from thermal_comp.demo_graph import OBSERVER_NICE_ENV, OBSERVERS, _lower_observers, observer_niceness
-from thermal_comp.launcher import Launcher
+from thermal_comp.cell.config import parse_cell
+from thermal_comp.demo.cell import MACHINES, DemoConfig, DemoError, build_cell
+from thermal_comp.demo.graph import OBSERVER_NICE_ENV, OBSERVERS, _lower_observers, observer_niceness
+from thermal_comp.cell.launcher import Launcher
 
 
 def _config(tmp_path) -> DemoConfig:
@@ -50,7 +50,7 @@ def test_observer_niceness_defaults_to_every_process_alike(monkeypatch):
 
 
 def test_the_real_time_factor_reaches_machine_sim_and_a_bad_one_is_refused(tmp_path, capsys):
-    from thermal_comp.demo_cli import _parser
+    from thermal_comp.demo.cli import _parser
     a = _parser().parse_args(["--real-time-factor", "600"])
     cfg = DemoConfig(out_dir=tmp_path, scenario="talc-178h-dry", real_time_factor=a.real_time_factor)
     sim = {n["name"]: n for n in build_cell(cfg, 0, None, False)["nodes"]}["machine_sim"]["parameters"]

@@ -7,7 +7,7 @@ import sys
 
 import psutil
 
-from thermal_comp.demo_graph import _children_map, _usage_tree
+from thermal_comp.demo.graph import _children_map, _usage_tree
 
 # a parent that burns some CPU and starts a child holding 64 MiB, both then wait for stdin
 _PARENT = ("import subprocess, sys\n"

@@ -1,8 +1,8 @@
-"""The lock-step round-trip breakdown of ``bench graph`` (thermal_comp.graph_profile) on
+"""The lock-step round-trip breakdown of ``bench graph`` (thermal_comp.demo.graph_profile) on
 hand-made arrival times."""
 import pytest
 
-from thermal_comp.graph_profile import (LATENCY_PARTS, STAGES, ack_breakdown, instant_events,
+from thermal_comp.demo.graph_profile import (LATENCY_PARTS, STAGES, ack_breakdown, instant_events,
                                        latency_breakdown, stage_breakdown)
 
 PARTS = ["sensors", "model", "bridge"]
@@ -78,8 +78,8 @@ def test_the_monitor_times_publications_and_acknowledgements(ros_context):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
-    from thermal_comp.demo_monitor import DemoMonitor
-    from thermal_comp_common import node_runtime as rt
+    from thermal_comp.demo.monitor import DemoMonitor
+    from thermal_comp_common.runtime import node_runtime as rt
     from thermal_comp_msgs.msg import AxisOffsets, SimSync, TemperatureArray
 
     monitor = DemoMonitor("/monitor_test")

@@ -4,20 +4,24 @@ import pathlib
 
 import pytest
 
-from talc_model.prior import build_talc_prior, load_prior
-from talc_model.prior_agp import AgpPriorModel, build_agp_prior, model_from_prior
-from thermal_comp import demo_cli, prior_cli
-from thermal_comp.demo_cell import DemoConfig, build_cell
-from thermal_comp.demo_summary import print_prior_gain, prior_gain
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from talc_model.prior.talc import build_talc_prior, load_prior
+from talc_model.prior.agp import AgpPriorModel, build_agp_prior
+from talc_model.prior.dispatch import model_from_prior
+from thermal_comp.demo import cli as demo_cli
+from thermal_comp.demo import run as demo_run
+from thermal_comp.prior import build as prior_build
+from thermal_comp.prior import programmes as prior_programmes
+from thermal_comp.demo.cell import DemoConfig, build_cell
+from thermal_comp.demo.summary import print_prior_gain, prior_gain
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 CONFIG = {"input_names": ["ambient", "ws_mwf", "c_coolant_delta"]}
 
 
 @pytest.fixture
 def counted_build(monkeypatch):
-    """prior_cli.build_prior on the nominal runs (the real fit; TALC: fewer programmes and orders;
+    """prior_build.build_prior on the nominal runs (the real fit; TALC: fewer programmes and orders;
     AGP: 3 h of each programme, 60 points), counting calls."""
     calls = []
 
@@ -29,22 +33,22 @@ def counted_build(monkeypatch):
         if kind == "agp":
             return build_agp_prior(recs, config, machine=machine, max_points=60)
         return build_talc_prior(recs, config, machine=machine, na_max=na_max, nb_max=3)
-    monkeypatch.setattr(prior_cli, "build_prior", build)
+    monkeypatch.setattr(prior_build, "build_prior", build)
     return calls
 
 
 def test_prior_is_built_once_then_read_from_the_cache(tmp_path, counted_build):
     scen = ["load-case-A", "load-case-D", "load-case-B"]
-    p1, built1 = prior_cli.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
-    p2, built2 = prior_cli.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
+    p1, built1 = prior_build.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
+    p2, built2 = prior_build.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
     assert (built1, built2) == (True, False) and p1 == p2 and len(counted_build) == 1
     assert load_prior(p2)["machine"] == "nmv5000"
     # another configuration is another prior
-    p3, built3 = prior_cli.cached_prior("nmv5000", {**CONFIG, "nb_max": 4}, scen, cache_dir=tmp_path)
+    p3, built3 = prior_build.cached_prior("nmv5000", {**CONFIG, "nb_max": 4}, scen, cache_dir=tmp_path)
     assert built3 and p3 != p1 and len(counted_build) == 2
     # a damaged cache entry is rebuilt, not trusted
     p1.write_text("{not json")
-    _, built4 = prior_cli.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
+    _, built4 = prior_build.cached_prior("nmv5000", CONFIG, scen, cache_dir=tmp_path)
     assert built4 and load_prior(p1)["machine"] == "nmv5000"
 
 
@@ -60,24 +64,24 @@ def test_default_is_the_prior_and_no_prior_is_asked_for():
 
 
 def test_no_default_prior_where_none_applies(tmp_path, capsys):
-    assert demo_cli._no_default_prior_reason(DemoConfig(scenario="talc-178h-dry")) is None
-    assert "training programmes" in demo_cli._no_default_prior_reason(DemoConfig(scenario="load-case-A"))
-    assert demo_cli._no_default_prior_reason(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed")) is None
-    assert "training programmes" in demo_cli._no_default_prior_reason(
+    assert demo_run._no_default_prior_reason(DemoConfig(scenario="talc-178h-dry")) is None
+    assert "training programmes" in demo_run._no_default_prior_reason(DemoConfig(scenario="load-case-A"))
+    assert demo_run._no_default_prior_reason(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed")) is None
+    assert "training programmes" in demo_run._no_default_prior_reason(
         DemoConfig(machine="swiss-lathe", scenario="lathe-oil-steps"))
-    with pytest.raises(demo_cli.DemoError, match="training programmes"):
-        demo_cli._build_prior(DemoConfig(scenario="load-case-A", out_dir=tmp_path))
+    with pytest.raises(demo_run.DemoError, match="training programmes"):
+        demo_run._build_prior(DemoConfig(scenario="load-case-A", out_dir=tmp_path))
     assert demo_cli.main(["--no-prior", "--compare-no-prior", "--out", str(tmp_path)]) == 1
     assert "cannot go with --no-prior" in capsys.readouterr().err
 
 
 def test_build_prior_copies_the_cached_prior_into_the_run(tmp_path, monkeypatch, counted_build):
     monkeypatch.setenv("THERMAL_COMP_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setitem(prior_cli.TRAINING_SCENARIOS["talc"], "nmv5000", ["load-case-A", "load-case-D", "load-case-B"])
+    monkeypatch.setitem(prior_programmes.TRAINING_SCENARIOS["talc"], "nmv5000", ["load-case-A", "load-case-D", "load-case-B"])
     cfg = DemoConfig(scenario="talc-178h-dry", out_dir=tmp_path / "run")
-    path = demo_cli._build_prior(cfg)
+    path = demo_run._build_prior(cfg)
     assert path == (tmp_path / "run" / "prior.json").resolve() and load_prior(path)["machine"] == "nmv5000"
-    demo_cli._build_prior(DemoConfig(scenario="talc-178h-dry", out_dir=tmp_path / "run2"))
+    demo_run._build_prior(DemoConfig(scenario="talc-178h-dry", out_dir=tmp_path / "run2"))
     assert len(counted_build) == 1                                   # the second run used the cache
     assert pathlib.Path(tmp_path / "cache" / "priors").is_dir()
 
@@ -101,14 +105,14 @@ def test_lathe_demo_defaults_to_the_agp_prior_of_its_type(tmp_path, monkeypatch,
     says so, and hands it to the model node, which starts the AGP from it."""
     monkeypatch.setenv("THERMAL_COMP_CACHE", str(tmp_path / "cache"))
     cfg = DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed", out_dir=tmp_path / "run")
-    path = demo_cli._build_prior(cfg)
+    path = demo_run._build_prior(cfg)
     prior = load_prior(path)
     assert prior["model_kind"] == "agp" and prior["machine"] == "swiss-lathe"
-    assert counted_build == [("swiss-lathe", tuple(prior_cli.TRAINING_SCENARIOS["agp"]["swiss_lathe"]), "agp")]
+    assert counted_build == [("swiss-lathe", tuple(prior_programmes.TRAINING_SCENARIOS["agp"]["swiss_lathe"]), "agp")]
     assert "lathe-random-speed" not in counted_build[0][1]                # never the demo's run
     out = capsys.readouterr().out
     assert "built AGP prior of the machine type swiss-lathe" in out
-    demo_cli._build_prior(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed", out_dir=tmp_path / "r2"))
+    demo_run._build_prior(DemoConfig(machine="swiss-lathe", scenario="lathe-random-speed", out_dir=tmp_path / "r2"))
     assert len(counted_build) == 1 and "cached AGP prior" in capsys.readouterr().out
     cfg.prior = str(path)
     model = {n["name"]: n for n in build_cell(cfg, 42, None, False)["nodes"]}["model"]["parameters"]

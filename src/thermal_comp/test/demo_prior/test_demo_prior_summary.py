@@ -5,9 +5,9 @@ import pathlib
 import numpy as np
 import yaml
 
-from thermal_comp.demo_cell import DemoConfig, build_cell, plant_label
-from thermal_comp.demo_series import DemoSeries
-from thermal_comp.demo_summary import print_table, summarise
+from thermal_comp.demo.cell import DemoConfig, build_cell, plant_label
+from thermal_comp.demo.series import DemoSeries
+from thermal_comp.demo.summary import print_table, summarise
 
 
 def _series(hours=48.0):

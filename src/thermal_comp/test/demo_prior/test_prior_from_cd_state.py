@@ -3,12 +3,12 @@ the command writes a CD prior a run starts from, and refuses a state of another 
 import json
 
 from talc_model.adaptive_model import PHASE_COMPENSATION
-from talc_model.cd_model import CharacteristicDiagramModel
-from talc_model.prior import load_prior
-from talc_model.prior_agp import model_from_prior
-from thermal_comp import prior_cli
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from talc_model.cd.model import CharacteristicDiagramModel
+from talc_model.prior.talc import load_prior
+from talc_model.prior.dispatch import model_from_prior
+from thermal_comp.prior import cli as prior_cli
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 COMPONENTS = ["E_X0C", "E_Y0C"]
 

@@ -19,9 +19,9 @@ import types
 import pytest
 import yaml
 
-from thermal_comp.cell_config import load_cell, parameters_file_text
-from thermal_comp.cell_launch import launch_plan
-from thermal_comp.launcher import Launcher
+from thermal_comp.cell.config import load_cell, parameters_file_text
+from thermal_comp.cell.launch_plan import launch_plan
+from thermal_comp.cell.launcher import Launcher
 
 PKG = pathlib.Path(__file__).resolve().parents[2]
 REPO = PKG.parents[1]

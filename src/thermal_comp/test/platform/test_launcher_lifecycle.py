@@ -9,8 +9,8 @@ import time
 import pytest
 
 from cnc_bridge.cnc_emulator import free_tcp_port
-from thermal_comp.cell_config import CellConfigError, load_cell, parse_cell
-from thermal_comp.launcher import Launcher
+from thermal_comp.cell.config import CellConfigError, load_cell, parse_cell
+from thermal_comp.cell.launcher import Launcher
 
 
 @pytest.mark.parametrize("restart, expected", [

@@ -8,8 +8,8 @@ import re
 
 import pytest
 
-from thermal_comp.cell_config import CellConfigError, parse_cell
-from thermal_comp.launcher import NICE_ENV, Launcher
+from thermal_comp.cell.config import CellConfigError, parse_cell
+from thermal_comp.cell.launcher import NICE_ENV, Launcher
 
 
 def _cell(tmp_path, env: dict[str, str]):

@@ -7,8 +7,8 @@ from __future__ import annotations
 import io
 import threading
 
-from thermal_comp.cell_config import load_cell
-from thermal_comp.launcher import Launcher
+from thermal_comp.cell.config import load_cell
+from thermal_comp.cell.launcher import Launcher
 
 STUBBORN = '''
 import signal, sys, threading

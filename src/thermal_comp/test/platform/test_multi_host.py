@@ -161,7 +161,7 @@ def _run(ns: str, env: dict, *argv: str, timeout: float = 90.0) -> subprocess.Co
 def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_domain_id, recorder_role):
     """The remote recorder as an observer machine_sim waits for before the first instant, or as a
     lock-step participant that acknowledges every instant across the link."""
-    from thermal_comp_common.bag_reader import read_bag
+    from thermal_comp_common.bags.reader import read_bag
     hosts = TwoHosts()
     procs: list[Proc] = []
     try:

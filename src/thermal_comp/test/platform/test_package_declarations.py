@@ -29,10 +29,17 @@ SRC = REPO / "src"
 ROSDEP_FILE = REPO / "rosdep" / "thermal_comp.yaml"
 
 # The DAG, lowest first: a package may import only packages of a lower level.
-DAG_LEVELS = [["thermal_comp_msgs"], ["thermal_comp_common"], ["thermal_twin"],
-              ["thermal_sensors", "probe_cycle", "cnc_bridge"], ["talc_model"], ["thermal_comp"],
-              ["thermal_eval"]]
+DAG_LEVELS = [["thermal_comp_msgs"], ["thermal_comp_common"], ["thermal_comp_testing"],
+              ["thermal_twin"], ["thermal_sensors", "probe_cycle", "cnc_bridge"], ["talc_model"],
+              ["thermal_comp"], ["thermal_eval"]]
 LEVEL = {pkg: i for i, level in enumerate(DAG_LEVELS) for pkg in level}
+
+# The test-support package: its pytest plugin (entry point pytest11) gives the tests their
+# fixtures and markers without an import. Every package above it declares it as a test_depend;
+# thermal_comp_common, below it (the plugin imports its domain ids), gets the plugin from the
+# environment, since declaring it would be a cycle for colcon.
+TEST_SUPPORT = "thermal_comp_testing"
+TESTS_RUN_UNDER = {pkg: {TEST_SUPPORT} for pkg in LEVEL if LEVEL[pkg] > LEVEL[TEST_SUPPORT]}
 
 # ROS 2 packages imported by our code: the rosdep key is the package name.
 ROS_PACKAGES = {"rclpy", "std_msgs", "std_srvs", "builtin_interfaces", "rosgraph_msgs",
@@ -230,7 +237,7 @@ def test_package_xml_declares_exactly_the_imports(pkg):
     code_keys = used_keys(pkg, code) | set(RUNTIME_ONLY.get(pkg, {}))
     assert sorted(code_keys - exec_keys) == [], f"{pkg}: imported but not an exec_depend"
     assert sorted(exec_keys - code_keys) == [], f"{pkg}: exec_depend that no module imports"
-    tests_use = used_keys(pkg, tests, skip_up=True)
+    tests_use = used_keys(pkg, tests, skip_up=True) | TESTS_RUN_UNDER.get(pkg, set())
     assert sorted(tests_use - exec_keys - test_keys) == [], f"{pkg}: tests import an undeclared package"
     assert sorted(test_keys - tests_use) == [], f"{pkg}: test_depend that no test imports"
     assert sorted(test_keys & exec_keys) == [], f"{pkg}: test_depend already an exec_depend"

@@ -8,7 +8,7 @@ from rclpy.executors import SingleThreadedExecutor
 from std_srvs.srv import Trigger
 
 from ros_helpers import spawn_test_node, spin_until, stop_process
-from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE, SENSOR_QOS
+from thermal_comp_common.runtime.node_runtime import ACTION_PROBE_CYCLE, SENSOR_QOS
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import TemperatureArray
 

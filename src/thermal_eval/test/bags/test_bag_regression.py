@@ -7,11 +7,11 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_eval import bag_regression as br
-from thermal_comp_common import msg_definitions as md
+from thermal_eval.replay import bag_regression as br
+from thermal_comp_common.bags import msg_definitions as md
 REPO = pathlib.Path(__file__).resolve().parents[4]
 BAGS = REPO / "bags"
-REGEN = ".venv/bin/python -m thermal_eval.bag_regression bags/{name} --update"
+REGEN = ".venv/bin/python -m thermal_eval.replay.bag_regression bags/{name} --update"
 
 
 @pytest.mark.parametrize("bag", br.regression_bags(BAGS), ids=lambda p: p.name)

@@ -3,7 +3,7 @@ import argparse
 
 import pytest
 
-from thermal_eval import bench_bags
+from thermal_eval.bench import bags as bench_bags
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 

@@ -1,4 +1,4 @@
-"""The concealed-effect suite of ``thermal-comp bench diagnose`` (thermal_eval.diagnose_suite).
+"""The concealed-effect suite of ``thermal-comp bench diagnose`` (thermal_eval.diagnose.suite).
 
 Fast: the suite holds the case kinds the issue asks for (conduction paths between inner
 nodes on two twins, regime-switched effects, coloured noise with dropped rows, no-effect,
@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import pytest
 
-from thermal_eval import diagnose_suite as ds
-
+from thermal_eval.diagnose import suite as ds
 CONDUCTION = [c for c in ds.SUITE if c.hidden and c.hidden[0].effect == "conduction"]
 LINKS = [c for c in ds.SUITE if c.links]
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from talc_model.lagged_temperature_model import exponential_filter
+from talc_model.open_loop.lagged_temperature_model import exponential_filter
 
 
 def synthetic(n: int = 900, dt: float = 60.0, seed: int = 0, plateau: bool = False) -> dict[str, np.ndarray]:

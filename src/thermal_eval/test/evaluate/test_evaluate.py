@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from synthetic_recording import synthetic, write_csv
-from thermal_eval.adaptive_eval import ProbingBudget, probe_schedule, run_adaptive
-from thermal_eval.evaluate_cli import main
-from thermal_eval.evaluation_run import available_models, evaluate
-from thermal_eval.evaluation_spec import SpecError, evaluation_data, load_evaluation_data, make_split
-from thermal_eval.model_selection import ModelSpec, out_of_fold_prediction
-from thermal_eval.open_loop_models import MODELS
+from thermal_eval.evaluate.adaptive import ProbingBudget, probe_schedule, run_adaptive
+from thermal_eval.evaluate.cli import main
+from thermal_eval.evaluate.run import available_models, evaluate
+from thermal_eval.evaluate.spec import SpecError, evaluation_data, load_evaluation_data, make_split
+from thermal_eval.evaluate.model_selection import ModelSpec, out_of_fold_prediction
+from thermal_eval.evaluate.open_loop_models import MODELS
 from thermal_comp_common.recording_csv import Recording
 
 LAGGED = next(m for m in MODELS if m.name == "lagged_ridge")
@@ -163,7 +163,7 @@ def _arrays_equal(a: dict, b: dict) -> bool:
 
 
 def test_model_rows_on_a_local_pool_give_the_serial_figures():
-    from thermal_comp_common.task_engine import EngineSpec
+    from thermal_comp_common.runtime.task_engine import EngineSpec
     d = _data()
     models = available_models(d, ["lagged_ridge", "arx_subgrid"])
     serial = evaluate(d, models=models, show_progress=False)
@@ -180,7 +180,7 @@ def test_model_rows_on_a_local_pool_give_the_serial_figures():
 
 
 def test_the_project_adaptive_models_run_their_own_logic_within_the_budget():
-    from thermal_eval.closed_loop_rows import hold_probes
+    from thermal_eval.evaluate.model_rows import hold_probes
     d = _data()
     res = evaluate(d, models=available_models(d, ["lagged_ridge"]), show_progress=False,
                    closed_loop=["agp_closed_loop", "talc_closed_loop"])
@@ -215,7 +215,7 @@ def test_the_hold_beside_a_model_is_pure_holding_of_its_probes():
 
 
 def test_the_lagged_ridge_gain_update_chooses_its_penalty_on_the_training_rows():
-    from thermal_eval.evaluation_run import REGISTRY, model_row
+    from thermal_eval.evaluate.run import REGISTRY, model_row
     d = _data()
     row = model_row(d, REGISTRY["lagged_ridge_gain_update"], True, ProbingBudget())
     for ch in d.channels:

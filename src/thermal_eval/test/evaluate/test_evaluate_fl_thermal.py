@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermal_eval.bench_evaluate import thinned
-from thermal_eval.evaluation_run import evaluate
-from thermal_eval.evaluation_spec import FL_THERMAL_SPEC, load_evaluation_data
-from thermal_eval.fl_thermal_benchmark import run_open_loop
-from thermal_eval.fl_thermal_data import CHANNELS, Splits, as_evaluation_data, load_fl_thermal
-from thermal_eval.open_loop_models import MODELS
+from thermal_eval.bench.evaluate import thinned
+from thermal_eval.evaluate.run import evaluate
+from thermal_eval.evaluate.spec import FL_THERMAL_SPEC, load_evaluation_data
+from thermal_eval.fl_thermal.benchmark import run_open_loop
+from thermal_eval.fl_thermal.data import CHANNELS, Splits, as_evaluation_data, load_fl_thermal
+from thermal_eval.evaluate.open_loop_models import MODELS
 
 
 @pytest.mark.slow

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from synthetic_recording import synthetic, write_csv
-from thermal_eval.adaptive_eval import AdaptiveSettingsError, ProbingBudget, phase_budgets, probe_schedule
-from thermal_eval.bench_evaluate import _adaptive_targets
-from thermal_eval.evaluate_cli import main
-from thermal_eval.evaluation_run import PHASE_KEYS, available_models, evaluate
-from thermal_eval.evaluation_spec import evaluation_data
+from thermal_eval.evaluate.adaptive import AdaptiveSettingsError, ProbingBudget, phase_budgets, probe_schedule
+from thermal_eval.bench.evaluate import _adaptive_targets
+from thermal_eval.evaluate.cli import main
+from thermal_eval.evaluate.run import PHASE_KEYS, available_models, evaluate
+from thermal_eval.evaluate.spec import evaluation_data
 from thermal_comp_common.recording_csv import Recording
 
 
@@ -63,7 +63,7 @@ def test_k_phases_keep_phase_0_figures_and_give_mean_and_worst_over_the_phases()
     assert np.array_equal(one.adaptive["lagged_ridge"]["z_um"], three.adaptive["lagged_ridge"]["z_um"], equal_nan=True)
     # holding beside each phase holds that phase's own probes, at its own instants
     from thermal_comp_common.metrics import mae
-    from thermal_eval.closed_loop_rows import hold_probes
+    from thermal_eval.evaluate.model_rows import hold_probes
     start = d.split.n_train
     for i, b in enumerate(phase_budgets(ProbingBudget(), 3)):
         rows, _ = probe_schedule(d, three.open_loop["lagged_ridge"], b)
@@ -96,8 +96,8 @@ def test_cli_prints_the_phase_rows_and_refuses_a_bad_k(tmp_path, capsys):
 
 
 def test_the_forgetting_row_is_opt_in_and_chooses_its_factor_on_the_training_rows():
-    from thermal_eval.evaluation_run import WALK_FORWARD_PHASES
-    from thermal_eval.probe_gain_update import FORGETTINGS
+    from thermal_eval.evaluate.run import WALK_FORWARD_PHASES
+    from talc_model.open_loop.probe_gain_update import FORGETTINGS
     d = _data()
     assert "arx_subgrid_gain_forgetting" not in [m.name for m in available_models(d)]
     res = evaluate(d, models=available_models(d, ["arx_subgrid_gain_forgetting"]), show_progress=False)

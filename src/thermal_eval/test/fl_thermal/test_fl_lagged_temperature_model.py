@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.lagged_temperature_model import (LaggedModelError, LaggedTemperatureModel, default_tau_grid,
+from talc_model.open_loop.lagged_temperature_model import (LaggedModelError, LaggedTemperatureModel, default_tau_grid,
                                                  exponential_filter, lagged_features, walk_forward_folds,
                                                  walk_forward_select)
 

@@ -1,14 +1,14 @@
-"""Issue 19 item 6 on the real FL_THERMAL recording (slow: one calibration of the
+"""Concealed mechanisms named back on the real FL_THERMAL recording (slow: one calibration of the
 ``fl-thermal-rig`` preset, a screen of its 54 mechanisms with their identifiability (157 twin
 runs), seven diagnoses of the 46 h recording and, for the two speedless rows (the bearing source
 and the motor jacket), two rounds of speed estimate and diagnosis each (input_alternation, the
 speed's scale anchored by the coolant balance): 240 s measured on 2 cores under load 2.5 before
 the jacket's speedless row was added; the two speedless rows alone take 83 s of diagnosis each
-at load 1-5 (session 8), over 600 s under load 13-16).
+at load 1-5, over 600 s under load 13-16).
 
 The mechanisms are chosen by the recording, not by the finder: every mechanism of the
 calibrated twin is removed and scored with the calibrated twin alone, and the rule of
-:func:`thermal_eval.fl_thermal_mechanisms.select` (named by a word of the vocabulary, held-out
+:func:`thermal_eval.fl_thermal.mechanisms.select` (named by a word of the vocabulary, held-out
 SSE x1.2 or more, calibrated value not at a bound) picks the ones diagnosed. What holds is
 asserted; what the issue asks and does not hold on this recording is an
 ``xfail(strict=True)`` with the measured reason, so that it turns into a failure the day it
@@ -20,9 +20,9 @@ import json
 
 import pytest
 
-from thermal_eval.fl_thermal_ablation import markdown, run, speedless_mechanisms
-from thermal_eval.fl_thermal_mechanisms import all_mechanisms, screen_markdown
-from thermal_twin.machine_schema import load_machine
+from thermal_eval.fl_thermal.ablation import markdown, run, speedless_mechanisms
+from thermal_eval.fl_thermal.mechanisms import all_mechanisms, screen_markdown
+from thermal_twin.machine.schema import load_machine
 
 #: the module fixture (calibration, screen, seven diagnoses, two speedless alternations) is paid by
 #: the first test: 240 s at load 2.5, but over the suite's 600 s default at load 13-16 (measured)
@@ -45,7 +45,7 @@ def table(shared_dir):
 
 
 def test_the_asserted_speedless_row_keeps_every_speed_driven_source():
-    # the rule of docs/diagnose.md (item 6, speed deleted): after the bearing source, the first
+    # the rule of docs/diagnose.md (real recording, speed deleted): after the bearing source, the first
     # chosen mechanism whose removal leaves both speed-driven sources (bearing, motor) in the twin
     spec = load_machine("fl-thermal-rig").to_dict()
     by = {m.label: m for m in all_mechanisms(spec, 5000.0)}
@@ -87,7 +87,7 @@ def test_every_ablation_is_diagnosed_and_what_is_adopted_improves_the_held_out_f
 @pytest.mark.slow
 @pytest.mark.parametrize("label", [BEARING, JACKET, HOUSING, CH5])
 def test_a_supported_mechanism_is_named_first_recovered_within_30_pct_and_the_fit_restored(table, label):
-    # measured (session 7, with fl_thermal_rig's contacts): bearing 227 / 275 W (17 %), restored
+    # measured (with fl_thermal_rig's contacts): bearing 227 / 275 W (17 %), restored
     # 107 %; jacket 30.5 / 31.7 W/K (4 %), 100 %; housing-headstock 31.5 / 29.1 W/K (8 %), 100 %;
     # ch5/headstock re-added from zero 15.4 / 14 um/K (10 %), 103 % (its reference is at its x4 bound)
     r = _row(table, label)
@@ -99,7 +99,7 @@ def test_a_supported_mechanism_is_named_first_recovered_within_30_pct_and_the_fi
 
 @pytest.mark.slow
 def test_with_contacts_a_removed_path_comes_back_as_itself_not_a_neighbour(table):
-    # session 6 (every pair proposed): bearing-housing came back as bearing-column, housing-
+    # without contacts (every pair proposed) bearing-housing came back as bearing-column, housing-
     # headstock as bearing-headstock, headstock-column as a convection. Measured with contacts:
     # each named first as itself, restoring 100 / 100 / 97 %; G 32.8 / 23.8 (38 %) for
     # bearing-housing and 13.9 / 20.2 (31 %) for headstock-column, outside the 30 %
@@ -110,7 +110,7 @@ def test_with_contacts_a_removed_path_comes_back_as_itself_not_a_neighbour(table
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6, session 7): with contacts every "
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, \"Proof on the real recording\"): with contacts every "
                                        "removed path but motor-shaft is named first as itself, but bearing-"
                                        "housing's G is off 38 % and headstock-column's 31 %; without "
                                        "motor-shaft the finder names a 24 h periodic load on the shaft "
@@ -144,7 +144,7 @@ def test_the_speedless_estimate_follows_the_deleted_speed_with_the_coolant_retur
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6, session 7): the bearing-housing "
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, \"Proof on the real recording\"): the bearing-housing "
                                        "path is identifiable (its best other word, a bias of t5, leaves 2.1x the "
                                        "calibrated held-out SSE) and is named first, but its G is 32.8 against "
                                        "the calibrated 23.8 W/K (38 %, restoring 100 %)")
@@ -158,7 +158,7 @@ def test_every_selected_identifiable_mechanism_is_named_first_with_its_parameter
 @pytest.mark.slow
 def test_with_the_speed_deleted_the_motor_jacket_is_named_first_within_30_pct_and_the_fit_restored(table):
     # the docs' rule (stated before the run): the support rule's top pick among removals that keep
-    # both speed-driven sources. Measured (session 8, anchored): named first in both alternation
+    # both speed-driven sources. Measured (anchored): named first in both alternation
     # rounds, G 30.0 / 31.7 W/K (5 %), restored 102 %; estimated heat r = 0.54, 109 W mean against
     # the deleted speed's 105 W (unanchored: G 25.4, 20 %, restored 101 %; FL_THERMAL row: 30.5, 4 %)
     r = _row(table, JACKET, "speed deleted, estimated")
@@ -173,7 +173,7 @@ def test_with_the_speed_deleted_the_motor_jacket_is_named_first_within_30_pct_an
 def test_with_the_speed_deleted_the_anchored_speed_has_the_deleted_speeds_scale(table):
     # the coolant balance (W = 10.6 W/K of t4's rise, fitted on the training rows with the speed)
     # anchors the scale: measured round 1 mean 1687 against 1619 1/min, max 3891 against 5000
-    # (session 7, unanchored: 5066 mean, 11,683 max)
+    # (unanchored: 5066 mean, 11,683 max)
     assert table["calibration"]["coolant_balance"]["fit_corr"] > 0.7
     for label in (BEARING, JACKET):
         sp = _row(table, label, "speed deleted, estimated")["estimate"]["speed"]
@@ -183,8 +183,8 @@ def test_with_the_speed_deleted_the_anchored_speed_has_the_deleted_speeds_scale(
 
 @pytest.mark.slow
 def test_with_the_speed_deleted_the_bearing_source_is_named_first_its_heat_recovered_and_the_fit_restored(table):
-    # measured (session 8, anchored): heat_source:front_bearing first in both rounds (held-out
-    # 66.9 % against 62.2 % for session 7's periodic load on the headstock), its mean heat at the
+    # measured (anchored): heat_source:front_bearing first in both rounds (held-out
+    # 66.9 % against 62.2 % for the unanchored answer, a periodic load on the headstock), its mean heat at the
     # estimated speed 82.0 against the removed source's 74.0 W (11 %), restored 124 %
     r = _row(table, BEARING, "speed deleted, estimated")
     assert r["effect_ok"] and r["target_ok"], r
@@ -194,7 +194,7 @@ def test_with_the_speed_deleted_the_bearing_source_is_named_first_its_heat_recov
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, item 6, session 8): P_max is the heat at the "
+@pytest.mark.xfail(strict=True, reason="measured (docs/diagnose.md, \"Proof on the real recording\"): P_max is the heat at the "
                                        "estimated speed's maximum, 184.8 W at 4219 1/min (30-min blocks smooth the "
                                        "speed's peaks) against 275.1 W at 5000: 33 %; at the same speed the "
                                        "calibrated source gives 213.2 W (13 %)")

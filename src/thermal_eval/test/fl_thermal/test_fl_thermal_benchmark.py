@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from talc_model.sensor_selection import sensor_medoids
-from thermal_eval.calibrated_talc import calibrated_arx
-from thermal_eval.fl_thermal_benchmark import CALIBRATED_ROWS, PUBLISHED_MAE_UM, run_benchmark
-from thermal_eval.fl_thermal_data import (CHANNELS, FlThermalError, Splits, as_evaluation_data, default_csv_path,
+from talc_model.open_loop.sensor_selection import sensor_medoids
+from thermal_eval.evaluate.talc_rows import training_fit_arx
+from thermal_eval.fl_thermal.benchmark import CALIBRATED_ROWS, PUBLISHED_MAE_UM, run_benchmark
+from thermal_eval.fl_thermal.data import (CHANNELS, FlThermalError, Splits, as_evaluation_data, default_csv_path,
                                           load_fl_thermal)
-from thermal_eval.open_loop_models import lagged_ridge_model
+from thermal_eval.evaluate.open_loop_models import lagged_ridge_model
 
 
 def test_authors_split_of_the_full_recording():
@@ -116,7 +116,7 @@ def test_pipeline_on_a_shortened_real_slice_produces_every_figure(tmp_path, shar
 
 def test_bench_entry_point_passes_suite_options(tmp_path, shared_dir, capsys):
     import argparse
-    from thermal_eval.fl_thermal_benchmark import run
+    from thermal_eval.fl_thermal.benchmark import run
     csv = shared_dir / "data" / "fl_thermal" / "fl_thermal.csv"
     args = argparse.Namespace(quick=True, out_dir=str(tmp_path), json=None,
                               extra=[f"--csv={csv}", "--rows=1200", "--no-adaptive"])
@@ -138,8 +138,8 @@ def test_open_loop_models_never_use_a_displacement_after_the_training_rows(share
         poisoned.displacement_um[ch][splits.n_train:] = 1e6
     for ch in ("ch1", "ch3"):
         for spindle in (False, True):
-            a, _ = calibrated_arx(as_evaluation_data(data, splits), splits.n_train, ch, (2, 3), spindle)
-            b, _ = calibrated_arx(as_evaluation_data(poisoned, splits), splits.n_train, ch, (2, 3), spindle)
+            a, _ = training_fit_arx(as_evaluation_data(data, splits), splits.n_train, ch, (2, 3), spindle)
+            b, _ = training_fit_arx(as_evaluation_data(poisoned, splits), splits.n_train, ch, (2, 3), spindle)
             for mode in ("grid_hold", "subgrid"):
                 np.testing.assert_array_equal(a[mode], b[mode])
                 assert np.all(np.isnan(a[mode][:splits.n_train]))

@@ -7,9 +7,9 @@ import pathlib
 
 import numpy as np
 
-from thermal_eval.fl_thermal_identifiability import _left, _negative_ok
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_effects import conduction, elastic_gain, time_lag_sensor
+from thermal_eval.fl_thermal.identifiability import _left, _negative_ok
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.effects import conduction, elastic_gain, time_lag_sensor
 
 TWIN = pathlib.Path(__file__).parents[3] / "thermal_twin" / "test" / "diagnose" / "mini_mill.yaml"
 

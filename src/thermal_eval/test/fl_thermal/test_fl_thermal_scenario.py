@@ -4,11 +4,11 @@ import inspect
 import numpy as np
 import pytest
 
-import thermal_twin.scenarios as twin_scenarios
+import thermal_twin.sim.scenarios as twin_scenarios
 from thermal_comp_common.recording_csv import read_recording_csv
-from thermal_eval.fl_thermal_scenario import (FL_THERMAL_PROGRAMME, SCENARIO, ProgrammeError,
+from thermal_eval.fl_thermal.scenario import (FL_THERMAL_PROGRAMME, SCENARIO, ProgrammeError,
                                               programme_from_speed)
-from thermal_twin.scenarios import SCENARIOS, make_timeline, scenario_names
+from thermal_twin.sim.scenarios import SCENARIOS, make_timeline, scenario_names
 
 
 def _recording(shared_dir):

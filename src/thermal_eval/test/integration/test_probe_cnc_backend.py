@@ -1,6 +1,6 @@
 """The CNC backend: the probe cycle through OPC UA against the cnc_bridge CNC emulator.
 
-The emulator's ``ProbeMove`` method answers from thermal_twin.artefact_geometry with the
+The emulator's ``ProbeMove`` method answers from thermal_twin.machine.artefact_geometry with the
 compensation the emulator applies, so the whole path (client -> OPC UA method -> skip
 position) is real. The compensation is written the way the bridge writes it (SD43900 in mm
 plus the MD32750 enable).
@@ -17,7 +17,7 @@ from asyncua.sync import Client  # noqa: E402
 
 from cnc_bridge.cnc_emulator import (CncEmulatorThread, EmulatorConfig,  # noqa: E402
                                      artefact_probe, compensation_node_id, free_tcp_port)
-from thermal_twin.artefact_geometry import (ARTEFACT_GUIDE_BUSH, SPHERE_COMPONENTS,  # noqa: E402
+from thermal_twin.machine.artefact_geometry import (ARTEFACT_GUIDE_BUSH, SPHERE_COMPONENTS,  # noqa: E402
                                             DEFAULT_GEOMETRY)
 from probe_cycle.cnc_probe_backend import CncProbeBackend, CncProbeNodes  # noqa: E402
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine  # noqa: E402

@@ -9,7 +9,7 @@ import pytest
 from cnc_bridge.error_transform import offsets_from_errors
 from probe_cycle.probe_backend import ArtefactModelBackend, ProbeBackend
 from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine
-from thermal_twin.artefact_geometry import (SPHERE_COMPONENTS, ArtefactGeometry, GuideBushArtefact,
+from thermal_twin.machine.artefact_geometry import (SPHERE_COMPONENTS, ArtefactGeometry, GuideBushArtefact,
                                             TouchProbeModel, nominal_sphere_centre)
 
 # eq. 5.4-5.10 are first order; second-order terms stay below 1e-3 um or um/m here

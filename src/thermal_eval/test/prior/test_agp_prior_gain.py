@@ -6,12 +6,12 @@ import json
 import numpy as np
 import pytest
 
-from talc_model.agp import AdaptiveGaussianProcess
-from talc_model.prior_agp import AgpPriorModel, agp_with_prior, build_agp_prior
-from thermal_eval.virtual_experiment import run_virtual_experiment
-from thermal_twin.machine_instance import machine_instance
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from talc_model.agp.model import AdaptiveGaussianProcess
+from talc_model.prior.agp import AgpPriorModel, agp_with_prior, build_agp_prior
+from thermal_eval.replay.virtual_experiment import run_virtual_experiment
+from thermal_twin.machine.instance import machine_instance
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 pytestmark = pytest.mark.slow    # three nominal simulations and a GP fit: minutes on a loaded 2-core VM
 

@@ -1,10 +1,8 @@
-"""thermal_eval.prior_cases: a case's prior never sees the case, and the residual locator."""
+"""thermal_eval.replay.prior_cases: a case's prior never sees the case, and the residual locator."""
 import numpy as np
 import pytest
 
-from thermal_eval import prior_cases
-
-
+from thermal_eval.replay import prior_cases
 @pytest.mark.parametrize("case", prior_cases.CASES)
 def test_the_prior_of_a_case_never_trains_on_it(case):
     train = prior_cases.prior_training(case)

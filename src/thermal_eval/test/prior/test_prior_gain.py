@@ -1,4 +1,4 @@
-"""The prior's gain in the first hours (issue 22): on a shortened run of a machine INSTANCE
+"""The prior's gain in the first hours: on a shortened run of a machine INSTANCE
 (not the nominal type the prior was made from), TALC with the prior compensates from the first
 instant while TALC without it is still in its calibration phase."""
 import pathlib
@@ -8,15 +8,15 @@ import pytest
 import yaml
 
 import talc_model
-from talc_model.prior import build_talc_prior, talc_with_prior, training_labels
-from talc_model.talc import TalcModel
+from talc_model.prior.talc import build_talc_prior, talc_with_prior, training_labels
+from talc_model.talc.model import TalcModel
 from thermal_comp_common import metrics
 from thermal_comp_common.probe_and_hold import probe_and_hold
-from thermal_eval.replay_summary import probe_noise
-from thermal_eval.virtual_experiment import run_virtual_experiment
-from thermal_twin.machine_instance import machine_instance
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from thermal_eval.replay.summary import probe_noise
+from thermal_eval.replay.virtual_experiment import run_virtual_experiment
+from thermal_twin.machine.instance import machine_instance
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 HOURS = 12.0
 
@@ -75,7 +75,7 @@ def test_probe_and_hold_beside_the_prior_run(setup):
 
 @pytest.mark.parametrize("scenario, hours", [("talc-178h-dry", HOURS), ("talc-144h-mwf", 24.0)])
 def test_the_type_prior_halves_probing_alone_from_the_first_day(setup, scenario, hours):
-    """Issue 22 item 4 on shortened runs of unit #1 (a dry one and a wet one, neither among the
+    """The type prior against probe-and-hold on shortened runs of unit #1 (a dry one and a wet one, neither among the
     prior's programmes): TALC started from the type's prior on its soft sensors (the shipped
     configuration) leaves at most half of probe-and-hold's P99_lin at its own Q_prod, Q_prod >= 97 %.
     Measured when written: 0.30 (12 h dry) and 0.28 (24 h wet)."""

@@ -1,12 +1,12 @@
 """`thermal-comp replay --prior` and probe-and-hold printed beside every replay."""
 import json
 
-from talc_model.prior import build_talc_prior, save_prior
+from talc_model.prior.talc import build_talc_prior, save_prior
 from thermal_comp_common.recording_csv import write_recording_csv
-from thermal_eval.replay_cli import main
-from thermal_twin.machine_instance import machine_instance
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from thermal_eval.replay.cli import main
+from thermal_twin.machine.instance import machine_instance
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 CFG = ["--set", "input_names=[ambient, ws_mwf, c_coolant_delta]", "--set", "na_max=1", "--set", "nb_max=3",
        "--set", "nb_max_final=3"]
@@ -36,7 +36,7 @@ def test_replay_with_prior_prints_probe_and_hold(tmp_path, capsys):
 
 
 def test_an_unreadable_prior_is_refused_in_one_line(tmp_path, capsys):
-    """TALC and the AGP take a prior (talc_model.prior_agp.model_from_prior picks the kind);
+    """TALC and the AGP take a prior (talc_model.prior.dispatch.model_from_prior picks the kind);
     a prior file that cannot be read stops the replay with one line naming it, and writes nothing."""
     _csv(tmp_path / "run.csv", "nmv5000", "load-case-A", 0, 6.0)
     rc = main([str(tmp_path / "run.csv"), "--model", "agp", "--prior", "x.json", "--json", str(tmp_path / "o.json")])

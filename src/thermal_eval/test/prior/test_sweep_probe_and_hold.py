@@ -8,11 +8,11 @@ import numpy as np
 from talc_model.adaptive_model import PHASE_CALIBRATION
 from thermal_comp_common.probe_and_hold import probe_and_hold
 from thermal_comp_common.recording_csv import write_recording_csv
-from thermal_eval.replay_summary import probe_noise
-from thermal_eval.sweep import SweepPoint, SweepRun, evaluate_point, format_probe_and_hold, write_table
-from thermal_eval.sweep_cli import main as sweep_main
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
+from thermal_eval.replay.summary import probe_noise
+from thermal_eval.sweep.grid import SweepPoint, SweepRun, evaluate_point, format_probe_and_hold, write_table
+from thermal_eval.sweep.cli import main as sweep_main
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
 
 BASE = {"input_names": ["ambient", "ws_mwf", "c_coolant_delta"], "na_max": 1, "nb_max": 3, "nb_max_final": 3}
 
@@ -29,8 +29,8 @@ def test_row_carries_probe_and_hold_at_its_q_prod():
     b = row["probe_and_hold"]
     assert 50.0 < row["q_prod_pct"] < 100.0       # a short run: mostly CP
     # recomputed independently: same Q_prod, noise, resolution, seed and the compensation instants
-    from thermal_eval.replay_summary import build_model
-    from thermal_eval.virtual_experiment import run_virtual_experiment
+    from thermal_eval.replay.summary import build_model
+    from thermal_eval.replay.virtual_experiment import run_virtual_experiment
     model = build_model("talc", {**BASE, **SweepPoint(8.5, 1.0, 10.0, 6.0, 24.0).config()})
     noise = probe_noise(model.component_names, 0.25, 1.2)
     res = run_virtual_experiment(rec, model, probe_noise_um=noise, probe_resolution_um=0.25, seed=0,

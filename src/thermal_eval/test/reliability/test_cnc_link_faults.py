@@ -6,7 +6,7 @@ import logging
 
 import pytest
 
-from thermal_eval import fault_injection as fi
+from thermal_eval.reliability import fault_injection as fi
 @pytest.fixture(autouse=True)
 def _quiet():
     for name in ("asyncua", "cnc_bridge"):

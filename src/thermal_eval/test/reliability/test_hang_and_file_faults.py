@@ -1,12 +1,11 @@
-"""The fault-table rows of issue 23 (hangs, recorder, bad files): each survives with nothing lost."""
+"""The fault-table rows for hangs, the recorder and bad files: each survives with nothing lost."""
 from __future__ import annotations
 
 import os
 
 import pytest
 
-from thermal_eval import hang_and_file_faults as hf
-
+from thermal_eval.reliability import hang_and_file_faults as hf
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
 

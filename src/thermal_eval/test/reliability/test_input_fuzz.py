@@ -66,9 +66,9 @@ def _valid_machine():
 @FUZZ
 @given(data=st.data())
 def test_a_mutated_config_is_accepted_or_refused_in_one_line(which, data):
-    from thermal_comp.cell_config import CellConfigError, parse_cell
+    from thermal_comp.cell.config import CellConfigError, parse_cell
     from thermal_sensors.sensor_config import SensorConfigError, parse_sensor_config
-    from thermal_twin.machine_schema import MachineSpecError, load_machine
+    from thermal_twin.machine.schema import MachineSpecError, load_machine
     valid, parse, error = {
         "cell": (_valid_cell, lambda d: parse_cell(d, source="fuzz.yaml", resolve=False), CellConfigError),
         "sensors": (_valid_sensors, lambda d: parse_sensor_config(d, source="fuzz.yaml"), SensorConfigError),
@@ -90,7 +90,7 @@ def test_a_mutated_config_is_accepted_or_refused_in_one_line(which, data):
     ("sensors", ("max_age_s",), "soon", "max_age_s"),
 ])
 def test_a_malformed_config_names_its_key(which, key, value, names):
-    from thermal_comp.cell_config import CellConfigError, parse_cell
+    from thermal_comp.cell.config import CellConfigError, parse_cell
     from thermal_sensors.sensor_config import SensorConfigError, parse_sensor_config
     doc = _mutate(_valid_cell() if which == "cell" else _valid_sensors(), key, value)
     with pytest.raises((CellConfigError, SensorConfigError)) as err:
@@ -135,7 +135,7 @@ def small_bag(tmp_path_factory):
 @settings(FUZZ, max_examples=30)
 @given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(1, 255)), max_size=4))
 def test_bag_reader_keeps_what_is_readable_and_reports_damage(tmp_path, small_bag, cut, flips):
-    from thermal_comp_common.bag_reader import BagReadError, read_bag
+    from thermal_comp_common.bags.reader import BagReadError, read_bag
     dst = tmp_path / "bag"
     if dst.exists():
         shutil.rmtree(dst)

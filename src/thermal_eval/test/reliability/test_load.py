@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from thermal_eval.bench_faults import load_figures
+from thermal_eval.bench.faults import load_figures
 
 
 @pytest.mark.slow

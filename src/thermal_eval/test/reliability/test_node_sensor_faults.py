@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from thermal_eval import fault_injection as fi
+from thermal_eval.reliability import fault_injection as fi
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 NS = "/reliability_nodes"
 
@@ -48,7 +48,7 @@ def test_model_excludes_flagged_sensors_and_ignores_late_temperatures(tmp_path, 
     from rclpy.node import Node
     from std_msgs.msg import Header
 
-    from thermal_comp_common.node_runtime import (EVENT_QOS, LATCHED_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
+    from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, LATCHED_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                            TOPIC_MODEL_STATUS, TOPIC_TEMPERATURES, s_to_stamp, stamp_to_s)
     from thermal_comp_msgs.msg import ModelStatus, TemperatureArray, ThermalErrors
 
@@ -100,7 +100,7 @@ def test_temperature_publisher_turns_out_of_order_readings_into_increasing_insta
     from rclpy.node import Node
     from std_msgs.msg import Header
 
-    from thermal_comp_common.node_runtime import SENSOR_QOS, TOPIC_TEMPERATURES, TOPIC_TWIN_SENSORS, s_to_stamp, stamp_to_s
+    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, TOPIC_TEMPERATURES, TOPIC_TWIN_SENSORS, s_to_stamp, stamp_to_s
     from thermal_comp_msgs.msg import SimSync, TemperatureArray
     from thermal_sensors.temperature_publisher_node import SIM_SYNC_QOS
 

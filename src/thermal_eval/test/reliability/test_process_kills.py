@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from thermal_eval import fault_injection as fi
+from thermal_eval.reliability import fault_injection as fi
 H = 3600.0
 HOURS = 6.0            # programme hours; probing pauses stretch it to ~7.5 simulated hours
 BRIDGE_KILL_H = 5.2  # last: its restart has a known effect on later figures (see the P99 test)

@@ -8,13 +8,13 @@ import sys
 
 import pytest
 
-from thermal_comp_common.bag_reader import read_bag
+from thermal_comp_common.bags.reader import read_bag
 
 pytestmark = [pytest.mark.ros]
 
 
 def _recorder(out) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "thermal_comp.bag_recorder_node", "--ros-args",
+    return subprocess.Popen([sys.executable, "-m", "thermal_comp.bags.recorder_node", "--ros-args",
                              "-r", "__ns:=/restart_test", "-p", f"output:={out}"],
                             env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
@@ -69,14 +69,14 @@ def test_lockstep_recorder_loses_no_instant_across_a_kill_and_restart(tmp_path):
     from rclpy.executors import SingleThreadedExecutor
     from rosbags.rosbag2 import Reader
 
-    from thermal_comp_common.bag_repair import repair_bag
-    from thermal_comp_common.child_processes import stop
-    from thermal_comp_common.node_runtime import EVENT_QOS, TOPIC_SIM_SYNC, stamp_to_s
+    from thermal_comp_common.bags.repair import repair_bag
+    from thermal_comp_common.runtime.child_processes import stop
+    from thermal_comp_common.runtime.node_runtime import EVENT_QOS, TOPIC_SIM_SYNC, stamp_to_s
     from thermal_comp_msgs.msg import SimSync
 
     ns, hours, step = "/restart_lockstep", 1.0, 60.0
     out = tmp_path / "bag"
-    rec_argv = [sys.executable, "-m", "thermal_comp.bag_recorder_node", "--ros-args", "-r", f"__ns:={ns}",
+    rec_argv = [sys.executable, "-m", "thermal_comp.bags.recorder_node", "--ros-args", "-r", f"__ns:={ns}",
                 "-p", f"output:={out}", "-p", "lockstep_participant:=true"]
     sim = subprocess.Popen([sys.executable, "-m", "thermal_twin.machine_sim_node", "--ros-args",
                             "-r", f"__ns:={ns}", "-p", f"hours:={hours}", "-p", f"step_s:={step}",

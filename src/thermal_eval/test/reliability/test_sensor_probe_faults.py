@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thermal_eval import fault_injection as fi
+from thermal_eval.reliability import fault_injection as fi
 H = 3600.0
 HOURS = 24.0
 RATE = 0.005          # um/s: 1.5 um per 5-min step, so the rate limit really binds
@@ -89,7 +89,7 @@ def test_failed_probing_cycles_are_counted_never_learned_and_the_schedule_goes_o
 def test_a_bad_cycle_fails_with_no_errors(fault, value, says):
     from probe_cycle.probe_backend import ArtefactModelBackend
     from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine
-    from thermal_twin.artefact_geometry import ArtefactGeometry
+    from thermal_twin.machine.artefact_geometry import ArtefactGeometry
     engine = ProbeCycleEngine(ArtefactGeometry())
     assert engine.run(GoalSpec(set_reference=True), ArtefactModelBackend(errors={"E_X0C": 3.0})).success
     r = engine.run(GoalSpec(), fi.FaultyProbeBackend(ArtefactModelBackend(errors={"E_X0C": 3.0}), fault,

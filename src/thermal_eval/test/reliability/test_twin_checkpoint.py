@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermal_twin.machine_schema import load_machine
+from thermal_twin.machine.schema import load_machine
 from thermal_twin.machine_sim_node import TwinCheckpoint
-from thermal_twin.scenario_runner import ScenarioRunner
-from thermal_twin.scenarios import make_timeline
+from thermal_twin.sim.scenario_runner import ScenarioRunner
+from thermal_twin.sim.scenarios import make_timeline
 
 KEY = {"machine": "nmv5000", "scenario": "talc-178h-dry", "seed": 3, "hours": 4.0, "step_s": 300.0,
        "probe_noise": True}

@@ -5,7 +5,7 @@ import math
 import subprocess
 import sys
 
-from thermal_eval.bench_scale import TIMING_FIELDS, _cpu_snapshot, _strip, cpu_since
+from thermal_eval.bench.scale import TIMING_FIELDS, _cpu_snapshot, _strip, cpu_since
 
 BURN_S = 0.3
 # a child that spends BURN_S of its own CPU time, says so, then waits for a line on stdin

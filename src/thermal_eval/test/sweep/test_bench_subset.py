@@ -1,6 +1,6 @@
 """The combinations `thermal-comp bench models` runs: Table 6.1 points, the same rule for every case."""
-from thermal_eval.bench_sweep import COARSE_GRID, TABLE_6_3_SETS, subset_points
-from thermal_eval.sweep import TALC_INPUTS, THESIS_TALC_INPUTS, table_6_1_grid
+from thermal_eval.bench.sweep import COARSE_GRID, TABLE_6_3_SETS, subset_points
+from thermal_eval.sweep.grid import TALC_INPUTS, THESIS_TALC_INPUTS, table_6_1_grid
 
 
 def test_subset_is_table_6_3_plus_coarse_factorial_on_the_grid():

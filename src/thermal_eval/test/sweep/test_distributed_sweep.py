@@ -11,9 +11,9 @@ import uuid
 
 import pytest
 
-from thermal_comp_common.task_engine import EngineSpec, TaskEngineError, map_tasks
-from thermal_eval.sweep import SweepPoint, SweepRun, best_under_constraint, read_results, run_sweep
-from thermal_eval.sweep_cli import main as sweep_main
+from thermal_comp_common.runtime.task_engine import EngineSpec, TaskEngineError, map_tasks
+from thermal_eval.sweep.grid import SweepPoint, SweepRun, best_under_constraint, read_results, run_sweep
+from thermal_eval.sweep.cli import main as sweep_main
 
 
 def _strip(rows):
@@ -141,7 +141,7 @@ def test_no_scheduler_at_the_address_is_one_clear_error():
 
 
 def test_projection_model_of_the_scale_bench():
-    from thermal_eval.bench_scale import project_wall_s
+    from thermal_eval.bench.scale import project_wall_s
     costs = {"A": 2.0, "B": 3.0}
     # N (2 + 3) (1 + 0.05) / W + 2 N o_s
     assert project_wall_s(costs, 0.05, 0.01, 4, per_case=100) == pytest.approx(100 * 5 * 1.05 / 4 + 200 * 0.01)

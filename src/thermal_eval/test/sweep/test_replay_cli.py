@@ -5,7 +5,7 @@ import json
 import math
 import pathlib
 
-from thermal_eval.replay_cli import main as replay_main
+from thermal_eval.replay.cli import main as replay_main
 
 TOP_KEYS = {"recording", "model", "config", "probe_noise", "components", "p99_lin_um", "p99_ang_um_per_m",
             "q_prod_pct", "probing_cycles", "failed_probing_cycles", "no_good_phases", "parameter_updates",

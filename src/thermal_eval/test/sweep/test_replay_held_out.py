@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import json
 
-from thermal_eval.replay_cli import main as replay_main
+from thermal_eval.replay.cli import main as replay_main
 
 TALC = ["--model", "talc", "--set", "preset=table_6_3_A", "--set", "input_names=[ambient, ws_mwf, c_coolant_delta]",
         "--set", "cp_length_h=4", "--no-progress"]
 
 
 def test_a_bag_of_measured_errors_replays_with_its_topic(short_csv, tmp_path, capsys):
-    from thermal_comp_common.csv_to_bag import csv_to_bag
+    from thermal_comp_common.bags.csv_to_bag import csv_to_bag
     bag = tmp_path / "measured_bag"
     csv_to_bag(short_csv, bag, errors_as="measured", every=2)
     out = tmp_path / "m.json"

@@ -7,11 +7,11 @@ import pathlib
 
 import pytest
 
-from thermal_eval import sweep
-from thermal_eval.sweep import (SweepError, SweepPoint, SweepRun, best_under_constraint, max_q_prod_front,
+from thermal_eval.sweep import grid as sweep
+from thermal_eval.sweep.grid import (SweepError, SweepPoint, SweepRun, best_under_constraint, max_q_prod_front,
                               parse_grid_subset, read_results, run_sweep, select_points, table_6_1_grid)
-from thermal_eval.sweep_cli import main as sweep_main
-from talc_model.talc import TalcConfig
+from thermal_eval.sweep.cli import main as sweep_main
+from talc_model.talc.model import TalcConfig
 
 
 def test_grid_has_the_thesis_count_of_valid_distinct_combinations():
@@ -91,7 +91,7 @@ def test_sweep_cli_three_combinations_two_jobs_then_resumes(short_csv, tmp_path)
 
 
 def test_interrupted_results_file_recomputes_only_the_cut_line(short_csv, tmp_path):
-    from thermal_eval.replay_summary import load_replay_recording
+    from thermal_eval.replay.summary import load_replay_recording
     rec = load_replay_recording(short_csv)
     run = SweepRun("talc", {"input_names": list(sweep.TALC_INPUTS)}, 0.25, 1.2, 0.25, 0, "test")
     pts = [SweepPoint(8.5, math.inf, 10.0, 12.0, 24.0), SweepPoint(8.5, 24.0, 30.0, 6.0, 24.0)]

@@ -8,12 +8,12 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.calibrate_cli import main
-from thermal_twin.calibration import calibrate
-from thermal_twin.calibration_bounds import CalibrationSpecError, free_parameters
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.simulate import simulate
-from thermal_eval.mismatch_concealed import operating_programme
+from thermal_twin.calibrate.cli import main
+from thermal_twin.calibrate.fit import calibrate
+from thermal_twin.calibrate.bounds import CalibrationSpecError, free_parameters
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.sim.simulate import simulate
+from thermal_eval.diagnose.concealed import operating_programme
 from thermal_comp_common.recording_csv import write_recording_csv
 
 TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"

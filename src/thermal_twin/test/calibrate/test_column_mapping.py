@@ -8,11 +8,11 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.calibrate_cli import main
-from thermal_twin.column_mapping import MappingError, name_mismatches, parse_mapping, read_real_recording
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.simulate import simulate
-from thermal_eval.mismatch_concealed import operating_programme
+from thermal_twin.calibrate.cli import main
+from thermal_twin.calibrate.column_mapping import MappingError, name_mismatches, parse_mapping, read_real_recording
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.sim.simulate import simulate
+from thermal_eval.diagnose.concealed import operating_programme
 
 TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"
 NAMES = {"time_s": "Zeit_s", "spindle_rpm": "Drehzahl", "ambient_c": "T_Halle", "spindle_c": "T_Spindel",

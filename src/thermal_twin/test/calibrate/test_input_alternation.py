@@ -10,11 +10,11 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.input_alternation import alternate, first_answer
-from thermal_twin.input_estimation import fill_missing_inputs
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.simulate import simulate
-from thermal_eval.mismatch_concealed import operating_programme
+from thermal_twin.calibrate.input_alternation import alternate, first_answer
+from thermal_twin.calibrate.input_estimation import fill_missing_inputs
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.sim.simulate import simulate
+from thermal_eval.diagnose.concealed import operating_programme
 
 TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"
 TABLE_W = 150.0          # the truth's table source at the maximum speed (the twin has none)

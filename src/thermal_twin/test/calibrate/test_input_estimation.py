@@ -8,11 +8,11 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.calibrate_cli import main
-from thermal_twin.input_estimation import estimate_input, missing_inputs, source_power
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.simulate import simulate
-from thermal_eval.mismatch_concealed import operating_programme
+from thermal_twin.calibrate.cli import main
+from thermal_twin.calibrate.input_estimation import estimate_input, missing_inputs, source_power
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.sim.simulate import simulate
+from thermal_eval.diagnose.concealed import operating_programme
 from thermal_comp_common.recording_csv import write_recording_csv
 
 TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermal_twin.input_estimation import InputEstimationError, as_responses
-from thermal_twin.machine_schema import load_machine
+from thermal_twin.calibrate.input_estimation import InputEstimationError, as_responses
+from thermal_twin.machine.schema import load_machine
 from thermal_comp_common.recording_csv import Recording
 
 

@@ -6,15 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermal_twin.input_estimation import InputEstimate, fill_missing_inputs
-from thermal_twin.input_scale_anchor import (ScaleAnchorError, anchor_scale, anchored_estimate, anchored_fill,
+from thermal_twin.calibrate.input_estimation import InputEstimate, fill_missing_inputs
+from thermal_twin.calibrate.input_scale_anchor import (ScaleAnchorError, anchor_scale, anchored_estimate, anchored_fill,
                                              coolant_balance, jacket_sources)
-from thermal_twin.inputs_timeline import InputsTimeline
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_diagnosis import shared_channels
-from thermal_twin.simulate import simulate
+from thermal_twin.sim.inputs_timeline import InputsTimeline
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.diagnosis import shared_channels
+from thermal_twin.sim.simulate import simulate
 from thermal_comp_common.recording_csv import Recording
-from thermal_eval.mismatch_concealed import operating_programme
+from thermal_eval.diagnose.concealed import operating_programme
 
 W_TRUE = 250.0          # W/K: about 3.6 l/min of water
 SUPPLY = 20.0           # degC

@@ -13,12 +13,12 @@ import pathlib
 
 import pytest
 
-from thermal_eval.mismatch_concealed import HiddenEffect as H, OutOfVocabulary as O, concealed_recording
-from thermal_eval.mismatch_concealed import operating_programme
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_diagnosis import diagnose
-from thermal_twin.mismatch_report import write_markdown
-from thermal_twin.simulate import simulate
+from thermal_eval.diagnose.concealed import HiddenEffect as H, OutOfVocabulary as O, concealed_recording
+from thermal_eval.diagnose.concealed import operating_programme
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.diagnosis import diagnose
+from thermal_twin.diagnose.report import write_markdown
+from thermal_twin.sim.simulate import simulate
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
 

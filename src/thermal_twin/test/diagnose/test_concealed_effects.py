@@ -21,10 +21,10 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.machine_schema import load_machine
-from thermal_eval.mismatch_concealed import HiddenEffect, concealed_recording
-from thermal_twin.mismatch_diagnosis import diagnose
-from thermal_twin.mismatch_fit import BIC_THRESHOLD, FitProblem, noise_free
+from thermal_twin.machine.schema import load_machine
+from thermal_eval.diagnose.concealed import HiddenEffect, concealed_recording
+from thermal_twin.diagnose.diagnosis import diagnose
+from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, noise_free
 
 HERE = pathlib.Path(__file__).parent
 SPEC = load_machine(HERE / "mini_mill.yaml").to_dict()
@@ -167,9 +167,9 @@ def test_quantised_motor_sensors_are_not_mistaken_for_a_bias():
     """The swiss-lathe preset reads its motor temperatures in 1 degC steps without noise:
     the rounding error is a slowly varying offset. Without a concealed effect the finder
     must still answer none, and a fitted 'bias' within half a step is implausible."""
-    from thermal_twin.mismatch_effects import sensor_bias
-    from thermal_twin.scenarios import make_timeline
-    from thermal_twin.simulate import simulate
+    from thermal_twin.diagnose.effects import sensor_bias
+    from thermal_twin.sim.scenarios import make_timeline
+    from thermal_twin.sim.simulate import simulate
     spec = load_machine("swiss-lathe").to_dict()
     assert spec["sensors"]["s1_motor"]["resolution"] == 1.0
     rec = simulate(spec, make_timeline("swiss-lathe", "lathe-door-openings", hours=24, seed=1), seed=1).to_recording()
@@ -187,9 +187,9 @@ def test_quantised_motor_sensors_are_not_mistaken_for_a_bias():
 ], ids=lambda v: v.key if isinstance(v, HiddenEffect) else str(v))
 def test_concealed_effect_in_the_presets(preset, scenario, hidden, confusion_outcomes):
     """The same proof on the shipped presets and their own scenarios (36 h, seed 3)."""
-    from thermal_eval.mismatch_concealed import find_candidate
-    from thermal_twin.scenarios import make_timeline
-    from thermal_twin.simulate import simulate
+    from thermal_eval.diagnose.concealed import find_candidate
+    from thermal_twin.sim.scenarios import make_timeline
+    from thermal_twin.sim.simulate import simulate
     spec = load_machine(preset).to_dict()
     tl = make_timeline(preset, scenario, hours=36, seed=3)
     true = find_candidate(spec, tl, hidden.key).apply(spec, hidden.values)

@@ -7,10 +7,10 @@ import pathlib
 
 import pytest
 
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_diagnosis import diagnose
-from thermal_twin.mismatch_effects import conduction, unlinked_pairs
-from thermal_eval.mismatch_concealed import HiddenEffect, concealed_recording
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.diagnosis import diagnose
+from thermal_twin.diagnose.effects import conduction, unlinked_pairs
+from thermal_eval.diagnose.concealed import HiddenEffect, concealed_recording
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
 

@@ -10,10 +10,10 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.machine_schema import MachineSpecError, dump_machine, load_machine
-from thermal_twin.mismatch_diagnosis import diagnose
-from thermal_twin.mismatch_effects import DriverInfo, candidates, elastic_nodes, unlinked_pairs
-from thermal_eval.mismatch_concealed import HiddenEffect, concealed_recording
+from thermal_twin.machine.schema import MachineSpecError, dump_machine, load_machine
+from thermal_twin.diagnose.diagnosis import diagnose
+from thermal_twin.diagnose.effects import DriverInfo, candidates, elastic_nodes, unlinked_pairs
+from thermal_eval.diagnose.concealed import HiddenEffect, concealed_recording
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
 #: mini_mill's structure: spindle in the head, head on the column, table on the column's bed,

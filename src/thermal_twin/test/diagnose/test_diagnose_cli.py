@@ -7,9 +7,9 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.diagnose_cli import main
-from thermal_twin.machine_schema import load_machine
-from thermal_eval.mismatch_concealed import HiddenEffect, concealed_recording
+from thermal_twin.diagnose.cli import main
+from thermal_twin.machine.schema import load_machine
+from thermal_eval.diagnose.concealed import HiddenEffect, concealed_recording
 from thermal_comp_common.recording_csv import write_recording_csv
 
 HERE = pathlib.Path(__file__).parent
@@ -77,7 +77,7 @@ def test_cli_bad_inputs_give_one_clear_line(recording_csv, tmp_path, capsys):
 
 
 def test_cli_reads_a_bag_like_the_csv(recording_csv, tmp_path, capsys):
-    from thermal_comp_common.csv_to_bag import csv_to_bag
+    from thermal_comp_common.bags.csv_to_bag import csv_to_bag
     bag = tmp_path / "bag"
     csv_to_bag(recording_csv, bag)
     out = tmp_path / "diag"
@@ -116,7 +116,7 @@ def test_an_existing_output_folder_is_refused_and_an_empty_column_named(recordin
     import numpy as np
 
     from thermal_comp_common.recording_csv import read_recording_csv
-    from thermal_twin.diagnose_cli import main
+    from thermal_twin.diagnose.cli import main
     out = tmp_path / "out"
     out.mkdir()
     (out / "report.md").write_text("the first run's report")
@@ -124,7 +124,7 @@ def test_an_existing_output_folder_is_refused_and_an_empty_column_named(recordin
                  "--out", str(out), "--quiet"]) == 2
     assert "exists and is not empty (use --force)" in capsys.readouterr().err
     assert (out / "report.md").read_text() == "the first run's report"
-    from thermal_twin.column_mapping import empty_columns
+    from thermal_twin.calibrate.column_mapping import empty_columns
     rec = read_recording_csv(recording_csv)
     rec.columns["dead_c"] = np.full(len(rec), np.nan)
     assert empty_columns(rec) == ["dead_c"]

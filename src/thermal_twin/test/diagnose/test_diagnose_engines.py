@@ -15,11 +15,11 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_comp_common.task_engine import EngineSpec
-from thermal_eval.mismatch_concealed import HiddenEffect as H, concealed_recording
-from thermal_twin.calibration import calibrate
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_diagnosis import diagnose
+from thermal_comp_common.runtime.task_engine import EngineSpec
+from thermal_eval.diagnose.concealed import HiddenEffect as H, concealed_recording
+from thermal_twin.calibrate.fit import calibrate
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.diagnosis import diagnose
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
 TIMINGS = ("wall_s", "simulated_h_per_s")
@@ -85,8 +85,8 @@ def test_calibrate_first_and_calibrate_give_the_same_answer_on_two_processes(rec
                                           (["--address", "tcp://host:8786"], "address: 'tcp://host:8786'"),
                                           (["--engine", "dask", "--address", "host:8786"], "address: 'host:8786'")])
 def test_bad_engine_options_give_one_line_naming_the_option(flags, named, tmp_path, capsys):
-    from thermal_twin.calibrate_cli import main as calibrate_main
-    from thermal_twin.diagnose_cli import main as diagnose_main
+    from thermal_twin.calibrate.cli import main as calibrate_main
+    from thermal_twin.diagnose.cli import main as diagnose_main
     common = ["--twin", "spindle-stand", "--recording", str(tmp_path / "rec.csv")]
     assert diagnose_main(common + ["--out", str(tmp_path / "d"), *flags]) == 1
     assert calibrate_main(common + ["--out", str(tmp_path / "c"), *flags]) == 1

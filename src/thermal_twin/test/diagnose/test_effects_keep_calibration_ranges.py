@@ -3,8 +3,8 @@
 moves each term to a lag node, and the augmented twin must still load)."""
 from __future__ import annotations
 
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_effects import time_lag_error
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.effects import time_lag_error
 
 
 def test_a_lag_on_an_error_channel_moves_the_terms_calibration_ranges_to_the_lag_nodes():
@@ -18,7 +18,7 @@ def test_a_lag_on_an_error_channel_moves_the_terms_calibration_ranges_to_the_lag
 
 
 def test_a_gain_set_beyond_the_twins_stated_range_leaves_a_valid_twin():
-    from thermal_twin.mismatch_effects import elastic_gain
+    from thermal_twin.diagnose.effects import elastic_gain
     spec = load_machine("fl-thermal-rig").to_dict()
     lo, hi = spec["calibration"]["parameters"]["errors.ch5_um.terms.base"]["bounds"]
     augmented = load_machine(elastic_gain(spec, "ch5_um", "base").apply(spec, [hi - lo + 1.0])).to_dict()

@@ -7,11 +7,11 @@ import pathlib
 
 import numpy as np
 
-from thermal_eval.mismatch_concealed import concealed_recording
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_diagnosis import shared_channels
-from thermal_twin.mismatch_effects import EFFECTS, candidates, classify_driver
-from thermal_twin.mismatch_fit import FitProblem, _starts, linear_change
+from thermal_eval.diagnose.concealed import concealed_recording
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.diagnosis import shared_channels
+from thermal_twin.diagnose.effects import EFFECTS, candidates, classify_driver
+from thermal_twin.diagnose.fit import FitProblem, _starts, linear_change
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
 

@@ -8,14 +8,14 @@ import pathlib
 import numpy as np
 import pytest
 
-from thermal_twin.inputs_timeline import InputsTimeline
-from thermal_twin.machine_schema import load_machine
-from thermal_eval.mismatch_concealed import operating_programme
-from thermal_twin.mismatch_effects import (EFFECTS, candidates, classify_driver, heat_source,
+from thermal_twin.sim.inputs_timeline import InputsTimeline
+from thermal_twin.machine.schema import load_machine
+from thermal_eval.diagnose.concealed import operating_programme
+from thermal_twin.diagnose.effects import (EFFECTS, candidates, classify_driver, heat_source,
                                            periodic_amplitude_phase, time_lag_sensor)
-from thermal_twin.mismatch_fit import noise_free
-from thermal_twin.mismatch_twin_eval import expected_outputs
-from thermal_twin.simulate import simulate
+from thermal_twin.diagnose.fit import noise_free
+from thermal_twin.diagnose.twin_eval import expected_outputs
+from thermal_twin.sim.simulate import simulate
 
 HERE = pathlib.Path(__file__).parent
 SPEC = load_machine(HERE / "mini_mill.yaml").to_dict()

@@ -5,9 +5,8 @@ import numpy as np
 import scipy.signal
 from statsmodels.stats.diagnostic import acorr_ljungbox
 
-from thermal_twin import mismatch_locate as locate
-from thermal_twin import mismatch_statistics as stats
-
+from thermal_twin.diagnose import locate
+from thermal_twin.diagnose import statistics as stats
 DT = 60.0
 
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from thermal_twin.mismatch_testing import holdout_p_value, holm_reject
+from thermal_twin.diagnose.significance import holdout_p_value, holm_reject
 
 
 def test_p_value_falls_with_the_improvement_and_the_effective_samples():

@@ -10,9 +10,9 @@ import pathlib
 
 import pytest
 
-from thermal_eval.mismatch_concealed import OutOfVocabulary as O, concealed_recording
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.mismatch_diagnosis import diagnose
+from thermal_eval.diagnose.concealed import OutOfVocabulary as O, concealed_recording
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.diagnose.diagnosis import diagnose
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
 

@@ -2,9 +2,9 @@
 import pytest
 import yaml
 
-from thermal_twin.machine_instance import TOLERANCES, machine_instance, write_instance
-from thermal_twin.machine_schema import _read_yaml, load_machine
-from thermal_twin.machine_spec import MachineSpecError
+from thermal_twin.machine.instance import TOLERANCES, machine_instance, write_instance
+from thermal_twin.machine.schema import _read_yaml, load_machine
+from thermal_twin.machine.spec import MachineSpecError
 
 
 def test_same_seed_same_machine_other_seed_other_machine():

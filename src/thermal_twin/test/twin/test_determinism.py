@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import TwinStepper, simulate
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import TwinStepper, simulate
 
 
 def test_same_seed_identical_output_other_seed_differs():

@@ -3,11 +3,11 @@ from __future__ import annotations
 
 import pytest
 
-from thermal_twin.inputs_timeline import InputsTimeline, TimelineError, timeline_from_recording
-from thermal_twin.machine_schema import MachineSpecError, dump_machine, load_machine, save_machine
-from thermal_twin.presets import preset_names
+from thermal_twin.sim.inputs_timeline import InputsTimeline, TimelineError, timeline_from_recording
+from thermal_twin.machine.schema import MachineSpecError, dump_machine, load_machine, save_machine
+from thermal_twin.machine.presets import preset_names
 from thermal_comp_common.recording_csv import Recording
-from thermal_twin.simulate import simulate
+from thermal_twin.sim.simulate import simulate
 
 
 def _edited(edit):

@@ -13,9 +13,9 @@ def _blas_threads() -> list[int]:
 
 
 def _run(threads: int, steps: int) -> np.ndarray:
-    from thermal_twin.machine_schema import load_machine
-    from thermal_twin.scenario_runner import ScenarioRunner
-    from thermal_twin.scenarios import make_timeline
+    from thermal_twin.machine.schema import load_machine
+    from thermal_twin.sim.scenario_runner import ScenarioRunner
+    from thermal_twin.sim.scenarios import make_timeline
     with threadpool_limits(limits=threads, user_api="blas"):
         m = load_machine("nmv5000")
         r = ScenarioRunner(m, make_timeline(m.name, "talc-178h-dry", seed=0), seed=0)

@@ -30,8 +30,8 @@ class _Participant:
         import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.executors import SingleThreadedExecutor
-        from thermal_comp_common.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS
-        from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_MACHINE_STATE,
+        from thermal_comp_common.runtime.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS
+        from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_MACHINE_STATE,
                                                       TOPIC_SIM_SYNC, s_to_stamp, stamp_to_s)
         from thermal_comp_msgs.msg import MachineState, SimSync
         self.ctx = rclpy.context.Context()

@@ -20,10 +20,10 @@ OFFSET_Z_UM = 7.0
 
 def _offline_reference():
     """What machine_sim must publish: the pure core driven through the same sequence."""
-    from thermal_twin.artefact_geometry import nominal_sphere_centre, touch_trigger_position, DEFAULT_GEOMETRY
-    from thermal_twin.machine_schema import load_machine
-    from thermal_twin.scenario_runner import ScenarioRunner
-    from thermal_twin.scenarios import make_timeline
+    from thermal_twin.machine.artefact_geometry import nominal_sphere_centre, touch_trigger_position, DEFAULT_GEOMETRY
+    from thermal_twin.machine.schema import load_machine
+    from thermal_twin.sim.scenario_runner import ScenarioRunner
+    from thermal_twin.sim.scenarios import make_timeline
     m = load_machine("nmv5000")
     r = ScenarioRunner(m, make_timeline("nmv5000", "talc-178h-dry", hours=HOURS, seed=3), seed=3)
     out = []
@@ -51,12 +51,12 @@ def test_machine_sim_lockstep_probe_and_offsets():
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from rosgraph_msgs.msg import Clock
-    from thermal_comp_common.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
+    from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
                                            TOPIC_OFFSETS, TOPIC_SIM_SYNC, TOPIC_TWIN_SENSORS, s_to_stamp,
                                            stamp_to_s)
     from thermal_comp_msgs.msg import AxisOffsets, SimSync, TemperatureArray, ThermalErrors
     from thermal_comp_msgs.srv import TouchProbe
-    from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, nominal_sphere_centre
+    from thermal_twin.machine.artefact_geometry import DEFAULT_GEOMETRY, nominal_sphere_centre
 
     expected, expected_probe = _offline_reference()
     proc = subprocess.Popen(

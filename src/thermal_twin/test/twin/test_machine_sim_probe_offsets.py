@@ -13,7 +13,7 @@ import pytest
 
 import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 
-from thermal_comp_common.node_runtime import EVENT_QOS, TOPIC_OFFSETS, s_to_stamp  # noqa: E402
+from thermal_comp_common.runtime.node_runtime import EVENT_QOS, TOPIC_OFFSETS, s_to_stamp  # noqa: E402
 from thermal_comp_msgs.msg import AxisOffsets  # noqa: E402
 from test_machine_sim_resend import _touch
 

@@ -14,7 +14,7 @@ import pytest
 
 import rclpy  # noqa: E402  (a hard dependency: setup.sh installs it)
 
-from thermal_comp_common.node_runtime import s_to_stamp  # noqa: E402
+from thermal_comp_common.runtime.node_runtime import s_to_stamp  # noqa: E402
 
 
 class _Pub:
@@ -53,7 +53,7 @@ def _counts(pubs):
 
 def _touch(node):
     from thermal_comp_msgs.srv import TouchProbe
-    from thermal_twin.artefact_geometry import DEFAULT_GEOMETRY, nominal_sphere_centre
+    from thermal_twin.machine.artefact_geometry import DEFAULT_GEOMETRY, nominal_sphere_centre
     c = nominal_sphere_centre(0.0)
     req = TouchProbe.Request(artefact=0, c_axis_deg=0.0, b_axis_deg=0.0,
                              start_mm=list(c + np.array([0.0, 0.0, DEFAULT_GEOMETRY.contact_radius_mm + 5.0])),

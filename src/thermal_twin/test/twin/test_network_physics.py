@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from thermal_twin.inputs_timeline import InputsTimeline
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.rod_reference import (linear_correlation_point, rod_elongation_transfer, rod_machine,
+from thermal_twin.sim.inputs_timeline import InputsTimeline
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.physics.rod_reference import (linear_correlation_point, rod_elongation_transfer, rod_machine,
                                         rod_positions, rod_U)
-from thermal_twin.simulate import simulate
-from thermal_twin.thermal_network import ThermalNetwork
+from thermal_twin.sim.simulate import simulate
+from thermal_twin.physics.thermal_network import ThermalNetwork
 
 # motor (source) -> housing -> ambient, housing -> coolant when on, convection growing with speed
 SMALL = {

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermal_twin.inputs_timeline import InputsTimeline
-from thermal_twin.machine_schema import load_machine
+from thermal_twin.sim.inputs_timeline import InputsTimeline
+from thermal_twin.machine.schema import load_machine
 from thermal_comp_common.recording_csv import read_recording_csv
-from thermal_twin.scenarios import SCENARIOS, make_timeline
-from thermal_twin.simulate import simulate
+from thermal_twin.sim.scenarios import SCENARIOS, make_timeline
+from thermal_twin.sim.simulate import simulate
 
 H = 3600.0
 
@@ -107,7 +107,7 @@ def test_fe_swapped_validation_set_is_the_training_loads_switched_and_scaled():
 
 
 def test_load_case_c_optimised_pattern_holds_successive_speed_pairs():
-    from thermal_twin.profiles import de_bruijn_pairs
+    from thermal_twin.sim.profiles import de_bruijn_pairs
     seq = de_bruijn_pairs(5)
     pairs = list(zip(seq[:-1], seq[1:]))
     assert len(pairs) == 25 and len(set(pairs)) == 25            # every ordered pair once

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from thermal_comp_common.recording_csv import read_recording_csv
-from thermal_twin.sim_cli import main
+from thermal_twin.sim.cli import main
 
 
 def test_sim_writes_a_recording_csv(tmp_path):
@@ -32,7 +32,7 @@ def test_sim_rejects_bad_arguments_with_a_message(tmp_path, capsys):
 
 
 def test_sim_accepts_an_edited_machine_file(tmp_path):
-    from thermal_twin.machine_schema import load_machine, save_machine
+    from thermal_twin.machine.schema import load_machine, save_machine
     d = load_machine("swiss-lathe").to_dict()
     d["sensors"]["ambient"]["bias"] = 0.5
     save_machine(d, tmp_path / "lathe.yaml")

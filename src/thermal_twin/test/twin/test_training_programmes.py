@@ -1,9 +1,9 @@
-"""The designed prior-training programme of the nmv5000 type (thermal_twin.scenarios,
+"""The designed prior-training programme of the nmv5000 type (thermal_twin.sim.scenarios,
 ``type-mwf-hall-phases``): MWF switches at every phase of the hall's day, short and long phases."""
 import numpy as np
 import pytest
 
-from thermal_twin.scenarios import make_timeline
+from thermal_twin.sim.scenarios import make_timeline
 
 
 @pytest.mark.parametrize("seed", [101, 106])

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thermal_twin.machine_schema import load_machine
-from thermal_twin.scenario_runner import ScenarioRunner
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.twin_checkpoint import TwinCheckpoint
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.sim.scenario_runner import ScenarioRunner
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.checkpoint import TwinCheckpoint
 
 KEY = {"machine": "nmv5000", "scenario": "talc-178h-dry", "seed": 3, "hours": 4.0, "step_s": 300.0,
        "probe_noise": True}
@@ -65,7 +65,7 @@ def test_no_intact_slot_is_refused_in_one_line(tmp_path):
 
 
 def test_rebuilt_parts_are_saved_by_name_and_taken_from_the_loader(tmp_path):
-    from thermal_twin.twin_checkpoint import shared_objects
+    from thermal_twin.sim.checkpoint import shared_objects
     a, path = _runner(), str(tmp_path / "twin.pkl")
     a.step()
     TwinCheckpoint(path, KEY, shared=shared_objects(a)).save(a, None, {})

@@ -1,4 +1,4 @@
-"""thermal_twin.type_soft_sensors: the nominal twin stepped online from a model's inputs
+"""thermal_twin.sim.type_soft_sensors: the nominal twin stepped online from a model's inputs
 reproduces the twin's own run (to sensor noise), under both input naming conventions, holds
 missing inputs, refuses time going back and resumes from its persisted state."""
 import json
@@ -10,9 +10,9 @@ import pytest
 
 from thermal_comp_common.machine_inputs import machine_state_inputs
 from thermal_comp_common.machine_state_fields import machine_state_fields, message_input_name
-from thermal_twin.scenarios import make_timeline
-from thermal_twin.simulate import simulate
-from thermal_twin.type_soft_sensors import SoftSensorError, TypeSoftSensors
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
+from thermal_twin.sim.type_soft_sensors import SoftSensorError, TypeSoftSensors
 
 
 @pytest.fixture(scope="module")

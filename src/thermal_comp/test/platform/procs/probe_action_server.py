@@ -14,7 +14,7 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
-from thermal_comp_common.node_runtime import ACTION_PROBE_CYCLE, run_node
+from thermal_comp_common.runtime.node_runtime import ACTION_PROBE_CYCLE, run_node
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import ThermalErrors
 

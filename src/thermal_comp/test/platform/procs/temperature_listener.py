@@ -5,7 +5,7 @@ import sys
 
 from rclpy.node import Node
 
-from thermal_comp_common.node_runtime import SENSOR_QOS, TOPIC_TEMPERATURES, run_node
+from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, TOPIC_TEMPERATURES, run_node
 from thermal_comp_msgs.msg import TemperatureArray
 
 

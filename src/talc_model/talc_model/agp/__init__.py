@@ -1,0 +1,1 @@
+"""The adaptive Gaussian process of the Swiss-type-lathe thesis and its GP building blocks."""

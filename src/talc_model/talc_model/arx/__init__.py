@@ -1,0 +1,1 @@
+"""MISO ARX models: estimation, batched candidates, the observer update and order selection."""

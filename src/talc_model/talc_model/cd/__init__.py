@@ -1,0 +1,2 @@
+"""Characteristic diagrams: the grid regression, input selection, the load-case update and
+the adaptive model behind the shared protocol."""

@@ -1,0 +1,2 @@
+"""Priors of the machine type for TALC, the AGP and characteristic diagrams, identified on
+virtual experiments of the type's twin."""

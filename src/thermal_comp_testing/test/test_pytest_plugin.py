@@ -1,0 +1,52 @@
+"""The pytest plugin, seen from a pytest run of its own outside this repository: markers
+registered without pyproject.toml, and under pytest-xdist every worker in its own ROS domain."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+PROBE = '''\
+import json, os, pathlib
+
+def test_record(ros_domain_id):
+    out = pathlib.Path(os.environ["RECORD_DIR"]) / (os.environ.get("PYTEST_XDIST_WORKER", "main") + ".json")
+    out.write_text(json.dumps({"id": ros_domain_id, "env": os.environ["ROS_DOMAIN_ID"],
+                               "log": os.environ["ROS_LOG_DIR"],
+                               "range": os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"]}))
+'''
+
+
+def _pytest(cwd, *args, env=None) -> subprocess.CompletedProcess:
+    env = dict(os.environ if env is None else env)
+    for name in ("PYTEST_ADDOPTS", "PYTEST_XDIST_WORKER", "PYTEST_XDIST_WORKER_COUNT"):
+        env.pop(name, None)
+    return subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-q", *args],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=180)
+
+
+def test_markers_are_registered_by_the_plugin_outside_this_repository(tmp_path):
+    """colcon test may run pytest where pyproject.toml's marker list does not apply."""
+    (tmp_path / "test_marks.py").write_text(
+        "import pytest\n\n@pytest.mark.slow\n@pytest.mark.ros\ndef test_marked():\n    pass\n")
+    assert _pytest(tmp_path, "--strict-markers", "test_marks.py").returncode == 0
+    without = _pytest(tmp_path, "--strict-markers", "-p", "no:thermal_comp_testing", "test_marks.py")
+    assert without.returncode != 0  # without the plugin they are unknown
+
+
+def test_each_xdist_worker_claims_its_own_domain_and_log_dir(tmp_path, ros_domain_id):
+    (tmp_path / "test_probe.py").write_text(PROBE)
+    records = tmp_path / "records"
+    records.mkdir()
+    env = dict(os.environ, RECORD_DIR=str(records))
+    r = _pytest(tmp_path, "-n", "2", "--dist", "each", "test_probe.py", env=env)  # every test on every worker
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    seen = {p.stem: json.loads(p.read_text()) for p in records.glob("*.json")}
+    assert sorted(seen) == ["gw0", "gw1"]
+    ids = [rec["id"] for rec in seen.values()]
+    assert all(str(rec["id"]) == rec["env"] and rec["range"] == "LOCALHOST" for rec in seen.values())
+    assert len(set(ids)) == 2 and ros_domain_id not in ids  # nor the id this session holds
+    logs = [rec["log"] for rec in seen.values()]
+    assert len(set(logs)) == 2 and os.environ["ROS_LOG_DIR"] not in logs
+    assert all(f"_{worker}_" in rec["log"] for worker, rec in seen.items())

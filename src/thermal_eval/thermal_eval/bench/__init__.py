@@ -1,0 +1,1 @@
+"""``thermal-comp bench``: the performance benchmarks, one module per suite."""

@@ -1,0 +1,1 @@
+"""Concealed-effect recordings and the suites that score the mismatch finder."""

@@ -1,0 +1,2 @@
+"""``thermal-comp evaluate``: every model against honest baselines on a recording, open loop
+and adaptive."""

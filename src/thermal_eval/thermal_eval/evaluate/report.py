@@ -1,0 +1,181 @@
+"""The outputs of ``thermal-comp evaluate``: a rich table, ``evaluation.json``, PNGs and a rerun .rrd.
+
+The table has one row per baseline and model (open loop: MAE on test [validation] rows and the
+ratio to the best baseline on those rows), and per adaptive model a row with its compensation
+and, under it, holding that model's own probes (ratio = model / hold). A failed model is a row
+with its reason. No rclpy here.
+"""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from thermal_eval.evaluate.run import EvaluationResult
+from thermal_eval.evaluate.spec import EvaluationData
+
+
+def _cell(c: dict, ratio_key: str) -> str:
+    if "failed" in c:
+        return "[red]failed[/red]"
+    r = c.get(ratio_key)
+    ratio = f" x{r:.2f}" if isinstance(r, (int, float)) and math.isfinite(r) else ""
+    return f"{c['mae_test_um']:.3f} [{c['mae_validation_um']:.3f}]{ratio}"
+
+
+def print_table(figures: dict[str, Any], console=None) -> None:
+    console = console or Console(width=max(140, Console().width))
+    chs = figures["channels"]
+    rows = figures["rows"]
+    table = Table(title=f"evaluate {figures['source']}: MAE (um) test rows {rows['test']} [validation rows "
+                        f"{rows['validation']}], x ratio to the baseline")
+    table.add_column("mode")
+    table.add_column("model")
+    for ch in chs:
+        table.add_column(ch, justify="right")
+    table.add_column("probings (per h)", justify="right")
+    failures = []
+    for name, v in figures["open_loop"].items():
+        table.add_row("open loop" if v["kind"] == "model" else "baseline", name,
+                      *[_cell(v["channels"][ch], "ratio_to_best_baseline_test") for ch in chs], "")
+        failures += [f"{name} {ch}: {c['failed']}" for ch, c in v["channels"].items() if "failed" in c]
+    for name, v in figures["adaptive"].items():
+        if "failed" in v:
+            table.add_row("adaptive", name, *["[red]failed[/red]"] * len(chs), "")
+            failures.append(f"adaptive {name}: {v['failed']}")
+            continue
+        probes = f"{v['probings_after_calibration']} ({v['probings_per_h_after_calibration']:.2f})"
+        if "load_probing" in v:         # the load-change rule the walk-forward chose: off, or delay/depth
+            probes += f", after steps {v['probings_after_input_steps']} ({v['load_probing']['chosen']})"
+        table.add_row("adaptive", name, *[_cell(v["channels"][ch], "ratio_to_hold_test") for ch in chs], probes)
+        table.add_row("", f"  hold {name}'s probes",
+                      *[("" if "failed" in v["channels"][ch] else
+                         f"{v['channels'][ch]['hold_own_probes_mae_test_um']:.3f} "
+                         f"[{v['channels'][ch]['hold_own_probes_mae_validation_um']:.3f}]") for ch in chs], "same")
+        if "probe_phases" in v:
+            _phase_rows(table, v, chs)
+    console.print(table)
+    console.print("open loop: x = MAE / best baseline's MAE on the test rows (per channel); adaptive: x = MAE / "
+                  "holding the same probes. Probings counted after the training (calibration) rows.")
+    if figures.get("probe_phases", 1) > 1:
+        console.print(f"phases: the probing clock delayed by i/{figures['probe_phases']} of the interval; mean: x = "
+                      "mean MAE / holding's mean MAE; worst phase: largest MAE, x = largest ratio (test rows).")
+    for f in failures:
+        console.print(f"[red]failed[/red] {f}")
+
+
+def _phase_rows(table, v: dict, chs: list[str]) -> None:
+    """Under an adaptive row scored at K probe phases: the phase mean (x its ratio to holding's
+    phase mean), holding's phase mean, and the worst phase (x its largest ratio)."""
+    ph = v["probe_phases"]
+    counts = ph["probings_after_calibration"]
+    label = f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else f"{counts[0]}"
+    cells = {ch: v["channels"][ch].get("phases") for ch in chs}
+    table.add_row("", f"  mean of {ph['k']} phases",
+                  *["" if c is None else _cell(c["mean"], "ratio_to_hold_test") for c in cells.values()], label)
+    table.add_row("", "  hold, mean of phases",
+                  *["" if c is None else f"{c['mean']['hold_own_probes_mae_test_um']:.3f} "
+                    f"[{c['mean']['hold_own_probes_mae_validation_um']:.3f}]" for c in cells.values()], "same")
+    table.add_row("", "  worst phase",
+                  *["" if c is None else _cell(c["worst"], "ratio_to_hold_test") for c in cells.values()], "")
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def write_json(figures: dict[str, Any], out: pathlib.Path) -> pathlib.Path:
+    path = out / "evaluation.json"
+    path.write_text(json.dumps(figures, indent=1, default=_json_default, allow_nan=True))
+    return path
+
+
+def _best(figures: dict, group: str) -> str | None:
+    """The model with the lowest channel-mean test MAE in a group (for the plots)."""
+    best = None
+    for name, v in figures[group].items():
+        if v.get("kind") != "model" or "failed" in v:
+            continue
+        cells = [c.get("mae_test_um") for c in v["channels"].values()]
+        if any(c is None for c in cells):
+            continue
+        score = float(np.mean(cells))
+        if best is None or score < best[0]:
+            best = (score, name)
+    return None if best is None else best[1]
+
+
+def plot(data: EvaluationData, result: EvaluationResult, out: pathlib.Path) -> pathlib.Path:
+    """Measured vs compensation per channel after the training rows: the best open-loop model,
+    the best adaptive model with its probe instants, and holding those probes."""
+    import matplotlib  # heavy: matplotlib only when plotting
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # heavy: matplotlib only when plotting
+    f = result.figures
+    s = data.split
+    rows = slice(s.n_train, s.n)
+    th = data.time_s[rows] / 3600.0
+    ol, ad = _best(f, "open_loop"), _best(f, "adaptive")
+    chs = data.channels
+    fig, axes = plt.subplots(len(chs), 1, figsize=(12, 2.8 * len(chs)), sharex=True, squeeze=False)
+    for ax, ch in zip(axes[:, 0], chs):
+        y = data.displacement_um[ch][rows]
+        ax.plot(th, y, color="k", lw=1.5, label="measured")
+        if ol and ch in result.open_loop.get(ol, {}):
+            ax.plot(th, result.open_loop[ol][ch][rows], lw=1, label=f"open loop {ol}")
+        if ad and ch in result.adaptive.get(ad, {}):
+            ax.plot(th, result.adaptive[ad][ch][rows], lw=1, label=f"adaptive {ad}")
+            ax.plot(th, result.hold[ad][ch][rows], lw=0.8, ls=":", label="hold its probes")
+            pr = np.asarray(result.probe_rows[ad], dtype=int)
+            lo = float(np.nanmin(y)) - 0.05 * (float(np.nanmax(y) - np.nanmin(y)) or 1.0)
+            ax.plot(data.time_s[pr] / 3600.0, np.full(pr.size, lo), "|", color="C3", ms=8, label="probings")
+        for sl in (s.validation, s.test):
+            ax.axvline(data.time_s[sl.start] / 3600.0, color="0.5", ls="--", lw=1)
+        ax.set_ylabel(f"{ch} (um)")
+    axes[0, 0].legend(loc="best", fontsize=7, ncol=3)
+    axes[0, 0].set_title(f"after the training rows (dashed: start of test / validation rows); test window rows "
+                         f"{s.test.start}-{s.test.stop - 1}", fontsize=9)
+    axes[-1, 0].set_xlabel("time since start (h)")
+    fig.tight_layout()
+    path = out / "evaluation.png"
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def write_rerun(data: EvaluationData, result: EvaluationResult, out: pathlib.Path) -> pathlib.Path:
+    """Measured, every open-loop prediction, adaptive compensation and probe instants per channel."""
+    import rerun as rr  # heavy: rerun only when writing a recording
+    rec = rr.RecordingStream("thermal_comp_evaluate")
+    path = out / "evaluation.rrd"
+    rec.save(str(path))
+    times = rr.TimeColumn("time", duration=np.asarray(data.time_s, dtype=float))
+
+    def send(entity: str, values: np.ndarray) -> None:
+        rr.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(values, float)),
+                        recording=rec)
+    for ch in data.channels:
+        send(f"{ch}/measured", data.displacement_um[ch])
+        for name, per in result.open_loop.items():
+            if ch in per:
+                send(f"{ch}/open_loop/{name}", per[ch])
+        for name, per in result.adaptive.items():
+            if ch in per:
+                send(f"{ch}/adaptive/{name}", per[ch])
+    for name, pr in result.probe_rows.items():
+        if pr:
+            pt = rr.TimeColumn("time", duration=data.time_s[np.asarray(pr, dtype=int)])
+            rr.send_columns(f"probings/{name}", indexes=[pt],
+                            columns=rr.Scalars.columns(scalars=np.ones(len(pr))), recording=rec)
+    rec.flush()
+    rec.disconnect()
+    return path

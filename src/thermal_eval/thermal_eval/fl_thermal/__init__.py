@@ -1,0 +1,2 @@
+"""The real FL_THERMAL spindle recording: loader, benchmark, adaptive replays and the
+mechanism studies of a twin calibrated on it."""

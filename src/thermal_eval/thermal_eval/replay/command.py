@@ -1,0 +1,84 @@
+"""The work of ``thermal-comp replay`` (:mod:`thermal_eval.replay.cli` parses the arguments): the
+virtual experiment of one model on one recording, its table, JSON and plot."""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import sys
+import time
+
+from thermal_eval.replay.baseline_beside import beside_probe_and_hold
+from thermal_eval.replay.summary import (ReplayInputError, build_model, format_table, load_config_file,
+                                         load_replay_recording, parse_overrides, probe_noise, summarise)
+from thermal_eval.replay.virtual_experiment import plot_virtual_experiment, run_virtual_experiment
+
+
+def _with_prior(kind: str, config: dict, path: str):
+    # the priors' code: only with --prior
+    from talc_model.prior.common import PriorError
+    from talc_model.prior.dispatch import model_from_prior
+    from talc_model.prior.talc import load_prior
+    try:
+        return model_from_prior(kind, config, load_prior(path))
+    except PriorError as exc:
+        raise ReplayInputError(str(exc)) from None
+
+
+def _json_safe(value):
+    """NaN / inf -> None / "inf" so the JSON file stays standard."""
+    if isinstance(value, float):
+        if math.isnan(value):
+            return None
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return value
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def run(args) -> int:
+    """Replay as the parsed arguments say; the exit code (0 written, 2 bad input)."""
+    try:
+        for name in ("probe_noise_um", "probe_noise_um_per_m", "probe_resolution_um"):
+            v = getattr(args, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ReplayInputError(f"--{name.replace('_', '-')}: {v!r} must be a finite number >= 0")
+        if args.hours is not None and not (math.isfinite(args.hours) and args.hours > 0):
+            raise ReplayInputError(f"--hours: {args.hours!r} must be a finite number > 0")
+        config = load_config_file(args.config) if args.config else {}
+        config.update(parse_overrides(args.overrides))
+        model = build_model(args.model, config) if not args.prior else _with_prior(args.model, config, args.prior)
+        rec = load_replay_recording(args.recording, args.errors_topic, args.temperatures_topic)
+        stop = None
+        if args.hours is not None:
+            stop = int((rec.time_s <= rec.time_s[0] + 3600.0 * args.hours).sum())
+        noise = probe_noise(model.component_names, args.probe_noise_um, args.probe_noise_um_per_m)
+        t0 = time.perf_counter()
+        result = run_virtual_experiment(rec, model, probe_noise_um=noise,
+                                        probe_resolution_um=args.probe_resolution_um, seed=args.seed,
+                                        stop=stop, progress=not args.no_progress, compute_metrics=False)
+        wall = time.perf_counter() - t0
+        status = model.status(float(result.time_s[-1]))
+        summary = summarise(result, status, args.score_from_h)
+    except (ReplayInputError, ValueError) as exc:
+        print(f"thermal-comp replay: {exc}", file=sys.stderr)
+        return 2
+    beside, text = beside_probe_and_hold(result, summary["q_prod_pct"], noise, args.probe_resolution_um, seed=args.seed)
+    out = {"recording": str(args.recording), "model": args.model, "config": config,
+           "errors_topic": args.errors_topic, "temperatures_topic": args.temperatures_topic,
+           "probe_noise": {"linear_um": args.probe_noise_um, "angular_um_per_m": args.probe_noise_um_per_m,
+                           "resolution_um": args.probe_resolution_um, "seed": args.seed},
+           "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3)}
+    json_path = pathlib.Path(args.json)
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(_json_safe(out), indent=2) + "\n")
+    png = pathlib.Path(args.png) if args.png else json_path.with_suffix(".png")
+    plot_virtual_experiment(result, png, title=f"{args.model} {pathlib.Path(args.recording).name}")
+    print(format_table(summary, title=f"{args.model} on {args.recording} ({wall:.1f} s)"))
+    print(text)
+    print(f"wrote {json_path} and {png}")
+    return 0

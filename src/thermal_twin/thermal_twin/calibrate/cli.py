@@ -1,0 +1,51 @@
+"""Calibrate a twin on a recording: ``thermal-comp calibrate --twin M --recording REC --out DIR``.
+
+Fits the twin's existing parameters (ranges from the machine's ``calibration`` section or
+``--bounds``) on the training window, scores the held-out rest, and writes
+``DIR/twin_calibrated.yaml``, ``DIR/report.md``, ``DIR/report.json`` and PNG plots. The
+Jacobian's finite-difference columns can run on a local process pool (``--jobs N``) or a Dask
+cluster (``--engine dask [--address tcp://HOST:8786]``); the answer is the same on every engine
+(docs/distributed.md). Default serial: a Jacobian is ~40 twin runs of a few ms, and a pool per
+Jacobian cost more CPU than it saved on FL_THERMAL (docs/diagnose.md, Speed).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from thermal_comp_common.runtime.engine_options import add_engine_arguments
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="thermal-comp calibrate", description=__doc__.split("\n\n")[0])
+    p.add_argument("--twin", required=True, help="machine YAML file or preset name (e.g. spindle-stand)")
+    p.add_argument("--recording", required=True, help="recording CSV or rosbag2 MCAP bag")
+    p.add_argument("--out", required=True, help="output directory (must be new or empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
+    p.add_argument("--bounds", help="YAML file with a calibration section (kinds, parameters); "
+                                    "replaces the machine's own")
+    p.add_argument("--holdout-fraction", type=float, default=1 / 3,
+                   help="last fraction of the recording kept out of the fit (default 1/3)")
+    p.add_argument("--max-nfev", type=int, default=20,
+                   help="at most this many optimiser iterations (default 20)")
+    p.add_argument("--block-min", type=float, default=30.0,
+                   help="block length of an input estimated from the temperatures (min, default 30)")
+    p.add_argument("--map", action="append", default=[], metavar="OLD=NEW|NAME*FACTOR",
+                   help="rename a recording column to the twin's name, or scale one (e.g. ch3_um*-1 "
+                        "flips its sign); repeatable")
+    p.add_argument("--map-file", help="YAML column mapping {columns: {old: new}, scale: {name: factor}}")
+    p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
+    p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_engine_arguments(p, 1, "Jacobian columns")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    from thermal_twin.calibrate.command import run  # the work, imported once parsed: --help stays fast
+    return run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

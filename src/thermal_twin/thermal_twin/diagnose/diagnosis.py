@@ -1,0 +1,352 @@
+"""The mismatch finder end to end: simulate, locate, diagnose, hypothesise, model, report.
+
+:func:`diagnose` takes a twin (YAML path, preset name or mapping) and a
+:class:`~thermal_comp_common.recording_csv.Recording` and returns a :class:`Diagnosis` holding the
+JSON-ready report (its keys: docs/diagnose.md), the augmented machine description and the
+series for the plots. The recording is split chronologically: the first
+``1 - holdout_fraction`` is the training window (every fit), the rest is held out (only
+scored). Pure numpy/scipy; the command line is :mod:`thermal_twin.diagnose.cli`.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from thermal_twin.diagnose import residuals
+from thermal_twin.diagnose import unnamed as unnamed_mod
+from thermal_twin.diagnose.calibrated import (calibrated_base, joint_adoption_test,
+                                               unnamed_beats_free_calibration)
+from thermal_twin.machine.schema import Machine, load_machine
+from thermal_twin.diagnose.effects import EFFECTS, classify_driver
+from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, Hypothesis
+from thermal_twin.diagnose.report import DiagnosisSeries
+from thermal_twin.diagnose.search_round import RoundInputs, run_round
+from thermal_twin.diagnose.significance import PROCEDURE
+from thermal_comp_common.runtime.blas_threads import single_thread_blas
+from thermal_comp_common.runtime.engine_options import held_engine
+from thermal_comp_common.metrics import rmse
+from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
+from thermal_comp_common.runtime.task_engine import EngineSpec
+
+CORRELATED_NOTE = ("Candidate effects whose fitted output changes are nearly collinear on this "
+                   "recording cannot be told apart by any fit; they are listed under "
+                   "indistinguishable_from, and choosing between them needs a recording with "
+                   "other operating regimes (or a sensor at the suspected place).")
+
+
+class DiagnosisError(ValueError):
+    """Twin and recording cannot be compared; the message names the cause."""
+
+
+@dataclass
+class Diagnosis:
+    report: dict
+    augmented_spec: dict | None          # None when no vocabulary effect is adopted
+    series: DiagnosisSeries
+    hypotheses: list[Hypothesis]
+    calibrated_spec: dict | None = None  # with calibrate=True: the calibrated twin (search base)
+
+
+def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, channels: list[str],
+            effects: tuple[str, ...], max_effects: int, shortlist: int, min_improvement_pct: float,
+            progress: bool, engine: EngineSpec | None = None
+            ) -> tuple[list[Hypothesis], list[Hypothesis], dict, np.ndarray, list[int]]:
+    """Greedy rounds of screening, fitting and testing (each round's candidates on the task
+    engine); returns (adopted, all hypotheses, final description, its outputs, candidates
+    screened per round)."""
+    adopted: list[Hypothesis] = []
+    all_hyps: list[Hypothesis] = []
+    tried: list[int] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm  # optional: only for the progress bar
+        bar = tqdm(desc="screening candidates", unit="cand", leave=False)
+    for round_no in range(1, max_effects + 1):
+        inputs = RoundInputs(problem, base, y_base, drivers, channels, effects)
+        hyps, n_cands = run_round(inputs, shortlist=shortlist, min_improvement_pct=min_improvement_pct,
+                                  round_no=round_no, progress=(bar.update if bar is not None else None),
+                                  engine=engine)
+        tried.append(n_cands)
+        all_hyps += hyps
+        best = hyps[0] if hyps else None
+        if best is None or not best.supported(min_improvement_pct):
+            break
+        adopted.append(best)
+        base = best.spec
+        y_base = problem.outputs(base)
+    if bar is not None:
+        bar.close()
+    return adopted, all_hyps, base, y_base, tried
+
+
+def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: list[str], errors: set,
+             y_start: np.ndarray, y_named: np.ndarray, named: bool, min_improvement_pct: float,
+             engine: EngineSpec | None = None):
+    """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
+    answers when nothing of the vocabulary was adopted, or when it leaves less than half the
+    held-out weighted residual the adopted vocabulary leaves (the vocabulary then only
+    imitated it). Returns (discrepancies, outputs with them added) or ([], None)."""
+    nt = problem.n_train
+    meas = problem._meas
+    resid = {c: np.where(problem._valid[i], meas[i] - y_start[i], np.nan) for i, c in enumerate(channels)}
+    lib = unnamed_mod.signal_library(rec.time_s, ccf_inputs, rec.sensors)
+    found = unnamed_mod.find_unnamed(resid, lib, nt, errors, min_improvement_pct, engine)
+    if not found:
+        return [], None
+    y_u = y_start.copy()
+    for d in found:
+        y_u[channels.index(d.channel)] += d.prediction
+    sse_u = float(np.sum(problem.weighted_residual(y_u, nt) ** 2))
+    sse_n = float(np.sum(problem.weighted_residual(y_named, nt) ** 2))
+    if named and not sse_u < 0.5 * sse_n:
+        return [], None
+    return found, y_u
+
+
+def _answer(found_unnamed: list, adopted: list, cal_section: dict | None, min_improvement_pct: float) -> str:
+    """unnamed, the first adopted effect, ``mis-calibrated`` (calibrate-first moved existing
+    parameters, improved the held-out fit by at least ``min_improvement_pct`` and nothing is
+    missing) or ``none``."""
+    if found_unnamed:
+        return "unnamed"
+    if adopted:
+        return adopted[0].candidate.effect
+    if (cal_section and cal_section["used_as_base"] and cal_section["mis_calibrated"]
+            and cal_section["holdout_improvement_pct"] >= min_improvement_pct):
+        return "mis-calibrated"
+    return "none"
+
+
+def _unit(ch: str) -> str:
+    return "degC" if column_kind(ch) == "sensor" else error_unit(ch)
+
+
+def _clean_inputs(rec: Recording, machine: Machine) -> Recording:
+    """Interpolate failed readings (NaN) of input columns; the twin needs every input.
+    An input column without any value is dropped (with a warning); a twin input the
+    recording cannot supply falls back to the twin's default, also with a warning."""
+    cols = dict(rec.columns)
+    warnings = list(rec.warnings)
+    for name in rec.names("input"):
+        v = np.asarray(cols[name], dtype=float)
+        bad = ~np.isfinite(v)
+        if bad.any():
+            if bad.all():
+                del cols[name]
+                warnings.append(f"column '{name}': no valid value, not used")
+                continue
+            cols[name] = np.interp(rec.time_s, rec.time_s[~bad], v[~bad])
+            warnings.append(f"column '{name}': {int(bad.sum())} missing values interpolated")
+    for name, ispec in machine.inputs.items():
+        if name not in cols and not (ispec.from_sensor and f"{ispec.from_sensor}_c" in cols):
+            warnings.append(f"twin input '{name}' is not in the recording: its default "
+                            f"{ispec.default:g} {ispec.unit} is used")
+    return Recording(rec.time_s, cols, source=rec.source, warnings=warnings)
+
+
+def shared_channels(machine: Machine, rec: Recording) -> list[str]:
+    chans = [machine.sensors[s].column for s in machine.sensors if machine.sensors[s].column in rec.columns]
+    chans += [e for e in machine.errors if e in rec.columns]
+    return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8]
+
+
+@dataclass
+class _Comparison:
+    """The twin beside the recording: what every step of a diagnosis reads."""
+
+    machine: Machine
+    rec: Recording
+    channels: list[str]
+    problem: FitProblem
+    holdout_fraction: float
+    y_given: np.ndarray          # outputs of the twin as given
+    base0: dict                  # the search's base: the twin as given, or calibrated
+    y0: np.ndarray               # outputs of base0
+    cal_section: dict | None
+
+    @property
+    def n_train(self) -> int:
+        return self.problem.n_train
+
+    @property
+    def dt(self) -> float:
+        return float(np.median(np.diff(self.rec.time_s)))
+
+    def measured(self) -> dict[str, np.ndarray]:
+        return {c: np.asarray(self.rec.columns[c], dtype=float) for c in self.channels}
+
+    def units(self) -> dict[str, str]:
+        return {c: _unit(c) for c in self.channels}
+
+
+def diagnose(*args, engine: EngineSpec | None = None, **kwargs) -> Diagnosis:
+    """:func:`_diagnose` (its arguments) with BLAS on one thread (see ``single_thread_blas``).
+    ``engine``: where the independent tasks (channel analysis, candidate screening and fits,
+    out-of-vocabulary fits per channel) run; default serial in this process. The answer is
+    the same on every engine (results are put back in the tasks' order)."""
+    with single_thread_blas(), held_engine(engine) as held:
+        return _diagnose(*args, engine=held, **kwargs)
+
+
+def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fraction: float = 1 / 3,
+              max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
+              effects: tuple[str, ...] = EFFECTS, shortlist: int = 10, max_lag_s: float = 6 * 3600.0,
+              progress: bool = False, calibrate: bool = False, calibration_section: Mapping | None = None,
+              calibration_nfev: int = 20, unnamed: bool = True, engine: EngineSpec | None = None) -> Diagnosis:
+    """Diagnose ``twin`` against ``recording``; see the module docstring. ``calibrate``:
+    fit the twin's existing parameters first (:mod:`thermal_twin.diagnose.calibrated`);
+    ``unnamed``: try a sparse out-of-vocabulary discrepancy (:mod:`thermal_twin.diagnose.unnamed`).
+    Three steps: residual analysis, search rounds, report assembly."""
+    if not 0.05 <= holdout_fraction <= 0.8:
+        raise DiagnosisError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise DiagnosisError(f"effects: {unknown[0]!r} is not in the vocabulary {list(EFFECTS)}")
+    cmp = _compare(twin, recording, holdout_fraction, calibrate, calibration_section, calibration_nfev, engine)
+    ccf_inputs = residuals.driver_inputs(cmp.rec, cmp.machine)
+    analysis = residuals.analyse(cmp.rec, cmp.channels, cmp.measured(), cmp.y0, cmp.units(), ccf_inputs,
+                                 max_lag_s, start_hour, engine)
+    found = _find_missing(cmp, ccf_inputs, effects, max_effects, shortlist, min_improvement_pct, progress,
+                          calibrate, calibration_section, unnamed, engine)
+    report = _report(cmp, analysis, found, start_hour, min_improvement_pct, max_effects)
+    series = DiagnosisSeries(
+        time_s=cmp.rec.time_s, measured=cmp.measured(),
+        before={c: cmp.y_given[i] for i, c in enumerate(cmp.channels)},
+        after={c: found.y_base[i] for i, c in enumerate(cmp.channels)},
+        holdout_start_s=float(cmp.rec.time_s[cmp.n_train]), ccf=analysis.ccf, dt_s=cmp.dt)
+    return Diagnosis(report, copy.deepcopy(found.base) if found.adopted else None, series, found.all_hyps,
+                     copy.deepcopy(cmp.base0) if calibrate else None)
+
+
+def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: bool,
+             calibration_section: Mapping | None, calibration_nfev: int,
+             engine: EngineSpec | None = None) -> _Comparison:
+    """Check the inputs, simulate the twin as given and (with ``calibrate``) calibrate it."""
+    machine = twin if isinstance(twin, Machine) else load_machine(twin)
+    rec = _clean_inputs(recording, machine)
+    if len(rec) < 30:
+        raise DiagnosisError(f"recording {rec.source}: {len(rec)} rows, need at least 30")
+    channels = shared_channels(machine, rec)
+    if not channels:
+        raise DiagnosisError(
+            f"recording {rec.source}: no channel shared with twin '{machine.name}' (twin sensors "
+            f"{[machine.sensors[s].column for s in machine.sensors]}, errors {list(machine.errors)}; "
+            f"recording columns {list(rec.columns)})")
+    # the description keeps its sensor model (noise, resolution): the evaluation is
+    # noise-free by construction, and the plausibility checks need the resolution
+    spec0 = machine.to_dict()
+    n_train = int(round(len(rec) * (1.0 - holdout_fraction)))
+    resolution = {machine.sensors[sid].column: machine.sensors[sid].resolution for sid in machine.sensors}
+    problem = FitProblem(rec, channels, n_train, resolution=resolution)
+    y_given = problem.outputs(spec0)
+    base0, y0, cal_section = spec0, y_given, None
+    if calibrate:
+        base0, cal_section = calibrated_base(machine, problem, holdout_fraction, calibration_section,
+                                             calibration_nfev, engine)
+        y0 = problem.outputs(base0)
+    return _Comparison(machine, rec, channels, problem, holdout_fraction, y_given, base0, y0, cal_section)
+
+
+@dataclass
+class _Found:
+    """What the search step found (vocabulary effects, or an unnamed discrepancy)."""
+
+    adopted: list[Hypothesis]
+    all_hyps: list[Hypothesis]
+    base: dict                    # final description
+    y_base: np.ndarray            # its outputs (with an unnamed discrepancy added)
+    tried: list[int]              # candidates screened per round
+    unnamed: list
+
+
+def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int, shortlist: int,
+                  min_improvement_pct: float, progress: bool, calibrate: bool,
+                  calibration_section: Mapping | None, unnamed: bool, engine: EngineSpec | None) -> _Found:
+    """Search rounds, the joint adoption test (calibrate-first), the out-of-vocabulary step."""
+    rec, problem, cal_section = cmp.rec, cmp.problem, cmp.cal_section
+    drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
+    adopted, all_hyps, base, y_base, tried = _search(problem, cmp.base0, cmp.y0, drivers, cmp.channels, effects,
+                                                     max_effects, shortlist, min_improvement_pct, progress,
+                                                     engine)
+    if calibrate and adopted:
+        test = joint_adoption_test(cmp.machine, problem, cmp.holdout_fraction, adopted, cmp.base0, cal_section,
+                                   calibration_section, min_improvement_pct, engine=engine)
+        joint_spec = test.pop("spec")
+        cal_section["adoption_test"] = test
+        if test["passed"]:
+            base, y_base = joint_spec, problem.outputs(joint_spec)
+        else:
+            adopted, base, y_base = [], cmp.base0, cmp.y0
+    found_unnamed = []
+    if unnamed:
+        found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, cmp.channels, set(cmp.machine.errors), cmp.y0,
+                                      y_base, bool(adopted), min_improvement_pct, engine)
+        if found_unnamed and calibrate:
+            test = unnamed_beats_free_calibration(cmp.machine, problem, cmp.holdout_fraction, y_u, cal_section,
+                                                  calibration_section, min_improvement_pct, engine=engine)
+            cal_section["unnamed_test"] = test
+            if not test["passed"]:
+                found_unnamed = []
+        if found_unnamed:
+            adopted, base, y_base = [], cmp.base0, y_u
+    if cal_section is not None:
+        cal_section.pop("_estimates", None)
+    return _Found(adopted, all_hyps, base, y_base, tried, found_unnamed)
+
+
+REPORT_CHANNEL_KEYS = ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_calibrated",
+                       "holdout_rmse_after", "train_rmse_before", "train_rmse_after", "noise_sigma", "ljung_box",
+                       "drift", "spectral_peaks", "cross_correlation")
+
+
+def _channel_scores(cmp: _Comparison, analysis: "residuals.ResidualAnalysis", y1: np.ndarray) -> dict:
+    """The report's ``channels``: fit scores before/after beside the residual statistics."""
+    meas, k = cmp.measured(), cmp.n_train
+    out = {}
+    for i, c in enumerate(cmp.channels):
+        m, yg, y0 = meas[c], cmp.y_given[i], cmp.y0[i]
+        entry = dict(analysis.channels[c])
+        entry.update({
+            "rmse_before": rmse(m, yg), "rmse_after": rmse(m, y1[i]),
+            "holdout_rmse_calibrated": rmse(m[k:], y0[k:]),
+            "holdout_rmse_before": rmse(m[k:], yg[k:]), "holdout_rmse_after": rmse(m[k:], y1[i][k:]),
+            "train_rmse_before": rmse(m[:k], yg[:k]), "train_rmse_after": rmse(m[:k], y1[i][:k]),
+            "noise_sigma": cmp.problem.sigma[c],
+        })
+        out[c] = {key: entry[key] for key in REPORT_CHANNEL_KEYS}
+    return out
+
+
+def _report(cmp: _Comparison, analysis: "residuals.ResidualAnalysis", found: _Found, start_hour: float,
+            min_improvement_pct: float, max_effects: int) -> dict:
+    """The JSON-ready report (its keys: docs/diagnose.md, "report.json")."""
+    t, nt = cmp.rec.time_s, cmp.n_train
+    notes = [f"Day/night regimes assume time_s = 0 at {start_hour:g} h clock time (--start-hour)."]
+    if any(h.indistinguishable_from for h in found.all_hyps if h.plausible):
+        notes.append(CORRELATED_NOTE)
+    notes += cmp.rec.warnings
+    ranked = sorted(found.all_hyps, key=lambda h: (h.round, h.rank_key(min_improvement_pct)))
+    units = cmp.units()
+    return {
+        "twin": cmp.machine.source_path or cmp.machine.name,
+        "recording": cmp.rec.source,
+        "split": {"train_end_s": float(t[nt - 1]), "holdout_start_s": float(t[nt]),
+                  "end_s": float(t[-1]), "holdout_fraction": cmp.holdout_fraction},
+        "channels": _channel_scores(cmp, analysis, found.y_base),
+        "windows": analysis.windows,
+        "regime_effects": analysis.regime_effects[:20],
+        "hypotheses": [h.as_dict() for h in ranked],
+        "selected": [h.as_dict() for h in found.adopted] if found.adopted else "none",
+        "unnamed": [d.as_dict(units[d.channel]) for d in found.unnamed],
+        "answer": _answer(found.unnamed, found.adopted, cmp.cal_section, min_improvement_pct),
+        "calibration": cmp.cal_section,
+        "augmented_twin": None,
+        "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": BIC_THRESHOLD,
+                     "max_effects": max_effects, "multiple_testing": PROCEDURE,
+                     "candidates_screened_per_round": found.tried},
+        "simulations": cmp.problem.n_evals,
+        "notes": notes,
+    }

@@ -1,0 +1,271 @@
+"""Writing a diagnosis: ``report.json``, ``report.md`` with PNG plots, ``diagnosis.rrd``.
+
+Input is the JSON-ready report dict built by :mod:`thermal_twin.diagnose.diagnosis`
+plus the time series needed for the plots (:class:`DiagnosisSeries`). Pure I/O; no
+rclpy. Plots use matplotlib's Agg backend; the rerun recording is written with
+``rerun.RecordingStream.save`` (open it with ``rerun diagnosis.rrd``).
+"""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+REQUIRED_CHANNEL_KEYS = ("rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_after")
+
+
+@dataclass
+class DiagnosisSeries:
+    """Time series behind the plots: measured, twin before and after, per channel."""
+
+    time_s: np.ndarray
+    measured: dict[str, np.ndarray]
+    before: dict[str, np.ndarray]
+    after: dict[str, np.ndarray]
+    holdout_start_s: float
+    ccf: dict[str, list] = field(default_factory=dict)   # channel -> [CrossCorrelation]
+    dt_s: float = 1.0
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _clean(o):
+    """NaN/inf -> None so report.json is strict JSON."""
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, (float, np.floating)) and not math.isfinite(float(o)):
+        return None
+    return o
+
+
+def write_json(report: dict, out_dir: pathlib.Path) -> pathlib.Path:
+    for ch, d in report.get("channels", {}).items():
+        missing = [k for k in REQUIRED_CHANNEL_KEYS if k not in d]
+        if missing:
+            raise ValueError(f"report channels.{ch}: missing {missing}")
+    path = out_dir / "report.json"
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(_clean(report), indent=2, default=_json_default))
+    tmp.replace(path)
+    return path
+
+
+def _plot_residuals(series: DiagnosisSeries, windows: list[dict], path: pathlib.Path) -> None:
+    import matplotlib  # heavy: matplotlib only when plotting
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # heavy: matplotlib only when plotting
+    chans = list(series.measured)
+    n = len(chans)
+    fig, axes = plt.subplots(n, 1, figsize=(11, 1.9 * n + 0.8), sharex=True, squeeze=False)
+    th = series.time_s / 3600.0
+    for ax, ch in zip(axes[:, 0], chans):
+        rb = series.measured[ch] - series.before[ch]
+        ra = series.measured[ch] - series.after[ch]
+        ax.plot(th, rb, lw=0.8, color="tab:red", label="before")
+        ax.plot(th, ra, lw=0.8, color="tab:blue", label="after")
+        ax.axvspan(series.holdout_start_s / 3600.0, th[-1], color="0.9", zorder=0)
+        for w in windows:
+            if ch in w["channels"]:
+                ax.axvspan(w["start_s"] / 3600.0, w["end_s"] / 3600.0, color="tab:orange",
+                           alpha=0.15, zorder=0)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(ch, fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[0, 0].legend(loc="upper left", fontsize=7, ncol=2)
+    axes[0, 0].set_title("residual = recording - twin (grey: held-out, orange: located windows)",
+                         fontsize=9)
+    axes[-1, 0].set_xlabel("time [h]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _plot_ccf(series: DiagnosisSeries, path: pathlib.Path, per_channel: int = 3) -> bool:
+    import matplotlib  # heavy: matplotlib only when plotting
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # heavy: matplotlib only when plotting
+    chans = [c for c in series.ccf if series.ccf[c]]
+    if not chans:
+        return False
+    fig, axes = plt.subplots(len(chans), 1, figsize=(9, 1.9 * len(chans) + 0.8), squeeze=False)
+    for ax, ch in zip(axes[:, 0], chans):
+        for cc in series.ccf[ch][:per_channel]:
+            lag_h = cc.lags * series.dt_s / 3600.0
+            line, = ax.plot(lag_h, cc.ccf, lw=0.9, label=cc.driver)
+            ax.axhline(cc.band, color=line.get_color(), lw=0.5, ls="--")
+            ax.axhline(-cc.band, color=line.get_color(), lw=0.5, ls="--")
+        ax.set_ylabel(ch, fontsize=8)
+        ax.legend(fontsize=6, loc="upper right")
+        ax.tick_params(labelsize=7)
+    axes[0, 0].set_title("prewhitened cross-correlation of residual (before) with drivers; "
+                         "dashed: pointwise 95 % band",
+                         fontsize=9)
+    axes[-1, 0].set_xlabel("lag [h] (positive: residual follows the driver)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return True
+
+
+def _fmt(v, nd=3) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.{nd}g}"
+    return str(v)
+
+
+def write_markdown(report: dict, series: DiagnosisSeries, out_dir: pathlib.Path) -> pathlib.Path:
+    _plot_residuals(series, report.get("windows", []), out_dir / "residuals.png")
+    has_ccf = _plot_ccf(series, out_dir / "cross_correlation.png")
+    L = [f"# Mismatch diagnosis", "",
+         f"- twin: `{report.get('twin', '')}`", f"- recording: `{report.get('recording', '')}`",
+         f"- training window: 0 - {report['split']['train_end_s'] / 3600:.1f} h, held out: "
+         f"{report['split']['holdout_start_s'] / 3600:.1f} - {report['split']['end_s'] / 3600:.1f} h",
+         "", "## Verdict", ""]
+    L += _verdict_lines(report)
+    L += _channel_lines(report)
+    L += _residual_lines(report, has_ccf)
+    path = out_dir / "report.md"
+    path.write_text("\n".join(L) + "\n")
+    return path
+
+
+def _verdict_lines(report: dict) -> list[str]:
+    """Mis-calibrated / missing / unnamed / none, the adoption tests and the notes."""
+    L: list[str] = []
+    sel = report.get("selected")
+    cal = report.get("calibration")
+    if cal:
+        L += [f"**Mis-calibrated** ({cal['free_parameters']} existing parameters fitted first; held-out "
+              f"improvement {cal['holdout_improvement_pct']:.1f} %; {cal['note']}):", ""]
+        L += [f"- `{m['name']}`: {_fmt(m['start'])} -> {_fmt(m['value'])} {m['unit']}"
+              + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else "")
+              + f", 95 % interval [{_fmt(m['ci95'][0])}, {_fmt(m['ci95'][1])}]"
+              for m in cal["mis_calibrated"][:15]] or ["- no parameter moved beyond its 95 % interval"]
+        for key, what in (("adoption_test", "calibration + effects, jointly re-calibrated, against the "
+                                            "calibration alone"),
+                          ("unnamed_test", "calibrated twin + unnamed discrepancy against the parameters "
+                                           "fitted without the prior")):
+            t = cal.get(key)
+            if t:
+                L.append(f"- test, {what}: held-out {t['holdout_improvement_pct']:.1f} % better -> "
+                         f"{'passed' if t['passed'] else 'failed: not adopted'}")
+        if report.get("answer") == "mis-calibrated":
+            L += ["", "Answer **mis-calibrated**: the existing parameters explain the mismatch; "
+                      "nothing is missing."]
+        L += ["", "**Missing** (mechanisms added):", ""]
+    for u in report.get("unnamed", []):
+        L.append(f"- **unnamed** (outside the vocabulary; nearest word: {u['nearest_vocabulary_word']}): "
+                 f"`{u['formula']}`; held-out improvement {u['holdout_improvement_pct']:.1f} %")
+    if not report.get("unnamed") and (sel == "none" or not sel):
+        L.append("**none**: no effect of the library improves the held-out fit significantly.")
+    elif sel and sel != "none":
+        for h in sel:
+            ps = ", ".join(f"{k} = {_fmt(p['value'])} {p['unit']}" for k, p in h["params"].items())
+            L.append(f"- **{h['effect']}** on `{h['target']}`"
+                     + (f" driven by `{h['driver']}`" if h.get("driver") else "")
+                     + f": {ps}; held-out improvement {h['holdout_improvement_pct']:.1f} %")
+        if report.get("augmented_twin"):
+            L.append(f"\nAugmented twin: `{report['augmented_twin']}`")
+    if report.get("criteria", {}).get("multiple_testing"):
+        L.append(f"\nAdoption test: {report['criteria']['multiple_testing']}.")
+    for note in report.get("notes", []):
+        L.append(f"\n> {note}")
+    return L
+
+
+def _channel_lines(report: dict) -> list[str]:
+    """The channel table, the located windows and the regime effects."""
+    L = ["", "## Channels (RMSE, before -> after; held-out before -> after)", "",
+          "| channel | unit | RMSE before | RMSE after | held-out before | held-out after | Ljung-Box p | drift /h |",
+          "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for ch, d in report["channels"].items():
+        L.append(f"| {ch} | {d.get('unit', '')} | {_fmt(d['rmse_before'])} | {_fmt(d['rmse_after'])} | "
+                 f"{_fmt(d['holdout_rmse_before'])} | {_fmt(d['holdout_rmse_after'])} | "
+                 f"{_fmt(d.get('ljung_box', {}).get('p_value'))} | "
+                 f"{_fmt(d.get('drift', {}).get('slope_per_h'))} |")
+    L += ["", "![residuals before and after](residuals.png)", "", "## Located windows", ""]
+    if report.get("windows"):
+        L += ["| start [h] | end [h] | channels | regime | peak effect |", "| --- | --- | --- | --- | --- |"]
+        for w in report["windows"]:
+            eff = ", ".join(f"{c}: {_fmt(e['value'])} {e['unit']}" for c, e in w["effect"].items())
+            L.append(f"| {w['start_s'] / 3600:.1f} | {w['end_s'] / 3600:.1f} | {', '.join(w['channels'])} "
+                     f"| {w['regime']} | {eff} |")
+    else:
+        L.append("No window stands out of the noise.")
+    if report.get("regime_effects"):
+        L += ["", "### Regime effects (mean residual inside minus outside)", "",
+              "| regime | channel | effect | share of time |", "| --- | --- | --- | --- |"]
+        for r in report["regime_effects"][:12]:
+            L.append(f"| {r['regime']} | {r['channel']} | {_fmt(r['effect'])} {r['unit']} | "
+                     f"{r['share_of_time']:.2f} |")
+    return L
+
+
+def _residual_lines(report: dict, has_ccf: bool) -> list[str]:
+    """Residual diagnostics per channel and the ranked hypotheses."""
+    L = ["", "## Residual diagnostics", ""]
+    for ch, d in report["channels"].items():
+        peaks = "; ".join(f"{p['period_h']:.1f} h ({p['power_share'] * 100:.0f} %){' ' + p['label'] if p['label'] else ''}"
+                          for p in d.get("spectral_peaks", []))
+        xc = "; ".join(f"{c['driver']} r={c['peak_ccf']:.2f} at {c['peak_lag_s'] / 3600:.2f} h"
+                       f" (band {c['band_95']:.2f})" for c in d.get("cross_correlation", [])[:3])
+        L.append(f"- `{ch}`: white: {d.get('ljung_box', {}).get('white')}; spectral peaks: {peaks or '-'}; "
+                 f"tracks: {xc or 'nothing beyond the band'}")
+    if has_ccf:
+        L += ["", "![cross-correlations](cross_correlation.png)"]
+    L += ["", "## Hypotheses (ranked)", "",
+          "| rank | effect | target | driver | params | score | held-out improvement | plausible |",
+          "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for i, h in enumerate(report.get("hypotheses", [])[:20], 1):
+        ps = ", ".join(f"{k}={_fmt(p['value'])} {p['unit']}" for k, p in h["params"].items())
+        L.append(f"| {i} | {h['effect']} | {h['target']} | {h.get('driver') or '-'} | {ps} | "
+                 f"{_fmt(h['score'])} | {h['holdout_improvement_pct']:.1f} % | "
+                 f"{'yes' if h.get('plausible', True) else 'no: ' + h.get('reason', '')} |")
+    return L
+
+
+def write_rerun(series: DiagnosisSeries, out_dir: pathlib.Path) -> pathlib.Path:
+    """Measured, twin before/after and residuals per channel as rerun scalar series."""
+    import rerun as rr  # heavy: rerun only when writing a recording
+    rec = rr.RecordingStream("thermal_comp_diagnose")
+    path = out_dir / "diagnosis.rrd"
+    rec.save(str(path))
+    times = rr.TimeColumn("time", duration=np.asarray(series.time_s, dtype=float))
+    for ch in series.measured:
+        for kind, data in (("measured", series.measured[ch]), ("twin_before", series.before[ch]),
+                           ("twin_after", series.after[ch]),
+                           ("residual_before", series.measured[ch] - series.before[ch]),
+                           ("residual_after", series.measured[ch] - series.after[ch])):
+            rr.send_columns(f"channels/{ch}/{kind}", indexes=[times],
+                            columns=rr.Scalars.columns(scalars=np.asarray(data, dtype=float)),
+                            recording=rec)
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def write_report(report: dict, series: DiagnosisSeries, out_dir: str | pathlib.Path,
+                 rerun: bool = True) -> dict[str, pathlib.Path]:
+    out = pathlib.Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"json": write_json(report, out), "markdown": write_markdown(report, series, out)}
+    if rerun:
+        paths["rerun"] = write_rerun(series, out)
+    return paths
