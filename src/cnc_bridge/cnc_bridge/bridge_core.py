@@ -9,11 +9,18 @@ line per axis. Switched off (:meth:`BridgeCore.deactivate`), the envelope ramps 
 to zero; the update that brings the last one there ends the writes. The ROS node and the
 fault bench both drive this, so that a bench measures the very path the machine sees.
 Problems are handed to ``report`` (kind, text): nothing here logs or raises on bad input.
+:attr:`BridgeCore.counters` keeps what an operator asks of a running bridge (writes, the last
+confirmed one, clamps, refusals, failures) for the node's ``/diagnostics``.
+
+Activation is refused (:meth:`BridgeCore.activate`) while the CNC, at the last start-up,
+applied an offset beyond the envelope: bringing it back in one write would be a step far
+beyond the rate limit, and ramping it back would keep the envelope violated for hours
+(5 mm at 0.5 um/s), so the operator decides (see docs/cnc_bridge.md).
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 from cnc_bridge.audit_log import AuditLog
@@ -21,7 +28,8 @@ from cnc_bridge.error_transform import (CONVENTION_RIGID, DEFAULT_SPHERE_RADIUS_
                                         FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
                                         TransformInputError, offsets_from_errors)
 from cnc_bridge.offset_backend import adopt_held_state
-from cnc_bridge.safety_envelope import LIMIT_WRITE_FAILED, HeldAdoption, SafetyEnvelope
+from cnc_bridge.safety_envelope import (LIMIT_ABSOLUTE, LIMIT_RATE, LIMIT_WATCHDOG,
+                                        LIMIT_WRITE_FAILED, HeldAdoption, SafetyEnvelope)
 from cnc_bridge.update_profile import UpdateProfile
 
 # Kinds of what :meth:`BridgeCore.update` reports (the node gives each its severity).
@@ -31,6 +39,7 @@ WRITE_FAILED = "write_failed"             # the backend refused the write (every
 NOT_CONFIRMED = "not_confirmed"           # one axis' write was not read back
 POSITIONS_ASSUMED = "positions_assumed"   # X/Y/Z unknown: evaluated at the HTM origin (once)
 RAMP_DONE = "ramp_done"                   # switched off and every offset at zero: writes stop
+ACTIVATION_REFUSED = "activation_refused" # the CNC holds an offset beyond the envelope: not active
 
 
 @dataclass(frozen=True)
@@ -58,6 +67,21 @@ class BridgeUpdate:
     axes: tuple[AppliedAxis, ...]
 
 
+@dataclass
+class BridgeCounters:
+    """What the bridge did since its start-up (per axis write = one axis of one update)."""
+
+    writes: int = 0                  # updates that wrote
+    clamps: int = 0                  # axis writes flagged absolute (the command was clamped)
+    rate_limited: int = 0            # axis writes flagged rate
+    write_failures: int = 0          # axis writes not confirmed by read-back
+    refusals: int = 0                # commands not applied (transform or envelope refused them)
+    activations_refused: int = 0     # activations refused against a held offset
+    last_confirmed_t: float | None = None                         # stamp of the last confirmed write
+    last_confirmed_um: dict[str, float] = field(default_factory=dict)   # its read-back per axis
+    watchdog: bool = False           # the last write was held or ramped by the watchdog
+
+
 class BridgeCore:
     """The bridge's write path around one envelope, one backend and an optional audit log."""
 
@@ -80,6 +104,9 @@ class BridgeCore:
         self.active = False             # writes follow the predictions
         self.ramping_down = False       # switched off, offsets still on their way to zero
         self.last_update_t: float | None = None
+        self.counters = BridgeCounters()
+        #: why activation is refused (from the last start-up's adoption); None: it is not
+        self.held_refusal: str | None = None
         self._adoption_flags: dict[str, int] = {}
         self._warned_positions = False
 
@@ -105,12 +132,27 @@ class BridgeCore:
         self._adoption_flags = {a.axis: a.flags for a in adopted if a.flags}
         for a in adopted:
             self.audit_event(a.axis, "start-up: " + a.describe(), a.flags)
+        refused = [a for a in adopted if a.refused]
+        self.held_refusal = None if not refused else (
+            "the CNC applies " + "; ".join(f"{a.axis} = {a.held_um:.3f} um, {a.refused}"
+                                           for a in refused)
+            + "; nothing written. Bring the held offset within the limit or switch the axis' "
+              "compensation off on the CNC, then configure again")
         return adopted
 
-    def activate(self, enabled: bool) -> None:
-        """Writes follow the predictions; ``enabled`` False keeps the offsets ramping to zero."""
+    def activate(self, enabled: bool) -> str | None:
+        """Writes follow the predictions; ``enabled`` False keeps the offsets ramping to zero.
+        Refused (returns the one-line reason, audited, nothing changes) while the last
+        start-up found an offset applied beyond the envelope; None when active."""
+        if self.held_refusal is not None:
+            self.counters.activations_refused += 1
+            text = "activate refused: " + self.held_refusal
+            self.audit_event("", text, LIMIT_ABSOLUTE)
+            self.report(ACTIVATION_REFUSED, text)
+            return text
         self.envelope.set_enabled(enabled)
         self.active, self.ramping_down = True, False
+        return None
 
     def deactivate(self) -> bool:
         """Compensation off: offsets ramp to zero on the next updates. True while any is not 0."""
@@ -163,12 +205,14 @@ class BridgeCore:
         try:
             commanded = self.commanded(errors, positions)
         except TransformInputError as exc:     # held: not a fresh prediction for the watchdog
+            self.counters.refusals += 1
             self.report(TRANSFORM_FAILED, f"offsets at t={t:.3f}: {exc}; holding")
             fresh = False
         prof.lap("transform")
         try:
             decisions = self.envelope.step(t, commanded, fresh)
         except ValueError as exc:
+            self.counters.refusals += 1
             self.report(ENVELOPE_REFUSED, f"offsets at t={t:.3f}: {exc}; holding")
             return None
         prof.lap("envelope")
@@ -196,6 +240,7 @@ class BridgeCore:
                 self.report(NOT_CONFIRMED, f"axis {d.axis}: write of {d.applied_um:.3f} um not "
                                            f"confirmed ({getattr(self.backend, 'last_error', '')})")
         update = BridgeUpdate(t, enabled, tuple(axes))
+        self._count(update)
         # what the CNC confirmed goes out first; the audit line is on disk before this returns
         if publish is not None:
             publish(update)
@@ -209,3 +254,15 @@ class BridgeCore:
             self.audit_event("", text)
             self.report(RAMP_DONE, text)
         return update
+
+    def _count(self, update: BridgeUpdate) -> None:
+        c = self.counters
+        c.writes += 1
+        c.clamps += sum(1 for a in update.axes if a.flags & LIMIT_ABSOLUTE)
+        c.rate_limited += sum(1 for a in update.axes if a.flags & LIMIT_RATE)
+        c.write_failures += sum(1 for a in update.axes if not a.confirmed)
+        c.watchdog = any(a.flags & LIMIT_WATCHDOG for a in update.axes)
+        confirmed = {a.axis: a.read_back_um for a in update.axes if a.confirmed}
+        if confirmed:
+            c.last_confirmed_t = update.t_s
+            c.last_confirmed_um.update(confirmed)

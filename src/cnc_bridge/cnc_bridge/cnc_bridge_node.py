@@ -9,7 +9,8 @@ launcher drives them, ``autostart:=true`` does it without a manager).
 * **configure** connects (opcua: within ``connect_timeout_s``, the server's certificate
   checked against the trust list; the client's event loop runs in the node's own thread,
   each write to completion, and a wall-clock timer serves it between writes), reads what
-  the CNC holds and adopts it into the envelope only within its limits (clamped; 0 where compensation was off), one audit line per axis
+  the CNC holds and adopts it into the envelope only within its limits (0 where compensation
+  was off; beyond the limit: not adopted, activation refused), one audit line per axis
   saying what was held and what was adopted. Configure never writes; a failed configure
   releases the connection and leaves the node unconfigured.
 * **activate** starts writing: every prediction is transformed at the current positions,
@@ -29,6 +30,14 @@ launcher drives them, ``autostart:=true`` does it without a manager).
   in effect from the next step); every other parameter is read-only
   (:mod:`cnc_bridge.bridge_params`). Credentials come from :mod:`cnc_bridge.credentials`;
   a password, user or private key given as a parameter is refused.
+* **diagnostics**: one status ``bridge`` on ``/diagnostics`` (1 Hz and on change) with the
+  lifecycle state, the connection and its security, the last confirmed write (stamp, values),
+  the counts of writes, clamps, rate-limited writes, refusals and failed writes, and the
+  watchdog; the counters live in :class:`~cnc_bridge.bridge_core.BridgeCore`.
+* **activation is refused** (one error line, audited, the node stays inactive) while the CNC
+  applied an offset beyond the envelope at configure: no write could bring it back within
+  the rate limit. The operator brings the CNC's offset within the limit (or switches its
+  compensation off) and configures again.
 While unconfigured the node does not subscribe; while inactive it still answers the
 lock-step (SimSync) so that a simulation is never held by a bridge that was switched off.
 Bad predictions (missing component, wrong unit, NaN) are logged naming the component and
@@ -50,14 +59,15 @@ from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 from std_msgs.msg import Header
 
+from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC,
                                        declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
 
 from cnc_bridge.audit_log import AuditLog
-from cnc_bridge.bridge_core import (NOT_CONFIRMED, POSITIONS_ASSUMED, RAMP_DONE, TRANSFORM_FAILED,
-                                    WRITE_FAILED, BridgeCore, BridgeUpdate)
+from cnc_bridge.bridge_core import (ACTIVATION_REFUSED, NOT_CONFIRMED, POSITIONS_ASSUMED, RAMP_DONE,
+                                    TRANSFORM_FAILED, WRITE_FAILED, BridgeCore, BridgeUpdate)
 from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
                                       loosening)
 from cnc_bridge.credentials import SECRET_NAMES
@@ -73,6 +83,9 @@ SUCCESS, FAILURE = TransitionCallbackReturn.SUCCESS, TransitionCallbackReturn.FA
 #: wall-clock period at which a backend whose I/O runs in the node's thread is served between
 #: writes (OPC UA: health check, keep-alive, positions, reconnection), s
 SERVE_PERIOD_S = 0.05
+#: wall-clock period at which the ``/diagnostics`` values are refreshed from the core, s (off
+#: the offsets' path: an update only counts, it formats nothing)
+DIAGNOSE_PERIOD_S = 1.0
 
 
 class CncBridgeNode(LifecycleNode):
@@ -100,6 +113,11 @@ class CncBridgeNode(LifecycleNode):
         self.offsets_pub = self.sync_pub = None
         #: timed only with profile_path: between predictions (no begin) its laps do nothing
         self.profile = UpdateProfile()
+        backend = self._p["backend"]
+        self.diag = DiagnosticsPublisher(self, hardware_id=(
+            f"CNC {self._p['endpoint']}" if backend == "opcua" else "machine_sim (twin backend)"))
+        self.create_timer(DIAGNOSE_PERIOD_S, self._diagnose, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._diagnose()
         self.add_on_set_parameters_callback(self._check_params)
         self.add_post_set_parameters_callback(self._on_params_set)
         if self._p["autostart"]:
@@ -122,6 +140,7 @@ class CncBridgeNode(LifecycleNode):
             self._configure_error = str(exc)
             self.get_logger().error(f"configure failed, nothing written: {exc}")
             self._release()
+            self._diagnose()
             return FAILURE
         self.core = BridgeCore(
             self.envelope, self.backend, self.audit, kinematic=self.kinematic,
@@ -158,16 +177,22 @@ class CncBridgeNode(LifecycleNode):
             f"configured: backend {p['backend']}, limit {p['abs_limit_um']} um, rate "
             f"{p['max_rate_um_per_s']} um/s, watchdog {p['watchdog_timeout_s']} s; not writing "
             f"until activated")
+        self._configure_error = ""
+        self._diagnose()
         return SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.core.activate(bool(self.get_parameter("enable").value))
+        refused = self.core.activate(bool(self.get_parameter("enable").value))
+        if refused is not None:         # logged and audited by the core: stays inactive
+            self._diagnose()
+            return FAILURE
         # what start-up allocated (modules, the client, the node) stays out of the garbage
         # collector's passes: a full collection over it is a pause on the offsets' path
         gc.freeze()
         self._audit_event("", f"activate: compensation {'enabled' if self.envelope.enabled else 'DISABLED'}")
         self.get_logger().info(f"active: writing offsets from "
                                f"{self._fmt(self.envelope.applied)} (rate-limited)")
+        self._diagnose()
         return SUCCESS
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -179,6 +204,7 @@ class CncBridgeNode(LifecycleNode):
         if ramping_down and not self._p["lockstep"] and \
                 not self.get_parameter("use_sim_time").value:
             self._ramp_down_for(self._p["deactivate_wait_s"])
+        self._diagnose()
         return SUCCESS
 
     def _ramp_down_for(self, wait_s: float) -> None:
@@ -230,6 +256,8 @@ class CncBridgeNode(LifecycleNode):
             self.audit.close()
             self.audit = None
         self.core = None
+        if why:
+            self._diagnose()
 
     @staticmethod
     def _load_lathe(path: str):
@@ -263,8 +291,47 @@ class CncBridgeNode(LifecycleNode):
             log.warning(text)
         elif kind == RAMP_DONE:
             log.info(text)
+        elif kind == ACTIVATION_REFUSED:
+            log.error(text)
         else:
             log.error(text)
+
+    def _diagnose(self) -> None:
+        """The ``bridge`` status from the core's counters (level: ERROR when configure failed,
+        activation is refused or the CNC is not connected; WARN not writing or watchdog; OK)."""
+        core, backend = self.core, self.backend
+        if core is None:
+            state = "unconfigured"
+        else:
+            state = "active" if core.active else ("ramping to zero" if core.ramping_down else "inactive")
+        connected = getattr(backend, "connected", backend is not None)
+        cfg = getattr(backend, "config", None)
+        security = "n/a (twin)" if cfg is None else (
+            ("Basic256Sha256 Sign&Encrypt" if cfg.certificate else "None")
+            + (", user" if cfg.user else "") + (", required" if cfg.security_required else ""))
+        c = core.counters if core is not None else None
+        if core is None and self._configure_error:
+            level, message = "ERROR", f"configure failed: {self._configure_error}"
+        elif core is not None and core.held_refusal is not None:
+            level, message = "ERROR", "activation refused: " + core.held_refusal
+        elif core is not None and not connected:
+            level, message = "ERROR", f"{state}: not connected ({getattr(backend, 'last_error', '')})"
+        elif state != "active" or (c is not None and c.watchdog):
+            level = "WARN"
+            message = state + (": watchdog holds the offsets" if c is not None and c.watchdog else
+                               ": not following the predictions")
+        else:
+            level, message = "OK", "active: writing offsets"
+        values = dict(state=state, backend=self._p["backend"], endpoint=self._p["endpoint"],
+                      connected=bool(connected), security=security)
+        if c is not None:
+            values.update(
+                writes=c.writes, clamps=c.clamps, rate_limited=c.rate_limited,
+                refusals=c.refusals, activations_refused=c.activations_refused,
+                write_failures=c.write_failures, watchdog=c.watchdog,
+                last_write_t_s="none" if c.last_confirmed_t is None else c.last_confirmed_t,
+                last_write_um=self._fmt(c.last_confirmed_um))
+        self.diag.set("bridge", level, message, **values)
 
     # ------------------------------------------------------------------ parameters
     def _check_params(self, params: list[Parameter]) -> SetParametersResult:

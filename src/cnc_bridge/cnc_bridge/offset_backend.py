@@ -58,8 +58,9 @@ class TwinBackend:
 def adopt_held_state(envelope, backend) -> list:
     """Start ``envelope`` from what the machine behind ``backend`` holds, before any write:
     every start-up of a bridge (a first start or a restart) goes through here, so the held
-    offsets are adopted only within the envelope (clamped, flagged; an axis whose compensation
-    is off counts as 0) and the first write moves from them within the rate limit. Returns the
+    offsets are adopted only within the envelope (beyond it: marked refused, never clamped;
+    an axis whose compensation is off counts as 0) and the first write moves from them
+    within the rate limit. Returns the
     :class:`~cnc_bridge.safety_envelope.HeldAdoption` of every axis, for the audit."""
     held = backend.held_state() if hasattr(backend, "held_state") else {}
     adopted = envelope.adopt_held({a: v for a, (v, _) in held.items()},

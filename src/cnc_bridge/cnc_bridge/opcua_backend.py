@@ -11,7 +11,7 @@
 * **Connecting never writes**: the first connection only reads what the CNC holds
   (:meth:`OpcUaBackend.held_state`: offset and whether compensation is on), so a bridge
   that is configured but not active (lifecycle) never moves the machine. The node adopts
-  the held values into its envelope (clamped) and hands the adopted values back
+  the held values into its envelope (within its limits) and hands the adopted values back
   (:meth:`OpcUaBackend.adopt`), which are what a re-apply writes.
 * **Read-back**: every write is followed by a read of the same nodes, pipelined behind it
   on the same channel (one WriteRequest of every axis, one ReadRequest: one round trip); an
@@ -226,7 +226,7 @@ class OpcUaBackend:
         return dict(self._confirmed_um)
 
     def adopt(self, adopted_um: Mapping[str, float]) -> None:
-        """The envelope's adopted values become what a (re-)apply writes (clamped held offsets)."""
+        """The envelope's adopted values become what a (re-)apply writes (the held offsets in effect)."""
         for a, v in adopted_um.items():
             if a in self._offset_axes and math.isfinite(float(v)):
                 self._confirmed_um[a] = float(v)
@@ -376,7 +376,7 @@ def _as_int(v) -> int:
     try:
         return int(v)
     except (TypeError, ValueError):
-        return 1      # unreadable: assume compensation on (the held value is then clamped)
+        return 1      # unreadable: assume compensation on (beyond the limit: activation refused)
 
 
 def _read_equal(want: float, got: ua.DataValue, tol: float) -> bool:

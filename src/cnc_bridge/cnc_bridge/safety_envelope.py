@@ -16,7 +16,10 @@ Per axis, in this order:
 
 The envelope's "applied" state is what the CNC confirmed by read-back (:meth:`confirm`);
 a write that fails leaves it at the last confirmed value (the caller reports
-LIMIT_WRITE_FAILED for that write). The flag values are those of thermal_comp_msgs/AxisOffsets.
+LIMIT_WRITE_FAILED for that write). At start-up (:meth:`SafetyEnvelope.adopt_held`) an offset
+the CNC applies beyond the absolute limit is never clamped (that would be one write of the
+whole difference): it is marked refused, and the bridge does not activate against it.
+The flag values are those of thermal_comp_msgs/AxisOffsets.
 """
 from __future__ import annotations
 
@@ -98,11 +101,15 @@ class HeldAdoption:
     axis: str
     held_um: float           # the raw value the CNC holds
     compensation_on: bool    # the CNC applied it (False: it held the value with compensation off)
-    adopted_um: float        # what counts as applied now (clamped; 0 when compensation was off)
-    flags: int               # LIMIT_ABSOLUTE (clamped / not finite), LIMIT_DISABLED (was off)
+    adopted_um: float        # what counts as applied now (0 when compensation was off)
+    flags: int               # LIMIT_ABSOLUTE (beyond the limit / not finite), LIMIT_DISABLED (was off)
+    refused: str = ""        # why activation must be refused ("": the held value is within the envelope)
 
     def describe(self) -> str:
         state = "on" if self.compensation_on else "off"
+        if self.refused:
+            return (f"{self.axis}: held {self.held_um:.3f} um (compensation {state}), "
+                    f"{self.refused} [{flag_names(self.flags)}]")
         return (f"{self.axis}: held {self.held_um:.3f} um (compensation {state}), adopted "
                 f"{self.adopted_um:.3f} um [{flag_names(self.flags)}]")
 
@@ -141,31 +148,36 @@ class SafetyEnvelope:
 
     def adopt_held(self, held_um: Mapping[str, float],
                    compensation_on: Mapping[str, bool] | None = None) -> list[HeldAdoption]:
-        """Start from offsets the CNC already holds (a restarted bridge).
+        """Start from offsets the CNC already holds (a restarted bridge or CNC).
 
-        Only what fits the envelope is adopted: a held value beyond the axis' absolute
-        limit is clamped to it (LIMIT_ABSOLUTE), a non-finite one counts as 0, and an axis
-        whose compensation was switched off on the CNC (``compensation_on[axis]`` False)
-        holds nothing in effect, so it counts as 0 and the ramp starts from 0 (switching
-        compensation on with the raw value would move the machine by it in one step). The
-        adopted values count as applied and commanded, so the rate limit applies to every
-        move away from them. Returns one :class:`HeldAdoption` per axis for the audit.
+        An axis whose compensation was switched off on the CNC (``compensation_on[axis]``
+        False) holds nothing in effect: it counts as 0 and the ramp starts from 0 (switching
+        compensation on with the raw value would move the machine by it in one step). A
+        value applied beyond the axis' absolute limit, or not finite, is not brought into
+        the envelope here: clamping it would be one step of the whole difference. It is
+        marked ``refused`` (the bridge must not activate) and counts as applied as it is
+        (a non-finite one as 0), so that even a caller that writes anyway moves from it at
+        the rate limit, never by a jump. The adopted values count as applied and
+        commanded. Returns one :class:`HeldAdoption` per axis for the audit.
         """
         out = []
         for a, v in sorted(held_um.items()):
             raw = float(v)
             on = True if compensation_on is None else bool(compensation_on.get(a, True))
-            flags, value = LIMIT_NONE, raw
+            flags, value, refused = LIMIT_NONE, raw, ""
+            limit = self.config.limit_for(a)
             if not on:     # flagged only when something was held: that value is dropped
                 value, flags = 0.0, (LIMIT_DISABLED if raw != 0.0 else LIMIT_NONE)
             elif not math.isfinite(raw):
                 value, flags = 0.0, LIMIT_ABSOLUTE
-            limit = self.config.limit_for(a)
-            if abs(value) > limit:
-                value, flags = math.copysign(limit, value), flags | LIMIT_ABSOLUTE
+                refused = "not a finite offset: what the axis applies is unknown"
+            elif abs(raw) > limit:
+                flags = LIMIT_ABSOLUTE
+                refused = (f"beyond the absolute limit {limit:g} um: the first write would move "
+                           f"the axis by {abs(raw) - limit:.3f} um at once")
             self._applied[a] = value
             self._commanded[a] = value
-            out.append(HeldAdoption(a, raw, on, value, flags))
+            out.append(HeldAdoption(a, raw, on, value, flags, refused))
         return out
 
     def add_axes(self, axes) -> None:

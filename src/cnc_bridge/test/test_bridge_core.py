@@ -93,21 +93,22 @@ def test_rate_and_absolute_limit_bind_from_the_first_write():
 
 
 def test_held_offsets_are_adopted_within_the_limit_and_the_first_write_moves_from_them(tmp_path):
-    core, cnc, _ = make(tmp_path, held={"X": (9.0, True), "Y": (3.0, False), "Z": (2.0, True)})
+    core, cnc, _ = make(tmp_path, held={"X": (4.5, True), "Y": (3.0, False), "Z": (2.0, True)})
     adopted = {a.axis: a for a in core.adopt_held()}
-    assert adopted["X"].adopted_um == 5.0 and adopted["X"].flags == LIMIT_ABSOLUTE
+    assert adopted["X"].adopted_um == 4.5 and adopted["X"].flags == 0
     assert adopted["Y"].adopted_um == 0.0 and adopted["Y"].flags == LIMIT_DISABLED
     assert adopted["Z"].adopted_um == 2.0 and adopted["Z"].flags == 0
+    assert core.held_refusal is None and core.activate(True) is None
     first = by_axis(core.update(0.0, errors(E_X0C=1.0, E_Y0C=1.0, E_Z0T=1.0), ORIGIN, fresh=True))
-    assert cnc.writes == [{"X": 5.0, "Y": 0.0, "Z": 2.0}]            # no jump at the first write
+    assert cnc.writes == [{"X": 4.5, "Y": 0.0, "Z": 2.0}]            # no jump at the first write
     # the first write of an axis carries what its adoption limited, then never again
-    assert first["X"].flags == LIMIT_ABSOLUTE | LIMIT_RATE and first["Y"].flags == LIMIT_DISABLED | LIMIT_RATE
+    assert first["X"].flags == LIMIT_RATE and first["Y"].flags == LIMIT_DISABLED | LIMIT_RATE
     second = by_axis(core.update(2.0, errors(E_X0C=1.0, E_Y0C=1.0, E_Z0T=1.0), ORIGIN, fresh=True))
-    assert cnc.writes[-1] == {"X": 4.0, "Y": 1.0, "Z": 1.0}
+    assert cnc.writes[-1] == {"X": 3.5, "Y": 1.0, "Z": 1.0}
     assert second["X"].flags == LIMIT_RATE and second["Y"].flags == 0
     rows = read_audit_log(tmp_path / "audit.csv")
     assert [r["note"] for r in rows[:3]] == [
-        "start-up: X: held 9.000 um (compensation on), adopted 5.000 um [absolute]",
+        "start-up: X: held 4.500 um (compensation on), adopted 4.500 um [none]",
         "start-up: Y: held 3.000 um (compensation off), adopted 0.000 um [disabled]",
         "start-up: Z: held 2.000 um (compensation on), adopted 2.000 um [none]"]
     assert [r["time_s"] for r in rows[:3]] == ["1234.500000"] * 3

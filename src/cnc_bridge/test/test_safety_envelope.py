@@ -195,20 +195,24 @@ def test_envelope_invariants_hold_for_any_sequence(steps):
         prev = env.applied["X"]
 
 
-@pytest.mark.parametrize("held, on, adopted, flags", [
-    (5000.0, True, 30.0, se.LIMIT_ABSOLUTE),            # 5 mm held: clamped to the limit
-    (1e9, True, 30.0, se.LIMIT_ABSOLUTE),               # absurd: clamped
-    (-5000.0, False, 0.0, se.LIMIT_DISABLED),           # held with compensation off: counts as 0
-    (math.inf, True, 0.0, se.LIMIT_ABSOLUTE),           # not finite: counts as 0
-    (12.0, True, 12.0, se.LIMIT_NONE),                  # within the envelope: kept
+@pytest.mark.parametrize("held, on, adopted, flags, refused", [
+    (5000.0, True, 5000.0, se.LIMIT_ABSOLUTE, "beyond the absolute limit 30 um"),  # 5 mm applied
+    (1e9, True, 1e9, se.LIMIT_ABSOLUTE, "beyond the absolute limit 30 um"),        # absurd
+    (-5000.0, False, 0.0, se.LIMIT_DISABLED, ""),       # held with compensation off: counts as 0
+    (math.inf, True, 0.0, se.LIMIT_ABSOLUTE, "not a finite offset"),
+    (12.0, True, 12.0, se.LIMIT_NONE, ""),              # within the envelope: kept
 ])
-def test_held_offsets_are_adopted_only_within_the_envelope(held, on, adopted, flags):
+def test_held_offsets_are_adopted_only_within_the_envelope(held, on, adopted, flags, refused):
+    """Within the envelope a held offset is adopted; one applied beyond it is refused, never
+    clamped (a clamp is one write of the whole difference), and counts as applied as it is."""
     env = SafetyEnvelope(EnvelopeConfig(abs_limit_um=30.0, max_rate_um_per_s=0.5, max_step_s=10.0))
     [a] = env.adopt_held({"X": held}, {"X": on})
     assert (a.held_um, a.adopted_um, a.flags) == (held, adopted, flags)
+    assert (refused in a.refused) and bool(a.refused) == bool(refused)
     assert env.applied["X"] == adopted
-    assert f"held {held:.3f}" in a.describe() and f"adopted {adopted:.3f}" in a.describe()
-    # the first steps move at most the rate limit away from the adopted value
+    assert f"held {held:.3f}" in a.describe()
+    assert (refused or f"adopted {adopted:.3f}") in a.describe()
+    # the first steps move at most the rate limit away from what counts as applied
     run(env, 0.0, {"X": -30.0}, fresh=True)
     out = run(env, 1.0, {"X": -30.0}, fresh=True)
     assert out["X"].applied_um == pytest.approx(adopted - 0.5)

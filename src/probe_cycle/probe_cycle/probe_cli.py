@@ -11,6 +11,8 @@ import argparse
 import math
 import sys
 
+from thermal_comp_common.command_line import run_parsed
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="thermal-comp probe", description=__doc__.split("\n\n")[0])
@@ -56,8 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.points < 0:
         print(f"thermal-comp probe: --points: {args.points} is negative", file=sys.stderr)
         return 2
-    from probe_cycle.probe_client import run  # the work (rclpy), imported once parsed: --help stays fast
-    return run(args, angles)
+    return run_parsed("probe_cycle.probe_client:run", args, angles)
 
 
 if __name__ == "__main__":

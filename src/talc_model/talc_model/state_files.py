@@ -11,7 +11,7 @@ import math
 import os
 import pathlib
 
-from talc_model.model_persistence import ModelStateError, read_state
+from talc_model.model_persistence import ModelStateError, model_identity, read_state
 
 APP_DIR = "thermal-comp"
 
@@ -49,6 +49,15 @@ def saved_time_s(path: pathlib.Path, model) -> float | None:
     except (TypeError, ValueError):
         return None
     return t if math.isfinite(t) else None
+
+
+def run_identity(config, fresh) -> dict[str, list]:
+    """The identity values a resumed state may have in a run of ``config`` whose fresh model
+    would be ``fresh``: its inputs (or the configuration's ``type_input_names``: a TALC state
+    started from the type's prior), its soft-sensor twin, its prior's machine."""
+    ident = model_identity(fresh)
+    return {"input_names": [ident["input_names"], [str(n) for n in (config or {}).get("type_input_names") or []]],
+            "type_model": [ident["type_model"]], "machine": [ident["machine"]]}
 
 
 def move_aside(path: pathlib.Path, saved_s: float) -> pathlib.Path:

@@ -54,7 +54,7 @@ from talc_model.loop.closed_loop import ClosedLoop, ResumedState, ResumedStateMi
 from talc_model.model_persistence import load_model, load_pretrained, save_model
 from talc_model.probing.cycle_state import Action, ProbeOutcome, ProbeState, ProbingStateMachine
 from talc_model.save_schedule import SaveNow, SaveSchedule
-from talc_model.state_files import move_aside, resolve_state_path, saved_time_s
+from talc_model.state_files import move_aside, resolve_state_path, run_identity, saved_time_s
 
 SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 PHASES = {"calibration": ModelStatus.PHASE_CALIBRATION, "compensation": ModelStatus.PHASE_COMPENSATION,
@@ -106,7 +106,9 @@ class TalcModelNode(Node):
         self.state_path = resolve_state_path(p["state_path"])
         resumed = None
         if self.state_path is not None and self.state_path.is_file():
-            model = load_model(self.state_path, expected_kind=self.kind)
+            # a state of another machine type, twin or inputs is refused in one line
+            model = load_model(self.state_path, expected_kind=self.kind,
+                               expected=run_identity(self.config, self._fresh_model()[0]))
             how = f"resumed from {self.state_path}"
             saved = saved_time_s(self.state_path, model)
             resumed = ResumedState(str(self.state_path), saved) if saved is not None else None

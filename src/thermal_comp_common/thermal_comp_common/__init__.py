@@ -9,8 +9,10 @@ from thermal_comp_common.public_api import lazy_exports
 __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     "recording_csv": ["Recording", "RecordingError", "read_recording_csv", "write_recording_csv"],
     "bags.reader": ["BagContents", "BagReadError", "read_bag"],
-    "bags.writer": ["BagWriter", "BagWriteError"],
-    "bags.recording": ["BagRecordingError", "bag_to_recording", "load_recording"],
+    "bags.writer": ["BagWriter", "BagWriteError", "BagIOError"],
+    "bags.recording": ["BagRecordingError", "TruncatedBagError", "bag_to_recording", "load_recording",
+                       "check_recording"],
+    "bags.truncation": ["truncated_bags_allowed"],
     "bags.csv_to_bag": ["CsvImportError", "csv_to_bag"],
     "components": ["LINEAR_COMPONENTS", "ANGULAR_COMPONENTS", "FIVE_AXIS_COMPONENTS"],
     "kinematics": ["TransformInputError", "applied_offsets_in_component_space", "rot_y"],

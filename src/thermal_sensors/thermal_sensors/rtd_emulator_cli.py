@@ -7,6 +7,8 @@ import argparse
 import math
 import sys
 
+from thermal_comp_common.command_line import run_parsed
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -39,8 +41,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"unrecognized arguments: {' '.join(ros_args)}")
     if not (args.speed > 0 and math.isfinite(args.speed)):
         p.error(f"--speed: {args.speed!r} must be > 0")
-    from thermal_sensors.rtd_emulator_serve import run  # the work, imported once parsed: --help stays fast
-    return run(args, ros_args)
+    return run_parsed("thermal_sensors.rtd_emulator_serve:run", args, ros_args)
 
 
 if __name__ == "__main__":

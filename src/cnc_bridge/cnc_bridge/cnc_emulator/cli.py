@@ -12,6 +12,7 @@ import math
 import sys
 
 from cnc_bridge.cnc_emulator.axes import DEFAULT_COMPENSATION_AXES, DEFAULT_POSITION_AXES
+from thermal_comp_common.command_line import run_parsed
 
 
 def _parse_errors(text: str) -> dict[str, float]:
@@ -76,5 +77,4 @@ def main(argv: list[str] | None = None) -> int:
     if ros_args and not args.twin:
         print("cnc-emulator: --ros-args only with --twin", file=sys.stderr)
         return 2
-    from cnc_bridge.cnc_emulator.command import run  # the work (asyncua), imported once parsed: --help stays fast
-    return run(args, ros_args)
+    return run_parsed("cnc_bridge.cnc_emulator.command:run", args, ros_args)

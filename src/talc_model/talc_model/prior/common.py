@@ -8,8 +8,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
-#: version of the prior files ("kind": "prior") of every model kind
-PRIOR_VERSION = 1
+#: version of the prior files ("kind": "prior") of every model kind; 2 carries the identity
+#: block and the content hash (talc_model.prior.integrity)
+PRIOR_VERSION = 2
 
 
 class PriorError(ValueError):

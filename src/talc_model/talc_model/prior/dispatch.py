@@ -8,15 +8,17 @@ from typing import Any, Mapping
 from talc_model.prior.agp import agp_with_prior
 from talc_model.prior.cd import cd_with_prior
 from talc_model.prior.common import PriorError
+from talc_model.prior.integrity import check_run
 from talc_model.prior.talc import talc_with_prior
 
 
 def model_from_prior(kind: str, config: Mapping[str, Any], prior: Mapping[str, Any]):
-    """The run's model of ``kind`` started from ``prior`` (TALC, AGP or CD; its ``model_kind``
-    must match)."""
+    """The run's model of ``kind`` started from ``prior`` (TALC, AGP or CD; its ``model_kind``,
+    soft-sensor twin and inputs must be the run's: talc_model.prior.integrity.check_run)."""
     prior_kind = prior.get("model_kind", "talc")
     if prior_kind != kind:
         raise PriorError(f"prior: 'model_kind' is {prior_kind!r}, the model is {kind!r}")
+    check_run(prior, config)
     if kind == "talc":
         return talc_with_prior(config, prior)
     if kind == "agp":

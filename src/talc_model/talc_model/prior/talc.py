@@ -26,6 +26,7 @@ from talc_model.arx.model import ArxModel, ArxOrders, RankDeficientError, regres
 from talc_model.talc.model import TalcModel
 from talc_model.talc.config import TalcConfig
 from talc_model.prior.common import PRIOR_VERSION, PriorError
+from talc_model.prior.integrity import check_talc_models, stamped, training_check, verify_file
 from talc_model.type_inputs import twin_signal_names
 
 #: ridge added to the prior's normalised Gram matrix (fraction of its mean diagonal)
@@ -179,10 +180,13 @@ def build_talc_prior(recordings: Sequence[Any], config: Mapping[str, Any] | Talc
     # replacement update over-damps it (docs/talc.md)
     adaptation = {"prior_samples": 200.0, "check_h": 1.0,
                   "state_gain": {c: 1.0 for c in cfg.component_names}}
+    held_u, held_errors = grids[-1]
     return {"kind": "prior", "version": PRIOR_VERSION, "model_kind": "talc", "machine": machine,
             "sources": list(sources), "talc_state": probe.to_state(), "adaptation": adaptation,
             "gram": {c: g.tolist() for c, g in grams.items()},
-            "validation_rms": {c: m.extra["validation_rms"] for c, m in models.items()}}
+            "validation_rms": {c: m.extra["validation_rms"] for c, m in models.items()},
+            "training_check": training_check(models, held_u, held_errors,
+                                             list(sources)[-1] if sources else "held-out recording")}
 
 
 def prior_from_state(state: Mapping[str, Any], machine: str = "") -> dict[str, Any]:
@@ -198,14 +202,16 @@ def prior_from_state(state: Mapping[str, Any], machine: str = "") -> dict[str, A
 
 
 def save_prior(path: str | pathlib.Path, prior: Mapping[str, Any]) -> pathlib.Path:
+    """Write ``prior`` (any model kind) with its identity block and content hash."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(prior, allow_nan=True) + "\n")
+    path.write_text(json.dumps(stamped(prior), allow_nan=True) + "\n")
     return path
 
 
 def load_prior(path: str | pathlib.Path) -> dict[str, Any]:
-    """A prior file (from ``thermal-comp prior``) or a persisted TALC model state."""
+    """A prior file (from ``thermal-comp prior``; its hash and identity checked) or a persisted
+    TALC model state."""
     try:
         data = json.loads(pathlib.Path(path).read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -216,7 +222,9 @@ def load_prior(path: str | pathlib.Path) -> dict[str, Any]:
         raise PriorError(f"prior {str(path)!r}: 'kind' is {data.get('kind') if isinstance(data, dict) else None!r}, "
                          "expected 'prior' (or a TALC model state)")
     if data.get("version") != PRIOR_VERSION:
-        raise PriorError(f"prior {str(path)!r}: 'version' {data.get('version')!r} is not {PRIOR_VERSION}")
+        raise PriorError(f"prior {str(path)!r}: 'version' {data.get('version')!r} is not {PRIOR_VERSION} "
+                         "(a prior without identity and content hash): rebuild it with thermal-comp prior")
+    verify_file(repr(str(path)), data)
     return data
 
 
@@ -254,6 +262,7 @@ class TalcPriorModel(TalcModel):
         if missing:
             raise PriorError(f"prior: no model for component(s) {missing}")
         self.prior_models = {c: trained.models[c] for c in self.component_names}
+        check_talc_models(self.prior_models, self.prior.get("training_check"))
         # the Gram matrix of collinear regressors is near singular: a small ridge (relative to
         # its mean diagonal) keeps the prior's hold on every direction of the parameters
         self.prior_gram = {}

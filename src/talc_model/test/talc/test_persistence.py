@@ -4,7 +4,8 @@ import os
 
 import pytest
 
-from talc_model.model_persistence import ModelStateError, load_model, load_pretrained, read_state, save_model
+from talc_model.model_persistence import (HASH_FIELD, ModelStateError, content_hash, load_model, load_pretrained,
+                                          read_state, save_model)
 from talc_model.talc.model import TalcModel
 from test_talc import COMPONENTS, STEP, config, plant, run
 
@@ -69,6 +70,7 @@ def test_bad_files_are_reported_with_their_path(tmp_path):
         load_model(tmp_path / "ok.json", expected_kind="agp")
     doc = json.loads((tmp_path / "ok.json").read_text())
     del doc["state"]["grid"]
+    doc[HASH_FIELD] = content_hash(doc, HASH_FIELD)      # malformed but consistently hashed
     (tmp_path / "broken.json").write_text(json.dumps(doc))
     with pytest.raises(ModelStateError, match="grid"):
         load_model(tmp_path / "broken.json")

@@ -299,7 +299,7 @@ def cross_package_function_imports() -> list[Import]:
     return out
 
 
-def tests_importing_up() -> list[Import]:
+def upward_test_imports() -> list[Import]:
     out = []
     for pkg in PACKAGES:
         _, tests = package_files(pkg)
@@ -312,5 +312,5 @@ if __name__ == "__main__":
     for imp in cross_package_function_imports():
         print(f"  {imp.path}:{imp.line} {imp.module}")
     print("tests that import a higher package:")
-    for imp in tests_importing_up():
+    for imp in upward_test_imports():
         print(f"  {imp.path}:{imp.line} {imp.module}")

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from thermal_comp_common.command_line import run_parsed
+
 
 def _rows(text: str) -> tuple[int, int | None]:
     lo, sep, hi = text.partition(":")
@@ -49,8 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    from thermal_comp.bags.import_csv_run import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    return run_parsed("thermal_comp.bags.import_csv_run:run", args)
 
 
 if __name__ == "__main__":

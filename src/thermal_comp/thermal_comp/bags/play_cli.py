@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from thermal_comp_common.command_line import run_parsed
+
 
 def _list(values: list[str]) -> str:
     return "[" + ",".join(f"'{v}'" for v in values) + "]" if values else "['']"
@@ -50,8 +52,7 @@ def main(argv: list[str] | None = None) -> int:
            "-p", f"match_timeout_s:={float(args.match_timeout)}",
            "-p", f"lockstep_participants:={_list(args.lockstep)}",
            "-p", f"progress:={'true' if sys.stderr.isatty() else 'false'}"] + list(args.ros_args)
-    from thermal_comp import bag_player_node  # the work (rclpy), imported once parsed: --help stays fast
-    return bag_player_node.main(ros)
+    return run_parsed("thermal_comp.bags.player_node:main", ros)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,9 @@ publishes never holds the graph; one that stops (a bridge switched off) holds t_
 ``follow_timeout_s`` wall seconds, then it is named (topic and publishing node) on the log and
 on ``/diagnostics`` and not expected until it is written again. (Buffering in the publishers and replaying was the alternative; it
 needs a second copy of every stream and a replay protocol, where lock-step reuses the
-handshake every other node already speaks.) Its health (messages written, last instant
+handshake every other node already speaks.) A write error (a full disk) stops the recorder with
+exit code 1 and one error line: the bag is closed at what was on disk, marked incomplete
+(:mod:`thermal_comp_common.bags.writer`), and nothing more is acknowledged. Its health (messages written, last instant
 acknowledged) is on ``/diagnostics``. Run: ``python -m thermal_comp.bags.recorder_node --ros-args
 -p output:=BAG`` or ``thermal-comp record BAG``.
 """
@@ -46,7 +48,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from thermal_comp_common.runtime import node_runtime as rt
-from thermal_comp_common.bags.writer import BagWriter, TopicInfo, qos_dict, stamp_from_cdr
+from thermal_comp_common.bags.writer import BagIOError, BagWriter, TopicInfo, qos_dict, stamp_from_cdr
 from thermal_comp_common.runtime.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS, DiagnosticsPublisher
 from thermal_comp_common.bags.msg_definitions import first_field_type, normalize_type
 from thermal_comp_msgs.msg import SimSync
@@ -259,19 +261,37 @@ class BagRecorderNode(Node):
 
     def _callback_for(self, index: int):
         def on_message(data: bytes) -> None:
-            _, topic, stamped = self._subs[index]
-            now = self.get_clock().now().nanoseconds
-            stamp = stamp_from_cdr(data) if stamped else None
-            if stamp is not None and not self._keep_resends and self._last_written.get(topic) == data:
-                self.resends_skipped += 1      # a re-sent instant: written once, acknowledged again
-            else:
-                t = stamp if self._use_header else None
-                self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
-                if stamp is not None:
-                    self._last_written[topic] = bytes(data)
-            if stamp is not None and (topic in self._ack_topics or topic in self._follow_topics):
-                self._written(topic, stamp)
+            if self.writer.closed:
+                return                 # stopped on a write error: the bag holds what was on disk
+            try:
+                self._record(index, data)
+            except BagIOError as exc:
+                self._stop_on_write_error(exc)
         return on_message
+
+    def _record(self, index: int, data: bytes) -> None:
+        """Write one message (a re-send once) and acknowledge what it completes."""
+        _, topic, stamped = self._subs[index]
+        now = self.get_clock().now().nanoseconds
+        stamp = stamp_from_cdr(data) if stamped else None
+        if stamp is not None and not self._keep_resends and self._last_written.get(topic) == data:
+            self.resends_skipped += 1      # a re-sent instant: written once, acknowledged again
+        else:
+            t = stamp if self._use_header else None
+            self.writer.write(topic, now if t is None else t, data, publish_time_ns=now)
+            if stamp is not None:
+                self._last_written[topic] = bytes(data)
+        if stamp is not None and (topic in self._ack_topics or topic in self._follow_topics):
+            self._written(topic, stamp)
+
+    def _stop_on_write_error(self, exc: BagIOError) -> None:
+        """A write failed (disk full...): the writer closed the bag at what was on disk, marked
+        incomplete; say so in one line and stop the node with exit code 1 (nothing is
+        acknowledged any more, so machine_sim does not run ahead of a recorder that lost data)."""
+        self.exit_code = 1
+        self.get_logger().error(f"recording stopped: {exc}")
+        self.diag.set("recorder", "ERROR", f"recording stopped: {exc}", messages=self.writer.message_count)
+        self.context.try_shutdown()
 
     def _stamped_topics(self, names) -> set[str]:
         wanted = {self.resolve_topic_name(t) for t in names if t.strip()}
@@ -322,7 +342,13 @@ class BagRecorderNode(Node):
             self._acknowledge(stamp_ns)
 
     def _acknowledge(self, stamp_ns: int) -> None:
-        self.writer.sync(fsync=self._ack_fsync)
+        if self.writer.closed:
+            return                     # stopped on a write error: nothing more is acknowledged
+        try:
+            self.writer.sync(fsync=self._ack_fsync)
+        except BagIOError as exc:
+            self._stop_on_write_error(exc)
+            return
         for k in [k for k in self._pending if k <= stamp_ns]:
             del self._pending[k]
         if self.acked_ns is None or stamp_ns > self.acked_ns:
@@ -336,7 +362,13 @@ class BagRecorderNode(Node):
             sec=stamp_ns // 1_000_000_000, nanosec=stamp_ns % 1_000_000_000)))
 
     def _periodic(self) -> None:
-        self.writer.flush()
+        if self.writer.closed:
+            return
+        try:
+            self.writer.flush()
+        except BagIOError as exc:
+            self._stop_on_write_error(exc)
+            return
         values = {"messages": self.writer.message_count, "resends_skipped": self.resends_skipped,
                   "follow_dropped": len(self.follow_dropped)}
         if self.acked_ns is not None:
@@ -349,7 +381,14 @@ class BagRecorderNode(Node):
         return self.writer.message_count
 
     def close(self) -> None:
-        self.writer.close()
+        try:
+            self.writer.close()
+        except BagIOError as exc:
+            self.exit_code = 1
+            self.get_logger().error(f"recording stopped: {exc}")
+            return
+        if self.writer.incomplete:
+            return     # said when it stopped
         self.get_logger().info(f"bag {self.writer.path} closed: {self.writer.message_count} messages"
                                f" ({self.resends_skipped} re-sent copies not written again"
                                + (f"; {len(self.follow_dropped)} instants acknowledged without an expected message: "

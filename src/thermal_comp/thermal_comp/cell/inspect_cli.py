@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from thermal_comp_common.command_line import run_parsed
+
 
 def _common(ap: argparse.ArgumentParser, default_wait: float) -> None:
     ap.add_argument("--wait", type=float, default=default_wait,
@@ -23,8 +25,7 @@ def topics_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--expect", action="append", default=[], metavar="TOPIC",
                     help="return as soon as this topic is seen; fail if it is not seen in --wait s (repeatable)")
     args = ap.parse_args(argv)
-    from thermal_comp.cell.inspect_graph import topics  # the work (rclpy), imported once parsed: --help stays fast
-    return topics(args)
+    return run_parsed("thermal_comp.cell.inspect_graph:topics", args)
 
 
 def nodes_main(argv: list[str] | None = None) -> int:
@@ -34,8 +35,7 @@ def nodes_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--expect", action="append", default=[], metavar="NODE",
                     help="return as soon as this node (/ns/name) is seen; fail if not (repeatable)")
     args = ap.parse_args(argv)
-    from thermal_comp.cell.inspect_graph import nodes  # the work (rclpy), imported once parsed: --help stays fast
-    return nodes(args)
+    return run_parsed("thermal_comp.cell.inspect_graph:nodes", args)
 
 
 def echo_main(argv: list[str] | None = None) -> int:
@@ -49,5 +49,4 @@ def echo_main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reliable", action="store_true",
                     help="subscribe reliable (default best effort, which matches any publisher)")
     args = ap.parse_args(argv)
-    from thermal_comp.cell.inspect_graph import echo  # the work (rclpy), imported once parsed: --help stays fast
-    return echo(args)
+    return run_parsed("thermal_comp.cell.inspect_graph:echo", args)

@@ -12,7 +12,9 @@ cell's environment, each transition with the node's deadline); a transition that
 hangs is one error line naming the node, the node is stopped and not restarted, and
 ``run`` exits 1. Ctrl-C or SIGTERM stops every process: SIGINT first, SIGKILL after the
 grace time, so no process is left behind; children also receive SIGTERM if the launcher
-itself dies. A node's environment may set ``THERMAL_COMP_NICE`` (0-19): its process starts at
+itself dies. A cell runs once: a second launch of the same namespace on the same ROS_DOMAIN_ID
+is refused with one line naming the running launch (:mod:`thermal_comp.cell.cell_lock`).
+A node's environment may set ``THERMAL_COMP_NICE`` (0-19): its process starts at
 that niceness (lower priority; raising it would need root), so that observers (recorder, viewer,
 probe cycle between probings) yield the cores to the control path in a cell.
 """
@@ -31,6 +33,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, TextIO
 
+from thermal_comp.cell.cell_lock import CellLock, CellLockError, acquire_cell_lock
 from thermal_comp.cell.config import CellConfig, CellConfigError, NodeSpec, load_cell, parameters_file_text
 
 _PR_SET_PDEATHSIG = 1
@@ -131,6 +134,7 @@ class Launcher:
         self._out_lock = threading.Lock()
         self._stopping = threading.Event()
         self.processes: list[ManagedProcess] = []
+        self._locks: list[CellLock] = []
         for cell in cells:
             cell_dir = self.run_dir / cell.cell
             cell_dir.mkdir(parents=True, exist_ok=True)
@@ -240,7 +244,36 @@ class Launcher:
     def lifecycle_failures(self) -> list[str]:
         return [mp.lifecycle_error for mp in self.processes if mp.lifecycle == "failed"]
 
+    def domain_id(self, cell: CellConfig) -> int:
+        """The ROS_DOMAIN_ID the cell's processes run on (cell file, else its env, else ours)."""
+        if cell.domain_id is not None:
+            return cell.domain_id
+        text = cell.env.get("ROS_DOMAIN_ID", os.environ.get("ROS_DOMAIN_ID", "")).strip()
+        return int(text) if text.isdigit() else 0
+
+    def lock_cells(self) -> None:
+        """Hold each cell's lock (CellLockError naming the running launch; none held then);
+        :meth:`start` does it if not done before, :meth:`stop` releases them."""
+        if self._locks:
+            return
+        try:
+            for cell in self.cells:
+                lock = acquire_cell_lock(self.domain_id(cell), cell.namespace)
+                self._locks.append(lock)
+                if lock.warning:
+                    self._emit("launch", f"WARNING {lock.warning}")
+        except CellLockError:
+            self._unlock_cells()
+            raise
+
+    def _unlock_cells(self) -> None:
+        for lock in self._locks:
+            lock.release()
+        self._locks.clear()
+
     def start(self) -> None:
+        """Start every node; CellLockError (nothing started) when a cell runs already."""
+        self.lock_cells()
         for mp in self.processes:
             self._spawn(mp)
 
@@ -314,9 +347,11 @@ class Launcher:
             if mp._reader is not None:
                 mp._reader.join(timeout=2.0)
                 mp._reader = None
+        self._unlock_cells()
 
     def run(self, poll_s: float = 0.2) -> int:
-        """Start, supervise until every process ended or a stop was requested; return exit code."""
+        """Start, supervise until every process ended or a stop was requested; return exit code
+        (CellLockError when a cell runs already)."""
         self.start()
         try:
             while not self._stopping.is_set():
@@ -357,7 +392,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         cells = [load_cell(p) for p in args.cells]
         launcher = Launcher(cells, run_dir=args.run_dir, restart_override=args.restart, grace_s=args.grace)
-    except CellConfigError as exc:
+        launcher.lock_cells()
+    except (CellConfigError, CellLockError) as exc:
         print(f"thermal-comp launch: {exc}", file=sys.stderr)
         return 2
 

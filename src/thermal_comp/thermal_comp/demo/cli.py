@@ -12,6 +12,7 @@ import pathlib
 import sys
 
 from thermal_comp.demo.cell import BUILD_PRIOR, DEFAULT_PRIOR, MACHINES, DemoConfig
+from thermal_comp_common.command_line import run_parsed
 
 
 def _unit(text: str) -> int | None:
@@ -82,8 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         print("thermal-comp demo: --compare-no-prior compares against the prior; it cannot go with --no-prior",
               file=sys.stderr)
         return 1
-    from thermal_comp.demo.run import run  # the work, imported once parsed: --help stays fast
-    return run(cfg, a.compare_no_prior)
+    return run_parsed("thermal_comp.demo.run:run", cfg, a.compare_no_prior)
 
 
 if __name__ == "__main__":

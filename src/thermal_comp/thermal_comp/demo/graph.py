@@ -27,6 +27,7 @@ from thermal_comp.cell.config import parse_cell
 from thermal_comp.demo.cell import MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
 from thermal_comp.demo.monitor import DemoMonitor
 from thermal_comp.demo.graph_profile import ack_breakdown, instant_events, latency_breakdown, stage_breakdown
+from thermal_comp.cell.cell_lock import CellLockError
 from thermal_comp.cell.launcher import NICE_ENV, Launcher
 from thermal_comp_common.runtime import node_runtime as rt
 from thermal_comp_common.runtime.domain_ids import claim_domain_id
@@ -202,7 +203,10 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
     bar = None
     t_start = time.perf_counter()
     try:
-        launcher.start()
+        try:
+            launcher.start()
+        except CellLockError as exc:
+            raise DemoError(str(exc)) from None
         monitor = DemoMonitor("/" + cell.cell)
         if cfg.progress:
             bar = tqdm(total=round(total_h, 2), unit="sim h", desc=f"{cfg.machine} {cfg.scenario}",

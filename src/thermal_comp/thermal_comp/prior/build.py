@@ -18,9 +18,11 @@ import time
 import talc_model
 import thermal_twin
 import yaml
+from talc_model.model_persistence import FORMAT as STATE_FORMAT, ModelStateError, read_state
 from talc_model.prior.agp import agp_prior_from_state, build_agp_prior
 from talc_model.prior.cd import build_cd_prior, cd_prior_from_state
 from talc_model.prior.common import PriorError
+from talc_model.prior.integrity import check_prior
 from talc_model.prior.talc import build_talc_prior, load_prior, prior_from_state, save_prior, training_labels
 from thermal_comp.demo.cell import MACHINES
 from thermal_comp.prior.programmes import SEED_BASE, TRAINING_SCENARIOS
@@ -124,16 +126,22 @@ def cached_prior(machine: str, config: dict, scenarios: list[str], seed_base: in
                  na_max: int = 1, nb_max: int = 8, cache_dir: pathlib.Path | None = None,
                  progress=None, kind: str = "talc") -> tuple[pathlib.Path, bool]:
     """(path, built_now): the nominal type's prior of ``kind`` from the cache, built and stored
-    on a miss. A cache file that does not read back as a prior of that kind is rebuilt."""
+    on a miss. The key hashes the inputs, not the file: a cache file that fails its content hash,
+    identity or checks (talc_model.prior.integrity), or is of another kind, is rebuilt with a
+    warning on stderr."""
     folder = pathlib.Path(cache_dir) if cache_dir is not None else prior_cache_dir()
     key = _cache_key(machine, config, scenarios, seed_base, na_max, nb_max, kind)
     path = folder / f"{machine}-{kind}-{key}.json"
     if path.is_file():
         try:
-            if load_prior(path).get("model_kind", "talc") == kind:
-                return path, False
-        except (PriorError, OSError, ValueError):
-            pass                                    # a damaged cache entry: rebuilt below
+            cached = load_prior(path)
+            if cached.get("model_kind", "talc") != kind or cached.get("machine") not in (machine, type_name(machine)):
+                raise PriorError(f"prior {str(path)!r}: identity is {cached.get('model_kind', 'talc')!r} of "
+                                 f"{cached.get('machine')!r}, expected {kind!r} of {type_name(machine)!r}")
+            check_prior(cached)
+            return path, False
+        except (PriorError, OSError, ValueError) as exc:
+            print(f"warning: prior cache: {exc}; rebuilding it", file=sys.stderr)
     folder.mkdir(parents=True, exist_ok=True)
     prior = build_prior(machine, config, scenarios, seed_base, na_max, nb_max, progress, kind=kind)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
@@ -147,6 +155,11 @@ def _from_state(a) -> dict:
         state = json.loads(pathlib.Path(a.from_state).read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise PriorError(f"--from-state {a.from_state!r}: cannot read it ({exc})") from None
+    if isinstance(state, dict) and state.get("format") == STATE_FORMAT:     # a node's saved state file
+        try:
+            state = read_state(a.from_state)["state"]                        # its hash checked
+        except ModelStateError as exc:
+            raise PriorError(f"--from-state {exc}") from None
     if isinstance(state, dict) and state.get("kind") == "agp":   # another lathe's persisted AGP
         return agp_prior_from_state(state, machine=a.machine)
     if isinstance(state, dict) and state.get("kind") == "cd":     # another machine's persisted CD model

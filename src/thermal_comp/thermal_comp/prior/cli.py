@@ -12,6 +12,7 @@ import argparse
 import sys
 
 from thermal_comp.prior.programmes import SEED_BASE, TRAINING_SCENARIOS
+from thermal_comp_common.command_line import run_parsed
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -35,8 +36,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from thermal_comp.prior.build import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    return run_parsed("thermal_comp.prior.build:run", args)
 
 if __name__ == "__main__":
     sys.exit(main())

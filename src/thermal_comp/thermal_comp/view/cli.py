@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from thermal_comp_common.command_line import run_parsed
+
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
@@ -37,8 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    from thermal_comp.view.run import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    return run_parsed("thermal_comp.view.run:run", args)
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -129,5 +129,5 @@ def run(args) -> int:
             _wait_for_interrupt()
         output.close()
         return 3 if damage else 0
-    from thermal_comp import rerun_view_node  # rclpy: only for the live topics
+    from thermal_comp.view import rerun_view_node  # rclpy: only for the live topics
     return rerun_view_node.run(output, layout, ["thermal-comp-view", "--ros-args", *args.ros_args])

@@ -5,7 +5,8 @@ file record by record with the ``mcap`` stream reader, checking chunk CRCs. When
 is truncated (a recorder killed between flushes leaves no footer) or damaged, reading stops
 at the first bad record and :class:`BagContents.damage` says where (file, byte offset, the
 time of the last good message, why); everything before it is kept. Nothing raises for a
-damaged MCAP body; a missing file or a malformed ``metadata.yaml`` raises
+damaged MCAP body; a bag its recorder closed on a write error (marked incomplete in its
+metadata) is damaged too, with the recorder's reason. A missing file or a malformed ``metadata.yaml`` raises
 :class:`BagReadError` naming the path and key.
 
 :func:`instants` groups the messages by their own stamp (:attr:`BagMessage.stamp_ns`, the
@@ -27,7 +28,7 @@ from mcap.exceptions import EndOfFile, RecordLengthLimitExceeded
 from mcap.records import Channel, Chunk, DataEnd, Footer, Message, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from thermal_comp_common.bags.writer import METADATA_FILE, stamp_from_cdr
+from thermal_comp_common.bags.writer import INCOMPLETE_KEY, METADATA_FILE, stamp_from_cdr
 
 
 class BagReadError(ValueError):
@@ -104,6 +105,15 @@ def _key(data: dict, path: list[str], where: str):
             raise BagReadError(f"{where}: missing key '{'.'.join(path[:i + 1])}'")
         node = node[k]
     return node
+
+
+def incomplete_mark(folder: pathlib.Path) -> str:
+    """Why a recorder closed the bag on a write error (its metadata's ``custom_data``), else ""."""
+    try:
+        info = yaml.safe_load((folder / METADATA_FILE).read_text())["rosbag2_bagfile_information"]
+        return str((info.get("custom_data") or {}).get(INCOMPLETE_KEY, ""))
+    except (OSError, ValueError, yaml.YAMLError, TypeError, KeyError, AttributeError):
+        return ""      # no readable metadata: read_metadata names what is wrong
 
 
 def read_metadata(folder: pathlib.Path) -> tuple[list[str], dict[str, TopicSpec]]:
@@ -245,6 +255,10 @@ def read_bag(path: str | os.PathLike) -> BagContents:
             if not contents.messages and not _starts_like_mcap(m):
                 raise BagReadError(f"{m}: not an MCAP file (no MCAP magic at its start)")
             break
+    mark = incomplete_mark(path) if path.is_dir() else ""
+    if mark:
+        contents.damage = (f"{contents.damage}; " if contents.damage else "") + \
+            f"{path}: closed by its recorder on a write error, incomplete: {mark}"
     contents.messages.sort(key=lambda msg: msg.stamp_ns)   # stable: recorded order kept
     return contents
 

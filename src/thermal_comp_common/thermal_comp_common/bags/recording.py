@@ -2,24 +2,64 @@
 
 Replay, regression, evaluation and the mismatch finder all read bags through this one
 conversion: one row per temperature instant, machine inputs and error components aligned
-to it.
+to it. A bag that ends early (truncated, damaged, or closed incomplete by its recorder on a
+write error) is refused, naming where it ends, unless the command was given
+``--allow-truncated`` (:mod:`thermal_comp_common.bags.truncation`): a result on half a recording must not
+pass for one on the whole.
 """
 from __future__ import annotations
 
 import math
 import pathlib
+from typing import Sequence
 
 import numpy as np
 
 from thermal_comp_common.bags import msg_definitions
 from thermal_comp_common.bags.reader import BagContents, read_bag
+from thermal_comp_common.bags.truncation import truncated_allowed
 from thermal_comp_common.machine_inputs import machine_state_inputs
-from thermal_comp_common.recording_csv import Recording, read_recording_csv
+from thermal_comp_common.recording_csv import Recording, RecordingError, read_recording_csv
 from thermal_comp_common.sensor_readings import model_temperatures
 
 
 class BagRecordingError(ValueError):
     """The bag cannot be turned into a recording; the message names the bag and topic."""
+
+
+class TruncatedBagError(BagRecordingError):
+    """The bag ends early (damage or an incomplete mark) and truncated bags are not allowed."""
+
+
+#: the fewest rows a recording must hold to be calibrated on, diagnosed or replayed
+MIN_RECORDING_ROWS = 30
+#: the fewest finite values a channel the work depends on (an error component) must hold
+MIN_CHANNEL_VALUES = 8
+#: beyond this magnitude a temperature (degC) or error (um, um/m) value is no measurement
+MAX_CHANNEL_MAGNITUDE = 1e6
+
+
+def check_recording(rec: Recording, required: Sequence[str], others: Sequence[str] = (),
+                    stop: int | None = None) -> None:
+    """Refuse (RecordingError, one line) a recording whose first ``stop`` rows are too few
+    (:data:`MIN_RECORDING_ROWS`), whose channels ``required`` + ``others`` hold an infinite value
+    or one beyond :data:`MAX_CHANNEL_MAGNITUDE` (NaN is a missing reading and allowed), or whose
+    ``required`` channels hold fewer than :data:`MIN_CHANNEL_VALUES` finite values."""
+    n = len(rec) if stop is None else min(stop, len(rec))
+    if n < MIN_RECORDING_ROWS:
+        raise RecordingError(f"recording {rec.source}: {n} rows, need at least {MIN_RECORDING_ROWS}")
+    for name in [*required, *others]:
+        v = np.asarray(rec.columns[name][:n], dtype=float)
+        bad = np.isinf(v) | (np.abs(np.nan_to_num(v)) > MAX_CHANNEL_MAGNITUDE)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise RecordingError(f"recording {rec.source}: column '{name}': row {k + 1} (t = {rec.time_s[k]:g} s): "
+                                 f"{v[k]:g} is no measurement (finite, |value| <= {MAX_CHANNEL_MAGNITUDE:g})")
+    for name in required:
+        finite = int(np.isfinite(np.asarray(rec.columns[name][:n], dtype=float)).sum())
+        if finite < MIN_CHANNEL_VALUES:
+            raise RecordingError(f"recording {rec.source}: column '{name}': {finite} finite values, "
+                                 f"need at least {MIN_CHANNEL_VALUES}")
 
 
 def _topic(contents: BagContents, rel: str) -> str:
@@ -82,9 +122,10 @@ def load_recording(path, temperatures_topic: str = "temperatures",
                    errors_topic: str = "errors/ground_truth") -> Recording:
     """A recording CSV, or a bag folder / ``.mcap`` file turned into the same columns.
 
-    A damaged bag is read up to the damage, with a warning in ``Recording.warnings``.
-    Raises ``FileNotFoundError`` for a missing path and ``ValueError`` (naming the file,
-    column or topic) for content that cannot be read.
+    A bag that ends early (``BagContents.damage``) raises :class:`TruncatedBagError` naming
+    where it ends, or, when truncated bags are allowed (``--allow-truncated``), is read up to there with a warning
+    in ``Recording.warnings``. Raises ``FileNotFoundError`` for a missing path and
+    ``ValueError`` (naming the file, column or topic) for content that cannot be read.
     """
     path = pathlib.Path(path)
     if not path.exists():
@@ -92,7 +133,18 @@ def load_recording(path, temperatures_topic: str = "temperatures",
     if path.is_file() and path.suffix.lower() == ".csv":
         return read_recording_csv(path)
     contents = read_bag(path)
-    rec = bag_to_recording(contents, temperatures_topic, errors_topic)
+    try:
+        rec = bag_to_recording(contents, temperatures_topic, errors_topic)
+    except BagRecordingError as exc:
+        if contents.damage:
+            raise TruncatedBagError(f"{exc}; the bag is damaged: {contents.damage}") from None
+        raise
     if contents.damage:
-        rec.warnings.append(f"{path}: damaged bag, read up to the damage: {contents.damage}")
+        t = rec.time_s
+        ends = (f"it ends at t = {t[-1]:.0f} s, {(t[-1] - t[0]) / 3600.0:.2f} h after its first "
+                f"instant ({t.size} instants)")
+        if not truncated_allowed():
+            raise TruncatedBagError(f"{path}: the bag ends early, {ends}: {contents.damage}; "
+                                    "--allow-truncated uses what is there")
+        rec.warnings.append(f"{path}: the bag ends early, read up to there ({ends}): {contents.damage}")
     return rec

@@ -13,6 +13,12 @@ rewrites ``metadata.yaml`` atomically, so a process killed between flushes loses
 messages of the chunk that was still open. Such a bag has no MCAP footer; the player
 (:mod:`thermal_comp_common.bags.reader`) replays it up to the damage and says where it stopped.
 
+Write errors (a full disk, a quota, an I/O error) lose nothing already written: the writer
+closes the bag at the end of the last chunk that was on disk (the partial one is cut off), frees
+the few kB it held in reserve (:data:`RESERVE_FILE`, removed on a clean close) and marks it
+incomplete in ``metadata.yaml`` (``custom_data`` key :data:`INCOMPLETE_KEY`, with the reason;
+readers report the bag as damaged then) and raises :class:`BagIOError`, one line.
+
 Message times: the MCAP ``log_time`` is the message's own stamp when its first field is a
 ``std_msgs/Header`` or ``builtin_interfaces/Time`` (:func:`stamp_from_cdr`) - deterministic
 in simulated time - or the receive time otherwise; ``publish_time`` is the receive time.
@@ -22,6 +28,7 @@ This is the pure core of the recorder (no rclpy); the node is
 """
 from __future__ import annotations
 
+import errno
 import os
 import pathlib
 import shutil
@@ -40,10 +47,20 @@ ROS_DISTRO = "jazzy"
 #: "infinite" durations as rosbag2 writes them (RMW_DURATION_INFINITE split in sec/nsec)
 INFINITE = {"sec": 9223372036, "nsec": 854775807}
 DEFAULT_CHUNK_BYTES = 256 * 1024
+#: ``custom_data`` key of a bag closed on a write error: why and where it ends
+INCOMPLETE_KEY = "incomplete"
+#: space held while recording, freed on a write error so that the incomplete mark fits on a full disk
+RESERVE_FILE = METADATA_FILE + ".reserve.tmp"
+RESERVE_BYTES = 64 * 1024
 
 
 class BagWriteError(ValueError):
     """The bag cannot be written (existing folder, unknown topic, closed writer...)."""
+
+
+class BagIOError(BagWriteError):
+    """Writing failed (disk full, I/O error); the bag holds what was on disk before, marked
+    incomplete. The message is one line naming the bag, the error and what was kept."""
 
 
 def qos_dict(reliability: str = "reliable", durability: str = "volatile", history: str = "keep_last",
@@ -115,6 +132,12 @@ def remove_bag_folder(path: str | os.PathLike) -> None:
     shutil.rmtree(path)
 
 
+def _os_text(exc: OSError) -> str:
+    """'No space left on device (ENOSPC)': an OSError in a few words."""
+    name = errno.errorcode.get(exc.errno, "") if exc.errno else ""
+    return f"{exc.strerror or exc}" + (f" ({name})" if name else "")
+
+
 def _fsync_dir(path: pathlib.Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
@@ -142,7 +165,10 @@ class BagWriter:
         self.path = final.with_name(f".{final.name}.creating-{os.getpid()}")
         self.path.mkdir(exist_ok=True)    # left by a killed process of the same pid: reused
         self.mcap_name = f"{final.name}_0.mcap"
-        self._stream = open(self.path / self.mcap_name, "wb")
+        try:
+            self._stream = open(self.path / self.mcap_name, "wb")
+        except OSError as exc:
+            raise BagIOError(f"bag {str(final)!r}: cannot create it: {_os_text(exc)}") from None
         self._writer = Writer(self._stream, chunk_size=chunk_bytes,
                               compression={"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                                            "none": CompressionType.NONE}[compression])
@@ -156,11 +182,23 @@ class BagWriter:
         self.start_ns: int | None = None
         self.end_ns: int | None = None
         self.closed = False
+        self.incomplete = ""          # why the bag was closed on a write error ("" otherwise)
+        self._on_disk = (0, {}, None, None)   # (MCAP bytes, counts, start, end) at the last sync
         for t in topics:
             self.add_topic(t)
-        self.sync()                  # the MCAP header on disk (schemas and channels go with the first chunk)
-        self._write_metadata()
-        self.path.rename(final)
+        try:
+            self._hold_reserve()
+            self.sync()              # the MCAP header on disk (schemas and channels go with the first chunk)
+            self._write_metadata()
+            self.path.rename(final)
+        except (OSError, BagIOError) as exc:
+            why = self.incomplete or _os_text(exc)
+            try:
+                self._stream.close()
+            except OSError:
+                pass
+            raise BagIOError(f"bag {str(final)!r}: cannot create it: {why} "
+                             f"(the partial folder {str(self.path)!r} is left)") from None
         self.path = final
         _fsync_dir(final.parent)
 
@@ -195,10 +233,13 @@ class BagWriter:
             raise BagWriteError(f"topic {topic!r} is not registered in bag {str(self.path)!r}")
         if log_time_ns < 0:
             raise BagWriteError(f"topic {topic!r}: negative time {log_time_ns} ns")
-        self._writer.add_message(self._channels[topic], log_time=int(log_time_ns), data=bytes(data),
-                                 publish_time=int(log_time_ns if publish_time_ns is None
-                                                  else publish_time_ns),
-                                 sequence=self.counts[topic])
+        try:      # a full chunk goes to the file here
+            self._writer.add_message(self._channels[topic], log_time=int(log_time_ns), data=bytes(data),
+                                     publish_time=int(log_time_ns if publish_time_ns is None
+                                                      else publish_time_ns),
+                                     sequence=self.counts[topic])
+        except OSError as exc:
+            self._fail(exc, "writing a message")
         self.counts[topic] += 1
         self.start_ns = log_time_ns if self.start_ns is None else min(self.start_ns, log_time_ns)
         self.end_ns = log_time_ns if self.end_ns is None else max(self.end_ns, log_time_ns)
@@ -211,9 +252,13 @@ class BagWriter:
         """Close the open chunk, write it to disk and refresh metadata.yaml (crash safety)."""
         if self.closed:
             return
-        self._writer.flush()
-        os.fsync(self._stream.fileno())
-        self._write_metadata()
+        try:
+            self._writer.flush()
+            os.fsync(self._stream.fileno())
+            self._mark_on_disk()
+            self._write_metadata()
+        except OSError as exc:
+            self._fail(exc, "flushing")
 
     def sync(self, fsync: bool = True) -> None:
         """Close the open chunk and hand it to the OS, fsynced unless ``fsync`` is False (metadata.yaml
@@ -221,23 +266,65 @@ class BagWriter:
         loss too). Used before a lock-step acknowledgement."""
         if self.closed:
             return
-        self._writer.flush()
-        self._stream.flush()
-        if fsync:
-            os.fsync(self._stream.fileno())
+        try:
+            self._writer.flush()
+            self._stream.flush()
+            if fsync:
+                os.fsync(self._stream.fileno())
+        except OSError as exc:
+            self._fail(exc, "syncing")
+        self._mark_on_disk()
 
     def close(self) -> None:
         """Finish the MCAP file (rosbag2 metadata record, summary, footer) and metadata.yaml."""
         if self.closed:
             return
-        self._writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(
-            self.metadata()["rosbag2_bagfile_information"], sort_keys=False)})
-        self._writer.finish()
-        self._stream.flush()
-        os.fsync(self._stream.fileno())
-        self._stream.close()
+        try:
+            self._writer.add_metadata("rosbag2", {"serialized_metadata": yaml.safe_dump(
+                self.metadata()["rosbag2_bagfile_information"], sort_keys=False)})
+            self._writer.finish()
+            self._stream.flush()
+            os.fsync(self._stream.fileno())
+            self._stream.close()
+            self.closed = True
+            self._write_metadata()
+        except OSError as exc:
+            self._fail(exc, "closing")
+        (self.path / RESERVE_FILE).unlink(missing_ok=True)
+
+    def _hold_reserve(self) -> None:
+        with open(self.path / RESERVE_FILE, "wb") as f:
+            f.write(bytes(RESERVE_BYTES))      # written zeros take real blocks (no sparse hole)
+            f.flush()
+            os.fsync(f.fileno())
+
+    def _mark_on_disk(self) -> None:
+        """Remember what the file holds now (a record boundary): a write error later cuts back to it."""
+        self._on_disk = (self._stream.tell(), dict(self.counts), self.start_ns, self.end_ns)
+
+    def _fail(self, exc: OSError, during: str) -> None:
+        """Close the bag at the end of what was on disk at the last sync, mark it incomplete in
+        metadata.yaml and raise BagIOError (one line)."""
         self.closed = True
-        self._write_metadata()
+        offset, counts, self.start_ns, self.end_ns = self._on_disk
+        self.counts = {t: counts.get(t, 0) for t in self.counts}
+        try:
+            self._stream.close()    # its buffer may fail to go out again: the cut below drops it
+        except OSError:
+            pass
+        kept = f"{self.message_count} messages kept"
+        if self.end_ns is not None:
+            kept += f", up to log time {self.end_ns * 1e-9:.3f} s"
+        self.incomplete = f"{_os_text(exc)} while {during}; {kept}"
+        self.custom_data[INCOMPLETE_KEY] = self.incomplete
+        marked = "marked incomplete"
+        try:
+            (self.path / RESERVE_FILE).unlink(missing_ok=True)
+            os.truncate(self.path / self.mcap_name, offset)   # also frees the space of the cut chunk
+            self._write_metadata()
+        except OSError as again:
+            marked = f"not marked incomplete ({_os_text(again)}; readers still see the missing end)"
+        raise BagIOError(f"bag {str(self.path)!r}: {self.incomplete}; closed there, {marked}") from None
 
     def __enter__(self) -> "BagWriter":
         return self

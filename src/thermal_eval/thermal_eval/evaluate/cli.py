@@ -17,6 +17,8 @@ import sys
 from thermal_comp_common.runtime.engine_options import add_engine_arguments
 
 from thermal_eval.evaluate.opt_in import OPT_IN
+from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
+from thermal_comp_common.command_line import run_parsed
 
 
 def parser() -> argparse.ArgumentParser:
@@ -64,13 +66,14 @@ def parser() -> argparse.ArgumentParser:
     add_engine_arguments(ap, default_jobs=1, what="model rows")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_allow_truncated_argument(ap)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    from thermal_eval.evaluate.command import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    with truncated_bags_allowed(args.allow_truncated):
+        return run_parsed("thermal_eval.evaluate.command:run", args)
 
 
 if __name__ == "__main__":

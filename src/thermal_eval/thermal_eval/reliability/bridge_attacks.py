@@ -4,8 +4,8 @@ CNC bridge, its OPC UA link and the launcher's cell files.
 Each case runs the real pieces in-process (CNC emulator over loopback OPC UA, the OPC UA
 backend, the safety envelope, the cell-file parser) or the bridge node as a process where
 the case is about the node itself. "unsafe writes" counts values the CNC accepted that are
-non-finite, beyond the absolute limit in force, or faster than the rate limit (from what the
-CNC applied before, or from the adopted value for a deliberate, flagged clamp at start-up).
+non-finite, beyond the absolute limit in force, or faster than the rate limit from what the
+CNC applied before (at start-up: what it held, if its compensation was on).
 """
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ import time
 
 from asyncua import Client, ua
 
+from cnc_bridge.bridge_core import BridgeCore
 from cnc_bridge.certificates import make_certificate
 from cnc_bridge.cnc_emulator import (CncEmulatorThread, EmulatorConfig, EmulatorState, compensation_node_id,
                                       free_tcp_port)
@@ -29,7 +30,8 @@ from cnc_bridge.opcua_config import OpcUaConfig, default_node_map
 from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
 from thermal_comp.cell.config import CellConfigError, parse_cell
 
-from thermal_eval.reliability.fault_injection import offset_violations
+from thermal_eval.reliability.fault_injection import (offset_violations, step_violations,
+                                                     written_offsets_um)
 
 LIMIT_UM, RATE_UM_PER_S, DT_S = 30.0, 0.5, 10.0
 
@@ -81,6 +83,32 @@ def _start_up(port: int, held_mm: float, enabled: int, limit_after: float | None
         away = sum(1 for prev, v, lim in zip(applied, applied[1:], limits[1:])
                    if abs(v) > lim and abs(v) > abs(prev) + 1e-9)
         return adoption, applied, len(bad) + away, written_before
+    finally:
+        be.close()
+        emu.close()
+
+
+def _activation_against_held(port: int, held_mm: float) -> tuple[str | None, int, int]:
+    """The bridge's own write path (configure: adopt; activate; 20 predictions as the node
+    drives them) against a CNC holding ``held_mm`` with compensation on. Returns (the
+    refusal line or None, CNC offset writes, unsafe writes from the held value)."""
+    emu = _emulator(port, held_mm, 1)
+    be = OpcUaBackend(OpcUaConfig(endpoint=emu.config.endpoint, timeout_s=1.0,
+                                  node_map=default_node_map(("X",), position_axes=())))
+    try:
+        if not be.wait_connected(10.0):
+            raise RuntimeError(f"no connection: {be.last_error}")
+        env = SafetyEnvelope(EnvelopeConfig(LIMIT_UM, max_rate_um_per_s=RATE_UM_PER_S, max_step_s=DT_S),
+                             enabled=False)
+        core = BridgeCore(env, be, kinematic=True)   # kinematic: the command is the axis value
+        core.adopt_held()
+        refused = core.activate(True)
+        for k in range(20):
+            if core.writing:
+                core.update(k * DT_S, {"X": 20.0}, {}, fresh=True)
+        written = written_offsets_um(emu.write_log, "X")
+        bad = step_violations(written, RATE_UM_PER_S * DT_S, LIMIT_UM, "X", start_um=held_mm * 1000.0)
+        return refused, len(written), len(bad)
     finally:
         be.close()
         emu.close()
@@ -186,9 +214,10 @@ def rows() -> list[dict]:
     out.append(_row("start-up: -5 mm held, compensation off", unsafe == 0 and before == 0
                     and a.adopted_um == 0.0 and abs(applied[1]) <= RATE_UM_PER_S * DT_S, unsafe,
                     f"adopted {a.adopted_um:g} um; first writes {applied[0]:g}, {applied[1]:g} um"))
-    a, applied, unsafe, before = _start_up(free_tcp_port(), 1e6, 1)      # 1e9 um held
-    out.append(_row("start-up: 1e9 um held", unsafe == 0 and before == 0 and a.adopted_um == LIMIT_UM
-                    and a.flags & 1, unsafe, a.describe()))
+    for held_mm, what in ((-5.0, "-5 mm"), (1e6, "1e9 um")):
+        refused, writes, unsafe = _activation_against_held(free_tcp_port(), held_mm)
+        out.append(_row(f"activation: {what} held, compensation on", refused is not None and writes == 0
+                        and unsafe == 0, unsafe, f"{writes} writes; " + (refused or "activated")))
     a, applied, unsafe, _ = _start_up(free_tcp_port(), 0.0, 0, limit_after=1.0)
     out.append(_row("abs_limit_um 30 -> 1 at run time", unsafe == 0 and abs(applied[-1]) <= 1.0 + 1e-9,
                     unsafe, f"20 um asked; applied {applied[4]:g} before, {applied[-1]:g} um at the end"))

@@ -15,6 +15,8 @@ import sys
 
 from thermal_comp_common.probe_and_hold import (TABLE_5_4_NOISE_ANGULAR_UM_PER_M, TABLE_5_4_NOISE_LINEAR_UM,
                                                 TABLE_5_4_RESOLUTION_UM)
+from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
+from thermal_comp_common.command_line import run_parsed
 
 MODEL_KINDS = ("talc", "agp", "cd")
 
@@ -46,13 +48,14 @@ def parser() -> argparse.ArgumentParser:
                          "default: the whole compensation part)")
     ap.add_argument("--prior", metavar="PRIOR", help="start the model (talc, agp or cd) from this prior of its kind (thermal-comp prior --model KIND, or --from-state of another machine); its model_kind must match --model")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_allow_truncated_argument(ap)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    from thermal_eval.replay.command import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    with truncated_bags_allowed(args.allow_truncated):
+        return run_parsed("thermal_eval.replay.command:run", args)
 
 
 if __name__ == "__main__":

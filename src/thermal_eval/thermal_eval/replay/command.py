@@ -9,8 +9,9 @@ import sys
 import time
 
 from thermal_eval.replay.baseline_beside import beside_probe_and_hold
-from thermal_eval.replay.summary import (ReplayInputError, build_model, format_table, load_config_file,
-                                         load_replay_recording, parse_overrides, probe_noise, summarise)
+from thermal_eval.replay.summary import (ReplayInputError, build_model, check_replay_recording, format_table,
+                                         load_config_file, load_replay_recording, parse_overrides, probe_noise,
+                                         summarise)
 from thermal_eval.replay.virtual_experiment import plot_virtual_experiment, run_virtual_experiment
 
 
@@ -40,9 +41,29 @@ def _json_safe(value):
     return value
 
 
+def _writable(path: str, flag: str) -> pathlib.Path:
+    """``path`` once it is known that a file can be written there (tried, before the replay's long
+    work; a file made for the trial is removed): ReplayInputError naming the flag otherwise."""
+    p = pathlib.Path(path)
+    if p.is_dir():
+        raise ReplayInputError(f"{flag} {path!r}: is a folder, expected a file path")
+    existed = p.exists()
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with open(p, "a"):
+            pass
+    except OSError as exc:
+        raise ReplayInputError(f"{flag} {path!r}: cannot write there ({exc.strerror or exc})") from None
+    if not existed:
+        p.unlink()
+    return p
+
+
 def run(args) -> int:
     """Replay as the parsed arguments say; the exit code (0 written, 2 bad input)."""
     try:
+        png_path = _writable(args.png, "--png") if args.png else None
+        json_path = _writable(args.json, "--json")
         for name in ("probe_noise_um", "probe_noise_um_per_m", "probe_resolution_um"):
             v = getattr(args, name)
             if not (math.isfinite(v) and v >= 0):
@@ -56,6 +77,9 @@ def run(args) -> int:
         stop = None
         if args.hours is not None:
             stop = int((rec.time_s <= rec.time_s[0] + 3600.0 * args.hours).sum())
+        check_replay_recording(rec, model.component_names, stop)
+        for warning in rec.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
         noise = probe_noise(model.component_names, args.probe_noise_um, args.probe_noise_um_per_m)
         t0 = time.perf_counter()
         result = run_virtual_experiment(rec, model, probe_noise_um=noise,
@@ -73,10 +97,8 @@ def run(args) -> int:
            "probe_noise": {"linear_um": args.probe_noise_um, "angular_um_per_m": args.probe_noise_um_per_m,
                            "resolution_um": args.probe_resolution_um, "seed": args.seed},
            "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3)}
-    json_path = pathlib.Path(args.json)
-    json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(_json_safe(out), indent=2) + "\n")
-    png = pathlib.Path(args.png) if args.png else json_path.with_suffix(".png")
+    png = png_path or json_path.with_suffix(".png")
     plot_virtual_experiment(result, png, title=f"{args.model} {pathlib.Path(args.recording).name}")
     print(format_table(summary, title=f"{args.model} on {args.recording} ({wall:.1f} s)"))
     print(text)

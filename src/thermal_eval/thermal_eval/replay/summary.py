@@ -15,7 +15,9 @@ import yaml
 
 from talc_model.adaptive_model import PHASE_CALIBRATION, is_angular, make_model
 from thermal_comp_common import metrics
-from thermal_comp_common.bags.recording import load_recording
+from thermal_comp_common.bags.recording import check_recording, load_recording
+from thermal_comp_common.recording_csv import RecordingError
+from thermal_eval.replay.virtual_experiment import ReplayColumns
 
 #: Probe repeatability (k = 1) and resolution of the sphere cycle, thesis Table 5.4 (defined once,
 #: in thermal_comp_common.probe_and_hold).
@@ -37,6 +39,19 @@ def load_replay_recording(path: str | pathlib.Path, errors_topic: str = "errors/
     except (OSError, ValueError) as exc:
         msg = str(exc)
         raise ReplayInputError(msg if msg.startswith("recording ") else f"recording {str(path)!r}: {msg}") from None
+
+
+def check_replay_recording(rec, components: Sequence[str], stop: int | None = None) -> None:
+    """Refuse what calibrate and diagnose refuse too (:func:`~thermal_comp_common.bags.recording.check_recording`):
+    too few rows, infinite or absurd values, an error column of a model component without enough
+    finite values (``stop``: only the first rows are replayed). A component without any error
+    column is left for the replay to name."""
+    errors = ReplayColumns.from_recording(rec).errors
+    required = [errors[c] for c in components if c in errors]
+    try:
+        check_recording(rec, required, [c for c in rec.names("sensor") if c not in required], stop)
+    except RecordingError as exc:
+        raise ReplayInputError(str(exc)) from None
 
 
 def parse_overrides(items: Sequence[str]) -> dict[str, Any]:
@@ -148,6 +163,11 @@ def summarise(result, status, score_from_h: float | None = None) -> dict[str, An
             "final_phase": status.phase}
 
 
+def _headline(v: float) -> str:
+    """A headline figure, or "n/a (nothing scored)": a NaN is never printed as a result."""
+    return f"{v:.2f}" if math.isfinite(v) else "n/a (nothing scored)"
+
+
 def format_table(summary: Mapping[str, Any], title: str = "") -> str:
     """Plain-text table like the thesis's Table 6.5 (P99 uncompensated / compensated / reduction)."""
     comps = list(summary["components"])
@@ -158,7 +178,9 @@ def format_table(summary: Mapping[str, Any], title: str = "") -> str:
     lines = []
     if title:
         lines.append(title)
-    lines.append(f"Q_prod {summary['q_prod_pct']:.2f} %, CP {summary['calibration_h']:.2f} h, "
+    cp_h = summary['calibration_h']
+    lines.append(f"Q_prod {summary['q_prod_pct']:.2f} %, CP "
+                 + (f"{cp_h:.2f} h" if math.isfinite(cp_h) else "not ended") + ", "
                  f"{summary['probing_cycles']} probing cycles, {summary['no_good_phases']} no-good phases, "
                  f"{summary['parameter_updates']} parameter updates")
     lines.append("".ljust(20) + "".join(c.rjust(9) for c in comps))
@@ -171,7 +193,8 @@ def format_table(summary: Mapping[str, Any], title: str = "") -> str:
         red.append(100.0 * (1.0 - k / u) if math.isfinite(u) and math.isfinite(k) and u > 0 else math.nan)
     lines.append("Reduction %".ljust(20) + "".join(cell(r) for r in red))
     lines.append("RMS compensated".ljust(20) + "".join(cell(per[c]["rms"]) for c in comps))
-    lines.append(f"P99_lin {summary['p99_lin_um']:.2f} um, P99_ang {summary['p99_ang_um_per_m']:.2f} um/m")
+    lines.append(f"P99_lin {_headline(summary['p99_lin_um'])} um, "
+                 f"P99_ang {_headline(summary['p99_ang_um_per_m'])} um/m")
     if summary.get("scored_from_h") is not None:
         lines.append(f"scored from {summary['scored_from_h']:g} h ({summary['scored_steps']} steps)")
     if summary["compensation_steps"] == 0:

@@ -17,6 +17,7 @@ from thermal_comp_common.metrics import Q_PROD_MIN_PCT
 from thermal_comp_common.probe_and_hold import (TABLE_5_4_NOISE_ANGULAR_UM_PER_M, TABLE_5_4_NOISE_LINEAR_UM,
                                                 TABLE_5_4_RESOLUTION_UM)
 from thermal_comp_common.runtime.task_engine import default_workers
+from thermal_comp_common.command_line import run_parsed
 
 
 def parser() -> argparse.ArgumentParser:
@@ -44,8 +45,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    from thermal_eval.sweep.command import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    return run_parsed("thermal_eval.sweep.command:run", args)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,8 @@ import argparse
 import sys
 
 from thermal_comp_common.runtime.engine_options import add_engine_arguments
+from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
+from thermal_comp_common.command_line import run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,14 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_allow_truncated_argument(p)
     add_engine_arguments(p, 1, "Jacobian columns")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from thermal_twin.calibrate.command import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    with truncated_bags_allowed(args.allow_truncated):
+        return run_parsed("thermal_twin.calibrate.command:run", args)
 
 
 if __name__ == "__main__":

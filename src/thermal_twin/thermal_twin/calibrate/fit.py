@@ -28,6 +28,7 @@ from thermal_twin.diagnose.fit import FitProblem, effective_samples
 from thermal_twin.diagnose.twin_eval import node_states, outputs_from_states
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
+from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import Recording
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
@@ -131,7 +132,7 @@ def pick_channels(machine, rec: Recording) -> tuple[list[str], list[str]]:
     for c in cols:
         if c not in rec.columns:
             continue
-        if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8:
+        if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= MIN_CHANNEL_VALUES:
             chans.append(c)
         else:
             empty.append(c)
@@ -184,13 +185,14 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     channels, _ = pick_channels(machine, recording)
     if not channels:
         raise CalibrationError(f"recording {recording.source}: no channel shared with twin '{machine.name}' "
-                               f"with at least 8 values")
+                               f"with at least {MIN_CHANNEL_VALUES} values")
     params, fixed = _relevant(free_parameters(spec0, section), machine, channels)
     if not params:
         raise CalibrationError("no free parameter: the calibration section fixes everything")
     n_train = int(round(len(recording) * (1.0 - holdout_fraction)))
-    if n_train < 30:
-        raise CalibrationError(f"recording {recording.source}: {n_train} training rows, need at least 30")
+    if n_train < MIN_RECORDING_ROWS:
+        raise CalibrationError(f"recording {recording.source}: {n_train} training rows, "
+                               f"need at least {MIN_RECORDING_ROWS}")
     res = {c: machine.sensors[s].resolution for s in machine.sensors
            for c in [machine.sensors[s].column]}
     fp = FitProblem(recording, channels, n_train, resolution=res)

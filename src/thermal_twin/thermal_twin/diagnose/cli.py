@@ -21,6 +21,8 @@ import sys
 from thermal_comp_common.runtime.engine_options import add_engine_arguments
 from thermal_comp_common.runtime.task_engine import default_workers
 from thermal_twin.diagnose.effects import EFFECTS
+from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
+from thermal_comp_common.command_line import run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,14 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-unnamed", action="store_true", help="do not fit an out-of-vocabulary discrepancy")
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_allow_truncated_argument(p)
     add_engine_arguments(p, default_workers(), "channel analyses and candidate fits")
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from thermal_twin.diagnose.command import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    with truncated_bags_allowed(args.allow_truncated):
+        return run_parsed("thermal_twin.diagnose.command:run", args)
 
 
 if __name__ == "__main__":

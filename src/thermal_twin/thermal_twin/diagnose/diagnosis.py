@@ -27,6 +27,7 @@ from thermal_twin.diagnose.search_round import RoundInputs, run_round
 from thermal_twin.diagnose.significance import PROCEDURE
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
+from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
 from thermal_comp_common.runtime.task_engine import EngineSpec
@@ -150,7 +151,7 @@ def _clean_inputs(rec: Recording, machine: Machine) -> Recording:
 def shared_channels(machine: Machine, rec: Recording) -> list[str]:
     chans = [machine.sensors[s].column for s in machine.sensors if machine.sensors[s].column in rec.columns]
     chans += [e for e in machine.errors if e in rec.columns]
-    return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= 8]
+    return [c for c in chans if np.isfinite(np.asarray(rec.columns[c], dtype=float)).sum() >= MIN_CHANNEL_VALUES]
 
 
 @dataclass
@@ -227,8 +228,8 @@ def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: boo
     """Check the inputs, simulate the twin as given and (with ``calibrate``) calibrate it."""
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
     rec = _clean_inputs(recording, machine)
-    if len(rec) < 30:
-        raise DiagnosisError(f"recording {rec.source}: {len(rec)} rows, need at least 30")
+    if len(rec) < MIN_RECORDING_ROWS:
+        raise DiagnosisError(f"recording {rec.source}: {len(rec)} rows, need at least {MIN_RECORDING_ROWS}")
     channels = shared_channels(machine, rec)
     if not channels:
         raise DiagnosisError(

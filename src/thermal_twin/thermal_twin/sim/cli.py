@@ -11,6 +11,7 @@ import sys
 
 from thermal_twin.machine.presets import preset_names
 from thermal_twin.sim.scenarios import SCENARIOS
+from thermal_comp_common.command_line import run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -33,8 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    from thermal_twin.sim.command import run  # the work, imported once parsed: --help stays fast
-    return run(args)
+    return run_parsed("thermal_twin.sim.command:run", args)
 
 
 if __name__ == "__main__":
