@@ -109,3 +109,22 @@ def test_a_clean_close_leaves_only_the_bag_files(tmp_path):
     assert sorted(p.name for p in (tmp_path / "bag").iterdir()) == ["bag_0.mcap", "metadata.yaml"]
     contents = read_bag(tmp_path / "bag")
     assert contents.damage is None and len(contents.messages) == 1
+
+
+def test_a_disk_that_fills_while_closing_keeps_what_was_flushed(tmp_path, monkeypatch):
+    disk = _FullDisk(tmp_path, 10**9)
+    monkeypatch.setattr(writer_mod, "open", disk.open, raising=False)
+    w = BagWriter(tmp_path / "bag", [TOPIC], chunk_bytes=1 << 20, compression="none")
+    for t in range(1, 11):
+        w.write(TOPIC.name, t * 10**9, _message(t))
+    w.flush()
+    for t in range(11, 15):         # still in the open chunk: the disk sees them only when closing
+        w.write(TOPIC.name, t * 10**9, _message(t))
+    disk.capacity = disk.used() + 200
+    with pytest.raises(BagIOError, match=r"while closing; 10 messages kept, up to log time 10\.000 s; "
+                                         r"closed there, marked incomplete"):
+        w.close()
+    monkeypatch.undo()
+    contents = read_bag(tmp_path / "bag")
+    assert [m.stamp_ns // 10**9 for m in contents.messages] == list(range(1, 11))
+    assert "incomplete" in contents.damage

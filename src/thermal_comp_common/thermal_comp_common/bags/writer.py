@@ -286,11 +286,15 @@ class BagWriter:
             self._stream.flush()
             os.fsync(self._stream.fileno())
             self._stream.close()
-            self.closed = True
-            self._write_metadata()
         except OSError as exc:
             self._fail(exc, "closing")
-        (self.path / RESERVE_FILE).unlink(missing_ok=True)
+        self.closed = True
+        try:     # the MCAP file is complete; the reserve goes first, its space is metadata.yaml's
+            (self.path / RESERVE_FILE).unlink(missing_ok=True)
+            self._write_metadata()
+        except OSError as exc:
+            raise BagIOError(f"bag {str(self.path)!r}: {_os_text(exc)} while writing {METADATA_FILE}; the MCAP "
+                             f"file is complete, {METADATA_FILE} is the one of the last flush") from None
 
     def _hold_reserve(self) -> None:
         with open(self.path / RESERVE_FILE, "wb") as f:
