@@ -32,10 +32,11 @@ from thermal_twin.sim.scenarios import make_timeline
 from thermal_twin.sim.simulate import simulate
 
 #: the modules each kind's prior is fitted and run by (their source is part of the cache key)
-PRIOR_MODULES = {"talc": ["talc_model.prior.talc", "talc_model.talc.model", "talc_model.type_inputs",
-                          "thermal_twin.sim.type_soft_sensors"],
-                 "agp": ["talc_model.prior.agp", "talc_model.agp.model", "talc_model.agp.gaussian_process"],
-                 "cd": ["talc_model.prior.cd", "talc_model.cd.model", "talc_model.cd.diagram",
+PRIOR_MODULES = {"talc": ["talc_model.prior.talc", "talc_model.prior.integrity", "talc_model.talc.model",
+                          "talc_model.type_inputs", "thermal_twin.sim.type_soft_sensors"],
+                 "agp": ["talc_model.prior.agp", "talc_model.prior.integrity", "talc_model.agp.model",
+                         "talc_model.agp.gaussian_process"],
+                 "cd": ["talc_model.prior.cd", "talc_model.prior.integrity", "talc_model.cd.model", "talc_model.cd.diagram",
                         "talc_model.cd.input_selection", "talc_model.probing.uncertainty_weighted_hold",
                         "talc_model.type_inputs", "thermal_twin.sim.type_soft_sensors"]}
 
