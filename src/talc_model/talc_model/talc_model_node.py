@@ -51,6 +51,7 @@ from thermal_comp_msgs.msg import (AxisOffsets, MachineState, ModelStatus, SimSy
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
 from talc_model.loop.applied_compensation import MODES, BridgeCompensation
 from talc_model.loop.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
+from talc_model.loop.instant_inputs import InputsReady, InstantInputs
 from talc_model.model_persistence import load_model, load_pretrained, save_model
 from talc_model.probing.cycle_state import Action, ProbeOutcome, ProbeState, ProbingStateMachine
 from talc_model.save_schedule import SaveNow, SaveSchedule
@@ -80,6 +81,8 @@ PARAMS = [
           "probe starts or a periodic save runs (only once offsets have been seen), s", 0.0, 600.0),
     Param("applied_compensation", "offsets", "how the applied compensation is known", choices=MODES),
     Param("lockstep_participant", False, "publish SimSync for t_k after the prediction for t_k"),
+    Param("machine_state_wait_s", 10.0, "lock-step: wall-clock wait for the machine state of an instant "
+          "before its temperatures are modelled with the last inputs, s", 0.0, 3600.0),
 ]
 
 
@@ -135,6 +138,7 @@ class TalcModelNode(Node):
         self.loop = ClosedLoop(model, self.sink, live=True, resumed=resumed,
                                probing=ProbingStateMachine(p["offsets_wait_s"], p["probe_result_wait_s"]))
         self.machine_state: dict[str, float] = {}
+        self.instant_inputs = InstantInputs(p["machine_state_wait_s"])
         self.excluded: list[str] = []
         self.last_pred_msg: ThermalErrors | None = None
         self.saves = SaveSchedule(p["save_period_s"], p["offsets_wait_s"])
@@ -164,6 +168,7 @@ class TalcModelNode(Node):
     # ------------------------------------------------------------------ inputs
     def _on_machine_state(self, msg: MachineState) -> None:
         self.machine_state = machine_state_inputs(msg)
+        self.instant_inputs.state_arrived(stamp_to_s(msg.header.stamp))
         self.sink.b_pos = self.machine_state.get("B_pos", 0.0)
 
     def _on_offsets(self, msg: AxisOffsets) -> None:
@@ -200,7 +205,7 @@ class TalcModelNode(Node):
     def _on_temperatures(self, msg: TemperatureArray) -> None:
         t = stamp_to_s(msg.header.stamp)
         temps = self._temperatures(msg, t)
-        if temps is None:
+        if temps is None or not self._inputs_ready(t):
             return
         step = self._step(t, temps)
         if step.kind is StepKind.LATE:
@@ -221,6 +226,19 @@ class TalcModelNode(Node):
                                      self.loop.probing.busy) is SaveNow.NOW:
                 self._save(t)
         self._ack(t)
+
+    def _inputs_ready(self, t: float) -> bool:
+        """Lock-step: model t only with its machine state (machine_sim re-sends the instant)."""
+        if self.sync_pub is None:
+            return True
+        if (self.instant_inputs.state_t < t - 1e-6
+                and self.count_publishers(self.resolve_topic_name(TOPIC_MACHINE_STATE)) == 0):
+            return True   # nobody publishes a machine state (e.g. a bag without one): nothing to wait for
+        ready = self.instant_inputs.ready(t, self._wall_s())
+        if ready is InputsReady.STEP_HELD:
+            self.get_logger().warning(f"no machine_state for t={t:.0f} s within {self.p['machine_state_wait_s']} s: "
+                                      f"modelling it with the last inputs")
+        return ready is not InputsReady.WAIT
 
     def _refuse_state(self, exc: ResumedStateMismatch) -> None:
         """The documented choice: refuse, keep the file aside, start fresh (never retry it)."""
