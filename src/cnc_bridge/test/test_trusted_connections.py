@@ -97,21 +97,24 @@ def test_security_on_needs_a_user_and_trust_lists(certs):
 def test_login_backoff_doubles_per_client_and_resets_on_success():
     now = [0.0]
     gate = SessionGate("cnc", "s3cret", False, LoginBackoff(0.5, 8.0, clock=lambda: now[0]))
-    a, b = b"certificate-a", b"certificate-b"
+    a = b"certificate-a"
+    key = gate.client_key("cnc", a)
     assert gate.get_user(None, "cnc", "wrong", a) is None           # 1st failure: 0.5 s
     assert gate.get_user(None, "cnc", "s3cret", a) is None          # right, but within back-off
-    assert gate.get_user(None, "cnc", "s3cret", b) is not None      # another client is not held
+    gate._peer = "192.0.2.7"                                        # another address is not held
+    assert gate.get_user(None, "cnc", "s3cret", a) is not None
+    gate._peer = "unknown-address"
     waits = []
     for _ in range(6):
-        now[0] += gate.backoff.locked_for(gate.client_key(a))
-        waits.append(gate.backoff.locked_for(gate.client_key(a)))
+        now[0] += gate.backoff.locked_for(key)
+        waits.append(gate.backoff.locked_for(key))
         assert gate.get_user(None, "cnc", "wrong", a) is None
-        waits.append(gate.backoff.locked_for(gate.client_key(a)))
+        waits.append(gate.backoff.locked_for(key))
     assert waits[1::2] == [1.0, 2.0, 4.0, 8.0, 8.0, 8.0]            # doubled, capped
     assert gate.backoff.refused_in_backoff == 1
     now[0] += 8.0
     assert gate.get_user(None, "cnc", "s3cret", a) is not None
-    assert gate.backoff.locked_for(gate.client_key(a)) == 0.0
+    assert gate.backoff.locked_for(key) == 0.0
 
 
 def test_twenty_wrong_passwords_are_slowed_down(port):
@@ -137,8 +140,8 @@ def test_twenty_wrong_passwords_are_slowed_down(port):
         gate = emu.emulator.gate
         print(f"20 wrong logins: {gate.backoff.refused_in_backoff} refused within the back-off")
         assert gate.backoff.refused_in_backoff >= 1
-        # keyed by the client's address (and certificate): 127.0.0.1 without a certificate
-        assert list(gate.backoff._failures) == ["127.0.0.1/no-certificate"]
+        # keyed by the client's address and the user it asks for
+        assert list(gate.backoff._failures) == ["127.0.0.1/user=cnc"]
     finally:
         emu.close()
 

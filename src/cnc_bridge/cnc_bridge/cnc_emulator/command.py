@@ -9,6 +9,7 @@ import logging
 import signal
 import sys
 
+from cnc_bridge.cnc_emulator.access import open_access_warning
 from cnc_bridge.cnc_emulator.probe import artefact_probe
 from cnc_bridge.cnc_emulator.server import CncEmulator, EmulatorConfig
 from cnc_bridge.cnc_emulator.thread import CncEmulatorThread
@@ -49,6 +50,7 @@ def run(args: argparse.Namespace, ros_args: list[str]) -> int:
         # passes: a full collection over it would pause an answer on the offsets' path
         gc.freeze()
         print(f"CNC emulator listening on {cfg.endpoint}", flush=True)
+        _warn_if_open(cfg)
         stop = asyncio.Event()
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -80,6 +82,7 @@ def _serve_twin(cfg: EmulatorConfig, ros_args: list[str]) -> int:
         emu.close()
         return 1
     print(f"CNC emulator listening on {cfg.endpoint}", flush=True)
+    _warn_if_open(cfg)
 
     def feed(context):
         return CncTwinFeed(context=context, emulator=emu,
@@ -89,3 +92,11 @@ def _serve_twin(cfg: EmulatorConfig, ros_args: list[str]) -> int:
         return run_node(feed, ["cnc-emulator"] + ros_args)
     finally:
         emu.close()
+
+
+def _warn_if_open(cfg: EmulatorConfig) -> None:
+    """One line on stderr when anyone may connect (after the readiness line, which callers
+    wait for on the first line of the output)."""
+    line = open_access_warning(cfg.security, bool(cfg.client_trust))
+    if line:
+        print(line, file=sys.stderr, flush=True)

@@ -103,10 +103,10 @@ class CncEmulator:
         self.write_log: list[tuple[str, float]] = []
         #: every client write refused as out of range: (node id string, value, reason)
         self.refused_writes: list[tuple[str, object, str]] = []
-        self.gate = SessionGate(config.user, config.password, config.security == "required",
-                                LoginBackoff(*config.login_backoff_s))
         self.trust = TrustList.from_paths(config.client_trust, "client trust list") \
             if config.client_trust else None
+        self.gate = SessionGate(config.user, config.password, config.security == "required",
+                                LoginBackoff(*config.login_backoff_s), trust=self.trust)
         self._server: Server | None = None
         self._nodes: dict[str, object] = {}
         #: node id string -> NodeId of the nodes the server updates itself (parsed once)

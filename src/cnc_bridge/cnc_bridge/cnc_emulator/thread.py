@@ -1,11 +1,26 @@
 """The CNC emulator in its own thread and event loop, driven from synchronous code (tests, demo)."""
 from __future__ import annotations
 
+import os
 from typing import Callable, Mapping
 
 from cnc_bridge.cnc_emulator.probe import ProbeMove
 from cnc_bridge.cnc_emulator.server import CncEmulator, EmulatorConfig, EmulatorState
 from cnc_bridge.loop_thread import LoopThread
+
+
+#: s: the emulator's start-up deadline on an idle machine (see startup_deadline_s)
+STARTUP_BASE_S = 20.0
+
+
+def startup_deadline_s(base_s: float = STARTUP_BASE_S) -> float:
+    """``base_s`` x max(1, 1-minute load average / CPU count): start-up builds asyncua's standard
+    address space, CPU-bound work that a loaded machine stretches by about that factor."""
+    try:
+        load = os.getloadavg()[0]
+    except OSError:        # no load average on this platform: the idle deadline
+        load = 0.0
+    return base_s * max(1.0, load / (os.cpu_count() or 1))
 
 
 class CncEmulatorThread:
@@ -29,7 +44,12 @@ class CncEmulatorThread:
     def start(self, state: EmulatorState | None = None) -> "CncEmulatorThread":
         self.emulator = CncEmulator(self.config, self._probe_move, self._on_comp, state)
         self.emulator.write_log = self.write_log
-        self._run(self.emulator.start())
+        deadline = startup_deadline_s()
+        try:
+            self._run(self.emulator.start(), deadline)
+        except TimeoutError:
+            raise TimeoutError(f"CNC emulator on {self.config.endpoint}: not listening within {deadline:.0f} s "
+                               f"({STARTUP_BASE_S:g} s scaled by the machine's load)") from None
         return self
 
     def stop(self) -> None:

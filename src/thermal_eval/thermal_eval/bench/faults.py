@@ -15,8 +15,13 @@ Faults (policies in docs/reliability.md):
 - load: N cells (20; ``--quick``: 2) at once, each its own namespace and ROS_DOMAIN_ID, a
   simulated day each (``--quick``: 4 h): message loss, CPU seconds and peak memory per node.
 
+- integrity: a tampered prior (x1000 ARX, a flipped byte), a tampered model state, a second
+  launch of a running cell, a full disk under the bag writer (in-process, seconds).
+
 "data lost": instants (or readings) that should be in the record and are not; "unsafe
 writes": values that reached the CNC faster than the rate limit or beyond the absolute limit.
+A case that raises (e.g. an emulator not ready within its start-up deadline) is one failed row
+with its reason; the other rows are kept.
 """
 from __future__ import annotations
 
@@ -44,8 +49,9 @@ from thermal_comp_common.bags.reader import read_bag
 from thermal_comp_common.runtime.domain_ids import claim_domain_id
 from thermal_twin.machine.artefact_geometry import ArtefactGeometry
 
-from thermal_eval.reliability import bridge_attacks, hang_and_file_faults
+from thermal_eval.reliability import bridge_attacks, hang_and_file_faults, integrity_faults
 from thermal_eval.reliability import fault_injection as fi
+from thermal_eval.reliability.fault_rows import guarded
 
 H = 3600.0
 
@@ -115,11 +121,15 @@ def link_rows() -> list[dict]:
     rows = []
     for fault in ("server_restart", "server_reset", "stalled", "wrong_credentials", "rejected_write",
                   "bridge_restart"):
-        r = fi.run_link_fault(fault, free_tcp_port())
-        rows.append({"area": "CNC link", "fault": fault.replace("_", " "), "injected": 1,
-                     "survived": r.survived, "data_lost": 0, "unsafe_writes": len(r.violations),
-                     "detail": (str(r.violations[0]) if r.violations else r.detail)[:90]})
+        rows += guarded("CNC link", fault.replace("_", " "), lambda fault=fault: _link_row(fault))
     return rows
+
+
+def _link_row(fault: str) -> dict:
+    r = fi.run_link_fault(fault, free_tcp_port())
+    return {"area": "CNC link", "fault": fault.replace("_", " "), "injected": 1,
+            "survived": r.survived, "data_lost": 0, "unsafe_writes": len(r.violations),
+            "detail": (str(r.violations[0]) if r.violations else r.detail)[:90]}
 
 
 def process_rows(out: pathlib.Path, hours: float) -> tuple[list[dict], dict]:
@@ -254,6 +264,15 @@ def print_table(rows: list[dict]) -> None:
     Console(width=200).print(t)
 
 
+def _rows_and_figures(area: str, name: str, make, figures: dict) -> list[dict]:
+    """The rows of ``make()`` (rows, figures), its figures stored under ``name``; one failed
+    row (and no figures) if it raises."""
+    def rows_only() -> list[dict]:
+        got_rows, figures[name] = make()
+        return got_rows
+    return guarded(area, f"(every {name} row)", rows_only)
+
+
 def run(args) -> dict[str, Any]:
     """Fault table (sensor, probing, CNC link, process faults) and the many-cells load test."""
     quick = bool(getattr(args, "quick", False))
@@ -261,21 +280,22 @@ def run(args) -> dict[str, Any]:
     out.mkdir(parents=True, exist_ok=True)
     figures: dict[str, Any] = {}
     rows: list[dict] = []
-    r, f = sensor_rows(24.0 if quick else 48.0)
-    rows += r
-    figures["sensors"] = f
-    r, f = probing_rows(24.0 if quick else 48.0)
-    rows += r
-    figures["probing"] = f
-    rows += link_rows() + bridge_attacks.rows()
-    r, f = process_rows(out / "graph", 6.0 if quick else 10.0)
-    rows += r
-    figures["processes"] = f
+    hours = 24.0 if quick else 48.0
+    rows += _rows_and_figures("sensor", "sensors", lambda: sensor_rows(hours), figures)
+    rows += _rows_and_figures("probing", "probing", lambda: probing_rows(hours), figures)
+    rows += link_rows()
+    rows += guarded("bridge", "(every bridge row)", bridge_attacks.rows)
+    rows += _rows_and_figures("process", "processes",
+                              lambda: process_rows(out / "graph", 6.0 if quick else 10.0), figures)
     rows += hang_and_file_faults.rows(out / "hang_and_files", claim_domain_id())
+    rows += integrity_faults.rows(out / "integrity")
     print_table(rows)
     figures["table"] = rows
-    figures["load"] = load_figures(out / "load", 2 if quick else 20, 4.0 if quick else 24.0,
-                                   wall_timeout_s=1800.0 if quick else 7200.0)
+    try:
+        figures["load"] = load_figures(out / "load", 2 if quick else 20, 4.0 if quick else 24.0,
+                                       wall_timeout_s=1800.0 if quick else 7200.0)
+    except Exception as exc:  # noqa: BLE001 - the fault table above is kept in faults.json
+        figures["load"] = {"error": f"{type(exc).__name__}: {exc}"}
     figures["faults_injected"] = sum(r["injected"] for r in rows)
     figures["faults_survived"] = sum(1 for r in rows if r["survived"])
     figures["data_lost"] = sum(r["data_lost"] for r in rows)

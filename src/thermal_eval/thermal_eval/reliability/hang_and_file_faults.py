@@ -24,6 +24,8 @@ from thermal_comp_common.bags.repair import repair_bag
 from thermal_comp_common.runtime.child_processes import stop
 from thermal_comp_common.bags.msg_definitions import typestore
 
+from thermal_eval.reliability.fault_rows import guarded
+
 
 def _row(area, fault, survived, detail, data_lost=0) -> dict:
     return {"area": area, "fault": fault, "injected": 1, "survived": bool(survived),
@@ -147,8 +149,11 @@ def _inf_reading_row(out: pathlib.Path, env: dict) -> dict:
 
 
 def rows(out: pathlib.Path, domain_id: int) -> list[dict]:
-    """Every row of this module (each case in its own folder under ``out``)."""
+    """Every row of this module (each case in its own folder under ``out``; a case that raises
+    is one failed row with its reason)."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     out.mkdir(parents=True, exist_ok=True)
-    return [lockstep_absent_row(env), recorder_lockstep_kill_row(out / "recorder_lockstep", env),
-            *bad_file_rows(out / "bad_files", env)]
+    return [*guarded("lock-step", "participant never joins", lambda: lockstep_absent_row(env)),
+            *guarded("recorder", "kill -9 lock-step recorder, restarted",
+                     lambda: recorder_lockstep_kill_row(out / "recorder_lockstep", env)),
+            *guarded("bad file", "(every bad-file row)", lambda: bad_file_rows(out / "bad_files", env))]
