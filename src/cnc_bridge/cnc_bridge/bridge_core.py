@@ -11,6 +11,8 @@ fault bench both drive this, so that a bench measures the very path the machine 
 Problems are handed to ``report`` (kind, text): nothing here logs or raises on bad input.
 :attr:`BridgeCore.counters` keeps what an operator asks of a running bridge (writes, the last
 confirmed one, clamps, refusals, failures) for the node's ``/diagnostics``.
+The watchdog also counts the ``wall`` seconds since a fresh prediction last arrived: a stamp
+(forged ahead, or a stalled clock) cannot keep it quiet.
 
 Activation is refused (:meth:`BridgeCore.activate`) while the CNC, at the last start-up,
 applied an offset beyond the envelope: bringing it back in one write would be a step far
@@ -90,9 +92,11 @@ class BridgeCore:
                  lathe: LatheToolOffsets | None = None, htm: HtmGeometry | None = None,
                  convention: str = CONVENTION_RIGID, positions_required: bool = False,
                  profile: UpdateProfile | None = None, now: Callable[[], float] = time.time,
-                 report: Callable[[str, str], None] | None = None):
+                 report: Callable[[str, str], None] | None = None,
+                 wall: Callable[[], float] = time.monotonic):
         """``now``: the clock of audit events (the node passes its ROS clock); ``profile``
-        times the phases of an update when the caller began a row."""
+        times the phases of an update when the caller began a row; ``wall``: the clock on
+        which the watchdog measures the arrival of fresh predictions."""
         self.envelope, self.backend, self.audit = envelope, backend, audit
         self.kinematic = kinematic
         self.sphere_radius_mm, self.lathe, self.convention = sphere_radius_mm, lathe, convention
@@ -100,6 +104,8 @@ class BridgeCore:
         self.positions_required = positions_required
         self.profile = profile or UpdateProfile()
         self.now = now
+        self.wall = wall
+        self._fresh_wall: float | None = None    # when the last fresh prediction arrived
         self._report = report
         self.active = False             # writes follow the predictions
         self.ramping_down = False       # switched off, offsets still on their way to zero
@@ -162,6 +168,10 @@ class BridgeCore:
         return self.ramping_down
 
     # ------------------------------------------------------------------ the update
+    def silent_s(self) -> float | None:
+        """Wall seconds since a fresh prediction last reached an update (None: none yet)."""
+        return None if self._fresh_wall is None else self.wall() - self._fresh_wall
+
     def positions_now(self, errors: Mapping[str, float] | None,
                       positions: Mapping[str, float]) -> dict[str, float]:
         """The backend's axis positions overridden by ``positions``; unless positions are
@@ -210,11 +220,13 @@ class BridgeCore:
             fresh = False
         prof.lap("transform")
         try:
-            decisions = self.envelope.step(t, commanded, fresh)
+            decisions = self.envelope.step(t, commanded, fresh, silent_s=0.0 if fresh else self.silent_s())
         except ValueError as exc:
             self.counters.refusals += 1
             self.report(ENVELOPE_REFUSED, f"offsets at t={t:.3f}: {exc}; holding")
             return None
+        if fresh:
+            self._fresh_wall = self.wall()
         prof.lap("envelope")
         self.last_update_t = t
         if not decisions:

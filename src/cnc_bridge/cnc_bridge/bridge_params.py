@@ -108,6 +108,9 @@ PARAMS = [
            "ramp goes on after that while the node runs); keep it below the launcher's "
            "lifecycle_timeout_s", lo=0.0, hi=600.0),
     _fixed("lockstep", False, "publish SimSync after the offsets answering each prediction"),
+    _fixed("max_stamp_ahead_s", 0.0, "refuse predictions and machine states stamped more than this "
+           "ahead of the node's clock, s; 0 = 60 s on wall time, 3600 s with use_sim_time",
+           lo=0.0, hi=86400.0),
     _fixed("audit_log_path", "", "append-only CSV of every write (empty = no audit log)"),
     _fixed("profile_path", "", "CSV of where each prediction's time went (transform, envelope, CNC "
            "write + read-back, publish, audit, ack), written at exit; empty = not timed (bench graph)"),

@@ -42,6 +42,10 @@ While unconfigured the node does not subscribe; while inactive it still answers 
 lock-step (SimSync) so that a simulation is never held by a bridge that was switched off.
 Bad predictions (missing component, wrong unit, NaN) are logged naming the component and
 skipped; nothing already applied changes, and the watchdog takes over if they persist.
+A prediction or machine state stamped off the node's clock (:mod:`thermal_comp_common.stamp_guard`)
+is refused, counted on ``/diagnostics``, logged once per burst, never applied; one behind the last
+is acknowledged like a bad prediction, one ahead never. The watchdog also counts the wall seconds
+since an acceptable prediction arrived, whatever the stamps say.
 """
 from __future__ import annotations
 
@@ -63,6 +67,8 @@ from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC,
                                        declare_parameters, run_node, s_to_stamp, stamp_to_s)
+from thermal_comp_common.stamp_guard import (Refusal, StampCheck, StampGuard, default_max_ahead_s,
+                                             graph_clock_s, stamp_values)
 from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErrors
 
 from cnc_bridge.audit_log import AuditLog
@@ -104,6 +110,8 @@ class CncBridgeNode(LifecycleNode):
             raise ValueError(f"parameters 'htm_origin_mm' (3 values) / 'b_pivot_xz_mm' (2 values): "
                              f"got {list(self._p['htm_origin_mm'])} / {list(self._p['b_pivot_xz_mm'])}")
         self.htm = HtmGeometry(tuple(self._p["htm_origin_mm"]), tuple(self._p["b_pivot_xz_mm"]))
+        bound = default_max_ahead_s(self._p["max_stamp_ahead_s"], bool(self.get_parameter("use_sim_time").value))
+        self.stamps = {t: StampGuard(t, bound) for t in (TOPIC_ERRORS_PREDICTED, TOPIC_MACHINE_STATE)}
         self.envelope: SafetyEnvelope | None = None
         self.backend = None
         self.audit: AuditLog | None = None
@@ -316,6 +324,8 @@ class CncBridgeNode(LifecycleNode):
             level, message = "ERROR", "activation refused: " + core.held_refusal
         elif core is not None and not connected:
             level, message = "ERROR", f"{state}: not connected ({getattr(backend, 'last_error', '')})"
+        elif any(g.in_burst for g in self.stamps.values()):
+            level, message = "WARN", f"{state}: refusing messages stamped off the graph's clock"
         elif state != "active" or (c is not None and c.watchdog):
             level = "WARN"
             message = state + (": watchdog holds the offsets" if c is not None and c.watchdog else
@@ -323,7 +333,7 @@ class CncBridgeNode(LifecycleNode):
         else:
             level, message = "OK", "active: writing offsets"
         values = dict(state=state, backend=self._p["backend"], endpoint=self._p["endpoint"],
-                      connected=bool(connected), security=security)
+                      connected=bool(connected), security=security, **stamp_values(self.stamps.values()))
         if c is not None:
             values.update(
                 writes=c.writes, clamps=c.clamps, rate_limited=c.rate_limited,
@@ -364,21 +374,37 @@ class CncBridgeNode(LifecycleNode):
             self.envelope.set_enabled(bool(changes["enable"]))
 
     # ------------------------------------------------------------------ inputs
+    def _stamp_check(self, topic: str, t: float) -> StampCheck:
+        """The stamp ``t`` of a message on ``topic`` against the node's clock (refusals counted)."""
+        check = self.stamps[topic].check(t, graph_clock_s(self.get_clock().now().nanoseconds))
+        if check.log:
+            self.get_logger().warning(check.text)
+        if not check.accepted or check.burst_over:
+            self._diagnose()
+        return check
+
     def _on_state(self, msg: MachineState) -> None:
+        t = stamp_to_s(msg.header.stamp)
+        if not self._stamp_check(TOPIC_MACHINE_STATE, t).accepted:
+            return
         if len(msg.axis_names) != len(msg.axis_positions):
             self.get_logger().error(
                 f"machine_state: {len(msg.axis_names)} axis_names but "
                 f"{len(msg.axis_positions)} axis_positions; ignored")
             return
         self._positions = dict(zip(msg.axis_names, msg.axis_positions))
-        t = stamp_to_s(msg.header.stamp)
-        fresh_t = self.envelope.last_fresh_t
+        fresh_t, timeout = self.envelope.last_fresh_t, self._p["watchdog_timeout_s"]
         if (self._writing and self._p["lockstep"] and fresh_t is not None
-                and t - fresh_t > self._p["watchdog_timeout_s"]):
+                and (t - fresh_t > timeout or (self.core.silent_s() or 0.0) > timeout)):
             self._update(t, msg.header.stamp, fresh=False)
 
     def _on_prediction(self, msg: ThermalErrors) -> None:
         t = stamp_to_s(msg.header.stamp)
+        stamp = self._stamp_check(TOPIC_ERRORS_PREDICTED, t)
+        if stamp.refusal is Refusal.BEHIND:
+            self._ack(msg)       # answered like a bad prediction, never applied
+        if not stamp.accepted:
+            return
         if self._p["profile_path"]:
             self.profile.begin(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
         try:
@@ -391,12 +417,16 @@ class CncBridgeNode(LifecycleNode):
             fresh = False
         if self._writing:
             self._update(t, msg.header.stamp, fresh=fresh)
+        self._ack(msg)
+        self.profile.lap("ack")
+        self.profile.end()
+
+    def _ack(self, msg: ThermalErrors) -> None:
+        """Lock-step: the prediction of this instant is handled."""
         if self.sync_pub is not None:
             self.sync_pub.publish(SimSync(header=Header(stamp=msg.header.stamp),
                                           node_name=self.get_name(),
                                           processed_until=msg.header.stamp))
-        self.profile.lap("ack")
-        self.profile.end()
 
     @property
     def _active(self) -> bool:

@@ -3,7 +3,8 @@
 Per axis, in this order:
 1. **enable**: disabled -> the target is 0, approached at ``disable_ramp_um_per_s``
    (flag LIMIT_DISABLED); re-enabling ramps up again under the normal rate limit.
-2. **watchdog**: no fresh prediction for ``watchdog_timeout_s`` -> hold the applied value
+2. **watchdog**: no fresh prediction for ``watchdog_timeout_s`` (of the steps' time, or of
+   the caller's ``silent_s``: how long since one arrived) -> hold the applied value
    for ``watchdog_hold_s``, then ramp to zero at ``watchdog_ramp_um_per_s`` (0 = hold
    forever) (flag LIMIT_WATCHDOG). Before the first prediction the target is 0 and the
    watchdog flag is set, because nothing fresh has ever arrived.
@@ -185,11 +186,13 @@ class SafetyEnvelope:
             self._applied.setdefault(a, 0.0)
 
     def step(self, t_s: float, commanded_um: Mapping[str, float] | None = None,
-             fresh: bool = False) -> list[AxisDecision]:
+             fresh: bool = False, silent_s: float | None = None) -> list[AxisDecision]:
         """Advance to time ``t_s`` [s]; ``commanded_um`` replaces the command of those axes.
 
         ``fresh`` marks ``commanded_um`` as a new prediction (it resets the watchdog); a
         command recomputed from an old prediction at new axis positions is not fresh.
+        ``silent_s``: how long no fresh prediction has arrived, on the caller's clock (the
+        bridge: wall seconds); beyond the timeout the watchdog holds whatever the stamps say.
         Non-finite commands raise :class:`ValueError` naming the axis; nothing changes then.
         """
         t = float(t_s)
@@ -209,10 +212,12 @@ class SafetyEnvelope:
 
         cfg = self.config
         age = math.inf if self._last_fresh_t is None else t - self._last_fresh_t
-        watchdog = age > cfg.watchdog_timeout_s or self._last_fresh_t is None
+        stamps_late = age > cfg.watchdog_timeout_s
+        watchdog = stamps_late or self._last_fresh_t is None or \
+            (silent_s is not None and silent_s > cfg.watchdog_timeout_s)
         if watchdog and self._watchdog_since is None:
-            self._watchdog_since = t if self._last_fresh_t is None \
-                else self._last_fresh_t + cfg.watchdog_timeout_s
+            self._watchdog_since = self._last_fresh_t + cfg.watchdog_timeout_s \
+                if self._last_fresh_t is not None and stamps_late else t
         elif not watchdog:
             self._watchdog_since = None
         ramp_to_zero = watchdog and (self._last_fresh_t is None or (

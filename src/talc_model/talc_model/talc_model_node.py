@@ -19,6 +19,12 @@ the graph's first instant** (another run, e.g. a cell started twice with the sam
 refused with one error naming the file and both times, moved aside (``*.refused-t<s>.json``,
 nothing deleted), and the node starts fresh (``pretrained_path`` or a new model, calibration phase)
 so the lock-step goes on; it never retries the refused state.
+
+Stamps: a message on ``temperatures``, ``machine_state`` or ``offsets`` stamped more than
+``max_stamp_ahead_s`` ahead of the node's clock, or not finite, or (temperatures, machine state)
+behind the last accepted one, is refused (:mod:`thermal_comp_common.stamp_guard`): never
+modelled, never acknowledged, never saved; counted on ``/diagnostics`` (status ``stamps``),
+logged once per burst.
 """
 from __future__ import annotations
 
@@ -39,6 +45,7 @@ from std_msgs.msg import Header
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.machine_inputs import machine_state_inputs
 from thermal_comp_common.sensor_readings import model_temperatures
+from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
 from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
                                               TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
                                               TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
@@ -83,6 +90,9 @@ PARAMS = [
     Param("lockstep_participant", False, "publish SimSync for t_k after the prediction for t_k"),
     Param("machine_state_wait_s", 10.0, "lock-step: wall-clock wait for the machine state of an instant "
           "before its temperatures are modelled with the last inputs, s", 0.0, 3600.0),
+    Param("max_stamp_ahead_s", 0.0, "refuse messages stamped more than this ahead of the node's clock, s; "
+          "0 = 60 s on wall time, 3600 s with use_sim_time (data may precede its /clock by a step)",
+          0.0, 86400.0),
 ]
 
 
@@ -144,7 +154,13 @@ class TalcModelNode(Node):
         self.saves = SaveSchedule(p["save_period_s"], p["offsets_wait_s"])
         self.probe_goal_handle = None
         self.ack_pending_t: float | None = None
+        bound = default_max_ahead_s(p["max_stamp_ahead_s"], bool(self.get_parameter("use_sim_time").value))
+        # the bridge's offsets are stamped by its timer too: not forward-only
+        self.stamps = {TOPIC_TEMPERATURES: StampGuard(TOPIC_TEMPERATURES, bound),
+                       TOPIC_MACHINE_STATE: StampGuard(TOPIC_MACHINE_STATE, bound),
+                       TOPIC_OFFSETS: StampGuard(TOPIC_OFFSETS, bound, forward_only=False)}
         self.diag.set("state", "OK", how)
+        self._stamp_status()
         self.get_logger().info(f"{self.kind} model: {how}; components {', '.join(model.component_names)}")
         # what start-up allocated (modules, the model, the node) stays out of the garbage
         # collector's passes: a full collection over it is a pause on the predictions' path
@@ -166,12 +182,32 @@ class TalcModelNode(Node):
         return make_model(self.kind, self.config), "new model"
 
     # ------------------------------------------------------------------ inputs
+    def _stamp_ok(self, topic: str, t: float) -> bool:
+        """The stamp ``t`` of a message on ``topic`` is on the graph's clock (else refused, counted)."""
+        check = self.stamps[topic].check(t, graph_clock_s(self.get_clock().now().nanoseconds))
+        if check.log:
+            self.get_logger().warning(check.text)
+        if not check.accepted or check.burst_over:
+            self._stamp_status()
+        return check.accepted
+
+    def _stamp_status(self) -> None:
+        burst = any(g.in_burst for g in self.stamps.values())
+        self.diag.set("stamps", "WARN" if burst else "OK",
+                      "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
+                      max_ahead_s=self.stamps[TOPIC_TEMPERATURES].max_ahead_s,
+                      **stamp_values(self.stamps.values()))
+
     def _on_machine_state(self, msg: MachineState) -> None:
+        if not self._stamp_ok(TOPIC_MACHINE_STATE, stamp_to_s(msg.header.stamp)):
+            return
         self.machine_state = machine_state_inputs(msg)
         self.instant_inputs.state_arrived(stamp_to_s(msg.header.stamp))
         self.sink.b_pos = self.machine_state.get("B_pos", 0.0)
 
     def _on_offsets(self, msg: AxisOffsets) -> None:
+        if not self._stamp_ok(TOPIC_OFFSETS, stamp_to_s(msg.header.stamp)):
+            return
         ok = len(msg.axis_names) == len(msg.applied_offsets_um)
         self.sink.on_offsets(stamp_to_s(msg.header.stamp), msg.compensation_enabled,
                              dict(zip(msg.axis_names, msg.applied_offsets_um)) if ok else None)
@@ -204,6 +240,8 @@ class TalcModelNode(Node):
 
     def _on_temperatures(self, msg: TemperatureArray) -> None:
         t = stamp_to_s(msg.header.stamp)
+        if not self._stamp_ok(TOPIC_TEMPERATURES, t):
+            return
         temps = self._temperatures(msg, t)
         if temps is None or not self._inputs_ready(t):
             return
