@@ -149,6 +149,7 @@ class TalcModelNode(Node):
                                probing=ProbingStateMachine(p["offsets_wait_s"], p["probe_result_wait_s"]))
         self.machine_state: dict[str, float] = {}
         self.instant_inputs = InstantInputs(p["machine_state_wait_s"])
+        self.pending: tuple[float, dict[str, float]] | None = None   # temperatures waiting for their state
         self.excluded: list[str] = []
         self.last_pred_msg: ThermalErrors | None = None
         self.saves = SaveSchedule(p["save_period_s"], p["offsets_wait_s"])
@@ -204,6 +205,8 @@ class TalcModelNode(Node):
         self.machine_state = machine_state_inputs(msg)
         self.instant_inputs.state_arrived(stamp_to_s(msg.header.stamp))
         self.sink.b_pos = self.machine_state.get("B_pos", 0.0)
+        if self.pending is not None and self.instant_inputs.state_t >= self.pending[0] - 1e-6:
+            self._model_instant(*self._take_pending())
 
     def _on_offsets(self, msg: AxisOffsets) -> None:
         if not self._stamp_ok(TOPIC_OFFSETS, stamp_to_s(msg.header.stamp)):
@@ -243,8 +246,20 @@ class TalcModelNode(Node):
         if not self._stamp_ok(TOPIC_TEMPERATURES, t):
             return
         temps = self._temperatures(msg, t)
-        if temps is None or not self._inputs_ready(t):
+        if temps is None:
             return
+        if not self._inputs_ready(t):
+            self.pending = (t, temps)   # modelled when its state arrives, or after the bounded wait
+            return
+        self.pending = None
+        self._model_instant(t, temps)
+
+    def _take_pending(self) -> tuple[float, dict[str, float]]:
+        pending, self.pending = self.pending, None
+        return pending
+
+    def _model_instant(self, t: float, temps: dict[str, float]) -> None:
+        """Model the temperatures of instant t, publish, save when due, acknowledge."""
         step = self._step(t, temps)
         if step.kind is StepKind.LATE:
             self.get_logger().warning(f"temperatures stamped {t:.3f} s before the last ({self.loop.t_last:.3f} s): "
@@ -266,7 +281,7 @@ class TalcModelNode(Node):
         self._ack(t)
 
     def _inputs_ready(self, t: float) -> bool:
-        """Lock-step: model t only with its machine state (machine_sim re-sends the instant)."""
+        """Lock-step: model t only with its machine state, waiting at most ``machine_state_wait_s``."""
         if self.sync_pub is None:
             return True
         if (self.instant_inputs.state_t < t - 1e-6
@@ -398,6 +413,8 @@ class TalcModelNode(Node):
             self._ack(pending)
 
     def _on_wall_timer(self) -> None:
+        if self.pending is not None and self._inputs_ready(self.pending[0]):
+            self._model_instant(*self._take_pending())
         if self.saves.overdue(self._wall_s()):
             self.get_logger().warning(f"no offsets for t={self.saves.pending_t:.0f} s within "
                                       f"{self.p['offsets_wait_s']} s: saving the state and acknowledging")

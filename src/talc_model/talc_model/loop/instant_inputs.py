@@ -4,9 +4,10 @@ machine_sim publishes the machine state and the sensor readings of instant t_k t
 temperatures reach the model one hop later. A subscription that matched late (at start-up) can
 still leave the model without the state of t_k when its temperatures arrive, and modelling them
 then feeds the soft sensors the previous instant's inputs, or none: the run would depend on
-DDS timing. So a lock-step model waits: it neither models nor acknowledges t_k, machine_sim
-re-sends the instant, and the state comes with it. The wait is bounded (``max_wait_s`` wall
-seconds); after it the instant is modelled with the last inputs, which the caller says once.
+DDS timing. So a lock-step model keeps the temperatures of t_k aside, neither modelling nor
+acknowledging them, until the state of t_k arrives (later, or with machine_sim's re-send of the
+instant). The wait is bounded (``max_wait_s`` wall seconds, checked on the caller's timer too);
+after it the instant is modelled with the last inputs, which the caller says once.
 """
 from __future__ import annotations
 
