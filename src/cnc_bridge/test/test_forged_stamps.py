@@ -50,10 +50,9 @@ def test_the_watchdog_fires_on_wall_silence_whatever_the_stamps_say():
 def bridge(ros_domain_id):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rosgraph_msgs.msg import Clock
+    from thermal_comp_testing.sim_clock import SimClock
 
     from cnc_bridge.cnc_bridge_node import CncBridgeNode
-    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, s_to_stamp
 
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx, args=["--ros-args", "-p", "backend:=twin", "-p", "lockstep:=true",
@@ -61,19 +60,10 @@ def bridge(ros_domain_id):
                                   "-p", "max_rate_um_per_s:=0.25", "-p", "max_step_s:=10.0",
                                   "-p", "abs_limit_um:=30.0", "-p", "watchdog_timeout_s:=5.0"])
     node = CncBridgeNode(context=ctx)
-    sim = rclpy.create_node("machine_sim_clock", context=ctx)
-    clock_pub = sim.create_publisher(Clock, "/clock", SENSOR_QOS)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
-    ex.add_node(sim)
-
-    def set_clock(t: float) -> None:
-        for _ in range(400):
-            if node.get_clock().now().nanoseconds == int(t * 1e9):
-                return
-            clock_pub.publish(Clock(clock=s_to_stamp(t)))
-            ex.spin_once(timeout_sec=0.05)
-        raise AssertionError(f"the node's clock never reached {t} s")
+    clock = SimClock(ctx, ex, node)
+    set_clock = clock.set
 
     node.acks, node.sent, node.warnings = [], [], []
     node.sync_pub.publish = lambda msg: node.acks.append(msg.processed_until.sec)
@@ -81,7 +71,7 @@ def bridge(ros_domain_id):
     node.get_logger().warning = lambda text, **kw: node.warnings.append(text)
     yield node, set_clock
     ex.shutdown()
-    sim.destroy_node()
+    clock.destroy()
     node.destroy_node()
     ctx.try_shutdown()
 

@@ -19,10 +19,9 @@ FORGED = T0 + 1e7
 def sim_node(tmp_path, ros_domain_id):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rosgraph_msgs.msg import Clock
+    from thermal_comp_testing.sim_clock import SimClock
 
     from talc_model.talc_model_node import TalcModelNode
-    from thermal_comp_common.runtime.node_runtime import SENSOR_QOS, s_to_stamp
 
     cfg = tmp_path / "talc.yaml"
     cfg.write_text(json.dumps(CONFIG))
@@ -32,20 +31,10 @@ def sim_node(tmp_path, ros_domain_id):
                                   "-p", "lockstep_participant:=true", "-p", "action_server_wait_s:=0.0",
                                   "-p", "use_sim_time:=true"])
     node = TalcModelNode(context=ctx)
-    sim = rclpy.create_node("machine_sim_clock", context=ctx)
-    clock_pub = sim.create_publisher(Clock, "/clock", SENSOR_QOS)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(node)
-    ex.add_node(sim)
-
-    def set_clock(t: float) -> None:
-        """machine_sim's /clock at ``t``, spun until the node's clock reads it."""
-        for _ in range(400):
-            if node.get_clock().now().nanoseconds == int(t * 1e9):
-                return
-            clock_pub.publish(Clock(clock=s_to_stamp(t)))
-            ex.spin_once(timeout_sec=0.05)
-        raise AssertionError(f"the node's clock never reached {t} s")
+    clock = SimClock(ctx, ex, node)
+    set_clock = clock.set
 
     node.acks, node.preds, node.warnings = [], [], []
     node.sync_pub.publish = lambda msg: node.acks.append(msg.processed_until.sec)
@@ -54,7 +43,7 @@ def sim_node(tmp_path, ros_domain_id):
     node.loop.model.probe_due = lambda t: False      # no probing cycles here
     yield node, state, set_clock
     ex.shutdown()
-    sim.destroy_node()
+    clock.destroy()
     node.destroy_node()
     ctx.try_shutdown()
 
