@@ -53,7 +53,6 @@ import gc
 import math
 import time
 
-import yaml
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
@@ -77,7 +76,7 @@ from cnc_bridge.bridge_core import (ACTIVATION_REFUSED, NOT_CONFIRMED, POSITIONS
 from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
                                       loosening)
 from cnc_bridge.credentials import SECRET_NAMES
-from cnc_bridge.error_transform import ANGULAR_COMPONENTS, HtmGeometry, LatheToolOffsets
+from cnc_bridge.error_transform import ANGULAR_COMPONENTS, HtmGeometry, load_lathe_tools
 from cnc_bridge.offset_backend import make_backend
 from cnc_bridge.safety_envelope import EnvelopeConfigError, SafetyEnvelope, flag_names
 from cnc_bridge.update_profile import UpdateProfile
@@ -141,7 +140,7 @@ class CncBridgeNode(LifecycleNode):
         p = self._p
         try:
             self.envelope = SafetyEnvelope(envelope_config(p, self.kinematic), enabled=False)
-            lathe = self._load_lathe(p["lathe_tools_file"])
+            lathe = load_lathe_tools(p["lathe_tools_file"])
             self.audit = AuditLog(p["audit_log_path"]) if p["audit_log_path"] else None
             self.backend = make_backend(p)
         except (ValueError, OSError, ConnectionError) as exc:
@@ -266,16 +265,6 @@ class CncBridgeNode(LifecycleNode):
         self.core = None
         if why:
             self._diagnose()
-
-    @staticmethod
-    def _load_lathe(path: str):
-        if not path:
-            return None
-        try:
-            with open(path, encoding="utf-8") as f:
-                return LatheToolOffsets.from_mapping(yaml.safe_load(f))
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            raise ValueError(f"parameter 'lathe_tools_file': {exc}") from exc
 
     @staticmethod
     def _fmt(values: dict[str, float]) -> str:

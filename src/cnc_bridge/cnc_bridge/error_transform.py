@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 import numpy as np
+import yaml
 from thermal_comp_common.components import ANGULAR_COMPONENTS, FIVE_AXIS_COMPONENTS, LINEAR_COMPONENTS
 from thermal_comp_common.kinematics import TransformInputError, finite_input, rot_y
 
@@ -241,3 +242,14 @@ def offsets_from_errors(errors: Mapping[str, float], axis_positions: Mapping[str
         return five_axis_offsets_um(errors, *rel, b_deg=b, sphere_radius_mm=sphere_radius_mm,
                                     convention=convention)
     return (lathe or LatheToolOffsets()).offsets_um(errors)
+
+
+def load_lathe_tools(path: str) -> LatheToolOffsets | None:
+    """The lathe's tool-offset models from a YAML file (``lathe_tools_file``); None without a path."""
+    if not path:
+        return None
+    try:
+        with open(path, encoding="utf-8") as f:
+            return LatheToolOffsets.from_mapping(yaml.safe_load(f))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ValueError(f"parameter 'lathe_tools_file': {exc}") from exc

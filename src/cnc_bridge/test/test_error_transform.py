@@ -182,3 +182,14 @@ def test_applied_offsets_in_component_space_is_what_the_probe_cycle_stops_seeing
     back = five_axis_offsets_um({**{c: 0.0 for c in FIVE_AXIS_COMPONENTS},
                                  **{k: comp[k] for k in ("E_X0C", "E_Y0C", "E_Z0T")}}, 0, 0, 0, b_deg)
     assert back == pytest.approx(offsets, abs=1e-12)
+
+
+def test_lathe_tools_load_from_yaml_and_a_bad_file_names_the_parameter(tmp_path):
+    from cnc_bridge.error_transform import load_lathe_tools
+    assert load_lathe_tools("") is None
+    bad = tmp_path / "tools.yaml"
+    bad.write_bytes(b"\xff\xfe: [")
+    with pytest.raises(ValueError, match="lathe_tools_file"):
+        load_lathe_tools(str(bad))
+    with pytest.raises(ValueError, match="lathe_tools_file"):
+        load_lathe_tools(str(tmp_path / "missing.yaml"))
