@@ -7,6 +7,8 @@ import os
 import subprocess
 import sys
 
+from thermal_comp_common.runtime import domain_ids
+
 PROBE = '''\
 import json, os, pathlib
 
@@ -47,6 +49,30 @@ def test_each_xdist_worker_claims_its_own_domain_and_log_dir(tmp_path, ros_domai
     ids = [rec["id"] for rec in seen.values()]
     assert all(str(rec["id"]) == rec["env"] and rec["range"] == "LOCALHOST" for rec in seen.values())
     assert len(set(ids)) == 2 and ros_domain_id not in ids  # nor the id this session holds
+    assert all(1 <= i <= 101 for i in [*ids, ros_domain_id]), ids  # ROS 2's safe range on Linux
     logs = [rec["log"] for rec in seen.values()]
     assert len(set(logs)) == 2 and os.environ["ROS_LOG_DIR"] not in logs
     assert all(f"_{worker}_" in rec["log"] for worker, rec in seen.items())
+
+
+def test_claimed_ids_stay_in_the_safe_range_until_it_is_exhausted(tmp_path, monkeypatch):
+    """Every id handed out by default is in 1..101; when all are held the claim says so."""
+    monkeypatch.setattr(domain_ids, "LOCK_DIR", tmp_path)
+    holder = subprocess.Popen(  # another process holds 100 of the ids
+        [sys.executable, "-c", (
+        "import pathlib, sys, time\n"
+        "from thermal_comp_common.runtime import domain_ids as d\n"
+        f"d.LOCK_DIR = pathlib.Path({str(tmp_path)!r})\n"
+        "ids = [d.claim_domain_id() for _ in range(100)]\n"
+        "print(min(ids), max(ids), len(set(ids)), flush=True)\n"
+        "sys.stdin.read()\n")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        lo, hi, n = map(int, holder.stdout.readline().split())
+        assert (lo >= 1, hi <= 101, n) == (True, True, 100)
+        last = domain_ids.claim_domain_id()      # the one id the child left
+        assert 1 <= last <= 101
+        domain_ids._held.pop().close()
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=30)
+    assert domain_ids.SAFE_DOMAIN_IDS == range(0, 102)
