@@ -20,4 +20,5 @@ __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     "runtime.domain_ids": ["claim_domain_id"],
     "runtime.blas_threads": ["single_thread_blas"],
     "sensor_readings": ["model_temperatures"],
+    "frames": ["MACHINE_BASE_FRAME", "FrameError", "FrameTransform", "frame_tree", "positions_in_root"],
 })
