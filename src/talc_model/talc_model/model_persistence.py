@@ -145,15 +145,19 @@ def load_model(path: str | os.PathLike, expected_kind: str | None = None,
 
 
 def load_pretrained(path: str | os.PathLike, config: Mapping[str, Any] | None = None,
-                    expected_kind: str | None = None) -> AdaptiveModel:
+                    expected_kind: str | None = None,
+                    expected: Mapping[str, list] | None = None) -> AdaptiveModel:
     """Start a new run from a trained model (the class's ``from_pretrained`` if it has one,
-    else the restored model as it was saved)."""
+    else the restored model as it was saved). ``expected``: the identity values the run allows
+    per field (:func:`check_identity`), checked on the trained model as it was saved."""
     doc = read_state(path)
     kind = doc.get("kind")
     if expected_kind is not None and kind != expected_kind:
         raise ModelStateError(f"{path}: key 'kind' is {kind!r}, expected {expected_kind!r}")
     try:
         cls = model_class(kind)
+        if expected:
+            check_identity(path, model_identity(cls.from_state(doc["state"])), expected)
         factory = getattr(cls, "from_pretrained", None)
         if callable(factory):
             return factory(doc["state"], config)

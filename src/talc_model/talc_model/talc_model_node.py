@@ -178,7 +178,9 @@ class TalcModelNode(Node):
             from talc_model.prior.dispatch import model_from_prior
             return model_from_prior(self.kind, self.config, load_prior(self.p["prior_path"])), f"prior {self.p['prior_path']}"
         if self.p["pretrained_path"]:
-            return (load_pretrained(self.p["pretrained_path"], self.config, expected_kind=self.kind),
+            # a trained model of another twin or inputs is refused in one line
+            return (load_pretrained(self.p["pretrained_path"], self.config, expected_kind=self.kind,
+                                    expected=run_identity(self.config, make_model(self.kind, self.config))),
                     f"pre-trained from {self.p['pretrained_path']}")
         return make_model(self.kind, self.config), "new model"
 

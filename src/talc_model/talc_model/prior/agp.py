@@ -26,6 +26,7 @@ from talc_model.adaptive_model import PHASE_CALIBRATION, PHASE_COMPENSATION, reg
 from talc_model.agp.model import AdaptiveGaussianProcess, AgpConfig
 from talc_model.agp.gaussian_process import ArdGaussianProcess
 from talc_model.prior.common import PRIOR_VERSION, PriorError, error_deltas, restore_with_prior
+from talc_model.prior.integrity import training_check
 
 #: an input whose ARD length scale reaches this fraction of the upper bound carries nothing
 IRRELEVANT_FRACTION = 0.5
@@ -119,6 +120,7 @@ def build_agp_prior(recordings: Sequence[Any], config: Mapping[str, Any] | AgpCo
             "gps": {c: gp.to_state() for c, gp in gps.items()},
             "length_scales": {c: gp.length_scales.tolist() for c, gp in gps.items()},
             "validation_rms": held, "training_points": int(x.shape[0]), "every_s": every,
+            "training_check": training_check(cfg.components, xh, yh, "held-out training recording"),
             "agp_config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in state_cfg.items()},
             "adaptation": dict(DEFAULT_ADAPTATION)}
 

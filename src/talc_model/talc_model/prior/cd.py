@@ -28,6 +28,7 @@ from talc_model.cd.input_selection import forward_selection
 from talc_model.cd.model import CdConfig, CharacteristicDiagramModel, extrapolated_axes
 from talc_model.cd.diagram import CharacteristicDiagram
 from talc_model.prior.common import PRIOR_VERSION, PriorError, error_deltas, restore_with_prior
+from talc_model.prior.integrity import training_check
 from talc_model.type_inputs import load_soft_sensors
 from talc_model.probing.uncertainty_weighted_hold import change_gain
 from thermal_comp_common.probe_and_hold import table_5_4_noise
@@ -209,6 +210,8 @@ def build_cd_prior(recordings: Sequence[Any], config: Mapping[str, Any] | CdConf
             "inputs": inputs, "input_names": {c: [names[i] for i in cols] for c, cols in inputs.items()},
             "cds": cds, "anchors": {"u": x[thin].tolist(), "y": {c: v[thin].tolist() for c, v in y.items()}},
             "validation_rms": held, "change_gain": gain, "change_stats": stats, "training_points": int(x.shape[0]),
+            "training_check": training_check(cfg.components, x[split[1]], {c: v[split[1]] for c, v in y.items()},
+                                             "held-out training recording"),
             "every_s": float(every_s),
             "cd_config": asdict(cfg), "adaptation": dict(DEFAULT_ADAPTATION)}
 

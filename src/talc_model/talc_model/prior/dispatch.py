@@ -8,7 +8,7 @@ from typing import Any, Mapping
 from talc_model.prior.agp import agp_with_prior
 from talc_model.prior.cd import cd_with_prior
 from talc_model.prior.common import PriorError
-from talc_model.prior.integrity import check_run
+from talc_model.prior.integrity import check_prior, check_run
 from talc_model.prior.talc import talc_with_prior
 
 
@@ -19,10 +19,9 @@ def model_from_prior(kind: str, config: Mapping[str, Any], prior: Mapping[str, A
     if prior_kind != kind:
         raise PriorError(f"prior: 'model_kind' is {prior_kind!r}, the model is {kind!r}")
     check_run(prior, config)
-    if kind == "talc":
+    if kind == "talc":          # its own model class checks its ARX models when it installs them
         return talc_with_prior(config, prior)
-    if kind == "agp":
-        return agp_with_prior(config, prior)
-    if kind == "cd":
-        return cd_with_prior(config, prior)
-    raise PriorError(f"prior: no prior for model kind {kind!r} (talc, agp, cd)")
+    if kind not in ("agp", "cd"):
+        raise PriorError(f"prior: no prior for model kind {kind!r} (talc, agp, cd)")
+    check_prior(prior)          # the GPs / diagrams on the held-out training programme
+    return agp_with_prior(config, prior) if kind == "agp" else cd_with_prior(config, prior)

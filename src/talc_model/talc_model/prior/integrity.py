@@ -1,23 +1,26 @@
 """What every prior carries to be trusted, and the checks before one is used: its identity
 (machine type, model kind, soft-sensor twin ``type_model``, input names, format version), a
-content hash, the run's match to it and, for TALC, stable poles and a bounded prediction on its
-own held-out training programme. Every refusal is one line naming the file or field.
+content hash, the run's match to it and a bounded prediction on its own held-out training
+programme (TALC, AGP, CD; for TALC also stable poles). Every refusal is one line naming the file or field.
 No rclpy here. docs/prior.md, section "Integrity".
 """
 from __future__ import annotations
 
 import json
-from typing import Any, Mapping
+import math
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
+from talc_model.agp.gaussian_process import ArdGaussianProcess
 from talc_model.arx.model import ArxModel
+from talc_model.cd.diagram import CharacteristicDiagram
 from talc_model.model_persistence import content_hash
 from talc_model.prior.common import PRIOR_VERSION, PriorError
 
 #: the field of a prior file holding the SHA-256 of the rest of it (canonical JSON)
 HASH_FIELD = "sha256"
-#: TALC: the prior's simulation on its held-out training programme (fitted on it too) may err
+#: the prior's prediction (TALC: simulation) on its held-out training programme (fitted on it too) may err
 #: (P99 of |residual|) at most this multiple of that programme's uncompensated P99 |error| plus
 #: TRAINING_FLOOR: a prior that errs twice as much as no compensation where it was trained is
 #: broken; a weak but sound one (the thesis's three sensors on a small component) stays below it
@@ -85,9 +88,9 @@ def check_run(prior: Mapping[str, Any], config: Mapping[str, Any]) -> None:
 
 def training_check(models: Mapping[str, Any], u: np.ndarray, errors: Mapping[str, np.ndarray],
                    label: str) -> dict[str, Any]:
-    """What a TALC prior keeps of its held-out training programme ``label`` (input grid ``u``,
-    true errors on it) to check its models before use: at most TRAINING_ROWS rows, the
-    uncompensated P99 |error| per component."""
+    """What a prior keeps of its held-out training programme ``label`` (input grid ``u``, true
+    errors on it; ``models``: its components) to check its models before use: at most
+    TRAINING_ROWS rows, the uncompensated P99 |error| per component."""
     n = min(TRAINING_ROWS, u.shape[0])
     return {"programme": label, "u": np.round(u[:n], 6).tolist(),
             "errors": {c: np.round(np.asarray(errors[c][:n], float), 6).tolist() for c in models},
@@ -101,21 +104,61 @@ def _p99(x) -> float:
 
 
 def check_prior(prior: Mapping[str, Any]) -> None:
-    """The checks a prior passes before use that need no run (a TALC prior's models:
-    :func:`check_talc_models`); a malformed one is refused naming the field."""
-    if prior.get("model_kind", "talc") != "talc":
-        return
+    """The checks a prior passes before use that need no run (:func:`check_talc_models`, or the
+    AGP's GPs / the CD's diagrams on its ``training_check``); a malformed one is refused naming
+    the field."""
+    kind = prior.get("model_kind", "talc")
     try:
-        models = {c: ArxModel.from_state(m) for c, m in prior["talc_state"]["models"].items()}
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise PriorError(f"prior: 'talc_state' has no readable ARX models ({exc})") from None
-    check_talc_models(models, prior.get("training_check"))
+        if kind == "talc":
+            models = {c: ArxModel.from_state(m) for c, m in prior["talc_state"]["models"].items()}
+        elif kind == "agp":
+            gps = {c: ArdGaussianProcess.from_state(s) for c, s in prior["gps"].items()}
+            predict = {c: (lambda u, gp=gp: gp.predict(u)[0]) for c, gp in gps.items()}
+        elif kind == "cd":
+            cds = {c: (CharacteristicDiagram.from_state(s), list(prior["inputs"][c])) for c, s in prior["cds"].items()}
+            predict = {c: (lambda u, cd=cd, cols=cols: cd.predict(u[:, cols])) for c, (cd, cols) in cds.items()}
+        else:
+            raise PriorError(f"prior: 'model_kind' {kind!r} is none of talc, agp, cd")
+    except (KeyError, TypeError, ValueError, AttributeError, IndexError) as exc:
+        raise PriorError(f"prior: {kind} models are not readable ({exc!r})") from None
+    if kind == "talc":
+        check_talc_models(models, prior.get("training_check"))
+    else:
+        check_predictions(predict, prior.get("training_check"))
+
+
+def check_predictions(predict: Mapping[str, Callable[[np.ndarray], np.ndarray]],
+                      check: Mapping[str, Any] | None) -> None:
+    """Refuse predictors (component -> inputs rows -> prediction) whose P99 |residual| on the
+    prior's held-out training programme exceeds the bound of :func:`_within_bound`."""
+    if not check:
+        return
+    u = np.asarray(check["u"], float)
+    for c, f in predict.items():
+        y = np.asarray(check["errors"][c], float)
+        if u.ndim != 2 or u.shape[0] != y.size:
+            raise PriorError(f"prior: 'training_check' of {c!r} has {y.size} errors for {u.shape[0]} input rows")
+        try:
+            with np.errstate(all="ignore"):
+                pred = np.asarray(f(u), float).ravel()
+        except (ValueError, IndexError) as exc:
+            raise PriorError(f"prior: component {c!r} cannot predict its training programme ({exc})") from None
+        _within_bound(c, _p99(y - pred) if pred.size == y.size else math.nan, check)
+
+
+def _within_bound(c: str, err: float, check: Mapping[str, Any]) -> None:
+    bound = TRAINING_BOUND * float(check["uncompensated_p99"][c]) + TRAINING_FLOOR
+    if not err <= bound:
+        raise PriorError(f"prior: component {c!r} errs P99 {err:.4g} on its training programme "
+                         f"{check.get('programme', '')!r}, above the bound {bound:.4g} "
+                         f"({TRAINING_BOUND:g} x uncompensated {float(check['uncompensated_p99'][c]):.4g} "
+                         f"+ {TRAINING_FLOOR:g})")
 
 
 def check_talc_models(models: Mapping[str, Any], check: Mapping[str, Any] | None) -> None:
     """Refuse TALC prior models (ArxModel per component) with a pole on or outside the unit
     circle or, with the prior's ``training_check``, a simulation on its held-out training
-    programme whose P99 |residual| exceeds TRAINING_BOUND x the uncompensated P99 + TRAINING_FLOOR."""
+    programme beyond the bound of :func:`_within_bound`."""
     for c, m in models.items():
         poles = m.poles()
         if poles.size and not np.all(np.abs(poles) < 1.0):
@@ -131,9 +174,4 @@ def check_talc_models(models: Mapping[str, Any], check: Mapping[str, Any] | None
             raise PriorError(f"prior: 'training_check' of {c!r} has {y.size} errors for {u.shape[0]} input rows")
         with np.errstate(all="ignore"):
             err = _p99((y - m.simulate(u, np.zeros(lag), lag))[lag:])
-        bound = TRAINING_BOUND * float(check["uncompensated_p99"][c]) + TRAINING_FLOOR
-        if not err <= bound:
-            raise PriorError(f"prior: component {c!r} errs P99 {err:.4g} on its training programme "
-                             f"{check.get('programme', '')!r}, above the bound {bound:.4g} "
-                             f"({TRAINING_BOUND:g} x uncompensated {float(check['uncompensated_p99'][c]):.4g} "
-                             f"+ {TRAINING_FLOOR:g})")
+        _within_bound(c, err, check)

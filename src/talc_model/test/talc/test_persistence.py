@@ -5,7 +5,7 @@ import os
 import pytest
 
 from talc_model.model_persistence import (HASH_FIELD, ModelStateError, content_hash, load_model, load_pretrained,
-                                          read_state, save_model)
+                                          model_identity, read_state, save_model)
 from talc_model.talc.model import TalcModel
 from test_talc import COMPONENTS, STEP, config, plant, run
 
@@ -94,3 +94,17 @@ def test_pretrained_model_starts_compensating_at_once(tmp_path):
         cp.update_inputs(0.0, {"a": 1.0, "b": 1.0}, {})
         save_model(tmp_path / "cp.json", cp)
         load_pretrained(tmp_path / "cp.json")
+
+
+def test_pretrained_model_of_other_inputs_or_twin_is_refused(tmp_path):
+    m, _, _ = _trained()
+    m.config.type_model = "nmv5000"          # as if trained on that twin's soft sensors
+    save_model(tmp_path / "trained.json", m)
+    ident = model_identity(m)
+    assert ident["input_names"] and ident["type_model"] == "nmv5000"
+    load_pretrained(tmp_path / "trained.json",           # the run's own identity passes
+                    expected={"input_names": [ident["input_names"]], "type_model": ["nmv5000"]})
+    with pytest.raises(ModelStateError, match="identity 'input_names'"):
+        load_pretrained(tmp_path / "trained.json", expected={"input_names": [["T_other", "T_hall"]]})
+    with pytest.raises(ModelStateError, match="identity 'type_model'"):
+        load_pretrained(tmp_path / "trained.json", expected={"type_model": ["lathe_twin"]})
