@@ -2,6 +2,7 @@
 what it flushed, and the player re-publishes a bag byte for byte with /clock."""
 import signal
 import threading
+import time
 
 import pytest
 import rclpy
@@ -14,6 +15,7 @@ from bags_helpers import small_recording_csv, spawn, stop, wait_for
 from thermal_comp_common.runtime import node_runtime as rt
 from thermal_comp_common.bags.reader import read_bag
 from thermal_comp_common.bags.csv_to_bag import csv_to_bag
+from thermal_comp.bags import record_cli, recorder_node
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
@@ -57,10 +59,10 @@ def _meta_count(bag) -> int:
     return info["message_count"]
 
 
-def _record(tmp_path, ros_context, n: int, sig):
+def _record(tmp_path, ros_context, n: int, sig, *extra):
     bag = tmp_path / "rec"
     proc = spawn(["-m", "thermal_comp.bags.record_cli", str(bag), "temperatures", "machine_state",
-                  "--flush-period", "0.1"])
+                  "--flush-period", "0.1", *extra])
     s = Spinner(ros_context, "test_publisher")
     try:
         pub = s.node.create_publisher(TemperatureArray, rt.TOPIC_TEMPERATURES, rt.SENSOR_QOS)
@@ -76,8 +78,25 @@ def _record(tmp_path, ros_context, n: int, sig):
     return bag, proc.returncode, out
 
 
+def test_record_and_the_recorder_node_share_the_receive_time_default():
+    """One timestamp default, as rosbag2: the bag's log time is the receive time."""
+    assert record_cli.build_parser().parse_args(["out"]).timestamps == "receive"
+    (param,) = [p for p in recorder_node.PARAMS if p.name == "timestamps"]
+    assert param.default == recorder_node.DEFAULT_TIMESTAMPS == "receive"
+
+
+def test_recorder_logs_receive_time_and_keeps_the_header_stamp(tmp_path, ros_context):
+    wall0 = time.time_ns()
+    bag, code, out = _record(tmp_path, ros_context, 5, signal.SIGINT)
+    assert code == 0, out
+    c = read_bag(bag)
+    logs = [m.log_time_ns for m in c.messages]
+    assert logs == sorted(logs) and wall0 <= logs[0] and logs[-1] <= time.time_ns()
+    assert [m.stamp_ns for m in c.messages] == [int((100 + 15 * k) * 1e9) for k in range(5)]
+
+
 def test_recorder_records_everything_published_after_start(tmp_path, ros_context):
-    bag, code, out = _record(tmp_path, ros_context, 25, signal.SIGINT)
+    bag, code, out = _record(tmp_path, ros_context, 25, signal.SIGINT, "--timestamps", "header")
     assert code == 0, out
     c = read_bag(bag)
     assert c.damage is None
@@ -227,7 +246,7 @@ def test_play_into_record_reproduces_the_bag(tmp_path):
     original = read_bag(src)
     copy = tmp_path / "copy"
     rec = spawn(["-m", "thermal_comp.bags.record_cli", str(copy), "temperatures", "machine_state",
-                 "errors/ground_truth", "--flush-period", "0.1"])
+                 "errors/ground_truth", "--flush-period", "0.1", "--timestamps", "header"])
     try:
         player = spawn(["-m", "thermal_comp.bags.play_cli", str(src), "--as-fast-as-possible",
                         "--wait-for-subscribers", "1"])

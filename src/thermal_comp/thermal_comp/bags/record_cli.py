@@ -31,9 +31,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="topics to record (default: every thermal-comp topic except sim_sync)")
     ap.add_argument("--flush-period", type=float, default=1.0, metavar="S",
                     help="close the open chunk every S seconds of wall time (default 1)")
-    ap.add_argument("--timestamps", choices=("header", "receive"), default="header",
-                    help="bag time of a message: its header stamp (default, deterministic in "
-                         "simulated time) or the receive time")
+    ap.add_argument("--timestamps", choices=("header", "receive"),
+                    default=bag_recorder_node.DEFAULT_TIMESTAMPS,
+                    help="bag log time of a message: the receive time on the recorder's clock "
+                         "(default, as ros2 bag record and the cell's recorder node write it) or "
+                         "its header stamp; readers key instants by the header stamp either way")
     ap.add_argument("--use-sim-time", action="store_true",
                     help="receive times on /clock time (only matters with --timestamps receive)")
     ap.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd")

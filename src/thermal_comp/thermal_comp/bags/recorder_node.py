@@ -78,6 +78,8 @@ OPTIONAL_TOPICS: dict[str, tuple[str, QoSProfile]] = {
 }
 #: Receive-side queue depth for reliable topics (absorbs bursts of an as-fast-as-possible replay).
 RECEIVE_DEPTH = 1000
+# Bag log time, one default for the node and ``thermal-comp record``: the receive time, as rosbag2.
+DEFAULT_TIMESTAMPS = "receive"
 
 
 def parse_topic_arg(arg: str) -> tuple[str, str, QoSProfile]:
@@ -144,7 +146,7 @@ PARAMS = [
              "a crash loses at most this much", lo=0.05, hi=3600.0),
     rt.Param("chunk_bytes", 262144, "close a chunk when it holds this many bytes",
              lo=1024, hi=64 * 2**20),
-    rt.Param("timestamps", "receive", "log time in the bag: the receive time on the "
+    rt.Param("timestamps", DEFAULT_TIMESTAMPS, "log time in the bag: the receive time on the "
              "node's clock (as rosbag2 writes it), or the message's own header stamp",
              choices=("header", "receive")),
     rt.Param("compression", "zstd", "chunk compression", choices=("zstd", "lz4", "none")),
