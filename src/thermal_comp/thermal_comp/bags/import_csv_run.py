@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import sys
 
-from tqdm import tqdm
 
 from thermal_comp_common.bags.writer import BagWriteError, remove_bag_folder
 from thermal_comp_common.bags.csv_to_bag import CsvImportError, recording_to_bag
+from thermal_comp_common.plain_output import progress
 from thermal_comp_common.recording_csv import RecordingError, read_recording_csv
 
 
@@ -21,12 +21,12 @@ def run(args) -> int:
         if not args.no_progress:
             lo, hi = args.rows
             total = len(range(lo, len(rec) if hi is None else min(hi, len(rec)), max(args.every, 1)))
-            bar = tqdm(desc="import-csv", unit="row", total=total, leave=False, file=sys.stderr)
+            bar = progress(total, "import-csv", "row")
         res = recording_to_bag(rec, args.out, temperatures_topic=args.temperatures_topic,
                          errors_as=args.errors, error_model_kind=args.error_model_kind,
                          namespace=args.namespace, start_s=args.start, every=args.every,
                          rows=args.rows, strict=args.strict,
-                         progress=None if bar is None else bar.update)
+                         progress=None if bar is None else bar.advance)
     except (RecordingError, CsvImportError, BagWriteError) as exc:
         print(f"thermal-comp import-csv: {exc}", file=sys.stderr)
         return 2

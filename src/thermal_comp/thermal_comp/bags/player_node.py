@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import os
 import pathlib
-import sys
 import tempfile
 import threading
 import time
@@ -31,8 +30,8 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
-from tqdm import tqdm
 
+from thermal_comp_common.plain_output import progress
 from thermal_comp_common.runtime import node_runtime as rt
 from thermal_comp_common.bags.reader import BagContents, instants, read_bag, wall_delay_s
 from thermal_comp_msgs.msg import SimSync
@@ -179,8 +178,8 @@ class BagPlayerNode(Node):
             rate = self.p["rate"]
             bar = None
             if self.p["progress"] and msgs:
-                bar = tqdm(total=round((msgs[-1].stamp_ns - start) / 3.6e12, 3), unit="sim h",
-                           desc="play", leave=False, file=sys.stderr)
+                bar = progress(round((msgs[-1].stamp_ns - start) / 3.6e12, 3), "play", "sim h",
+                               decimals=2)
             for t_ns, group in instants(msgs):
                 if self._stop.is_set():
                     break
@@ -205,8 +204,7 @@ class BagPlayerNode(Node):
                 r.instants += 1
                 r.last_time_ns = t_ns
                 if bar is not None:
-                    bar.n = round((t_ns - start) / 3.6e12, 3)
-                    bar.refresh()
+                    bar.to((t_ns - start) / 3.6e12)
                 if fast:
                     self._wait_acked(t_ns, dict.fromkeys(used))
             if bar is not None:

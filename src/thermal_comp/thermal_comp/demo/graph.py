@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 import psutil
-from tqdm import tqdm
 
 from cnc_bridge.update_profile import read_profile
 from thermal_comp.cell.config import parse_cell
@@ -30,6 +29,7 @@ from thermal_comp.demo.graph_profile import ack_breakdown, instant_events, laten
 from thermal_comp.cell.cell_lock import CellLockError
 from thermal_comp.cell.launcher import NICE_ENV, Launcher
 from thermal_comp_common.runtime import node_runtime as rt
+from thermal_comp_common.plain_output import progress
 from thermal_comp_common.runtime.domain_ids import claim_domain_id
 
 
@@ -209,8 +209,7 @@ def run_graph(cfg: DemoConfig, on_poll=None, profile_bridge: bool = False) -> Ru
             raise DemoError(str(exc)) from None
         monitor = DemoMonitor("/" + cell.cell)
         if cfg.progress:
-            bar = tqdm(total=round(total_h, 2), unit="sim h", desc=f"{cfg.machine} {cfg.scenario}",
-                       bar_format="{l_bar}{bar}| {n:.1f}/{total:.1f} sim h [{elapsed}<{remaining}]")
+            bar = progress(round(total_h, 2), f"{cfg.machine} {cfg.scenario}", "sim h", decimals=1)
         _supervise(cfg, launcher, monitor, bar, record, total_h, log_dir, on_poll)
         record.wall_s = time.perf_counter() - t_start
         record.sim_end_s = monitor.sim_s
@@ -288,8 +287,7 @@ def _supervise(cfg: DemoConfig, launcher: Launcher, monitor: DemoMonitor, bar, r
         if on_poll is not None:
             on_poll(launcher, monitor.sim_s)
         if bar is not None:
-            bar.n = round(min(monitor.sim_s / 3600.0, total_h), 2)
-            bar.refresh()
+            bar.to(monitor.sim_s / 3600.0)
         if sim_proc.popen.poll() is not None:
             launcher.poll()    # handle the exit first: a crash may be due for a restart
         if sim_proc.popen.poll() is not None and sim_proc.next_start is None:

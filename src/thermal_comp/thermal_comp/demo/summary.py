@@ -17,7 +17,7 @@ from rich.table import Table
 from thermal_comp.demo.cell import MACHINES, DemoConfig, plant_label
 from thermal_comp.demo.graph import RunRecord
 from thermal_comp.demo.series import DemoSeries
-from thermal_comp_common import metrics
+from thermal_comp_common import metrics, plain_output
 from thermal_comp_common.probe_and_hold import TABLE_5_4_RESOLUTION_UM, probe_and_hold, table_5_4_noise
 
 #: Published results the demo is compared with (Blaser thesis, Tables 6.5 and 6.7; P99).
@@ -123,10 +123,9 @@ def summarise(series: DemoSeries, cfg: DemoConfig, record: RunRecord | None) -> 
 
 
 def _console() -> Console:
-    """The terminal's console; piped or logged output gets 160 columns, so the table's nine
-    columns are not squeezed into 80 (headers and numbers broken over lines)."""
-    c = Console()
-    return c if c.is_terminal else Console(width=160)
+    """The terminal's console; piped or logged output gets wide tables and whole text lines, so
+    the table's nine columns are not squeezed into 80 and no sentence is broken over lines."""
+    return plain_output.console()
 
 
 def print_table(summary: dict[str, Any]) -> None:
