@@ -13,6 +13,8 @@ from typing import Mapping
 from asyncua import ua
 import yaml
 
+from thermal_comp_common.runtime.production import PRODUCTION_ENV, production_mode
+
 
 class OpcUaConfigError(ValueError):
     """The OPC UA backend's settings are inconsistent (the message names the setting)."""
@@ -107,6 +109,9 @@ class OpcUaConfig:
             raise OpcUaConfigError(f"endpoint: must start with opc.tcp://, got {self.endpoint!r}")
         if bool(self.certificate) != bool(self.private_key):
             raise OpcUaConfigError("certificate and private_key must be given together")
+        if production_mode() and not self.security_required:
+            raise OpcUaConfigError(f"security_required: False in a production cell ({PRODUCTION_ENV}=1): "
+                                   "refusing a connection without Sign&Encrypt and a login")
         if self.security_required and not self.certificate:
             raise OpcUaConfigError(
                 "security_required: a client certificate and private key are needed for "

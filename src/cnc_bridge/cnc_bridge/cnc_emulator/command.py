@@ -14,6 +14,7 @@ from cnc_bridge.cnc_emulator.probe import artefact_probe
 from cnc_bridge.cnc_emulator.server import CncEmulator, EmulatorConfig
 from cnc_bridge.cnc_emulator.thread import CncEmulatorThread
 from cnc_bridge.credentials import CredentialsError, load_credentials
+from thermal_comp_common.runtime.production import PRODUCTION_ENV, production_mode
 
 
 def run(args: argparse.Namespace, ros_args: list[str]) -> int:
@@ -32,6 +33,10 @@ def run(args: argparse.Namespace, ros_args: list[str]) -> int:
                              client_trust=tuple(args.client_trust), **extra)
     except (CredentialsError, ValueError) as exc:
         print(f"cnc-emulator: {exc}", file=sys.stderr)
+        return 2
+    if production_mode() and open_access_warning(cfg.security, bool(cfg.client_trust)):
+        print(f"cnc-emulator: refused: --security {cfg.security} without --client-trust in a production cell "
+              f"({PRODUCTION_ENV}=1): use --security required with a client trust list", file=sys.stderr)
         return 2
     if not args.verbose:
         logging.getLogger("asyncua").setLevel(logging.ERROR)

@@ -5,6 +5,10 @@ A cell file is YAML::
     cell: cell_a                # namespace of every node of the cell (required)
     domain_id: 17               # ROS_DOMAIN_ID of the cell's processes (optional, 0..232)
     use_sim_time: true          # default for every node (optional, default false)
+    production: false           # a production cell (optional, default false): every bridge node
+                                # needs security_required: true, a CNC emulator node
+                                # --security required and --client-trust; its processes get
+                                # THERMAL_COMP_PRODUCTION=1 and refuse open access themselves
     restart:                    # default restart policy for crashed nodes (optional)
       enabled: true             #   restart a node that exits with an error or a signal
       max_restarts: 5           #   then give up on it (0..100)
@@ -39,10 +43,12 @@ from typing import Any, Mapping
 
 import yaml
 
+from thermal_comp_common.runtime.production import PRODUCTION_ENV
+
 NAME_RE = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 MODULE_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
 MAX_DOMAIN_ID = 232
-_CELL_KEYS = {"cell", "domain_id", "use_sim_time", "restart", "env", "nodes"}
+_CELL_KEYS = {"cell", "domain_id", "use_sim_time", "production", "restart", "env", "nodes"}
 _NODE_KEYS = {"name", "package", "executable", "module", "parameters", "restart", "args", "env",
               "lifecycle", "lifecycle_timeout_s"}
 _RESTART_KEYS = {"enabled", "max_restarts", "backoff_s"}
@@ -84,6 +90,7 @@ class CellConfig:
     use_sim_time: bool = False
     env: dict[str, str] = field(default_factory=dict)
     source: str = ""
+    production: bool = False
 
     @property
     def namespace(self) -> str:
@@ -258,7 +265,31 @@ def parse_cell(data: Any, source: str = "<cell>", resolve: bool = True) -> CellC
             restart=_restart(src, f"{p}.restart", n.get("restart"), default_restart),
             args=list(args), env=_env(src, f"{p}.env", n.get("env")),
             package=package, executable=executable))
-    return CellConfig(cell=cell, nodes=nodes, domain_id=did, use_sim_time=ust, env=env, source=src)
+    production = data.get("production", False)
+    if not isinstance(production, bool):
+        _fail(src, "production", f"expected true or false, got {production!r}")
+    if production:
+        _check_production(src, nodes)
+        env = {**env, PRODUCTION_ENV: "1"}
+    return CellConfig(cell=cell, nodes=nodes, domain_id=did, use_sim_time=ust, env=env, source=src,
+                      production=production)
+
+
+def _check_production(src: str, nodes: list[NodeSpec]) -> None:
+    """A production cell opens no CNC to anyone: its bridges run with ``security_required`` and
+    a CNC emulator in it only with ``--security required`` and a client trust list."""
+    for i, n in enumerate(nodes):
+        if PRODUCTION_ENV in n.env:
+            _fail(src, f"nodes[{i}].env.{PRODUCTION_ENV}", "a production cell marks every process; not per node")
+        if n.module.endswith("cnc_bridge_node") and n.parameters.get("security_required") is not True:
+            _fail(src, f"nodes[{i}].parameters.security_required",
+                  f"is {n.parameters.get('security_required')!r}: a production cell's bridge needs true")
+        if n.module.startswith("cnc_bridge.cnc_emulator"):
+            security = n.args[n.args.index("--security") + 1] if "--security" in n.args[:-1] else "optional"
+            if security != "required" or "--client-trust" not in n.args:
+                _fail(src, f"nodes[{i}].args", f"--security {security}"
+                      f"{'' if '--client-trust' in n.args else ' without --client-trust'}: a production "
+                      "cell's CNC needs --security required and a client trust list")
 
 
 def load_cell(path: str | pathlib.Path, resolve: bool = True) -> CellConfig:
