@@ -81,11 +81,13 @@ class Recording:
                          source=self.source, warnings=list(self.warnings))
 
 
-def read_recording_csv(path: str | pathlib.Path, strict: bool = False) -> Recording:
+def read_recording_csv(path: str | pathlib.Path, strict: bool = False,
+                       sample_period_s: float | None = None) -> Recording:
     """Read a recording CSV. Empty cells and ``nan`` become NaN (a failed reading).
 
     With ``strict=False`` a truncated final line (fewer cells than the header) is dropped
     with a warning in ``Recording.warnings``; any other malformed line raises.
+    ``sample_period_s``: the file has no ``time_s`` column; row i is at i x the period.
     """
     path = pathlib.Path(path)
     if not path.is_file():
@@ -96,40 +98,85 @@ def read_recording_csv(path: str | pathlib.Path, strict: bool = False) -> Record
         line = path.read_bytes()[:exc.start].count(b"\n") + 1
         raise RecordingError(f"{path}: line {line}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x}); "
                              "not a recording CSV") from None
+    return read_recording_text(text, str(path), strict, sample_period_s)
+
+
+def _header_and_lines(text: str, source: str) -> tuple[list[str], list[list[str]]]:
     if "\x00" in text:
-        raise RecordingError(f"{path}: line {text[:text.index(chr(0))].count(chr(10)) + 1}: a NUL byte; "
+        raise RecordingError(f"{source}: line {text[:text.index(chr(0))].count(chr(10)) + 1}: a NUL byte; "
                              "a binary file, not a recording CSV")
     with io.StringIO(text, newline="") as f:
         reader = csv.reader(f)
         try:
             header = [h.strip() for h in next(reader)]
         except StopIteration:
-            raise RecordingError(f"{path}: empty file, expected a header starting with '{TIME_COLUMN}'")
+            raise RecordingError(f"{source}: empty file, expected a header starting with '{TIME_COLUMN}'")
         except csv.Error as exc:
-            raise RecordingError(f"{path}: line 1: {exc}") from None
-        if not header or header[0] != TIME_COLUMN:
-            raise RecordingError(f"{path}: line 1: first column must be '{TIME_COLUMN}', got {header[:1]}")
-        dupes = {h for h in header if header.count(h) > 1}
-        if dupes:
-            raise RecordingError(f"{path}: line 1: duplicate column(s) {sorted(dupes)}")
-        if any(not h for h in header):
-            raise RecordingError(f"{path}: line 1: empty column name at position {header.index('') + 1}")
-        rows: list[list[float]] = []
-        warnings: list[str] = []
+            raise RecordingError(f"{source}: line 1: {exc}") from None
         try:
-            lines = list(reader)
+            return header, list(reader)
         except csv.Error as exc:
-            raise RecordingError(f"{path}: line {reader.line_num}: {exc}") from None
+            raise RecordingError(f"{source}: line {reader.line_num}: {exc}") from None
+
+
+def _check_period(sample_period_s: float | None, source: str) -> None:
+    if sample_period_s is not None and not (isinstance(sample_period_s, (int, float))
+                                            and math.isfinite(sample_period_s) and sample_period_s > 0):
+        raise RecordingError(f"{source}: sample period {sample_period_s!r} must be a finite number of seconds > 0")
+
+
+def read_recording_text(text: str, source: str, strict: bool = False,
+                        sample_period_s: float | None = None) -> Recording:
+    """:func:`read_recording_csv` on text already in memory; errors and warnings name ``source``
+    (the user's file, never a temporary copy). Without a ``time_s`` first column the time is
+    row index x ``sample_period_s`` (refused when no period is given)."""
+    _check_period(sample_period_s, source)
+    header, lines = _header_and_lines(text, source)
+    timed = bool(header) and header[0] == TIME_COLUMN
+    if not timed and sample_period_s is None:
+        raise RecordingError(f"{source}: line 1: first column must be '{TIME_COLUMN}', got {header[:1]} "
+                             "(no time column: give the sample period, e.g. --sample-period-s 60)")
+    if timed and sample_period_s is not None:
+        raise RecordingError(f"{source}: line 1: has a '{TIME_COLUMN}' column and a sample period was given; "
+                             "use one of them")
+    dupes = {h for h in header if header.count(h) > 1}
+    if dupes:
+        raise RecordingError(f"{source}: line 1: duplicate column(s) {sorted(dupes)}")
+    if any(not h for h in header):
+        raise RecordingError(f"{source}: line 1: empty column name at position {header.index('') + 1}")
+    rows, warnings = _rows(header, lines, source, strict)
+    data = np.asarray(rows, dtype=float)
+    if not timed:
+        t = np.arange(data.shape[0], dtype=float) * float(sample_period_s)
+        warnings.append(f"{source}: no '{TIME_COLUMN}' column: time = row index x {sample_period_s:g} s")
+        return Recording(t, {name: data[:, j].copy() for j, name in enumerate(header)}, source=source,
+                         warnings=warnings)
+    t = data[:, 0]
+    if not np.all(np.isfinite(t)):
+        bad = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise RecordingError(f"{source}: line {bad + 2}: column '{TIME_COLUMN}': {t[bad]!r} is not a time")
+    steps = np.diff(t)
+    if np.any(steps <= 0):
+        bad = int(np.flatnonzero(steps <= 0)[0]) + 1
+        raise RecordingError(f"{source}: line {bad + 2}: column '{TIME_COLUMN}': {t[bad]!r} does not "
+                             f"increase (previous {t[bad - 1]!r})")
+    cols = {name: data[:, j].copy() for j, name in enumerate(header) if j > 0}
+    return Recording(t.copy(), cols, source=source, warnings=warnings)
+
+
+def _rows(header: list[str], lines: list[list[str]], source: str, strict: bool) -> tuple[list, list[str]]:
+    rows: list[list[float]] = []
+    warnings: list[str] = []
     for i, cells in enumerate(lines):
         lineno = i + 2
         if not cells:
             continue
         if len(cells) != len(header):
             if i == len(lines) - 1 and len(cells) < len(header) and not strict:
-                warnings.append(f"{path}: line {lineno}: truncated ({len(cells)} of {len(header)} cells), "
+                warnings.append(f"{source}: line {lineno}: truncated ({len(cells)} of {len(header)} cells), "
                                 f"dropped; data up to line {lineno - 1} kept")
                 break
-            raise RecordingError(f"{path}: line {lineno}: {len(cells)} cells, header has {len(header)}")
+            raise RecordingError(f"{source}: line {lineno}: {len(cells)} cells, header has {len(header)}")
         row = []
         for name, cell in zip(header, cells):
             cell = cell.strip()
@@ -139,24 +186,13 @@ def read_recording_csv(path: str | pathlib.Path, strict: bool = False) -> Record
                 try:
                     value = float(cell)
                 except ValueError:
-                    raise RecordingError(f"{path}: line {lineno}: column '{name}': "
+                    raise RecordingError(f"{source}: line {lineno}: column '{name}': "
                                          f"{cell!r} is not a number") from None
             row.append(value)
         rows.append(row)
     if not rows:
-        raise RecordingError(f"{path}: no data rows")
-    data = np.asarray(rows, dtype=float)
-    t = data[:, 0]
-    if not np.all(np.isfinite(t)):
-        bad = int(np.flatnonzero(~np.isfinite(t))[0])
-        raise RecordingError(f"{path}: line {bad + 2}: column '{TIME_COLUMN}': {t[bad]!r} is not a time")
-    steps = np.diff(t)
-    if np.any(steps <= 0):
-        bad = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise RecordingError(f"{path}: line {bad + 2}: column '{TIME_COLUMN}': {t[bad]!r} does not "
-                             f"increase (previous {t[bad - 1]!r})")
-    cols = {name: data[:, j].copy() for j, name in enumerate(header) if j > 0}
-    return Recording(t.copy(), cols, source=str(path), warnings=warnings)
+        raise RecordingError(f"{source}: no data rows")
+    return rows, warnings
 
 
 def write_recording_csv(path: str | pathlib.Path, time_s: Iterable[float],

@@ -129,8 +129,11 @@ def test_cli_writes_table_json_png_rrd_and_refuses_a_non_empty_out(csv_path, tmp
     f = json.loads((out / "evaluation.json").read_text())
     assert set(f["open_loop"]) == {"train_mean", "hold_last_training", "static_ls", "lowpass_ridge", "lagged_ridge"}
     z = f["open_loop"]["lagged_ridge"]["channels"]["z_um"]
-    assert z["ratio_to_best_baseline_test"] == pytest.approx(z["mae_test_um"] / f["best_baseline_mae_um"]["test"]["z_um"],
-                                                             rel=1e-2)
+    assert f["ratio_baseline"] == "static_ls"
+    base = f["open_loop"]["static_ls"]["channels"]["z_um"]
+    assert z["ratio_to_static_ls_test"] == pytest.approx(z["mae_test_um"] / base["mae_test_um"], rel=1e-2)
+    assert all(z[f"{k}_{w}_um"] is not None for k in ("mae", "rmse", "p99") for w in ("test", "validation"))
+    assert z["mae_test_um"] <= z["rmse_test_um"] <= z["p99_test_um"] + 1e-9
     ad = f["adaptive"]["lagged_ridge"]
     assert ad["probings_after_calibration"] >= 1 and "hold_own_probes_mae_test_um" in ad["channels"]["x_um"]
     assert (out / "evaluation.png").stat().st_size > 0 and (out / "evaluation.rrd").stat().st_size > 0

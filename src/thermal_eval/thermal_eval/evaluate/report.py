@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import pathlib
+import re
 from typing import Any
 
 import numpy as np
@@ -20,20 +21,29 @@ from thermal_eval.evaluate.run import EvaluationResult
 from thermal_eval.evaluate.spec import EvaluationData
 
 
-def _cell(c: dict, ratio_key: str) -> str:
+def _fig(c: dict, window: str, prefix: str = "") -> str:
+    """MAE / RMSE / P99 of one window ("-" for a window without rows)."""
+    v = [c.get(f"{prefix}{k}_{window}_um") for k in ("mae", "rmse", "p99")]
+    return "-" if v[0] is None else " / ".join(f"{x:.3f}" if x is not None else "-" for x in v)
+
+
+def _cell(c: dict, ratio_key: str, prefix: str = "") -> str:
     if "failed" in c:
         return "[red]failed[/red]"
     r = c.get(ratio_key)
     ratio = f" x{r:.2f}" if isinstance(r, (int, float)) and math.isfinite(r) else ""
-    return f"{c['mae_test_um']:.3f} [{c['mae_validation_um']:.3f}]{ratio}"
+    val = _fig(c, "validation", prefix)
+    return f"{_fig(c, 'test', prefix)}{ratio}" + ("" if val == "-" else f"\n[{val}]")
 
 
 def print_table(figures: dict[str, Any], console=None) -> None:
     console = console or Console(width=max(140, Console().width))
     chs = figures["channels"]
     rows = figures["rows"]
-    table = Table(title=f"evaluate {figures['source']}: MAE (um) test rows {rows['test']} [validation rows "
-                        f"{rows['validation']}], x ratio to the baseline")
+    base = figures.get("ratio_baseline")
+    table = Table(title=f"evaluate {figures['source']}: MAE / RMSE / P99 (um) on test rows {rows['test']} "
+                        f"[validation rows {rows['validation']}]; x: MAE ratio to {base} (open loop) or to "
+                        "holding the same probes (adaptive), same rows")
     table.add_column("mode")
     table.add_column("model")
     for ch in chs:
@@ -42,7 +52,7 @@ def print_table(figures: dict[str, Any], console=None) -> None:
     failures = []
     for name, v in figures["open_loop"].items():
         table.add_row("open loop" if v["kind"] == "model" else "baseline", name,
-                      *[_cell(v["channels"][ch], "ratio_to_best_baseline_test") for ch in chs], "")
+                      *[_cell(v["channels"][ch], f"ratio_to_{base}_test") for ch in chs], "")
         failures += [f"{name} {ch}: {c['failed']}" for ch, c in v["channels"].items() if "failed" in c]
     for name, v in figures["adaptive"].items():
         if "failed" in v:
@@ -54,13 +64,12 @@ def print_table(figures: dict[str, Any], console=None) -> None:
             probes += f", after steps {v['probings_after_input_steps']} ({v['load_probing']['chosen']})"
         table.add_row("adaptive", name, *[_cell(v["channels"][ch], "ratio_to_hold_test") for ch in chs], probes)
         table.add_row("", f"  hold {name}'s probes",
-                      *[("" if "failed" in v["channels"][ch] else
-                         f"{v['channels'][ch]['hold_own_probes_mae_test_um']:.3f} "
-                         f"[{v['channels'][ch]['hold_own_probes_mae_validation_um']:.3f}]") for ch in chs], "same")
+                      *[("" if "failed" in v["channels"][ch] else _cell(v["channels"][ch], "", "hold_own_probes_"))
+                        for ch in chs], "same")
         if "probe_phases" in v:
             _phase_rows(table, v, chs)
     console.print(table)
-    console.print("open loop: x = MAE / best baseline's MAE on the test rows (per channel); adaptive: x = MAE / "
+    console.print(f"open loop: x = MAE / {base}'s MAE on the same test rows (per channel); adaptive: x = MAE / "
                   "holding the same probes. Probings counted after the training (calibration) rows.")
     if figures.get("probe_phases", 1) > 1:
         console.print(f"phases: the probing clock delayed by i/{figures['probe_phases']} of the interval; mean: x = "
@@ -79,8 +88,7 @@ def _phase_rows(table, v: dict, chs: list[str]) -> None:
     table.add_row("", f"  mean of {ph['k']} phases",
                   *["" if c is None else _cell(c["mean"], "ratio_to_hold_test") for c in cells.values()], label)
     table.add_row("", "  hold, mean of phases",
-                  *["" if c is None else f"{c['mean']['hold_own_probes_mae_test_um']:.3f} "
-                    f"[{c['mean']['hold_own_probes_mae_validation_um']:.3f}]" for c in cells.values()], "same")
+                  *["" if c is None else _cell(c["mean"], "", "hold_own_probes_") for c in cells.values()], "same")
     table.add_row("", "  worst phase",
                   *["" if c is None else _cell(c["worst"], "ratio_to_hold_test") for c in cells.values()], "")
 
@@ -105,7 +113,8 @@ def _best(figures: dict, group: str) -> str | None:
     for name, v in figures[group].items():
         if v.get("kind") != "model" or "failed" in v:
             continue
-        cells = [c.get("mae_test_um") for c in v["channels"].values()]
+        cells = [c.get("mae_test_um") if c.get("mae_test_um") is not None else c.get("mae_validation_um")
+                 for c in v["channels"].values()]
         if any(c is None for c in cells):
             continue
         score = float(np.mean(cells))
@@ -138,18 +147,24 @@ def plot(data: EvaluationData, result: EvaluationResult, out: pathlib.Path) -> p
             pr = np.asarray(result.probe_rows[ad], dtype=int)
             lo = float(np.nanmin(y)) - 0.05 * (float(np.nanmax(y) - np.nanmin(y)) or 1.0)
             ax.plot(data.time_s[pr] / 3600.0, np.full(pr.size, lo), "|", color="C3", ms=8, label="probings")
-        for sl in (s.validation, s.test):
+        for sl in (w for _, w in s.windows()):
             ax.axvline(data.time_s[sl.start] / 3600.0, color="0.5", ls="--", lw=1)
         ax.set_ylabel(f"{ch} (um)")
     axes[0, 0].legend(loc="best", fontsize=7, ncol=3)
-    axes[0, 0].set_title(f"after the training rows (dashed: start of test / validation rows); test window rows "
-                         f"{s.test.start}-{s.test.stop - 1}", fontsize=9)
+    axes[0, 0].set_title("after the training rows (dashed: start of the held-out windows); "
+                         + ", ".join(f"{w} rows {sl.start}-{sl.stop - 1}" for w, sl in s.windows()), fontsize=9)
     axes[-1, 0].set_xlabel("time since start (h)")
     fig.tight_layout()
     path = out / "evaluation.png"
     fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
+
+
+def entity_part(name: str) -> str:
+    """A column name as one rerun entity-path part: characters other than letters, digits,
+    '_', '-' and '.' become '_' (a name like 'delta L' would otherwise warn on every send)."""
+    return re.sub(r"[^A-Za-z0-9_.\-]", "_", name) or "_"
 
 
 def write_rerun(data: EvaluationData, result: EvaluationResult, out: pathlib.Path) -> pathlib.Path:
@@ -161,6 +176,7 @@ def write_rerun(data: EvaluationData, result: EvaluationResult, out: pathlib.Pat
     times = rr.TimeColumn("time", duration=np.asarray(data.time_s, dtype=float))
 
     def send(entity: str, values: np.ndarray) -> None:
+        entity = "/".join(entity_part(x) for x in entity.split("/"))
         rr.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(values, float)),
                         recording=rec)
     for ch in data.channels:
@@ -174,7 +190,7 @@ def write_rerun(data: EvaluationData, result: EvaluationResult, out: pathlib.Pat
     for name, pr in result.probe_rows.items():
         if pr:
             pt = rr.TimeColumn("time", duration=data.time_s[np.asarray(pr, dtype=int)])
-            rr.send_columns(f"probings/{name}", indexes=[pt],
+            rr.send_columns(f"probings/{entity_part(name)}", indexes=[pt],
                             columns=rr.Scalars.columns(scalars=np.ones(len(pr))), recording=rec)
     rec.flush()
     rec.disconnect()

@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
-from thermal_comp_common.metrics import mae
+from thermal_comp_common.metrics import mae, p99, rmse
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
 from thermal_eval.evaluate.adaptive import ProbingBudget, phase_budgets, probe_counts, run_adaptive
 from thermal_eval.evaluate.baselines import BASELINES
@@ -70,10 +70,28 @@ def available_models(data: EvaluationData, names: Sequence[str] | None = None,
     return [m for m in every if not (m.needs_inputs and data.inputs is None) and m.name not in OPT_IN]
 
 
-def _scores(data: EvaluationData, y: np.ndarray, p: np.ndarray) -> dict[str, float]:
+#: the error figures of every cell (um): one per held-out window
+ERROR_FIGURES = (("mae", mae), ("rmse", rmse), ("p99", p99))
+#: the baseline every open-loop ratio is stated against (a linear regression on the same temperatures)
+RATIO_BASELINE = "static_ls"
+
+
+def window_scores(y: np.ndarray, p: np.ndarray, sl: slice, window: str) -> dict[str, float | None]:
+    """MAE, RMSE and P99 of |y - p| on the rows of one window (None when it has no row)."""
+    ok = np.isfinite(y[sl]) & np.isfinite(p[sl])
+    out: dict[str, float | None] = {}
+    for k, f in ERROR_FIGURES:
+        out[f"{k}_{window}_um"] = round(f(y[sl][ok], p[sl][ok]), 3) if ok.any() else None
+    return out
+
+
+def _scores(data: EvaluationData, y: np.ndarray, p: np.ndarray) -> dict[str, float | None]:
     s = data.split
-    return {"mae_test_um": round(mae(y[s.test], p[s.test]), 3),
-            "mae_validation_um": round(mae(y[s.validation], p[s.validation]), 3)}
+    return {**window_scores(y, p, s.test, "test"), **window_scores(y, p, s.validation, "validation")}
+
+
+def _ratio(a: float | None, b: float | None) -> float | None:
+    return round(a / b, 3) if a is not None and b is not None and b > 0 else None
 
 
 def _reason(exc: BaseException) -> str:
@@ -164,14 +182,13 @@ def _gain_update_choice(data: EvaluationData, model: ModelSpec, ch: str, params:
 
 
 def _beside_hold(data: EvaluationData, y: np.ndarray, compensation: np.ndarray, hold: np.ndarray) -> dict[str, Any]:
-    """One channel of one adaptive run: MAE, holding the same probes, their ratio."""
+    """One channel of one adaptive run: MAE, RMSE, P99, holding the same probes, their ratio (MAE)."""
     cell = _scores(data, y, compensation)
     h = _scores(data, y, hold)
-    cell["hold_own_probes_mae_test_um"] = h["mae_test_um"]
-    cell["hold_own_probes_mae_validation_um"] = h["mae_validation_um"]
+    for k, v in h.items():
+        cell[f"hold_own_probes_{k}"] = v
     for w in ("test", "validation"):
-        cell[f"ratio_to_hold_{w}"] = (round(cell[f"mae_{w}_um"] / h[f"mae_{w}_um"], 3)
-                                      if h[f"mae_{w}_um"] > 0 else None)
+        cell[f"ratio_to_hold_{w}"] = _ratio(cell[f"mae_{w}_um"], h[f"mae_{w}_um"])
     return cell
 
 
@@ -221,18 +238,23 @@ def _adaptive_row(data, model, preds, oofs, budget, out: ModelRow, regain=None, 
 
 
 #: the figures of a phase's cell summarised over the phases
-PHASE_KEYS = ("mae_test_um", "mae_validation_um", "hold_own_probes_mae_test_um", "hold_own_probes_mae_validation_um")
+PHASE_KEYS = ("mae_test_um", "mae_validation_um", "hold_own_probes_mae_test_um", "hold_own_probes_mae_validation_um",
+              "rmse_test_um", "rmse_validation_um", "p99_test_um", "p99_validation_um")
 
 
 def phase_summary(cells: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Per phase, the mean over phases (its ratio: mean MAE over mean holding MAE) and the worst
-    phase (largest MAE, largest ratio to holding at that phase's own probes)."""
+    phase (largest MAE, largest ratio to holding at that phase's own probes); an empty window's
+    figures are None."""
     out: dict[str, Any] = {"by_phase": {k: [c[k] for c in cells] for k in PHASE_KEYS}}
-    mean = {k: round(float(np.mean([c[k] for c in cells])), 3) for k in PHASE_KEYS}
-    worst = {k: round(float(np.max([c[k] for c in cells])), 3) for k in PHASE_KEYS[:2]}
+
+    def agg(k: str, f) -> float | None:
+        v = [c[k] for c in cells if c[k] is not None]
+        return round(float(f(v)), 3) if v else None
+    mean = {k: agg(k, np.mean) for k in PHASE_KEYS}
+    worst = {k: agg(k, np.max) for k in PHASE_KEYS[:2]}
     for w in ("test", "validation"):
-        h = mean[f"hold_own_probes_mae_{w}_um"]
-        mean[f"ratio_to_hold_{w}"] = round(mean[f"mae_{w}_um"] / h, 3) if h > 0 else None
+        mean[f"ratio_to_hold_{w}"] = _ratio(mean[f"mae_{w}_um"], mean[f"hold_own_probes_mae_{w}_um"])
         ratios = [c[f"ratio_to_hold_{w}"] for c in cells if c[f"ratio_to_hold_{w}"] is not None]
         worst[f"ratio_to_hold_{w}"] = max(ratios) if ratios else None
     out["mean"], out["worst"] = mean, worst
@@ -286,22 +308,27 @@ def _add_row(result: EvaluationResult, row: ModelRow) -> None:
         result.probe_rows[row.name] = row.probe_rows
 
 
-def _ratios_to_best_baseline(figures: dict[str, Any], channels: list[str]) -> None:
-    """Open loop: each model's MAE over the best baseline's on the same rows and channel."""
+def _ratios_to_baseline(figures: dict[str, Any], channels: list[str]) -> None:
+    """Open loop: each model's MAE over the named baseline's (:data:`RATIO_BASELINE`) on the same
+    rows and channel; the best baseline per window is kept beside it, named."""
     ol = figures["open_loop"]
+    base_row = ol.get(RATIO_BASELINE)
+    figures["ratio_baseline"] = RATIO_BASELINE if base_row is not None else None
     for window in ("test", "validation"):
         key = f"mae_{window}_um"
         for ch in channels:
-            base = [v["channels"][ch][key] for v in ol.values() if v["kind"] == "baseline"
-                    and key in v["channels"][ch] and np.isfinite(v["channels"][ch][key])]
-            if not base:
+            base = [(v["channels"][ch][key], name) for name, v in ol.items() if v["kind"] == "baseline"
+                    and v["channels"][ch].get(key) is not None and np.isfinite(v["channels"][ch][key])]
+            if base:
+                b, name = min(base)
+                figures.setdefault("best_baseline_mae_um", {}).setdefault(window, {})[ch] = {"model": name, "mae_um": b}
+            if base_row is None:
                 continue
-            b = min(base)
-            figures.setdefault("best_baseline_mae_um", {}).setdefault(window, {})[ch] = b
+            ref = base_row["channels"][ch].get(key)
             for v in ol.values():
                 cell = v["channels"][ch]
-                if key in cell and b > 0:
-                    cell[f"ratio_to_best_baseline_{window}"] = round(cell[key] / b, 3)
+                if cell.get(key) is not None:
+                    cell[f"ratio_to_{RATIO_BASELINE}_{window}"] = _ratio(cell[key], ref)
 
 
 def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None, adaptive: bool = True,
@@ -344,6 +371,6 @@ def evaluate(data: EvaluationData, *, models: Sequence[ModelSpec] | None = None,
             bar.update()
     for i in range(len(items)):
         _add_row(result, rows[i])
-    _ratios_to_best_baseline(figures, data.channels)
+    _ratios_to_baseline(figures, data.channels)
     figures["seconds"] = round(time.perf_counter() - t0, 1)
     return result

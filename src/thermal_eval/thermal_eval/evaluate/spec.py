@@ -27,7 +27,7 @@ from thermal_twin.calibrate.column_mapping import ColumnMapping, parse_mapping, 
 LENGTH_UNITS = {"um": 1.0, "mm": 1000.0, "nm": 0.001, "m": 1e6, "in": 25400.0}
 TEMPERATURE_UNITS = {"C": (1.0, 0.0), "degC": (1.0, 0.0), "K": (1.0, -273.15), "F": (5.0 / 9.0, -32.0 * 5.0 / 9.0)}
 SPEC_KEYS = ("temperatures", "displacements", "inputs", "units", "split", "mapping", "relative_to_first_row",
-             "name", "temperatures_topic", "errors_topic")
+             "name", "temperatures_topic", "errors_topic", "sample_period_s")
 DEFAULT_SPLIT = {"train": 0.6, "validation": 0.2, "test": 0.2, "order": ["validation", "test"]}
 
 
@@ -42,21 +42,28 @@ def closest(name: str, pool: Sequence[str]) -> str:
 
 @dataclass
 class Split:
-    """Chronological rows: train [0, n_train), then the two held-out windows in ``order``."""
+    """Chronological rows: train [0, n_train), then the two held-out windows in ``order``;
+    one of them may be empty (a single held-out window)."""
 
     n_train: int
     validation: slice
     test: slice
     n: int
 
-    def as_dict(self) -> dict[str, list[int]]:
-        return {"train": [0, self.n_train - 1], "validation": [self.validation.start, self.validation.stop - 1],
-                "test": [self.test.start, self.test.stop - 1]}
+    def as_dict(self) -> dict[str, list[int] | None]:
+        def rows(sl: slice) -> list[int] | None:
+            return [sl.start, sl.stop - 1] if sl.stop > sl.start else None
+        return {"train": [0, self.n_train - 1], "validation": rows(self.validation), "test": rows(self.test)}
+
+    def windows(self) -> list[tuple[str, slice]]:
+        """The held-out windows that have rows."""
+        return [(w, sl) for w, sl in (("test", self.test), ("validation", self.validation)) if sl.stop > sl.start]
 
 
 def make_split(n: int, split: Mapping[str, Any] | None = None) -> Split:
-    """Cut ``n`` rows: ``train``/``validation``/``test`` as fractions (sum 1) or first rows
-    (``train_end``, ``held_out_boundary``); ``order`` says which held-out window comes first."""
+    """Cut ``n`` rows: ``train``/``validation``/``test`` as fractions (sum 1; one held-out
+    fraction may be 0) or first rows (``train_end``, ``held_out_boundary``; a boundary equal
+    to ``n`` leaves the second window empty); ``order`` says which held-out window comes first."""
     s = dict(DEFAULT_SPLIT)
     s.update(split or {})
     bad = sorted(set(s) - {"train", "validation", "test", "order", "train_end", "held_out_boundary"})
@@ -70,12 +77,16 @@ def make_split(n: int, split: Mapping[str, Any] | None = None) -> Split:
         a, b = int(s["train_end"]), int(s.get("held_out_boundary", (int(s["train_end"]) + n) // 2))
     else:
         fr = [float(s[k]) for k in ("train", "validation", "test")]
-        if any(not (0 < f < 1) for f in fr) or abs(sum(fr) - 1.0) > 1e-6:
-            raise SpecError(f"split: train/validation/test fractions {fr} must each be in (0, 1) and sum to 1")
+        if not (0 < fr[0] < 1) or any(not (0 <= f < 1) for f in fr[1:]) or fr[1] + fr[2] <= 0 \
+                or abs(sum(fr) - 1.0) > 1e-6:
+            raise SpecError(f"split: train/validation/test fractions {fr} must sum to 1, train in (0, 1), "
+                            "the held-out windows in [0, 1) and not both 0")
         a = int(fr[0] * n)
-        b = int((fr[0] + s[order[0]]) * n)
-    if not 0 < a < b < n:
-        raise SpecError(f"split: rows {n} cut at {a} / {b}: need 0 < train_end < held_out_boundary < {n}")
+        b = int((fr[0] + float(s[order[0]])) * n)
+        b = a if float(s[order[0]]) == 0 else (n if float(s[order[1]]) == 0 else b)
+    if not (0 < a < n and a <= b <= n):
+        raise SpecError(f"split: rows {n} cut at {a} / {b}: need 0 < train_end < {n} and "
+                        f"train_end <= held_out_boundary <= {n}")
     first, second = slice(a, b), slice(b, n)
     win = dict(zip(order, (first, second)))
     return Split(a, win["validation"], win["test"], n)
@@ -154,8 +165,9 @@ def _filled(x: np.ndarray, name: str, notes: list[str]) -> np.ndarray:
     return y
 
 
-def evaluation_data(rec: Recording, spec: Mapping[str, Any]) -> EvaluationData:
-    """Pick columns, convert units, split: the data every model and baseline is run on."""
+def evaluation_data(rec: Recording, spec: Mapping[str, Any], whole: bool = False) -> EvaluationData:
+    """Pick columns, convert units, split: the data every model and baseline is run on.
+    ``whole``: no split by time (every row a training row): one run of a data set."""
     check_spec(spec)
     pool = list(rec.columns)
     kinds = {c: column_kind(c) for c in pool}
@@ -189,16 +201,18 @@ def evaluation_data(rec: Recording, spec: Mapping[str, Any]) -> EvaluationData:
         D[c] = y - y[ok[0]] if relative else y
     U = [_filled(np.asarray(rec.columns[c], float), c, notes) for c in inputs]
     n = rec.time_s.size
-    split = make_split(n, spec.get("split"))
-    if split.n_train < 50:
+    split = Split(n, slice(n, n), slice(n, n), n) if whole else make_split(n, spec.get("split"))
+    if split.n_train < 50 and not whole:
         raise SpecError(f"split: {split.n_train} training rows; the walk-forward needs >= 50")
     return EvaluationData(np.asarray(rec.time_s, float), np.column_stack(T), temps,
                           np.column_stack(U) if U else None, inputs, D, split, rec.source, notes)
 
 
 def load_evaluation_data(path: str | pathlib.Path, spec: Mapping[str, Any] | None = None,
-                         map_file: str | None = None, map_flags: Sequence[str] | None = None) -> EvaluationData:
-    """Read ``path`` with the spec's ``mapping`` (plus ``--map-file`` / ``--map`` flags, which win)."""
+                         map_file: str | None = None, map_flags: Sequence[str] | None = None,
+                         whole: bool = False) -> EvaluationData:
+    """Read ``path`` with the spec's ``mapping`` (plus ``--map-file`` / ``--map`` flags, which win);
+    ``whole``: not split by time (one run of a data set)."""
     spec = dict(spec or {})
     check_spec(spec)
     m = spec.get("mapping") or {}
@@ -208,8 +222,9 @@ def load_evaluation_data(path: str | pathlib.Path, spec: Mapping[str, Any] | Non
     mapping.columns.update(extra.columns)
     mapping.scale.update(extra.scale)
     topics = {k: spec[k] for k in ("temperatures_topic", "errors_topic") if k in spec}
-    rec = read_real_recording(path, mapping, **topics)
-    return evaluation_data(rec, spec)
+    period = spec.get("sample_period_s")
+    rec = read_real_recording(path, mapping, **topics, sample_period_s=None if period is None else float(period))
+    return evaluation_data(rec, spec, whole)
 
 
 #: FL_THERMAL as one dataset configuration: the authors' chronological 60 % train, then test,

@@ -20,14 +20,13 @@ import difflib
 import io
 import pathlib
 import re
-import tempfile
 from dataclasses import dataclass, field
 
 import numpy as np
 import yaml
 
 from thermal_comp_common.bags.recording import load_recording
-from thermal_comp_common.recording_csv import Recording, RecordingError, read_recording_csv
+from thermal_comp_common.recording_csv import Recording, RecordingError, read_recording_csv, read_recording_text
 
 _DECIMAL_COMMA = re.compile(r"^[+-]?\d+,\d*([eE][+-]?\d+)?$")
 
@@ -124,9 +123,10 @@ def _closest(name: str, pool: list[str]) -> str:
 
 def read_real_recording(path: str | pathlib.Path, mapping: ColumnMapping | None = None,
                         temperatures_topic: str = "temperatures",
-                        errors_topic: str = "errors/ground_truth") -> Recording:
+                        errors_topic: str = "errors/ground_truth", sample_period_s: float | None = None) -> Recording:
     """A recording from a CSV (plain or Excel-style, with ``time_s`` or a column mapped to
-    it) or a bag, with the mapping applied; conversions are listed in ``warnings``."""
+    it, or without one: row index x ``sample_period_s``) or a bag, with the mapping applied;
+    conversions are listed in ``warnings``."""
     path = pathlib.Path(path)
     mapping = mapping or ColumnMapping()
     if path.suffix.lower() != ".csv":
@@ -146,14 +146,9 @@ def read_real_recording(path: str | pathlib.Path, mapping: ColumnMapping | None 
         csv.writer(out, lineterminator="\n").writerow(header)
         text = out.getvalue() + (lines[1] if len(lines) > 1 else "")
     if not notes and not mapping.columns:
-        rec = read_recording_csv(path)
-    else:
-        with tempfile.TemporaryDirectory() as d:
-            tmp = pathlib.Path(d) / path.name
-            tmp.write_text(text, encoding="utf-8")
-            rec = read_recording_csv(tmp)
-        rec.source = str(path)
-        rec.warnings = [w.replace(str(tmp), str(path)) for w in rec.warnings]
+        rec = read_recording_csv(path, sample_period_s=sample_period_s)
+    else:   # parsed in memory: every error names the user's file
+        rec = read_recording_text(text, str(path), sample_period_s=sample_period_s)
     rec = _rename(rec, ColumnMapping(scale=mapping.scale))
     rec.warnings = [f"{path.name}: {n}" for n in notes] + rec.warnings
     return rec
