@@ -8,35 +8,56 @@ import rerun as rr
 
 from bags_helpers import small_recording_csv
 from test_rerun_view import RERUN, _env, _synthetic_messages
-from thermal_comp.view.rerun_logging import RerunLogger, schematic_layout
+from thermal_comp.view.rerun_logging import TIMELINE, WALL_TIMELINE, RerunLogger, schematic_layout
 from thermal_comp.view.run import bag_to_rrd
 from thermal_comp_common.bags.csv_to_bag import csv_to_bag
 
 
 class _Capture:
-    """Stands in for a RecordingStream: every timed scalar and text row as (entity, time, value)."""
+    """Stands in for a RecordingStream: every timed scalar and text row as (entity, sim time,
+    value...) in ``rows`` (sim time None when the row is not on sim_time) and, for rows on
+    wall_time, as (entity, wall time, value...) in ``walls``."""
 
     def __init__(self):
-        self.t = None
+        self.t = self.wall = None
         self.rows = collections.Counter()
+        self.walls = collections.Counter()
 
-    def set_time(self, timeline, duration):
-        self.t = round(duration, 9)
+    def set_time(self, timeline, duration=None, timestamp=None):
+        if timeline == TIMELINE:
+            self.t = round(duration, 9)
+        else:
+            assert timeline == WALL_TIMELINE, timeline
+            self.wall = round(timestamp, 9)
+
+    def disable_timeline(self, timeline):
+        if timeline == TIMELINE:
+            self.t = None
+        else:
+            self.wall = None
+
+    def _row(self, path, t, wall, *values):
+        self.rows[(path, t, *values)] += 1
+        if wall is not None:
+            self.walls[(path, wall, *values)] += 1
 
     def log(self, path, entity, static=False):
         if static:
             return
         if isinstance(entity, rr.Scalars):
-            self.rows[(path, self.t, entity.scalars.as_arrow_array().to_pylist()[0])] += 1
+            self._row(path, self.t, self.wall, entity.scalars.as_arrow_array().to_pylist()[0])
         elif isinstance(entity, rr.TextLog):
-            self.rows[(path, self.t, entity.text.as_arrow_array().to_pylist()[0],
-                       entity.level.as_arrow_array().to_pylist()[0])] += 1
+            self._row(path, self.t, self.wall, entity.text.as_arrow_array().to_pylist()[0],
+                      entity.level.as_arrow_array().to_pylist()[0])
 
     def send_columns(self, path, indexes, columns):
-        times = [round(t.total_seconds(), 9) for t in indexes[0].as_arrow_array().to_pylist()]
+        times = {i.timeline_name(): [round(v * 1e-9, 9) for v in i.as_arrow_array().cast("int64").to_pylist()]
+                 for i in indexes}
         values = [c.as_arrow_array().to_pylist() for c in columns]
-        for i, t in enumerate(times):
-            self.rows[(path, t, *(v[i][0] for v in values))] += 1
+        n = len(values[0])
+        sim, wall = times.get(TIMELINE, [None] * n), times.get(WALL_TIMELINE, [None] * n)
+        for i in range(n):
+            self._row(path, sim[i], wall[i], *(v[i][0] for v in values))
 
 
 def _logged(columnar: bool) -> collections.Counter:

@@ -7,7 +7,7 @@ import pytest
 
 from bags_helpers import stop, wait_for
 from test_rerun_columns import _Capture
-from test_rerun_view import _entities, _env
+from test_rerun_view import _entities, _env, _synthetic_messages
 from thermal_comp.view.rerun_logging import RerunLogger
 from thermal_comp_common.bags import msg_definitions as md
 def _diagnostics(store, t, level, message):
@@ -36,16 +36,39 @@ def test_diagnostics_and_rosout_become_text_logs_with_levels(columnar):
     for t, level, message in ((0, 0, "ok"), (1, 0, "ok"), (2, 1, "stale: no reading for 30 s")):
         logger.log("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", _diagnostics(store, t, level, message),
                    t * 10**9)
-    logger.log("/rosout", "rcl_interfaces/msg/Log", _log(store, 3, 40, "demo.bridge", "link lost"), 3 * 10**9)
+    wall = 1_795_808_975                      # log lines carry the wall clock, data the simulated one
+    logger.log("/rosout", "rcl_interfaces/msg/Log", _log(store, wall, 40, "demo.bridge", "link lost"), wall * 10**9)
     logger.send_columns()
-    texts = sorted(k for k in rec.rows if len(k) == 4)
+    texts = sorted((k for k in rec.rows if len(k) == 4), key=str)
     assert texts == [
         (SPINDLE, 0.0, "OK sensors: sensor spindle: ok (temperature_degc=25.0)", "INFO"),
         (SPINDLE, 2.0,
          "WARN sensors: sensor spindle: stale: no reading for 30 s (temperature_degc=25.0)", "WARN"),
-        ("rosout/demo/bridge", 3.0, "[demo.bridge] link lost", "ERROR")]      # a line per change only
+        ("rosout/demo/bridge", None, "[demo.bridge] link lost", "ERROR")]    # before any data: no sim instant
+    assert ("rosout/demo/bridge", float(wall), "[demo.bridge] link lost", "ERROR") in rec.walls
+    assert not any(k[0].startswith(SPINDLE) for k in rec.walls)      # simulated-clock stamps stay on sim_time
     levels = sorted(k[1:] for k in rec.rows if k[0] == SPINDLE + "/level")
     assert levels == [(0.0, 0.0), (1.0, 0.0), (2.0, 1.0)]
+
+
+@pytest.mark.parametrize("columnar", [False, True])
+def test_wall_clock_records_sit_on_sim_time_where_they_arrived(columnar):
+    """A log line or a wall-stamped status goes on sim_time at the newest data stamp before it
+    (or the arrival given by the bag), its own stamp on wall_time only."""
+    store = md.typestore()
+    rec = _Capture()
+    logger = RerunLogger(rec, columnar=columnar)
+    for topic, type_name, t, msg in _synthetic_messages()[:8]:        # data up to t = 60 s
+        logger.log(topic, type_name, msg, int(t * 1e9))
+    wall = 1_795_808_975
+    logger.log("/rosout", "rcl_interfaces/msg/Log", _log(store, wall, 20, "model", "fitted"), wall * 10**9)
+    logger.log("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", _diagnostics(store, wall + 1, 0, "ok"),
+               (wall + 1) * 10**9, arrival_ns=30 * 10**9)
+    logger.send_columns()
+    assert ("rosout/model", 60.0, "[model] fitted", "INFO") in rec.rows
+    assert ("rosout/model", float(wall), "[model] fitted", "INFO") in rec.walls
+    assert (SPINDLE + "/level", 30.0, 0.0) in rec.rows and (SPINDLE + "/level", wall + 1.0, 0.0) in rec.walls
+    assert all(k[1] is None or k[1] <= 60.0 for k in rec.rows), sorted(rec.rows, key=str)
 
 
 @pytest.mark.slow

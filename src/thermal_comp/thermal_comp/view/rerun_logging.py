@@ -24,6 +24,12 @@ Entity paths (``<ns>/`` is the cell namespace of the topic, empty for the root n
 ==================================================  ===========================================
 
 Time is the message stamp on the timeline ``sim_time`` (seconds since 0 in simulation).
+``/rosout`` and ``/diagnostics`` are health records stamped by their node's clock, which is the
+wall clock for every log line: a wall-clock stamp goes on its own timeline ``wall_time`` and
+never on ``sim_time``; there the record sits at the simulated instant it arrived (in a bag:
+the newest data stamp received before it; live: the newest data stamp logged so far). A
+diagnostics stamp that is not a wall-clock date is on the simulated clock and kept as is.
+No ``log_time``: the sinks turn rerun's automatic wall-clock timeline off.
 Live topics are logged message by message; a whole bag is converted ``columnar``: scalars
 and text lines are gathered per entity and sent with ``rr.send_columns`` in one call each
 (:meth:`RerunLogger.send_columns`), which is what makes the conversion fast.
@@ -51,6 +57,9 @@ import rerun.blueprint as rrb
 import yaml
 
 TIMELINE = "sim_time"
+WALL_TIMELINE = "wall_time"
+#: stamps at or after this many seconds since the epoch (2001-09-09) are wall-clock dates
+WALL_CLOCK_MIN_S = 1e9
 COLOURS = {
     "ground_truth": (230, 30, 230),
     "predicted": (30, 110, 240),
@@ -186,11 +195,13 @@ class RerunLogger:
         self.rec = recording
         self.layout = layout
         self.columnar = columnar
-        self._t_s = 0.0                      # time of the message being logged
-        self._rec_t: float | None = None     # time last set on the recording
-        #: columnar: entity -> (times, values) of scalars; entity -> (times, texts, levels)
-        self._scalars: dict[str, tuple[list[float], list[float]]] = {}
-        self._texts: dict[str, tuple[list[float], list[str], list[str]]] = {}
+        self._t_s: float | None = 0.0        # sim_time of the message being logged (None: none)
+        self._wall_s: float | None = None    # wall_time of a health record (None: none)
+        self._data_t_s: float | None = None  # newest data stamp logged so far
+        self._rec_t: tuple | None = None     # (sim, wall) last set on the recording
+        #: columnar: entity -> (sim times, wall times, values); NaN where a row has no such time
+        self._scalars: dict[str, tuple[list[float], list[float], list[float]]] = {}
+        self._texts: dict[str, tuple[list[float], list[float], list[str], list[str]]] = {}
         self._styled: set[str] = set()
         self._last_phase: dict[str, int] = {}
         self._last_status: dict[str, int] = {}
@@ -216,11 +227,20 @@ class RerunLogger:
             self.rec.log(path, rr.SeriesLines(colors=[c], widths=[width], names=[name]), static=True)
 
     def _timed(self) -> rr.RecordingStream:
-        """The recording with its time set to the current message's (set only when it changed)."""
-        if self._rec_t != self._t_s:
-            self.rec.set_time(TIMELINE, duration=self._t_s)
-            self._rec_t = self._t_s
+        """The recording with its times set to the current message's (set only when they changed);
+        a timeline the message has no instant on is disabled for it."""
+        if self._rec_t != (self._t_s, self._wall_s):
+            for name, t, kind in ((TIMELINE, self._t_s, "duration"), (WALL_TIMELINE, self._wall_s, "timestamp")):
+                if t is None:
+                    self.rec.disable_timeline(name)
+                else:
+                    self.rec.set_time(name, **{kind: t})
+            self._rec_t = (self._t_s, self._wall_s)
         return self.rec
+
+    def _row_times(self) -> tuple[float, float]:
+        nan = math.nan
+        return (nan if self._t_s is None else self._t_s), (nan if self._wall_s is None else self._wall_s)
 
     def _scalar(self, path: str, value: float, kind: str | None = None, name: str = "") -> None:
         if value is None or not math.isfinite(float(value)):
@@ -228,8 +248,10 @@ class RerunLogger:
         if kind:
             self._style(path, kind, name or path.rsplit("/", 1)[-1])
         if self.columnar:
-            times, values = self._scalars.setdefault(path, ([], []))
-            times.append(self._t_s)
+            times, walls, values = self._scalars.setdefault(path, ([], [], []))
+            t, w = self._row_times()
+            times.append(t)
+            walls.append(w)
             values.append(float(value))
         else:
             self._timed().log(path, rr.Scalars([float(value)]))
@@ -239,8 +261,10 @@ class RerunLogger:
 
     def _text(self, path: str, text: str, level: str) -> None:
         if self.columnar:
-            times, texts, levels = self._texts.setdefault(path, ([], [], []))
-            times.append(self._t_s)
+            times, walls, texts, levels = self._texts.setdefault(path, ([], [], [], []))
+            t, w = self._row_times()
+            times.append(t)
+            walls.append(w)
             texts.append(text)
             levels.append(level)
         else:
@@ -250,21 +274,37 @@ class RerunLogger:
         """Columnar: send what was gathered (one ``rr.send_columns`` per entity) and forget it;
         the number of rows sent. Nothing to do when logging message by message."""
         rows = 0
-        for path, (times, values) in self._scalars.items():
-            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(times))],
-                                  columns=rr.Scalars.columns(scalars=np.asarray(values)))
-            rows += len(times)
-        for path, (times, texts, levels) in self._texts.items():
-            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(times))],
-                                  columns=rr.TextLog.columns(text=texts, level=levels))
-            rows += len(times)
+        for path, (times, walls, values) in self._scalars.items():
+            v = np.asarray(values)
+            rows += self._send(path, times, walls, lambda sel, v=v: rr.Scalars.columns(scalars=v[sel]))
+        for path, (times, walls, texts, levels) in self._texts.items():
+            tx, lv = np.asarray(texts, dtype=object), np.asarray(levels, dtype=object)
+            rows += self._send(path, times, walls, lambda sel, tx=tx, lv=lv: rr.TextLog.columns(
+                text=list(tx[sel]), level=list(lv[sel])))
         self._scalars, self._texts = {}, {}
         return rows
 
+    def _send(self, path: str, times: list[float], walls: list[float], columns) -> int:
+        """One ``send_columns`` per set of timelines the rows have (data rows: sim_time only)."""
+        t, w = np.asarray(times, dtype=float), np.asarray(walls, dtype=float)
+        has_t, has_w = ~np.isnan(t), ~np.isnan(w)
+        rows = 0
+        for want_t, want_w in ((True, False), (True, True), (False, True)):
+            sel = (has_t == want_t) & (has_w == want_w)
+            if not sel.any():
+                continue
+            indexes = ([rr.TimeColumn(TIMELINE, duration=t[sel])] if want_t else []) + \
+                      ([rr.TimeColumn(WALL_TIMELINE, timestamp=w[sel])] if want_w else [])
+            self.rec.send_columns(path, indexes=indexes, columns=columns(sel))
+            rows += int(sel.sum())
+        return rows
+
     # ----------------------------------------------------------------------------------
-    def log(self, topic: str, type_name: str, msg: Any, t_ns: int) -> None:
-        """Log one message of ``topic`` (type 'pkg/msg/Type') at bag / sim time ``t_ns``."""
-        self._t_s = t_ns * 1e-9
+    def log(self, topic: str, type_name: str, msg: Any, t_ns: int, arrival_ns: int | None = None) -> None:
+        """Log one message of ``topic`` (type 'pkg/msg/Type') stamped ``t_ns``. A health record
+        (``/rosout``, ``/diagnostics``) goes on ``sim_time`` at ``arrival_ns``, the simulated
+        instant it arrived (None: the newest data stamp logged so far), see the module doc."""
+        self._set_times(type_name, t_ns * 1e-9, None if arrival_ns is None else arrival_ns * 1e-9)
         ns, rel = split_topic(topic)
         prefix = f"{ns}/" if ns else ""
         short = type_name.rsplit("/", 1)[-1]
@@ -277,6 +317,16 @@ class RerunLogger:
             return
         handler(prefix, rel, msg)
         self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def _set_times(self, type_name: str, stamp_s: float, arrival_s: float | None) -> None:
+        if type_name not in FOREIGN_TYPES:       # data: its stamp is simulated time
+            self._t_s, self._wall_s = stamp_s, None
+            self._data_t_s = stamp_s if self._data_t_s is None else max(self._data_t_s, stamp_s)
+            return
+        # log lines are always stamped by the wall clock; diagnostics by their node's clock
+        wall = type_name == "rcl_interfaces/msg/Log" or stamp_s >= WALL_CLOCK_MIN_S
+        self._wall_s = stamp_s if wall else None
+        self._t_s = (arrival_s if arrival_s is not None else self._data_t_s) if wall else stamp_s
 
     def _log_TemperatureArray(self, p: str, rel: str, m) -> None:
         tree = TEMPERATURE_TREES.get(rel, _part(rel))
@@ -436,5 +486,7 @@ def default_blueprint(namespace: str = "", error_components: Iterable[str] = ())
             ),
             column_shares=[3, 2],
         ),
+        # opens on simulated time, the cursor on the newest data (each plot shows the whole run)
+        rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state="following"),
         collapse_panels=True,
     )

@@ -33,6 +33,14 @@ def has_display() -> bool:
                                                         os.environ.get("WAYLAND_DISPLAY"))
 
 
+def new_recording(app_id: str = APP_ID) -> rr.RecordingStream:
+    """A recording stream without rerun's automatic ``log_time`` (wall clock): our data is on
+    ``sim_time``, health records' own stamps on ``wall_time`` (see rerun_logging)."""
+    rec = rr.RecordingStream(app_id)
+    rec.set_log_time_enabled(False)
+    return rec
+
+
 def open_output(*, rrd: str | None = None, spawn: bool = False, serve_web: bool = False,
                 web_port: int = 9090, grpc_port: int = 9876, blueprint=None) -> RerunOutput:
     """A recording stream writing to every requested sink (at least one must be requested)."""
@@ -41,7 +49,7 @@ def open_output(*, rrd: str | None = None, spawn: bool = False, serve_web: bool 
     if spawn and not has_display():
         raise SinkError("no display for the native viewer (DISPLAY / WAYLAND_DISPLAY unset); "
                         "use the web viewer (--serve-web) or an .rrd file")
-    rec = rr.RecordingStream(APP_ID)
+    rec = new_recording(APP_ID)
     sinks = []
     server = None
     if rrd:

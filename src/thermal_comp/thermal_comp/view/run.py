@@ -8,11 +8,13 @@ import signal
 import sys
 import threading
 
+import numpy as np
 import rerun as rr
 from tqdm import tqdm
 
-from thermal_comp.view.rerun_logging import LayoutError, RerunLogger, default_blueprint, resolve_layout, split_topic
-from thermal_comp.view.rerun_sinks import FLUSH_TIMEOUT_S, SinkError, open_output
+from thermal_comp.view.rerun_logging import (FOREIGN_TYPES, LayoutError, RerunLogger, default_blueprint,
+                                             resolve_layout, split_topic)
+from thermal_comp.view.rerun_sinks import FLUSH_TIMEOUT_S, SinkError, new_recording, open_output
 from thermal_comp_common.bags import msg_definitions
 from thermal_comp_common.bags.reader import BagReadError, read_bag
 
@@ -50,17 +52,36 @@ def bag_namespace(contents) -> str:
     return ""
 
 
+def arrivals(messages) -> dict[int, int]:
+    """Health records (``/rosout``, ``/diagnostics``) -> the simulated instant each arrived: the
+    newest data stamp among the data messages received (bag log time) at or before it. Keyed by
+    the index in ``messages``; records received before any data are left out."""
+    data = sorted((m.log_time_ns, m.stamp_ns) for m in messages if m.type not in FOREIGN_TYPES)
+    if not data:
+        return {}
+    received = np.fromiter((d[0] for d in data), dtype=np.int64, count=len(data))
+    newest = np.maximum.accumulate(np.fromiter((d[1] for d in data), dtype=np.int64, count=len(data)))
+    out = {}
+    for i, m in enumerate(messages):
+        if m.type in FOREIGN_TYPES:
+            k = int(np.searchsorted(received, m.log_time_ns, side="right")) - 1
+            if k >= 0:
+                out[i] = int(newest[k])
+    return out
+
+
 def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = True) -> tuple[int, str | None]:
     """Log every message of a bag (``bag_player.BagContents``) to ``rec``, in columns (one
     ``rr.send_columns`` per entity at the end); (messages logged, damage report or None)."""
     store = msg_definitions.typestore()
     logger = RerunLogger(rec, layout, columnar=True)
     msgs = contents.messages
+    arrived = arrivals(msgs)
     if progress:
         msgs = tqdm(msgs, desc="view", unit="msg", leave=False, file=sys.stderr)
     n = 0
     undecodable: set[str] = set()
-    for m in msgs:
+    for i, m in enumerate(msgs):
         try:
             full = msg_definitions.ensure_known(m.type)
             msg = store.deserialize_cdr(m.data, full)
@@ -69,7 +90,7 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
                 undecodable.add(m.topic)
                 print(f"warning: {m.topic}: cannot decode {m.type}: {exc}", file=sys.stderr)
             continue
-        logger.log(m.topic, full, msg, m.stamp_ns)
+        logger.log(m.topic, full, msg, m.stamp_ns, arrived.get(i))
         n += 1
     logger.send_columns()
     return n, contents.damage
@@ -79,7 +100,7 @@ def bag_to_rrd(bag, rrd, layout=None, app_id: str = "thermal_comp") -> tuple[int
     """Write a whole bag into the .rrd file ``rrd`` with the view's default blueprint (the
     bag's namespace and error components); (messages logged, damage report or None)."""
     contents = read_bag(bag)
-    rec = rr.RecordingStream(app_id)
+    rec = new_recording(app_id)
     rec.save(str(rrd), default_blueprint=default_blueprint(bag_namespace(contents),
                                                              error_components(contents)))
     n, damage = log_bag(contents, rec, layout, progress=False)
