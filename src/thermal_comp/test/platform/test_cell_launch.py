@@ -19,7 +19,7 @@ import types
 import pytest
 import yaml
 
-from thermal_comp.cell.config import load_cell, parameters_file_text
+from thermal_comp.cell.config import load_cell, parameters_file_text, parse_cell
 from thermal_comp.cell.launch_plan import launch_plan
 from thermal_comp.cell.launcher import Launcher
 
@@ -185,3 +185,31 @@ def test_launch_files_import_only_launch_and_our_packages():
         assert {n.split(".")[0] for n in names} <= allowed, f.name
         assert any(isinstance(n, ast.FunctionDef) and n.name == "generate_launch_description"
                    for n in tree.body), f.name
+
+
+def _crash_cell(tmp_path, restart: dict):
+    """machine_sim exits 3 at once; two other nodes would run until stopped."""
+    (tmp_path / "sim_crash.py").write_text("print('machine_sim up', flush=True)\nraise SystemExit(3)\n")
+    (tmp_path / "wait_forever.py").write_text("import signal\nprint('up', flush=True)\nsignal.pause()\n")
+    env = {"PYTHONPATH": str(tmp_path)}
+    doc = {"cell": "crashcell", "nodes": [
+        {"name": "machine_sim", "module": "sim_crash", "env": env, "restart": restart},
+        {"name": "model", "module": "wait_forever", "env": env},
+        {"name": "recorder", "module": "wait_forever", "env": env}]}
+    return parse_cell(doc, source="test cell", resolve=False)
+
+
+@pytest.mark.parametrize("restart, why", [({"enabled": False}, "restart off"),
+                                          ({"enabled": True, "max_restarts": 1, "backoff_s": 0.1},
+                                           "restart limit reached")])
+def test_a_crashed_node_that_is_not_restarted_ends_the_cell(tmp_path, restart, why):
+    out = io.StringIO()
+    launcher = Launcher([_crash_cell(tmp_path, restart)], run_dir=tmp_path / "run", output=out, grace_s=5.0)
+    assert launcher.run(poll_s=0.05) == 1
+    lines = [ln for ln in out.getvalue().splitlines() if "crashcell/machine_sim exited" in ln]
+    assert lines[-1] == (f"[launch] crashcell/machine_sim exited with code 3 and is not restarted ({why}): "
+                         "the cell cannot go on without it; stopping every node"), out.getvalue()
+    assert launcher.ended_by == "crashcell/machine_sim"
+    assert all(mp.popen.poll() is not None for mp in launcher.processes)   # nothing left running
+    assert len(lines) == 1 + ("limit" in why)      # the crash before the restart, then the last one
+    assert "crashcell/model exited" not in out.getvalue()   # the stopped nodes are no crash of their own

@@ -4,7 +4,10 @@
 (``python -m MODULE --ros-args ...``) in the cell's namespace, with its parameters from the
 cell file (written to a ROS 2 parameters file) and the cell's ROS_DOMAIN_ID. Output lines are
 prefixed with ``[cell/node]`` and also kept in a log file per node. A node that crashes is
-restarted when its restart policy says so (with exponential back-off, up to a maximum).
+restarted when its restart policy says so (with exponential back-off, up to a maximum); a
+node that crashes (non-zero exit) and is not restarted (restart off, or its limit reached)
+ends the run: one line names it and its exit, every node is stopped, ``run`` returns 1. A node
+that exits 0 has finished its work and the others keep running.
 Managed (lifecycle) nodes (cell key ``lifecycle``, or a module that declares
 ``LIFECYCLE_NODE = True``) are driven through configure and activate after every start and
 through deactivate before a clean stop (:mod:`thermal_comp.cell.lifecycle_driver`, in the
@@ -301,10 +304,14 @@ class Launcher:
                     mp.next_start = now + delay
                     self._emit("launch", f"{mp.label} exited with {how}; restart "
                                f"{mp.restarts + 1}/{policy.max_restarts} in {delay:.1f} s")
+                elif code != 0:
+                    mp.gave_up = policy.enabled
+                    self.ended_by = self.ended_by or mp.label
+                    why = "restart limit reached" if mp.gave_up else "restart off"
+                    self._emit("launch", f"{mp.label} exited with {how} and is not restarted ({why}): "
+                               f"the cell cannot go on without it; stopping every node")
                 else:
-                    mp.gave_up = code != 0 and policy.enabled
-                    self._emit("launch", f"{mp.label} exited with {how}" +
-                               ("; restart limit reached" if mp.gave_up else ""))
+                    self._emit("launch", f"{mp.label} exited with {how}")
                 if mp.lifecycle != "failed":
                     mp.lifecycle = "" if mp.node.lifecycle else mp.lifecycle
             if mp.next_start is not None and not self._stopping.is_set():
@@ -355,20 +362,22 @@ class Launcher:
         self.start()
         try:
             while not self._stopping.is_set():
-                if not self.poll():
+                if not self.poll() or self.ended_by:
                     break
                 self._stopping.wait(poll_s)
         finally:
             self.stop()
         if self.lifecycle_failures:
             return 1
-        if self._stop_requested:
+        if self._stop_requested and not self.ended_by:
             return 0
         crashed = [mp for mp in self.processes if mp.exit_codes and mp.exit_codes[-1] != 0]
         return 1 if crashed else 0
 
     _stop_requested = False
     _brought_down = False
+    #: label of the node whose crash (no restart left) ended the run; None while none did
+    ended_by: str | None = None
 
     def request_stop(self) -> None:
         """Ask :meth:`run` to stop every process (safe from a signal handler)."""
