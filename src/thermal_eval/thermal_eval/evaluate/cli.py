@@ -23,7 +23,16 @@ from thermal_comp_common.command_line import run_parsed
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp evaluate", description=__doc__.split("\n\n")[0])
-    ap.add_argument("recording", metavar="REC", help="recording CSV, bag folder or .mcap file")
+    ap.add_argument("recording", metavar="REC", nargs="+",
+                    help="recording CSV, bag folder or .mcap file; several, a folder of them, a glob or a manifest "
+                         "(YAML / CSV with path, unit, programme, date, hall_setpoint_c) make a data set of runs")
+    ap.add_argument("--runs-split", metavar="HOW",
+                    help="several runs: TRAIN,VAL,TEST fractions of the runs (default 0.6,0.2,0.2, date order), "
+                         "loro (leave one run out), by:FIELD (leave one group out), by:FIELD=VALUE, test=NAME,...")
+    ap.add_argument("--segments", type=int, metavar="K",
+                    help="cut each recording into K runs of equal rows (scores one long recording across runs)")
+    ap.add_argument("--sample-period-s", type=float, metavar="S",
+                    help="the CSV has no time_s column: row i is at i x S seconds")
     ap.add_argument("--out", required=True, metavar="DIR", help="output folder (refused if not empty, see --force)")
     ap.add_argument("--force", action="store_true", help="write into a non-empty --out")
     ap.add_argument("--spec", metavar="YAML", help="columns, units, split and mapping in one file")

@@ -11,7 +11,9 @@ from thermal_comp_common.runtime.engine_options import engine_from_args
 from thermal_comp_common.runtime.task_engine import TaskEngineError
 from thermal_twin.calibrate.column_mapping import MappingError
 
+from thermal_eval.datasets import DatasetError, resolve_runs
 from thermal_eval.evaluate import report
+from thermal_eval.datasets.command import run_dataset
 from thermal_eval.evaluate.adaptive import AdaptiveSettingsError, ProbingBudget, phase_budgets
 from thermal_eval.evaluate.model_rows import CLOSED_LOOP
 from thermal_eval.evaluate.run import available_models, evaluate
@@ -46,6 +48,8 @@ def spec_from_args(args: argparse.Namespace) -> dict:
     if args.test_first:
         split["order"] = ["test", "validation"]
     spec["split"] = split
+    if args.sample_period_s is not None:
+        spec["sample_period_s"] = args.sample_period_s
     return spec
 
 
@@ -68,11 +72,14 @@ def run(args: argparse.Namespace) -> int:
         budget = ProbingBudget(args.probe_every_h, args.max_probes_per_h, args.tolerance_um,
                                probe_resolution_um=args.probe_resolution_um, bucket_credit=args.bucket_credit)
         phase_budgets(budget, args.probe_phases)
-        data = load_evaluation_data(args.recording, spec_from_args(args), args.map_file, args.map)
+        entries = resolve_runs(args.recording)
+        if len(entries) > 1 or args.segments or args.runs_split:
+            return run_dataset(args, out, entries, budget, spec_from_args(args))
+        data = load_evaluation_data(entries[0].path, spec_from_args(args), args.map_file, args.map)
         models = available_models(data, args.models, args.also)
         engine = engine_from_args(args)
     except (SpecError, MappingError, RecordingError, AdaptiveSettingsError, TaskEngineError, FileNotFoundError,
-            ValueError) as exc:
+            DatasetError, ValueError) as exc:
         print(f"thermal-comp evaluate: {exc}", file=sys.stderr)
         return 2
     for note in data.notes:

@@ -1,0 +1,78 @@
+"""The table of ``evaluate`` on several runs: pooled figures per role, then one line per held-out run."""
+from __future__ import annotations
+
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from thermal_eval.evaluate.baselines import BASELINES
+
+
+def _fig(c: dict, prefix: str = "") -> str:
+    v = [c.get(f"{prefix}{k}") for k in ("mae_um", "rmse_um", "p99_um")]
+    return "-" if v[0] is None else " / ".join(f"{x:.3f}" for x in v)
+
+
+def _cell(c: dict | None, ratio_key: str | None) -> str:
+    if not c:
+        return "-"
+    r = c.get(ratio_key) if ratio_key else None
+    return _fig(c) + (f" x{r:.2f}" if isinstance(r, (int, float)) else "")
+
+
+def pooled_table(pooled: dict[str, Any], title: str, base: str) -> Table:
+    chans = list(dict.fromkeys(c for m in pooled["open_loop"].values() for c in m))
+    t = Table(title=title)
+    t.add_column("mode")
+    t.add_column("model")
+    for c in chans:
+        t.add_column(c, justify="right")
+    for name, cells in pooled["open_loop"].items():
+        t.add_row("open loop", name, *[_cell(cells.get(c), f"ratio_to_{base}") for c in chans])
+    for name, cells in pooled["adaptive"].items():
+        t.add_row("adaptive", name, *[_cell(cells.get(c), "ratio_to_hold") for c in chans])
+        t.add_row("", f"  hold {name}'s probes", *[_fig(cells[c], "hold_own_probes_") if c in cells else "-"
+                                                   for c in chans])
+    return t
+
+
+def _mean_mae(cells: dict | None) -> float | None:
+    v = [c["mae_um"] for c in (cells or {}).values() if c.get("mae_um") is not None]
+    return sum(v) / len(v) if v else None
+
+
+def per_run_table(figures: dict[str, Any], models: list[str], base: str) -> Table:
+    """One line per held-out run: channel-mean MAE of the baseline and of ``models`` (open loop,
+    adaptive and holding the adaptive model's probes)."""
+    t = Table(title="per held-out run: MAE (um, mean over channels)")
+    for col in ("fold", "run", "role", "unit", "programme", base):
+        t.add_column(col)
+    for m in models:
+        t.add_column(f"{m} open loop", justify="right")
+        t.add_column(f"{m} adaptive (hold)", justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:.3f}"   # noqa: E731
+    for fold in figures["folds"]:
+        for r in fold["per_run"]:
+            p = r["pooled"]
+            row = [fold["name"], r["run"], r["role"], r["unit"], r["programme"], fmt(_mean_mae(p["open_loop"].get(base)))]
+            for m in models:
+                ad = p["adaptive"].get(m)
+                hold = None if not ad else _mean_mae({c: {"mae_um": v["hold_own_probes_mae_um"]} for c, v in ad.items()})
+                row += [fmt(_mean_mae(p["open_loop"].get(m))), f"{fmt(_mean_mae(ad))} ({fmt(hold)})"]
+            t.add_row(*row)
+    return t
+
+
+def print_runs(figures: dict[str, Any], models: list[str] | None = None, console: Console | None = None) -> None:
+    console = console or Console(width=max(160, Console().width))
+    base = figures["ratio_baseline"]
+    for role, pooled in figures["pooled"].items():
+        n = sum(1 for f in figures["folds"] for r in f["per_run"] if r["role"] == role)
+        console.print(pooled_table(pooled, f"pooled over {n} held-out {role} runs: MAE / RMSE / P99 (um); x: MAE "
+                                           f"ratio to {base} (open loop) or to holding the same probes (adaptive)",
+                                   base))
+    if models is None:       # the models beside the named baseline: not the plain baselines
+        plain = {b.name for b in BASELINES}
+        models = [m for m in next(iter(figures["pooled"].values()))["open_loop"] if m not in plain][:3]
+    console.print(per_run_table(figures, models, base))

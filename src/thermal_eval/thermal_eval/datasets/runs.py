@@ -1,0 +1,122 @@
+"""Runs of a data set as the models see them, and one fold's training runs + one held-out run
+as one :class:`~thermal_eval.evaluate.spec.EvaluationData`.
+
+Every run is read by the one reader of real files with the same spec (columns, units,
+mapping) and must give the same temperatures, channels and inputs. Each run keeps its own
+start reference (displacements relative to its first finite value) and its own time axis.
+For a fold the training runs are laid end to end (each after the previous one's last row
+plus one sample period), then the held-out run; its first row closes the calibration phase
+(its displacement is its start reference, 0, by definition), so the probing clock of the
+adaptive mode starts at the start of that run. Dynamic models carry their state from one run
+into the next (a machine left overnight would be at rest: a stated limitation). Pure.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from thermal_eval.datasets.sources import DatasetError, RunEntry
+from thermal_eval.evaluate.spec import EvaluationData, SpecError, Split, load_evaluation_data
+
+#: fewest rows of a run (a run shorter than this cannot be scored)
+MIN_RUN_ROWS = 10
+
+
+@dataclass
+class Run:
+    entry: RunEntry
+    data: EvaluationData                     # the whole run (every row a training row)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def hours(self) -> float:
+        t = self.data.time_s
+        return float(t[-1] - t[0]) / 3600.0
+
+
+def _check_same(first: Run, run: Run) -> None:
+    a, b = first.data, run.data
+    for what, x, y in (("temperatures", a.sensors, b.sensors), ("displacements", a.channels, b.channels),
+                       ("inputs", a.input_names, b.input_names)):
+        if list(x) != list(y):
+            extra = sorted(set(y) - set(x)) or sorted(set(x) - set(y))
+            raise DatasetError(f"{run.entry.path}: field '{what}' = {list(y)[:8]}: differs from the first run "
+                               f"{first.entry.name!r} ({list(x)[:8]}; first difference {extra[:1] or 'order'})")
+
+
+def load_runs(entries: Sequence[RunEntry], spec: Mapping[str, Any] | None = None, map_file: str | None = None,
+              map_flags: Sequence[str] | None = None) -> list[Run]:
+    """Read every run with the same spec; a run the spec does not fit is one error naming its file."""
+    runs: list[Run] = []
+    spec = {k: v for k, v in dict(spec or {}).items() if k != "split"}
+    for e in entries:
+        try:
+            d = load_evaluation_data(e.path, spec, map_file, map_flags, whole=True)
+        except (SpecError, ValueError) as exc:
+            msg = str(exc)
+            raise DatasetError(msg if e.path in msg else f"{e.path}: {msg}") from None
+        if len(d) < MIN_RUN_ROWS:
+            raise DatasetError(f"{e.path}: field 'rows' = {len(d)}: a run needs at least {MIN_RUN_ROWS} rows")
+        d.time_s = d.time_s - d.time_s[0]
+        run = Run(e, d, list(d.notes))
+        if runs:
+            _check_same(runs[0], run)
+        runs.append(run)
+    return runs
+
+
+def _relative(y: np.ndarray) -> np.ndarray:
+    ok = np.flatnonzero(np.isfinite(y))
+    return y - y[ok[0]] if ok.size else y
+
+
+def segments(run: Run, k: int) -> list[Run]:
+    """One run cut into ``k`` contiguous runs of (nearly) equal rows, each with its own start
+    reference and time axis (to score a single long recording across runs)."""
+    n = len(run.data)
+    if not (isinstance(k, int) and 2 <= k <= n // MIN_RUN_ROWS):
+        raise DatasetError(f"segments: {k!r} must be an integer in 2..{n // MIN_RUN_ROWS} for {n} rows")
+    bounds = np.linspace(0, n, k + 1).round().astype(int)
+    out = []
+    for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        d = run.data
+        part = EvaluationData(d.time_s[a:b] - d.time_s[a], d.temperatures[a:b], d.sensors,
+                              None if d.inputs is None else d.inputs[a:b], d.input_names,
+                              {c: _relative(v[a:b]) for c, v in d.displacement_um.items()},
+                              Split(b - a, slice(b - a, b - a), slice(b - a, b - a), b - a),
+                              f"{d.source} rows {a}-{b - 1}", [])
+        e = run.entry
+        out.append(Run(RunEntry(e.path, f"{e.name}#{i + 1}", e.unit, e.programme, e.date, e.hall_setpoint_c),
+                       part))
+    return out
+
+
+def _step(t: np.ndarray) -> float:
+    d = np.diff(t)
+    return float(np.median(d)) if d.size else 1.0
+
+
+def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int) -> EvaluationData:
+    """The training runs end to end, then the held-out run (its rows after the first are the
+    test window; its first row closes the calibration phase)."""
+    order = list(train) + [held_out]
+    times, off = [], 0.0
+    for i in order:
+        t = runs[i].data.time_s
+        times.append(t + off)
+        off = times[-1][-1] + _step(t)
+    parts = [runs[i].data for i in order]
+    n_train = sum(len(runs[i].data) for i in train) + 1
+    n = sum(len(p) for p in parts)
+    inputs = None if parts[0].inputs is None else np.vstack([p.inputs for p in parts])
+    held = runs[held_out]
+    data = EvaluationData(np.concatenate(times), np.vstack([p.temperatures for p in parts]), parts[0].sensors,
+                          inputs, parts[0].input_names,
+                          {c: np.concatenate([p.displacement_um[c] for p in parts]) for c in parts[0].channels},
+                          Split(n_train, slice(n, n), slice(n_train, n), n), held.data.source,
+                          [f"trained on {len(train)} runs ({n_train - 1} rows), scored on run {held.entry.name!r}"])
+    if n_train - 1 < 50:
+        raise DatasetError(f"run split: {n_train - 1} training rows in {len(train)} runs; the walk-forward needs >= 50")
+    return data
