@@ -8,12 +8,12 @@ Every step it publishes /clock, ``machine_state``, ``twin/sensor_readings`` and 
   when acknowledgements are missing and neither a publish nor a touch probe happened for
   ``resend_after_s`` wall seconds (a subscriber that matched late, a restarted participant;
   a model busy with a probing cycle is alive and is not flooded with copies);
-  nothing waits forever: when a participant has not joined, or not acknowledged the current
-  instant, within ``lockstep_deadline_s`` wall seconds -- or acknowledges an instant the graph
-  has not reached (its state is from another run) -- it is named, with the instant, on the
-  log and on ``/diagnostics``, and ``on_late`` decides: ``stop`` the graph with one error
-  (exit code 3), ``drop`` the participant and go on without it, or ``wait`` and report again
-  after every further deadline (docs/reliability.md);
+  nothing waits forever: a participant that has not joined, or not acknowledged the instant,
+  within ``lockstep_deadline_s`` wall s is named with the instant (log, ``/diagnostics``) and
+  ``on_late`` decides: ``stop`` (exit code 3), ``drop`` it, or ``wait`` (docs/reliability.md);
+  one gone from the graph for ``participant_gone_s`` is gone on without until it is back, and an
+  acknowledgement of an instant never published is ignored and counted
+  (:mod:`thermal_twin.sim.lockstep_roster`);
 - free-running otherwise, at ``real_time_factor`` (0 = as fast as possible); in lock-step
   ``real_time_factor`` > 0 is a ceiling: an instant is never published sooner than
   ``step_s / real_time_factor`` wall seconds after the previous one.
@@ -45,9 +45,11 @@ from thermal_comp_msgs.srv import TouchProbe
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.machine.artefact_geometry import touch_trigger_position
 from thermal_comp_common.machine_state_fields import error_components, machine_state_fields
+from thermal_comp_common.stamp_guard import StampCheck, StampGuard, stamp_values
 from thermal_twin.sim.scenario_runner import ScenarioRunner
 from thermal_twin.sim.scenarios import make_timeline
 from thermal_twin.sim.checkpoint import TwinCheckpoint, shared_objects
+from thermal_twin.sim.lockstep_roster import LockstepRoster
 
 PARAMS = [
     Param("machine", "nmv5000", "machine preset (nmv5000, swiss-lathe, spindle-stand, fe-three-body) or YAML path"),
@@ -72,6 +74,11 @@ PARAMS = [
     Param("on_late", "stop", "lock-step: what a late or inconsistent participant causes: stop the graph "
           "(exit code 3), drop it from the lock-step and go on, or wait and report again",
           choices=("stop", "drop", "wait")),
+    Param("participant_gone_s", 5.0, "lock-step: wall s a participant may be gone from the graph (no "
+          "publisher of its name on sim_sync) before the graph goes on without it; it is re-admitted "
+          "when it is back", 0.1, 3600.0),
+    Param("max_stamp_ahead_s", 1.0, "refuse offsets stamped more than this ahead of the simulated time "
+          "(this node owns it: an honest bridge stamps the instant it answers), s", 0.001, 86400.0),
     Param("probe_offsets_wait_s", 5.0, "a touch probe at instant t_k first waits (wall s, bounded) for the "
           "offsets the bridge wrote for t_k, as a CNC applies them before the probing cycle moves "
           "(0 = measure against whatever offsets arrived)", 0.0, 600.0),
@@ -102,7 +109,8 @@ class MachineSimNode(Node):
             k: p[k] for k in ("machine", "scenario", "seed", "hours", "step_s", "probe_noise")},
             fsync=p["state_fsync"], shared=shared_objects(self.runner)) if p["state_path"] else None)
         resumed = self.checkpoint.load() if self.checkpoint is not None else None
-        self.participants = [n for n in (p["lockstep_participants"] or []) if n]
+        self.roster = LockstepRoster(p["lockstep_participants"] or [], p["participant_gone_s"],
+                                     stream=self.resolve_topic_name(TOPIC_SIM_SYNC))
         self.observers = [n for n in (p["wait_for_subscribers"] or []) if n]
         self.publish_truth = p["publish_ground_truth"]
         self.resend_after_s = p["resend_after_s"]
@@ -115,13 +123,16 @@ class MachineSimNode(Node):
         self.applied_offsets: dict[str, float] = {}
         self.offsets_wait_s = p["probe_offsets_wait_s"]
         self.offsets_stamp_s: float | None = None      # stamp of the last offsets (None: no bridge yet)
+        self.offsets_missed_t: float | None = None     # the instant a touch waited for offsets in vain
+        # the bridge stamps its offsets with the instant they answer: not forward-only (its watchdog)
+        self.offsets_guard = StampGuard(self.resolve_topic_name(TOPIC_OFFSETS), p["max_stamp_ahead_s"],
+                                        forward_only=False)
         if resumed is not None:
             self.runner, self.probe_rng, self.applied_offsets = resumed
-        self.acks: dict[str, float] = {}
         self.started = False
         self.last_publish_wall = 0.0        # wall time of the last publish or touch probe (re-send timer)
         self.wait_since = time.monotonic()   # wall time the current wait (start, instant) began
-        self.ahead: dict[str, float] = {}    # participant -> an acknowledged instant ahead of the graph
+        self.last_presence_wall = -math.inf  # wall time the graph was last looked at for participants
         self.published_t = -math.inf
 
         self.pub_clock = self.create_publisher(Clock, "/clock", SENSOR_QOS)
@@ -134,6 +145,7 @@ class MachineSimNode(Node):
         self.diag = DiagnosticsPublisher(self, hardware_id=f"{self.machine.name}/{p['scenario']}")
         self.diag.set("lock-step", "OK", "lock-step with " + ", ".join(self.participants)
                       if self.participants else "free-running", instant_s=self.runner.t_s)
+        self._stamp_status()
 
         # the owner of simulated time paces itself on the steady clock (with use_sim_time a
         # ROS-time timer would wait for the /clock this node has yet to publish)
@@ -244,15 +256,22 @@ class MachineSimNode(Node):
                  self.get_subscriptions_info_by_topic(self.resolve_topic_name(TOPIC_ERRORS_TRUE))}
         return all(n in names for n in self.observers)
 
+    @property
+    def participants(self) -> list[str]:
+        return self.roster.participants
+
+    def _sync_publishers(self) -> set[str]:
+        """Names of the nodes publishing on ``sim_sync`` now (the graph's view)."""
+        return {i.node_name for i in self.get_publishers_info_by_topic(self.resolve_topic_name(TOPIC_SIM_SYNC))}
+
     def _participants_present(self) -> bool:
-        names = {i.node_name for i in self.get_publishers_info_by_topic(self.resolve_topic_name(TOPIC_SIM_SYNC))}
+        names = self._sync_publishers()
         return all(n in names for n in self.participants)
 
     def _all_acked(self) -> bool:
-        """Every participant has processed the last published instant (probing may have
+        """Every active participant has processed the last published instant (probing may have
         moved simulated time on since; the acknowledgement refers to the instant)."""
-        t = self.published_t
-        return all(self.acks.get(n, -math.inf) >= t - 1e-6 for n in self.participants)
+        return self.roster.all_acked(self.published_t)
 
     def _due(self) -> bool:
         """Lock-step pacing: the next instant may go out (``real_time_factor`` ceiling)."""
@@ -267,30 +286,49 @@ class MachineSimNode(Node):
                 self._late(self._absent(), "has not joined the lock-step (no publisher on sim_sync)"
                            " or subscribed to errors/ground_truth")
             return
-        if self.ahead:
-            self._late(sorted(self.ahead), "acknowledged " + ", ".join(
-                f"t = {t:.0f} s" for _, t in sorted(self.ahead.items())) + ", ahead of the graph "
-                "(its state is from another run?)")
-        elif self._all_acked():
+        self._observe_presence()
+        if self._all_acked():
             if self._due():
                 self._advance_lockstep()
         elif time.monotonic() - self.wait_since > self.deadline_s:
-            self._late(self._unacked(), "has not acknowledged it")
+            self._late(self.roster.unacked(self.published_t), "has not acknowledged it")
         elif time.monotonic() - self.last_publish_wall > self.resend_after_s and not self.runner.done:
             self._republish()
 
+    def _observe_presence(self) -> None:
+        """Suspend a participant gone from the graph for ``participant_gone_s``; re-admit it when
+        it is back (the graph is looked at every 0.25 wall s)."""
+        now = time.monotonic()
+        if now - self.last_presence_wall < 0.25 or not self.participants:
+            return
+        self.last_presence_wall = now
+        gone, back = self.roster.observe(self._sync_publishers(), now)
+        t = self.published_t
+        for n in gone:
+            self.get_logger().error(
+                f"lock-step: {n} is gone (no publisher of its name on sim_sync for {self.roster.gone_after_s:g} s, "
+                f"participant_gone_s) at instant t = {t:.0f} s: the graph goes on without it until it is back")
+        for n in back:
+            self.get_logger().warning(f"lock-step: {n} is back at instant t = {t:.0f} s: re-admitted, "
+                                      "its acknowledgement is awaited again")
+        if gone or back:
+            if gone:
+                self.wait_since = now     # the remaining participants get a fresh deadline
+            suspended = sorted(self.roster.suspended)
+            self.diag.set("lock-step", "WARN" if suspended else "OK",
+                          f"going on without {', '.join(suspended)} (gone from the graph)" if suspended
+                          else "lock-step with " + ", ".join(self.participants),
+                          instant_s=t, suspended=",".join(suspended))
+
     def _absent(self) -> list[str]:
-        pubs = {i.node_name for i in self.get_publishers_info_by_topic(self.resolve_topic_name(TOPIC_SIM_SYNC))}
+        pubs = self._sync_publishers()
         subs = {i.node_name for i in
                 self.get_subscriptions_info_by_topic(self.resolve_topic_name(TOPIC_ERRORS_TRUE))}
         return ([n for n in self.participants if n not in pubs]
                 + [n for n in self.observers if n not in subs])
 
-    def _unacked(self) -> list[str]:
-        return [n for n in self.participants if self.acks.get(n, -math.inf) < self.published_t - 1e-6]
-
     def _late(self, names: list[str], what: str) -> None:
-        """Report late or inconsistent participants by name, with the instant; apply ``on_late``."""
+        """Report late participants by name, with the instant; apply ``on_late``."""
         t = self.published_t if self.started else self.runner.t_s
         waited = time.monotonic() - self.wait_since
         text = (f"lock-step: {', '.join(names)} {what} for instant t = {t:.0f} s "
@@ -307,10 +345,8 @@ class MachineSimNode(Node):
             self.get_logger().error(text + ": dropped from the lock-step, the graph goes on without it")
             self.diag.set("lock-step", "WARN", f"dropped {', '.join(names)} (late at t = {t:.0f} s)",
                           **values)
-            self.participants = [n for n in self.participants if n not in names]
+            self.roster.drop(names)
             self.observers = [n for n in self.observers if n not in names]
-            for n in names:
-                self.ahead.pop(n, None)
         else:
             self.get_logger().error(text + ": still waiting")
             self.diag.set("lock-step", "ERROR", text, **values)
@@ -318,13 +354,32 @@ class MachineSimNode(Node):
 
     def _on_sync(self, msg: SimSync) -> None:
         t = stamp_to_s(msg.processed_until)
-        if msg.node_name in self.participants:
-            if self.started and t > self.published_t + 1e-6:
-                self.ahead[msg.node_name] = t     # reported (by name) on the next tick
-                return
-            self.acks[msg.node_name] = max(t, self.acks.get(msg.node_name, -math.inf))
-        if self.started and self.participants and not self.ahead and self._all_acked() and self._due():
+        check = self.roster.ack(msg.node_name, t, self.published_t if self.started else -math.inf)
+        if check is not None and not check.accepted:
+            self._refused_ack(msg.node_name, check)
+            return
+        if check is not None and check.burst_over:
+            self._stamp_status()
+        if self.started and self.participants and self._all_acked() and self._due():
             self._advance_lockstep()
+
+    def _refused_ack(self, claimed: str, check: StampCheck) -> None:
+        """An acknowledgement of an instant the graph never published: ignored, named, counted."""
+        if check.log:
+            others = sorted(self._sync_publishers() - set(self.participants))
+            self.get_logger().warning(
+                f"lock-step: acknowledgement claiming to be from {claimed!r} ignored ({check.text}); "
+                f"instant published last: t = {self.published_t:.0f} s; publishers on sim_sync that are "
+                f"no participant: {', '.join(others) if others else 'none'}")
+        self._stamp_status()
+
+    def _stamp_status(self) -> None:
+        guards = (self.roster.ack_guard, self.offsets_guard)
+        burst = any(g.in_burst for g in guards)
+        self.diag.set("stamps", "WARN" if burst else "OK",
+                      "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
+                      acks_refused=self.roster.ack_guard.refused, offsets_refused=self.offsets_guard.refused,
+                      **stamp_values(guards))
 
     def _advance_lockstep(self) -> None:
         if self.diag.level("lock-step") == ERROR:    # a late participant came back (on_late = wait)
@@ -337,6 +392,14 @@ class MachineSimNode(Node):
 
     # ------------------------------------------------------------------ CNC and probe
     def _on_offsets(self, msg: AxisOffsets) -> None:
+        t = stamp_to_s(msg.header.stamp)
+        check = self.offsets_guard.check(t, self.runner.t_s)
+        if check.log:
+            self.get_logger().warning(check.text)
+        if not check.accepted or check.burst_over:
+            self._stamp_status()
+        if not check.accepted:
+            return      # a forged stamp neither moves the applied offsets nor stands for an instant
         if len(msg.axis_names) != len(msg.applied_offsets_um):
             self.get_logger().error(f"offsets: {len(msg.axis_names)} axis names but "
                                     f"{len(msg.applied_offsets_um)} applied offsets; message ignored")
@@ -347,7 +410,6 @@ class MachineSimNode(Node):
             else:
                 self.get_logger().error(f"offsets: axis '{name}' applied offset {v!r} is not finite; "
                                         "keeping the previous value")
-        t = stamp_to_s(msg.header.stamp)
         self.offsets_stamp_s = t if self.offsets_stamp_s is None else max(t, self.offsets_stamp_s)
 
     def _offsets_of_this_instant(self) -> None:
@@ -356,10 +418,15 @@ class MachineSimNode(Node):
         the model and probe_cycle: on a loaded machine the request can arrive first, and the probe
         then measured against the previous instant's compensation (the run's figures changed
         with the load). So they are taken from the subscription here, bounded by
-        ``probe_offsets_wait_s`` (no bridge yet: nothing to wait for). A coroutine cannot wait
-        instead: the events executor the demo uses does not run coroutine callbacks."""
+        ``probe_offsets_wait_s`` (no bridge yet, or none publishing now: nothing to wait for), and
+        once per instant: the further touches of a cycle whose offsets did not come measure at once
+        (a dead bridge held the graph a wait per touch). A coroutine cannot wait instead: the
+        events executor the demo uses does not run coroutine callbacks."""
         t = self.published_t
-        end = time.monotonic() + self.offsets_wait_s
+        if self.offsets_missed_t == t:
+            return
+        bridge = self.count_publishers(self.resolve_topic_name(TOPIC_OFFSETS)) > 0
+        end = time.monotonic() + (self.offsets_wait_s if bridge else 0.0)   # none: take what is queued
         while self.offsets_stamp_s is not None and self.offsets_stamp_s < t - 1e-6:
             with self.offsets_sub.handle:
                 taken = self.offsets_sub.handle.take_message(AxisOffsets, False)
@@ -367,8 +434,10 @@ class MachineSimNode(Node):
                 self._on_offsets(taken[0])
             elif time.monotonic() >= end:
                 self.get_logger().warning(
-                    f"touch probe at t = {t:.0f} s: no offsets for this instant within probe_offsets_wait_s = "
-                    f"{self.offsets_wait_s:g} s (last stamped {self.offsets_stamp_s:.0f} s); measuring against those")
+                    f"touch probe at t = {t:.0f} s: no offsets for this instant "
+                    + (f"within probe_offsets_wait_s = {self.offsets_wait_s:g} s" if bridge else "(nobody publishes offsets)")
+                    + f" (last stamped {self.offsets_stamp_s:.0f} s); measuring this instant's touches against those")
+                self.offsets_missed_t = t
                 return
             else:
                 time.sleep(0.001)

@@ -100,16 +100,32 @@ def test_participant_that_stops_acknowledging_is_named_with_the_instant():
         part.close()
 
 
-def test_participant_ahead_of_the_graph_is_refused():
-    # a resumed state from another run acknowledges an instant the graph has not reached
-    part = _Participant("resumed_model", ack=lambda t: 37920.0)
-    proc = _spawn("resumed_model", deadline_s=30.0)
+def test_forged_acknowledgement_ahead_of_the_graph_is_ignored_and_the_run_goes_on():
+    # a forged acknowledgement (or a state of another run) of an instant the graph never published:
+    # named, counted, on /diagnostics; the honest participant's acknowledgements carry the run
+    import rclpy
+    from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_MACHINE_STATE,
+                                                          TOPIC_SIM_SYNC, s_to_stamp)
+    from thermal_comp_msgs.msg import MachineState, SimSync
+    part = _Participant("honest_model", ack=lambda t: t)
+    forger = rclpy.create_node("forger", context=part.ctx)
+    part.ex.add_node(forger)
+    forged = forger.create_publisher(SimSync, TOPIC_SIM_SYNC, EVENT_QOS)
+    forger.create_subscription(   # every instant, a forged acknowledgement 10^7 s ahead
+        MachineState, TOPIC_MACHINE_STATE,
+        lambda m: forged.publish(SimSync(node_name="honest_model", processed_until=s_to_stamp(1.0e7))), SENSOR_QOS)
+    proc = _spawn("honest_model", deadline_s=30.0)
     try:
         code, out = part.run_until_exit(proc)
-        assert code == 3, out
-        assert "resumed_model acknowledged t = 37920 s, ahead of the graph" in out, out
-        assert "instant t = 0 s" in out
+        assert code == 0, out
+        ignored = [x for x in out.splitlines() if "ignored" in x and "'honest_model'" in x]
+        assert ignored and "forger" in ignored[0] and "10000000.0" in ignored[0], out
+        assert sorted(set(part.seen))[-1] == pytest.approx(HOURS * 3600.0)
+        stamps = [s for a in part.diags for s in a.status if s.name == "machine_sim: stamps"]
+        values = {kv.key: kv.value for kv in stamps[-1].values}
+        assert int(values["acks_refused"]) >= 1, values
     finally:
+        forger.destroy_node()
         part.close()
 
 
