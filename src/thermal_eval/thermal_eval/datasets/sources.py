@@ -25,6 +25,15 @@ META_FIELDS = ("name", "unit", "programme", "date", "hall_setpoint_c")
 RECORDING_SUFFIXES = (".csv", ".mcap")
 
 
+class _TextDates(yaml.SafeLoader):
+    """YAML without implicit timestamps: a date stays text, so a bad one is named as a field."""
+
+
+_TextDates.yaml_implicit_resolvers = {
+    k: [(tag, rx) for tag, rx in v if tag != "tag:yaml.org,2002:timestamp"]
+    for k, v in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+
+
 class DatasetError(ValueError):
     """A bad source, manifest entry or split of runs; the message names file, field and value."""
 
@@ -105,7 +114,7 @@ def read_manifest(path: str | pathlib.Path) -> list[RunEntry]:
         where = [f"{p}: line {i + 2}" for i in range(len(rows))]
     else:
         try:
-            raw = yaml.safe_load(text)
+            raw = yaml.load(text, Loader=_TextDates)  # noqa: S506 (a SafeLoader)
         except yaml.YAMLError as exc:
             raise DatasetError(f"{p}: not YAML ({str(exc).splitlines()[0]})") from None
         rows = raw.get("runs") if isinstance(raw, dict) else raw

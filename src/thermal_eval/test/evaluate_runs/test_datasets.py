@@ -1,0 +1,154 @@
+"""Many recordings as one data set: sources, manifests, splits by run, folds, pooled figures."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from thermal_comp_common.recording_csv import write_recording_csv
+from thermal_eval.datasets import DatasetError, fold_data, load_runs, resolve_runs, run_splits, segments
+from thermal_eval.datasets.evaluate_runs import evaluate_runs
+from thermal_eval.evaluate.cli import main
+from thermal_eval.evaluate.open_loop_models import MODELS
+from thermal_eval.evaluate.baselines import BASELINES
+from thermal_eval.evaluate.run import evaluate
+
+LAGGED = next(m for m in MODELS if m.name == "lagged_ridge")
+
+
+def _write_run(path, seed: int, hours: float = 5.0, offset_um: float = 0.0, extra: str | None = None):
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hours * 3600.0, 120.0)
+    amb = 20.0 + rng.normal() + np.sin(t / 7200.0 + seed)
+    slow = amb.copy()
+    for i in range(1, t.size):                       # a 40-min lag of the hall temperature
+        slow[i] = slow[i - 1] + (amb[i] - slow[i - 1]) * 120.0 / 2400.0
+    z = offset_um + 3.0 * (slow - slow[0]) + 0.05 * rng.normal(size=t.size)
+    cols = {"amb_c": amb, "slow_c": slow, "z_um": z}
+    if extra:
+        cols[extra] = amb
+    write_recording_csv(path, t, cols)
+    return path
+
+
+@pytest.fixture()
+def folder(tmp_path):
+    d = tmp_path / "runs"
+    for k in range(5):
+        _write_run(d / f"day{k}.csv", k, offset_um=10.0 * k)
+    return d
+
+
+def test_sources_files_folder_glob_and_manifests(folder, tmp_path):
+    assert [r.name for r in resolve_runs([str(folder)])] == [f"day{k}" for k in range(5)]
+    assert [r.name for r in resolve_runs([str(folder / "day[01].csv"), str(folder / "day4.csv")])] == \
+        ["day0", "day1", "day4"]
+    y = tmp_path / "m.yaml"
+    y.write_text("runs:\n  - {path: runs/day0.csv, unit: U1, programme: warm-up, date: 2026-01-02, "
+                 "hall_setpoint_c: 21}\n  - {path: runs/day1.csv, unit: U2, date: 2026-01-01}\n")
+    runs = resolve_runs([str(y)])
+    assert (runs[0].unit, runs[0].programme, runs[0].date, runs[0].hall_setpoint_c) == ("U1", "warm-up", "2026-01-02", 21.0)
+    c = tmp_path / "m.csv"
+    c.write_text("path,unit,shift\nruns/day2.csv,U1,night\nruns/day3.csv,U3,day\n")
+    runs = resolve_runs([str(c)])
+    assert [r.unit for r in runs] == ["U1", "U3"] and runs[0].extra == {"shift": "night"}
+
+
+@pytest.mark.parametrize("row, words", [
+    ("{unit: U1}", ["runs[0]", "'path'"]),
+    ("{path: runs/nope.csv}", ["runs[0]", "'path'", "nope.csv"]),
+    ("{path: runs/day0.csv, date: 2026-13-01}", ["'date'", "2026-13-01"]),
+    ("{path: runs/day0.csv, hall_setpoint_c: warm}", ["'hall_setpoint_c'", "'warm'"]),
+])
+def test_a_bad_manifest_entry_is_one_line_naming_file_field_and_value(folder, tmp_path, row, words):
+    y = tmp_path / "bad.yaml"
+    y.write_text(f"runs:\n  - {row}\n")
+    with pytest.raises(DatasetError) as e:
+        resolve_runs([str(y)])
+    msg = str(e.value)
+    assert "\n" not in msg and str(y) in msg and all(w in msg for w in words)
+
+
+def test_duplicate_files_and_names_are_refused(folder):
+    with pytest.raises(DatasetError, match="listed twice"):
+        resolve_runs([str(folder / "day0.csv"), str(folder / "day0.csv")])
+    with pytest.raises(DatasetError, match="matches no file"):
+        resolve_runs([str(folder / "x*.csv")])
+
+
+def test_run_splits(folder, tmp_path):
+    runs = resolve_runs([str(folder)])
+    (f,) = run_splits(runs)
+    assert (f.train, f.validation, f.test) == ((0, 1, 2), (3,), (4,))
+    assert [x.test for x in run_splits(runs, "loro")] == [(i,) for i in range(5)]
+    (f,) = run_splits(runs, "test=day1,day3;validation=day0")
+    assert (f.train, f.validation, f.test) == ((2, 4), (0,), (1, 3))
+    c = tmp_path / "m.csv"
+    c.write_text("path,unit\n" + "".join(f"runs/day{k}.csv,U{k % 2}\n" for k in range(5)))
+    units = resolve_runs([str(c)])
+    assert [(x.train, x.test) for x in run_splits(units, "by:unit")] == [((1, 3), (0, 2, 4)), ((0, 2, 4), (1, 3))]
+    (f,) = run_splits(units, "by:unit=U1")
+    assert f.test == (1, 3) and f.train == (0, 2, 4)
+    for bad, words in (("by:unit=U9", "U9"), ("by:colour", "'colour'"), ("0.5,0.5", "fractions"),
+                       ("test=nope", "'nope'"), ("1,0,0", "held-out")):
+        with pytest.raises(DatasetError, match=words):
+            run_splits(units, bad)
+    with pytest.raises(DatasetError, match="at least two"):
+        run_splits(units[:1])
+
+
+def test_each_run_keeps_its_start_reference_and_the_fold_starts_its_clock_at_the_held_out_run(folder):
+    runs = load_runs(resolve_runs([str(folder)]))
+    assert all(r.data.displacement_um["z_um"][0] == 0.0 and r.data.time_s[0] == 0.0 for r in runs)
+    d = fold_data(runs, [0, 1, 2], 4)
+    n0 = sum(len(runs[i].data) for i in (0, 1, 2))
+    assert d.split.n_train == n0 + 1 and d.split.test == slice(n0 + 1, len(d)) and d.split.validation.stop == len(d)
+    assert np.all(np.diff(d.time_s) > 0)
+    assert d.displacement_um["z_um"][n0] == 0.0            # the held-out run's start reference closes calibration
+    np.testing.assert_array_equal(d.displacement_um["z_um"][n0:], runs[4].data.displacement_um["z_um"])
+    parts = segments(runs[0], 3)
+    assert len(parts) == 3 and all(p.data.displacement_um["z_um"][0] == 0.0 for p in parts)
+    assert sum(len(p.data) for p in parts) == len(runs[0].data) and parts[1].entry.name == "day0#2"
+
+
+def test_runs_with_other_columns_are_refused_naming_the_file(folder):
+    odd = _write_run(folder / "day9.csv", 9, extra="door_open")
+    with pytest.raises(DatasetError) as e:
+        load_runs(resolve_runs([str(folder)]))
+    assert str(odd) in str(e.value) and "inputs" in str(e.value)
+
+
+def test_pooled_figures_are_the_held_out_runs_rows_together(folder):
+    runs = load_runs(resolve_runs([str(folder)]))
+    (fold,) = run_splits([r.entry for r in runs], "0.6,0,0.4")
+    f = evaluate_runs(runs, [fold], models=BASELINES + [LAGGED], progress=lambda s: None)
+    per = [evaluate(fold_data(runs, fold.train, i), models=BASELINES + [LAGGED], show_progress=False)
+           for i in fold.test]
+    y = [fold_data(runs, fold.train, i) for i in fold.test]
+    res = np.concatenate([d.displacement_um["z_um"][d.split.test] - r.open_loop["lagged_ridge"]["z_um"][d.split.test]
+                          for d, r in zip(y, per)])
+    pooled = f["pooled"]["test"]["open_loop"]["lagged_ridge"]["z_um"]
+    assert pooled["mae_um"] == pytest.approx(np.mean(np.abs(res)), abs=1e-3)
+    assert pooled["rmse_um"] == pytest.approx(np.sqrt(np.mean(res ** 2)), abs=1e-3)
+    assert pooled["n_rows"] == res.size and pooled["runs"] == 2
+    base = f["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"]
+    assert pooled["ratio_to_static_ls"] == pytest.approx(pooled["mae_um"] / base, abs=2e-3)
+    ad = f["pooled"]["test"]["adaptive"]["lagged_ridge"]["z_um"]
+    assert ad["ratio_to_hold"] == pytest.approx(ad["mae_um"] / ad["hold_own_probes_mae_um"], abs=2e-3)
+    # each held-out run alone is the single-recording evaluation of its fold
+    one = f["folds"][0]["per_run"][0]["pooled"]["open_loop"]["lagged_ridge"]["z_um"]["mae_um"]
+    assert one == per[0].figures["open_loop"]["lagged_ridge"]["channels"]["z_um"]["mae_test_um"]
+
+
+def test_cli_on_a_folder_writes_per_run_and_pooled_figures(folder, tmp_path, capsys):
+    out = tmp_path / "out"
+    rc = main([str(folder), "--out", str(out), "--models", "lagged_ridge", "--no-progress", "--no-rerun",
+               "--runs-split", "loro", "--open-loop-only"])
+    assert rc == 0
+    f = json.loads((out / "evaluation_runs.json").read_text())
+    assert len(f["folds"]) == 5 and [r["name"] for r in f["runs"]] == [f"day{k}" for k in range(5)]
+    assert f["pooled"]["test"]["open_loop"]["lagged_ridge"]["z_um"]["runs"] == 5
+    assert "pooled over 5 held-out test runs" in capsys.readouterr().out
+    assert main([str(folder), "--out", str(tmp_path / "o2"), "--runs-split", "by:unit", "--no-progress"]) == 2
+    assert "every run has unit = ''" in capsys.readouterr().err
