@@ -4,7 +4,9 @@ Run: ``python -m talc_model.talc_model_node --ros-args -p model_kind:=talc
 -p model_config:=talc.yaml -p state_path:=nmv5000/model.json``
 
 The loop itself is :class:`talc_model.loop.closed_loop.ClosedLoop` (ROS-free); this node wires it:
-``temperatures`` (non-OK sensors -> NaN: excluded and held, listed in ModelStatus), ``machine_state``
+``temperatures`` (non-OK sensors -> NaN: excluded and held, listed in ModelStatus; a reading flagged OK
+but not finite or outside -50..150 degC is refused the same way, counted, logged once per burst, on
+``/diagnostics`` status ``readings``: :mod:`talc_model.loop.reading_check`), ``machine_state``
 (flattened inputs) and ``offsets`` (what the bridge applied: :mod:`talc_model.loop.applied_compensation`)
 in; ``errors/predicted``, ``errors/measured``, ``model_status``, ``/diagnostics`` and the lock-step
 ``SimSync`` ack out. When the model asks for a probe, a ``ProbeCycle`` goal starts and the ack of
@@ -59,6 +61,7 @@ from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
 from talc_model.loop.applied_compensation import MODES, BridgeCompensation
 from talc_model.loop.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
 from talc_model.loop.instant_inputs import InputsReady, InstantInputs
+from talc_model.loop.reading_check import ReadingCheck
 from talc_model.model_persistence import load_model, load_pretrained, save_model
 from talc_model.probing.cycle_state import Action, ProbeOutcome, ProbeState, ProbingStateMachine
 from talc_model.save_schedule import SaveNow, SaveSchedule
@@ -151,6 +154,7 @@ class TalcModelNode(Node):
         self.instant_inputs = InstantInputs(p["machine_state_wait_s"])
         self.pending: tuple[float, dict[str, float]] | None = None   # temperatures waiting for their state
         self.excluded: list[str] = []
+        self.readings = ReadingCheck()
         self.last_pred_msg: ThermalErrors | None = None
         self.saves = SaveSchedule(p["save_period_s"], p["offsets_wait_s"])
         self.probe_goal_handle = None
@@ -162,6 +166,7 @@ class TalcModelNode(Node):
                        TOPIC_OFFSETS: StampGuard(TOPIC_OFFSETS, bound, forward_only=False)}
         self.diag.set("state", "OK", how)
         self._stamp_status()
+        self._readings_status()
         self.get_logger().info(f"{self.kind} model: {how}; components {', '.join(model.component_names)}")
         # what start-up allocated (modules, the model, the node) stays out of the garbage
         # collector's passes: a full collection over it is a pause on the predictions' path
@@ -232,8 +237,19 @@ class TalcModelNode(Node):
             self.get_logger().error(f"temperatures at {t:.3f} s: {n} sensor_ids, {len(msg.temperatures_degc)} "
                                     f"values, {len(msg.status)} status entries: ignored")
             return None
-        temps, self.excluded = model_temperatures(msg.sensor_ids, msg.temperatures_degc, msg.status)
+        verdict = self.readings.check(t, msg.sensor_ids, msg.temperatures_degc, msg.status)
+        if verdict.log:
+            self.get_logger().warning(verdict.text)
+        if verdict.invalid or verdict.burst_over:
+            self._readings_status()
+        temps, self.excluded = model_temperatures(msg.sensor_ids, msg.temperatures_degc, verdict.status)
         return temps
+
+    def _readings_status(self) -> None:
+        burst = self.readings.in_burst
+        self.diag.set("readings", "WARN" if burst else "OK",
+                      "refusing temperature readings flagged OK but not plausible" if burst
+                      else "temperature readings plausible", **self.readings.values())
 
     def _step(self, t: float, temps: dict[str, float]):
         args = (t, temps, self.machine_state, self._wall_s(), self.sink.must_wait_for(t))

@@ -12,6 +12,9 @@ from typing import Iterable
 
 STATUS_OK = 0
 STATUS_FAILED = 3
+#: the physical range of a machine-tool temperature reading, degC: a sensor's default measuring
+#: range, and what a model accepts from any publisher whatever the status says
+PLAUSIBLE_RANGE_DEGC = (-50.0, 150.0)
 
 
 def model_temperatures(sensor_ids: Iterable[str], temperatures_degc: Iterable[float],

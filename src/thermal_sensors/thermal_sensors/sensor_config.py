@@ -13,6 +13,7 @@ from typing import Any, Mapping
 
 import yaml
 
+from thermal_comp_common.sensor_readings import PLAUSIBLE_RANGE_DEGC
 from thermal_sensors.gain_offset import GainOffset
 
 REGISTER_KINDS = ("input", "holding")
@@ -82,7 +83,7 @@ class SensorSpec:
 
     id: str
     channel: str
-    range_degc: tuple[float, float] = (-50.0, 150.0)
+    range_degc: tuple[float, float] = PLAUSIBLE_RANGE_DEGC
     stale_after_s: float = 0.0
     stale_tolerance_degc: float = 0.0
     gain_offset: GainOffset = field(default_factory=GainOffset)   # YAML key ``calibration``
@@ -207,7 +208,7 @@ def _parse_sensor(d: Any, where: str) -> SensorSpec:
     _check_keys(d, {"id", "channel", "range_degc", "stale_after_s", "stale_tolerance_degc",
                     "calibration", "modbus"}, where)
     sid = _string(d, "id", None, where)
-    rng = d.get("range_degc", [-50.0, 150.0])
+    rng = d.get("range_degc", list(PLAUSIBLE_RANGE_DEGC))
     if (not isinstance(rng, (list, tuple)) or len(rng) != 2
             or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in rng)
             or not rng[0] < rng[1]):
@@ -313,7 +314,7 @@ def require_modbus(config: SensorConfig) -> None:
                                     "(required by the modbus source)")
 
 
-def config_from_channels(channels: list[str], range_degc: tuple[float, float] = (-50.0, 150.0),
+def config_from_channels(channels: list[str], range_degc: tuple[float, float] = PLAUSIBLE_RANGE_DEGC,
                          max_age_s: float = 60.0) -> SensorConfig:
     """A default configuration with one uncalibrated sensor per channel (ids = channels)."""
     return SensorConfig(sensors=tuple(SensorSpec(id=c, channel=c, range_degc=range_degc)
