@@ -23,7 +23,6 @@ setup(
         # `thermal-comp SUBCOMMAND` looks its subcommands up in this group:
         # "name = module:function" where function(argv: list[str]) -> int.
         "thermal_comp.commands": [
-            "probe = probe_cycle.probe_cli:main",
         ],
         "console_scripts": [
             "probe_cycle_server = probe_cycle.probe_cycle_node:main",

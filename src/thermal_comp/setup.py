@@ -34,6 +34,7 @@ setup(
             "topics = thermal_comp.cell.inspect_cli:topics_main",
             "echo = thermal_comp.cell.inspect_cli:echo_main",
             "nodes = thermal_comp.cell.inspect_cli:nodes_main",
+            "probe = thermal_comp.cell.inspect_cli:probe_main",
             "demo = thermal_comp.demo.cli:main",
             "record = thermal_comp.bags.record_cli:main",
             "play = thermal_comp.bags.play_cli:main",

@@ -41,6 +41,13 @@ class CellError(RuntimeError):
     """The cell refused or failed what was asked; the message says what and why."""
 
 
+class _Discard(io.TextIOBase):
+    """An output that keeps nothing (the launcher writes every node's log file anyway)."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+
 def _cell_config(cell: str | pathlib.Path | Mapping | CellConfig) -> CellConfig:
     if isinstance(cell, CellConfig):
         return cell
@@ -60,13 +67,11 @@ class Cell:
         self.bridge_node = bridge_node
         self.launcher = launcher
         self.expected_nodes = list(expected_nodes or [])
+        # subscriptions and clients are made on first use: a cell object that only lists the
+        # graph (thermal-comp topics) must not add topics of its own to what it lists
         self._latest: dict[str, Any] = {}
-        self._counts = {TOPIC_MODEL_STATUS: 0, TOPIC_ERRORS_PREDICTED: 0}
-        self.node.create_subscription(ModelStatus, TOPIC_MODEL_STATUS,
-                                      lambda m: self._keep(TOPIC_MODEL_STATUS, m), LATCHED_QOS)
-        self.node.create_subscription(ThermalErrors, TOPIC_ERRORS_PREDICTED,
-                                      lambda m: self._keep(TOPIC_ERRORS_PREDICTED, m), EVENT_QOS)
-        self._probe = ActionClient(self.node, ProbeCycle, ACTION_PROBE_CYCLE)
+        self._counts: dict[str, int] = {}
+        self._probe: ActionClient | None = None
         self._params: AsyncParameterClient | None = None
         self._supervisor: threading.Thread | None = None
         self._stop = threading.Event()
@@ -81,9 +86,10 @@ class Cell:
     def start(cls, cell: str | pathlib.Path | Mapping | CellConfig, run_dir: str | pathlib.Path | None = None,
               output=None, bridge_node: str = "bridge") -> "Cell":
         """Launch a cell (file, mapping or CellConfig) as ``thermal-comp launch`` does and attach
-        to it; :meth:`stop` stops it. ``output`` takes the nodes' log lines (default: kept in memory)."""
+        to it; :meth:`stop` stops it. ``output`` takes the nodes' log lines as well (default: only
+        the per-node log files in the run folder, ``cell.launcher.run_dir``)."""
         config = _cell_config(cell)
-        launcher = Launcher([config], run_dir=run_dir, output=output if output is not None else io.StringIO())
+        launcher = Launcher([config], run_dir=run_dir, output=output if output is not None else _Discard())
         launcher.start()
         try:
             self = cls(config.namespace, launcher.domain_id(config), bridge_node, launcher,
@@ -108,7 +114,8 @@ class Cell:
             self._supervisor.join(timeout=5.0)
         if self.launcher is not None:
             self.launcher.stop()
-        self._probe.destroy()
+        if self._probe is not None:
+            self._probe.destroy()
         self.graph.close()
 
     close = stop
@@ -151,6 +158,11 @@ class Cell:
         self._counts[topic] += 1
 
     def _wait_latest(self, topic: str, timeout_s: float, newer: bool):
+        if topic not in self._counts:
+            self._counts[topic] = 0
+            msg_type, qos = {TOPIC_MODEL_STATUS: (ModelStatus, LATCHED_QOS),
+                             TOPIC_ERRORS_PREDICTED: (ThermalErrors, EVENT_QOS)}[topic]
+            self.node.create_subscription(msg_type, topic, lambda m: self._keep(topic, m), qos)
         before = self._counts[topic]
         if not self.graph.spin_until(lambda: self._counts[topic] > (before if newer else 0), timeout_s):
             raise CellTimeout(f"no {'new ' if newer else ''}message on "
@@ -184,6 +196,8 @@ class Cell:
         (the server runs one cycle at a time: a refused goal is sent again every 0.5 s for up
         to ``busy_retry_s``, e.g. while the model's own cycle runs)."""
         goal = probe_goal(guide_bush, set_reference, points, angles, cycle_timeout_s, tool_position)
+        if self._probe is None:
+            self._probe = ActionClient(self.node, ProbeCycle, ACTION_PROBE_CYCLE)
         if not self.graph.spin_until(self._probe.server_is_ready, server_wait_s):
             raise CellTimeout(f"no '{self.node.resolve_topic_name(ACTION_PROBE_CYCLE)}' action server "
                               f"answered within {server_wait_s:g} s")

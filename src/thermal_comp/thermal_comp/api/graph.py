@@ -20,6 +20,11 @@ from rclpy.executors import SingleThreadedExecutor
 
 #: topics every node has (``ros2 topic list`` shows them; here they need ``include_hidden``)
 INFRASTRUCTURE_TOPICS = ("/parameter_events", "/rosout")
+#: Fast DDS re-announces a participant every 3 s after its initial burst: one that missed the
+#: burst (a loaded machine) is only seen at the next announcement, so an unchanged graph means
+#: little before one period (plus margin) has passed
+ANNOUNCEMENT_PERIOD_S = 3.0
+MIN_WATCH_S = ANNOUNCEMENT_PERIOD_S + 0.5
 _counter = itertools.count()
 
 
@@ -42,8 +47,9 @@ class GraphSnapshot:
 
 
 def is_hidden(name: str) -> bool:
-    """A hidden node or topic: its last name segment starts with an underscore."""
-    return name.rstrip("/").rsplit("/", 1)[-1].startswith("_")
+    """A hidden node or topic (ROS convention): a segment of its name starts with an underscore,
+    e.g. a helper node ``_thermal_comp_cli_...`` or an action's ``/probe_cycle/_action/status``."""
+    return any(part.startswith("_") for part in name.split("/"))
 
 
 def type_class(type_name: str):
@@ -105,9 +111,10 @@ class GraphView:
         return sorted(out)
 
     def watch(self, max_wait_s: float, settle_s: float = 1.5, expect_topics=(), expect_nodes=(),
-              include_hidden: bool = False) -> GraphSnapshot:
-        """Watch discovery until the graph has not changed for ``settle_s`` and every expected
-        name is seen, or ``max_wait_s`` passed; the snapshot says which and how long it took."""
+              include_hidden: bool = False, min_s: float = MIN_WATCH_S) -> GraphSnapshot:
+        """Watch discovery until at least ``min_s`` passed, the graph has not changed for
+        ``settle_s`` and every expected name is seen, or ``max_wait_s`` passed; the snapshot says
+        which and how long it took."""
         start = time.monotonic()
         state = {"last": None, "since": start}
         want_t, want_n = set(expect_topics), set(expect_nodes)
@@ -119,7 +126,7 @@ class GraphView:
                 state["last"], state["since"] = seen, now
             if not (want_t <= set(seen[0]) and want_n <= set(seen[1])):
                 return False
-            return now - state["since"] >= settle_s
+            return now - state["since"] >= settle_s and now - start >= min_s
 
         stable = self.spin_until(settled, max_wait_s)
         return GraphSnapshot(self.topics(include_hidden), self.nodes(include_hidden),

@@ -1,134 +1,77 @@
-"""The work of ``thermal-comp topics``, ``nodes`` and ``echo`` (:mod:`thermal_comp.cell.inspect_cli` parses
-the arguments): an rclpy node that watches the graph of a domain for discovery's time."""
+"""The work of ``thermal-comp topics``, ``nodes``, ``echo`` and ``probe``
+(:mod:`thermal_comp.cell.inspect_cli` parses the arguments), each through a
+:class:`thermal_comp.api.Cell` attached to the domain."""
 from __future__ import annotations
 
-import importlib
 import math
-import os
 import sys
-import time
-from typing import Any, Iterable
+from typing import Any
 
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rich.console import Console
+from rich.table import Table
 
+from thermal_comp.api.cell import Cell, CellError
+from thermal_comp.api.graph import MIN_WATCH_S, CellTimeout, type_class
+from thermal_comp.api.results import ProbeResult
 from thermal_comp_common.bags.message_text import message_to_yaml
 
 
-def _type_class(type_name: str):
-    """'pkg/msg/Type' -> the Python message class."""
-    parts = type_name.split("/")
-    if len(parts) != 3:
-        raise ValueError(f"type {type_name!r} is not of the form package/msg/Type")
-    pkg, kind, name = parts
+def _listing(command: str, args, names_of) -> int:
+    """Watch the graph, print the names ``names_of(snapshot)`` gives; exit 1 if an expected one is missing."""
+    cell = Cell.attach("", args.domain_id)
     try:
-        return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
-    except (ImportError, AttributeError):
-        raise ValueError(f"message type {type_name!r} is not installed in this environment") from None
-
-
-class GraphWatcher:
-    """An rclpy node in its own context that watches the graph (topics, nodes) of a domain."""
-
-    def __init__(self, domain_id: int | None):
-        if domain_id is not None:
-            os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-        self.ctx = rclpy.context.Context()
-        rclpy.init(args=[], context=self.ctx)
-        self.node = rclpy.create_node(f"thermal_comp_inspect_{os.getpid()}", context=self.ctx,
-                                      start_parameter_services=False, enable_rosout=False)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
-
-    def spin_until(self, done, wait_s: float) -> bool:
-        """Spin until done() is true or wait_s elapsed (wall time: discovery is a wall-time process)."""
-        deadline = time.monotonic() + wait_s
-        while time.monotonic() < deadline:
-            if done():
-                return True
-            self.executor.spin_once(timeout_sec=0.1)
-        return bool(done())
-
-    def topics(self) -> list[tuple[str, list[str]]]:
-        own = {"/parameter_events", "/rosout"}
-        return [(n, t) for n, t in self.node.get_topic_names_and_types() if n not in own]
-
-    def nodes(self) -> list[str]:
-        me = self.node.get_name()
-        out = []
-        for name, ns in self.node.get_node_names_and_namespaces():
-            if name == me:
-                continue
-            out.append((ns.rstrip("/") + "/" + name) if ns != "/" else "/" + name)
-        return sorted(set(out))
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        if self.ctx.ok():
-            self.ctx.try_shutdown()
-
-
-def _watch_names(get, expect: Iterable[str], wait_s: float, w: GraphWatcher) -> tuple[list, set]:
-    expect = set(expect)
-    if expect:
-        w.spin_until(lambda: expect <= {x if isinstance(x, str) else x[0] for x in get()}, wait_s)
-    else:  # no expectation: watch the whole time, the list only grows during discovery
-        w.spin_until(lambda: False, wait_s)
-    found = get()
-    missing = expect - {x if isinstance(x, str) else x[0] for x in found}
-    return found, missing
-
-
-def _report(command: str, lines: list[str], missing: set, wait_s: float) -> int:
-    """Print what was found; name what was expected but not seen (exit 1)."""
+        key = "expect_topics" if command == "topics" else "expect_nodes"
+        # with expectations, return as soon as they are met; otherwise wait for the graph to settle
+        snap = cell.watch_graph(args.wait, 0.0 if args.expect else args.settle,
+                                include_hidden=args.include_hidden, min_s=0.0 if args.expect else MIN_WATCH_S,
+                                **{key: args.expect})
+    finally:
+        cell.close()
+    lines = names_of(snap)
     for line in lines:
         print(line)
+    seen = {n for n, _ in snap.topics} if command == "topics" else set(snap.nodes)
+    missing = set(args.expect) - seen
+    how = (f"watched the graph {snap.waited_s:.1f} s (until the expected names were seen)"
+           if args.expect and not missing else snap.describe(args.settle))
+    print(f"thermal-comp {command}: {how}; {len(lines)} {command} (domain {cell.graph.domain_id})",
+          file=sys.stderr)
     if missing:
-        print(f"thermal-comp {command}: not seen within {wait_s:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
+        print(f"thermal-comp {command}: not seen within {args.wait:g} s: {', '.join(sorted(missing))}",
+              file=sys.stderr)
         return 1
     return 0
 
 
 def topics(args) -> int:
     """List the topics of the graph (exit 1: an expected one not seen)."""
-    w = GraphWatcher(args.domain_id)
-    try:
-        found, missing = _watch_names(w.topics, args.expect, args.wait, w)
-    finally:
-        w.close()
-    return _report("topics", [f"{n} [{', '.join(ts)}]" if args.show_types else n for n, ts in sorted(found)],
-                   missing, args.wait)
+    return _listing("topics", args, lambda s: [f"{n} [{', '.join(ts)}]" if args.show_types else n
+                                                for n, ts in s.topics])
 
 
 def nodes(args) -> int:
     """List the nodes of the graph (exit 1: an expected one not seen)."""
-    w = GraphWatcher(args.domain_id)
-    try:
-        found, missing = _watch_names(w.nodes, args.expect, args.wait, w)
-    finally:
-        w.close()
-    return _report("nodes", found, missing, args.wait)
+    return _listing("nodes", args, lambda s: list(s.nodes))
 
 
 def echo(args) -> int:
     """Print the messages of a topic (exit 1: not seen, 2: unknown type)."""
     count = 1 if args.once else args.count
-    w = GraphWatcher(args.domain_id)
+    cell = Cell.attach("", args.domain_id)
     received: list[Any] = []
     try:
         type_name = args.type
         if type_name is None:
             def typed():
-                return dict(w.topics()).get(args.topic)
-            if not w.spin_until(lambda: typed() is not None, args.wait):
+                return dict(cell.graph.topics(include_hidden=True)).get(args.topic)
+            if not cell.spin_until(lambda: typed() is not None, args.wait):
                 print(f"thermal-comp echo: topic {args.topic} not seen within {args.wait:g} s "
-                      f"(domain {os.environ.get('ROS_DOMAIN_ID', '0')})", file=sys.stderr)
+                      f"(domain {cell.graph.domain_id})", file=sys.stderr)
                 return 1
             type_name = typed()[0]
         try:
-            cls = _type_class(type_name)
+            cls = type_class(type_name)
         except ValueError as exc:
             print(f"thermal-comp echo: {exc}", file=sys.stderr)
             return 2
@@ -140,13 +83,58 @@ def echo(args) -> int:
             received.append(msg)
             print(message_to_yaml(msg) + "---", flush=True)
 
-        w.node.create_subscription(cls, args.topic, on_msg, qos)
+        cell.subscribe(args.topic, cls, on_msg, qos)
         limit = count if count > 0 else math.inf
-        try:
-            while w.ctx.ok() and len(received) < limit:
-                w.executor.spin_once(timeout_sec=0.2)
+        try:  # until the count or Ctrl-C: the user asked for a stream
+            cell.spin_until(lambda: len(received) >= limit or not cell.graph.ctx.ok(), math.inf)
         except KeyboardInterrupt:
             pass
     finally:
-        w.close()
+        cell.close()
     return 0
+
+
+def probe(args, angles: list[float]) -> int:
+    """Run the cycle the parsed arguments ask for; the exit code (0 succeeded, 1 failed or
+    refused, 2 no server answered)."""
+    console = Console()
+    cell = Cell.attach(args.namespace, args.domain_id)
+    last_stage = [""]
+
+    def on_feedback(fb) -> None:   # one plain line per stage: readable in a terminal and in a log file
+        if fb.stage != last_stage[0]:
+            last_stage[0] = fb.stage
+            print(f"probing: {fb.stage} ({fb.points_done}/{fb.points_total} points)", flush=True)
+
+    try:
+        result = cell.probe(guide_bush=args.guide_bush, set_reference=args.set_reference,
+                            points=args.points, angles=angles, cycle_timeout_s=args.timeout,
+                            server_wait_s=args.wait, deadline_s=args.deadline,
+                            busy_retry_s=args.busy_retry, on_feedback=on_feedback)
+    except CellTimeout as exc:
+        print(f"thermal-comp probe: {exc} (namespace '{args.namespace or '/'}', domain "
+              f"{cell.graph.domain_id})", file=sys.stderr)
+        return 2 if "action server" in str(exc) else 1
+    except CellError as exc:
+        print(f"thermal-comp probe: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        cell.close()
+    if not result.success:
+        console.print(f"[red]probe cycle failed:[/red] {result.message}")
+        return 1
+    _print_result(console, result)
+    return 0
+
+
+def _print_result(console: Console, result: ProbeResult) -> None:
+    e = result.errors
+    table = Table(title=f"{e.model_kind}: {result.message.split(':')[0]}")
+    for col in ("component", "value", "U (k=2)", "unit"):
+        table.add_column(col, justify="left" if col in ("component", "unit") else "right")
+    for name, v in e.values.items():
+        table.add_row(name, f"{v:+.2f}", f"{2 * e.uncertainties[name]:.2f}", e.units[name])
+    console.print(table)
+    console.print(f"duration {result.duration_s:.1f} s, fit RMS {result.fit_residual_rms_um:.2f} um, "
+                  f"360/0 check {result.repeatability_check_um:.2f} um")
+
