@@ -15,7 +15,13 @@ Sources (parameter ``source``):
 As a lock-step participant (``lockstep_participant``) the node publishes SimSync for t_k
 after ``temperatures`` for t_k. Each sensor's status is on ``/diagnostics`` (``sensor <id>``:
 OK, WARN for stale or out of range, ERROR for failed, with the reason), beside a summary
-(``sensors``: how many are not ok, frames published). Run: ``python -m thermal_sensors.temperature_publisher_node``.
+(``sensors``: how many are not ok, frames published).
+
+Stamps (:mod:`thermal_comp_common.stamp_guard`): a twin message stamped more than
+``max_stamp_ahead_s`` ahead of the node's clock, behind the last accepted instant, or not finite,
+and (time master) an acknowledgement of an instant not yet published, are refused: never
+published, acknowledged or counted as progress; counted on ``/diagnostics`` (status ``stamps``),
+logged once per burst. Run: ``python -m thermal_sensors.temperature_publisher_node``.
 """
 from __future__ import annotations
 
@@ -31,6 +37,7 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
+from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
 from thermal_comp_common.runtime.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                        TOPIC_TWIN_SENSORS, Param, declare_parameters, run_node,
                                        s_to_stamp, stamp_to_s)
@@ -62,7 +69,12 @@ PARAMS = [
     Param("lockstep_participants", [""], "time master: node names whose SimSync is awaited "
           "before advancing (empty: free-running)"),
     Param("lockstep_participant", False, "publish SimSync for t_k after temperatures for t_k"),
+    Param("max_stamp_ahead_s", 0.0, "refuse twin readings stamped more than this ahead of the node's clock, "
+          "s; 0 = 60 s on wall time, 3600 s with use_sim_time (data may precede its /clock by a step)",
+          0.0, 86400.0),
 ]
+#: a time master's participants acknowledge only instants it published (ns stamps: rounding), s
+ACK_TOLERANCE_S = 1e-6
 
 
 class TemperaturePublisher(Node):
@@ -108,6 +120,14 @@ class TemperaturePublisher(Node):
                          if self.lockstep_participant else None)
         self.published = 0
         self.republished = 0
+        bound = default_max_ahead_s(p["max_stamp_ahead_s"], bool(self.get_parameter("use_sim_time").value))
+        self.stamps: dict[str, StampGuard] = {}
+        if self.source_kind == "twin":
+            self.stamps["twin"] = StampGuard(self.resolve_topic_name(TOPIC_TWIN_SENSORS), bound)
+        if self.time_master and self.participants:   # acknowledgements of several nodes interleave
+            self.stamps["acks"] = StampGuard(self.resolve_topic_name(TOPIC_SIM_SYNC), ACK_TOLERANCE_S,
+                                             forward_only=False)
+        self._stamp_status()
         self._last_msg: TemperatureArray | None = None
 
         if self.source_kind == "twin":
@@ -166,9 +186,29 @@ class TemperaturePublisher(Node):
         else:
             self.diag.update_values("sensors", frames=self.published)
 
+    # -- stamps ---------------------------------------------------------------------------
+    def _stamp_ok(self, stream: str, t: float, clock_s: float | None) -> bool:
+        """``t`` on ``stream`` is on the graph's clock ``clock_s`` (else refused, counted, said once)."""
+        check = self.stamps[stream].check(t, clock_s)
+        if check.log:
+            self.get_logger().warning(check.text)
+        if not check.accepted or check.burst_over:
+            self._stamp_status()
+        return check.accepted
+
+    def _stamp_status(self) -> None:
+        if not self.stamps:
+            return
+        burst = any(g.in_burst for g in self.stamps.values())
+        self.diag.set("stamps", "WARN" if burst else "OK",
+                      "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
+                      **stamp_values(self.stamps.values()))
+
     # -- twin -----------------------------------------------------------------------------
     def _on_twin(self, msg: TemperatureArray) -> None:
         t = stamp_to_s(msg.header.stamp)
+        if not self._stamp_ok("twin", t, graph_clock_s(self.get_clock().now().nanoseconds)):
+            return   # never published, never acknowledged: a forged stamp does not move this node on
         if t <= self._last_twin_t:
             # machine_sim re-sent an instant because an acknowledgement is missing: a consumer
             # may have restarted and missed it (the model after a crash), so the last frame
@@ -214,6 +254,10 @@ class TemperaturePublisher(Node):
 
     def _on_sim_sync(self, msg: SimSync) -> None:
         if msg.node_name in self.acked:
+            # the last instant published; before t_0 none, so any acknowledgement of t_0 is ahead
+            published = float(self.steps[self.k - 1] if self.k > 0 else self.steps[0] - 1.0)
+            if not self._stamp_ok("acks", stamp_to_s(msg.processed_until), published):
+                return
             self.acked[msg.node_name] = max(self.acked[msg.node_name], stamp_to_s(msg.processed_until))
             if self.rtf <= 0:
                 self._advance()
