@@ -3,7 +3,10 @@ run is scored alone (its own start reference and probing clock), figures per run
 
 Per held-out run this is the single-recording evaluation of :func:`thermal_eval.evaluate.run.evaluate`
 on :func:`thermal_eval.datasets.runs.fold_data` (the same models, baselines, adaptive mode and
-holding beside it). Pooled figures put the residuals of every held-out run of a role
+holding beside it), with one difference: each model's ``select`` (the walk-forward choice of
+inputs and hyper-parameters, most of the cost) runs once per fold on the training runs alone
+(:class:`ChosenParams`), not once per held-out run; the refit, the out-of-fold prediction and
+the adaptive mode run per held-out run. Held-out runs are the engine's tasks. Pooled figures put the residuals of every held-out run of a role
 (validation / test) together: MAE, RMSE and P99 over all their rows; open-loop ratios against
 the named baseline, adaptive ratios against holding the same probes, both on the same rows.
 """
@@ -11,17 +14,19 @@ from __future__ import annotations
 
 import sys
 import time
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
 from thermal_comp_common.metrics import mae, p99, rmse
-from thermal_comp_common.runtime.task_engine import EngineSpec
-from thermal_eval.datasets.runs import Run, fold_data
+from thermal_comp_common.runtime.blas_threads import single_thread_blas
+from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
+from thermal_eval.datasets.runs import Run, fold_data, train_data
 from thermal_eval.datasets.splits import RunFold
 from thermal_eval.evaluate.adaptive import ProbingBudget
-from thermal_eval.evaluate.model_selection import ModelSpec
-from thermal_eval.evaluate.run import RATIO_BASELINE, EvaluationResult, evaluate
+from thermal_eval.evaluate.model_selection import ModelFailure, ModelSpec
+from thermal_eval.evaluate.run import RATIO_BASELINE, REGISTRY, EvaluationResult, available_models, evaluate
 
 FIGURES = (("mae_um", mae), ("rmse_um", rmse), ("p99_um", p99))
 
@@ -76,38 +81,96 @@ def _run_info(run: Run) -> dict[str, Any]:
             "hall_setpoint_c": e.hall_setpoint_c, "rows": len(run.data), "hours": round(run.hours, 3)}
 
 
+@dataclass(frozen=True)
+class ChosenParams:
+    """A model's ``select`` replaced by what it chose once on a fold's training runs: per
+    channel the parameters, or the reason it failed (raised again, so the cell fails the same way)."""
+
+    by_channel: dict
+
+    def __call__(self, data, channel: str, n_fit: int) -> dict:
+        p = self.by_channel[channel]
+        if isinstance(p, str):
+            raise ModelFailure(p)
+        return p
+
+
+def _select_task(shared: tuple, name: str) -> dict:
+    """Task: one model's choice on every channel of the training runs."""
+    data, specs = shared
+    model = specs.get(name) or REGISTRY[name]
+    out = {}
+    for ch in data.channels:
+        try:
+            out[ch] = model.select(data, ch, len(data))
+        except Exception as exc:   # one failing channel is one failed cell in every held-out run
+            out[ch] = f"select on the training runs: {type(exc).__name__}: {exc}"[:300]
+    return out
+
+
+def _held_out_task(shared: tuple, item: tuple[str, int]) -> dict:
+    """Task: one held-out run scored with the fold's choices; its residuals and figures."""
+    runs, train, chosen, specs, adaptive, budget, closed_loop, probe_phases = shared
+    role, i = item
+    data = fold_data(runs, train, i)
+    models = [replace(specs.get(n) or REGISTRY[n], select=ChosenParams(chosen[n])) for n in chosen]
+    res = evaluate(data, models=models, adaptive=adaptive, budget=budget, closed_loop=closed_loop,
+                   probe_phases=probe_phases, show_progress=False)
+    return {"role": role, "run": i, "residuals": _residuals(res, data.displacement_um, data.split.test),
+            "seconds": res.figures["seconds"], "notes": data.notes}
+
+
+def _choose(runs: Sequence[Run], fold: RunFold, models: Sequence[ModelSpec], engine: EngineSpec) -> dict:
+    data = train_data(runs, fold.train)
+    specs = {m.name: m for m in models if REGISTRY.get(m.name) is not m}
+    chosen: dict[int, dict] = {}
+    with single_thread_blas(openmp=True):
+        for k, sel in map_tasks(_select_task, (data, specs), [m.name for m in models], engine):
+            chosen[k] = sel
+    return {m.name: chosen[k] for k, m in enumerate(models)}
+
+
 def evaluate_runs(runs: Sequence[Run], folds: Sequence[RunFold], *, models: Sequence[ModelSpec] | None = None,
                   adaptive: bool = True, budget: ProbingBudget | None = None, engine: EngineSpec | None = None,
-                  closed_loop: Sequence[str] = (), probe_phases: int = 1, show_progress: bool = False,
+                  closed_loop: Sequence[str] = (), probe_phases: int = 1,
                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Every fold, every held-out run: its figures alone; pooled per role per fold and over every
     fold (``pooled``: every held-out run of a role once per fold it is held out in)."""
     t0 = time.perf_counter()
     say = progress or (lambda s: print(s, file=sys.stderr, flush=True))
+    engine = engine or EngineSpec()
+    models = list(models) if models is not None else available_models(runs[0].data)
+    budget = budget or ProbingBudget()
     figures: dict[str, Any] = {"runs": [_run_info(r) for r in runs], "ratio_baseline": RATIO_BASELINE,
-                               "budget": (budget or ProbingBudget()).__dict__, "folds": []}
+                               "budget": budget.__dict__, "engine": engine.describe(), "folds": []}
     total = sum(len(f.held_out()) for f in folds)
     done = 0
     every: dict[str, list] = {"validation": [], "test": []}
     for fold in folds:
-        per_run, resid = [], {"validation": [], "test": []}
-        for role, i in fold.held_out():
-            data = fold_data(runs, fold.train, i)
-            t1 = time.perf_counter()
-            res = evaluate(data, models=models, adaptive=adaptive, budget=budget, engine=engine,
-                           closed_loop=closed_loop, probe_phases=probe_phases, show_progress=show_progress)
-            done += 1
-            say(f"evaluate runs: {done}/{total} run {runs[i].entry.name!r} ({role}, fold {fold.name}) "
-                f"{time.perf_counter() - t1:.1f} s")
-            r = _residuals(res, data.displacement_um, data.split.test)
-            resid[role].append(r)
-            every[role].append(r)
-            per_run.append({"run": runs[i].entry.name, "role": role, "unit": runs[i].entry.unit,
-                            "programme": runs[i].entry.programme, "pooled": pooled([r]),
-                            "seconds": res.figures["seconds"], "notes": data.notes})
+        t1 = time.perf_counter()
+        chosen = _choose(runs, fold, models, engine)
+        say(f"evaluate runs: fold {fold.name}: models chosen on {len(fold.train)} training runs "
+            f"({time.perf_counter() - t1:.1f} s)")
+        specs = {m.name: m for m in models if REGISTRY.get(m.name) is not m}
+        shared = (runs, tuple(fold.train), chosen, specs, adaptive, budget, tuple(closed_loop), probe_phases)
+        items = fold.held_out()
+        per_run, resid = [None] * len(items), {"validation": [], "test": []}
+        out: dict[int, dict] = {}
+        with single_thread_blas(openmp=True):
+            for k, r in map_tasks(_held_out_task, shared, items, engine):
+                out[k] = r
+                done += 1
+                say(f"evaluate runs: {done}/{total} run {runs[r['run']].entry.name!r} ({r['role']}, fold {fold.name}) "
+                    f"{r['seconds']:.1f} s")
+        for k in range(len(items)):
+            r = out[k]
+            e = runs[r["run"]].entry
+            resid[r["role"]].append(r["residuals"])
+            every[r["role"]].append(r["residuals"])
+            per_run[k] = {"run": e.name, "role": r["role"], "unit": e.unit, "programme": e.programme,
+                          "pooled": pooled([r["residuals"]]), "seconds": r["seconds"], "notes": r["notes"]}
         figures["folds"].append({"name": fold.name, "train": [runs[i].entry.name for i in fold.train],
-                                 "per_run": per_run,
-                                 "pooled": {role: pooled(v) for role, v in resid.items() if v}})
+                                 "per_run": per_run, "pooled": {role: pooled(v) for role, v in resid.items() if v}})
     figures["pooled"] = {role: pooled(v) for role, v in every.items() if v}
     figures["seconds"] = round(time.perf_counter() - t0, 1)
     return figures

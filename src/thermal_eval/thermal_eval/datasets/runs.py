@@ -98,25 +98,35 @@ def _step(t: np.ndarray) -> float:
     return float(np.median(d)) if d.size else 1.0
 
 
+def _end_to_end(parts: Sequence[EvaluationData], n_train: int, test: slice, source: str,
+                notes: list[str]) -> EvaluationData:
+    """Runs laid end to end: each after the previous one's last row plus one sample period."""
+    times, off = [], 0.0
+    for p in parts:
+        times.append(p.time_s + off)
+        off = times[-1][-1] + _step(p.time_s)
+    n = sum(len(p) for p in parts)
+    return EvaluationData(np.concatenate(times), np.vstack([p.temperatures for p in parts]), parts[0].sensors,
+                          None if parts[0].inputs is None else np.vstack([p.inputs for p in parts]),
+                          parts[0].input_names,
+                          {c: np.concatenate([p.displacement_um[c] for p in parts]) for c in parts[0].channels},
+                          Split(n_train, slice(n, n), test, n), source, notes)
+
+
 def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int) -> EvaluationData:
     """The training runs end to end, then the held-out run (its rows after the first are the
     test window; its first row closes the calibration phase)."""
-    order = list(train) + [held_out]
-    times, off = [], 0.0
-    for i in order:
-        t = runs[i].data.time_s
-        times.append(t + off)
-        off = times[-1][-1] + _step(t)
-    parts = [runs[i].data for i in order]
     n_train = sum(len(runs[i].data) for i in train) + 1
-    n = sum(len(p) for p in parts)
-    inputs = None if parts[0].inputs is None else np.vstack([p.inputs for p in parts])
-    held = runs[held_out]
-    data = EvaluationData(np.concatenate(times), np.vstack([p.temperatures for p in parts]), parts[0].sensors,
-                          inputs, parts[0].input_names,
-                          {c: np.concatenate([p.displacement_um[c] for p in parts]) for c in parts[0].channels},
-                          Split(n_train, slice(n, n), slice(n_train, n), n), held.data.source,
-                          [f"trained on {len(train)} runs ({n_train - 1} rows), scored on run {held.entry.name!r}"])
     if n_train - 1 < 50:
         raise DatasetError(f"run split: {n_train - 1} training rows in {len(train)} runs; the walk-forward needs >= 50")
-    return data
+    held = runs[held_out]
+    n = n_train - 1 + len(held.data)
+    return _end_to_end([runs[i].data for i in list(train) + [held_out]], n_train, slice(n_train, n),
+                       held.data.source, [f"trained on {len(train)} runs ({n_train - 1} rows), scored on run "
+                                          f"{held.entry.name!r}"])
+
+
+def train_data(runs: Sequence[Run], train: Sequence[int]) -> EvaluationData:
+    """The training runs end to end, every row a training row (where a fold's models choose)."""
+    n = sum(len(runs[i].data) for i in train)
+    return _end_to_end([runs[i].data for i in train], n, slice(n, n), "training runs", [])
