@@ -1,0 +1,113 @@
+"""The Cell API: its checks without ROS, the docs' example on a short demo cell, and the
+command line (topics, nodes, echo, probe) going through it."""
+from __future__ import annotations
+
+import math
+import pathlib
+import re
+
+import pytest
+
+from thermal_comp.api import BRIDGE_LIMITS, demo_cell, probe_goal, validated_tightening
+from thermal_comp.api.graph import is_hidden
+
+DOCS = pathlib.Path(__file__).resolve().parents[4] / "docs" / "api.md"
+CURRENT = {"abs_limit_um": 50.0, "max_rate_um_per_s": 0.5, "max_step_s": 600.0, "watchdog_timeout_s": 900.0,
+           "watchdog_hold_s": 300.0, "watchdog_ramp_um_per_s": 0.05, "disable_ramp_um_per_s": 0.5,
+           "abs_limit_um_per_m": 50.0}
+
+
+def test_only_tighter_limits_pass():
+    assert set(CURRENT) == set(BRIDGE_LIMITS)
+    assert validated_tightening({"abs_limit_um": 30, "max_rate_um_per_s": 0.5}, CURRENT) == {
+        "abs_limit_um": 30.0, "max_rate_um_per_s": 0.5}
+    for bad, why in [({"abs_limit_um": 60.0}, "widens"), ({"enable": 0.0}, "not a bridge limit"),
+                     ({"abs_limit_um": math.nan}, "finite positive"), ({"abs_limit_um": -1.0}, "finite positive"),
+                     ({"abs_limit_um": 0.0}, "finite positive"), ({"abs_limit_um": math.inf}, "finite positive"),
+                     ({"abs_limit_um": "x"}, "not a number"), ({}, "no limit given")]:
+        with pytest.raises(ValueError, match=why):
+            validated_tightening(bad, CURRENT)
+
+
+def test_probe_goal_and_demo_cell_validate_their_inputs():
+    goal = probe_goal(False, True, 3, [0, 90.5], 120.0)
+    assert (goal.set_reference, goal.points_per_indexing, list(goal.c_angles_deg), goal.timeout_s) == (
+        True, 3, [0.0, 90.5], 120.0)
+    for args, field in [((False, False, -1, [], 0.0), "points"), ((False, False, 0, [math.nan], 0.0), "angles"),
+                        ((False, False, 0, [], -5.0), "cycle_timeout_s")]:
+        with pytest.raises(ValueError, match=field):
+            probe_goal(*args)
+    with pytest.raises(ValueError, match="hours"):
+        demo_cell(hours=0)
+    with pytest.raises(ValueError, match="real_time_factor"):
+        demo_cell(real_time_factor=math.inf)
+    assert "domain_id" not in demo_cell() and demo_cell(domain_id=7)["domain_id"] == 7
+
+
+def test_hidden_names():
+    assert is_hidden("/_thermal_comp_cli_1_0") and is_hidden("/cell/probe_cycle/_action/status")
+    assert not is_hidden("/cell/model_status") and not is_hidden("/rosout")
+
+
+def _example_code() -> str:
+    blocks = re.findall(r"```python\n(.*?)```", DOCS.read_text(), flags=re.S)
+    assert blocks, f"no python example in {DOCS}"
+    return blocks[0]
+
+
+@pytest.mark.ros
+def test_the_docs_example_runs(capsys):
+    exec(compile(_example_code(), str(DOCS), "exec"), {})
+    out = capsys.readouterr().out
+    assert re.search(r"^ready in [0-9.]+ s$", out, flags=re.M)
+    assert "probe: True" in out
+    assert re.search(r"^model: talc (calibration|compensation|no_good) \d+ cycles learned$", out, flags=re.M)
+    assert re.search(r"^E_Z0T predicted [+-][0-9.]+ um at t = \d+ s$", out, flags=re.M)
+    assert "abs_limit_um now 40.0" in out
+    assert "refused: only tighter limits" in out
+
+
+@pytest.fixture(scope="module")
+def running_cell():
+    from thermal_comp.api import Cell   # ROS: only for the tests that run a cell
+    cell = Cell.start(demo_cell(name="api_cli", hours=100, real_time_factor=300))
+    try:
+        cell.wait_until_ready(timeout_s=90)
+        yield cell
+    finally:
+        cell.stop()
+
+
+@pytest.mark.ros
+def test_listings_wait_for_the_graph_and_hide_helpers(running_cell, capsys):
+    from thermal_comp.cell.inspect_cli import nodes_main, topics_main
+    assert nodes_main([]) == 0
+    out, err = capsys.readouterr()
+    nodes = out.split()
+    assert {f"/api_cli/{n}" for n in ("machine_sim", "sensors", "probe_cycle", "model", "bridge")} <= set(nodes)
+    assert not any(is_hidden(n) for n in nodes)          # the running cell's own API node is hidden
+    assert re.search(r"watched the graph [0-9.]+ s \(graph stable for 1.5 s\); \d+ nodes", err)
+    assert nodes_main(["--all"]) == 0
+    assert any(is_hidden(n) for n in capsys.readouterr().out.split())
+    assert topics_main([]) == 0
+    plain = capsys.readouterr().out.split()
+    assert "/api_cli/model_status" in plain and "/rosout" not in plain
+    assert topics_main(["-a"]) == 0
+    assert {"/rosout", "/parameter_events"} <= set(capsys.readouterr().out.split())
+    assert nodes_main(["--expect", "/api_cli/nothing", "--wait", "1"]) == 1
+    assert "not seen within 1 s: /api_cli/nothing" in capsys.readouterr().err
+
+
+@pytest.mark.ros
+def test_probe_and_echo_commands(running_cell, capsys):
+    from thermal_comp.cell.inspect_cli import echo_main, probe_main
+    assert probe_main(["--namespace", "/api_cli", "--busy-retry", "60", "--deadline", "120"]) == 0
+    out = capsys.readouterr().out
+    assert "probing: C=0" in out and "\r" not in out
+    for c in ("E_X0C", "E_C0C", "U (k=2)", "um/m"):
+        assert c in out
+    assert probe_main(["--angles", "0,90,x"]) == 2
+    assert probe_main(["--namespace", "/api_cli_none", "--wait", "1"]) == 2
+    assert "no '/api_cli_none/probe_cycle' action server" in capsys.readouterr().err
+    assert echo_main(["/api_cli/model_status", "--once", "--reliable", "--wait", "20"]) == 0
+    assert "model_kind: talc" in capsys.readouterr().out
