@@ -17,7 +17,10 @@ The watchdog also counts the ``wall`` seconds since a fresh prediction last arri
 Activation is refused (:meth:`BridgeCore.activate`) while the CNC, at the last start-up,
 applied an offset beyond the envelope: bringing it back in one write would be a step far
 beyond the rate limit, and ramping it back would keep the envelope violated for hours
-(5 mm at 0.5 um/s), so the operator decides (see docs/cnc_bridge.md).
+(5 mm at 0.5 um/s), so the operator decides (see docs/cnc_bridge.md). A reconnection of the
+backend (a restarted CNC) goes through the same rule before the next write
+(:meth:`BridgeCore.readopt_after_reconnect`): what is held now is adopted and ramped from, or
+the bridge stops writing.
 """
 from __future__ import annotations
 
@@ -29,7 +32,7 @@ from cnc_bridge.audit_log import AuditLog
 from cnc_bridge.error_transform import (CONVENTION_RIGID, DEFAULT_SPHERE_RADIUS_MM,
                                         FIVE_AXIS_COMPONENTS, HtmGeometry, LatheToolOffsets,
                                         TransformInputError, offsets_from_errors)
-from cnc_bridge.offset_backend import adopt_held_state
+from cnc_bridge.offset_backend import adopt_held_state, reconnect_pending
 from cnc_bridge.safety_envelope import (LIMIT_ABSOLUTE, LIMIT_RATE, LIMIT_WATCHDOG,
                                         LIMIT_WRITE_FAILED, HeldAdoption, SafetyEnvelope)
 from cnc_bridge.update_profile import UpdateProfile
@@ -42,6 +45,9 @@ NOT_CONFIRMED = "not_confirmed"           # one axis' write was not read back
 POSITIONS_ASSUMED = "positions_assumed"   # X/Y/Z unknown: evaluated at the HTM origin (once)
 RAMP_DONE = "ramp_done"                   # switched off and every offset at zero: writes stop
 ACTIVATION_REFUSED = "activation_refused" # the CNC holds an offset beyond the envelope: not active
+
+#: um: a held offset this close to the last confirmed one is the same (the read-back's resolution)
+HELD_TOLERANCE_UM = 1e-3
 
 
 @dataclass(frozen=True)
@@ -79,6 +85,9 @@ class BridgeCounters:
     write_failures: int = 0          # axis writes not confirmed by read-back
     refusals: int = 0                # commands not applied (transform or envelope refused them)
     activations_refused: int = 0     # activations refused against a held offset
+    reconnections: int = 0           # reconnections whose held state was adopted (or refused)
+    reconnect_adoptions: int = 0     # axes found holding other than the last confirmed offset
+    reconnects_refused: int = 0      # reconnections that found an offset beyond the envelope
     last_confirmed_t: float | None = None                         # stamp of the last confirmed write
     last_confirmed_um: dict[str, float] = field(default_factory=dict)   # its read-back per axis
     watchdog: bool = False           # the last write was held or ramped by the watchdog
@@ -138,18 +147,46 @@ class BridgeCore:
         self._adoption_flags = {a.axis: a.flags for a in adopted if a.flags}
         for a in adopted:
             self.audit_event(a.axis, "start-up: " + a.describe(), a.flags)
-        refused = [a for a in adopted if a.refused]
-        self.held_refusal = None if not refused else (
-            "the CNC applies " + "; ".join(f"{a.axis} = {a.held_um:.3f} um, {a.refused}"
-                                           for a in refused)
-            + "; nothing written. Bring the held offset within the limit or switch the axis' "
-              "compensation off on the CNC, then configure again")
+        self.held_refusal = _held_refusal(adopted, "the CNC applies ")
+        return adopted
+
+    def readopt_after_reconnect(self) -> list[HeldAdoption]:
+        """The backend reconnected (:func:`reconnect_pending`): what the CNC holds now is
+        adopted by the start-up rule, never overwritten in one write. An axis holding other
+        than the last confirmed value (a restarted CNC) is audited ``reconnect|adopted-held``
+        and the envelope ramps from it at the rate limit; one applied beyond the envelope
+        with compensation on is audited ``reconnect|refused`` and the bridge stops writing
+        (inactive, one report line) until the operator configures again. [] if no reconnection."""
+        if not reconnect_pending(self.backend):
+            return []
+        before = self.envelope.applied
+        adopted = adopt_held_state(self.envelope, self.backend)
+        c = self.counters
+        c.reconnections += 1
+        for a in adopted:
+            moved = abs(a.adopted_um - before.get(a.axis, 0.0)) > HELD_TOLERANCE_UM
+            kind = "refused" if a.refused else ("adopted-held" if moved else "as-confirmed")
+            c.reconnect_adoptions += kind == "adopted-held"
+            if a.flags:       # the next write of the axis carries them, as at start-up
+                self._adoption_flags[a.axis] = a.flags
+            last = before.get(a.axis)
+            self.audit_event(a.axis, f"reconnect|{kind}: " + a.describe() + (
+                "" if last is None else f"; last confirmed {last:.3f} um"), a.flags)
+        refusal = _held_refusal(adopted, "after a reconnection the CNC applies ")
+        if refusal is not None:
+            self.held_refusal = refusal
+            c.reconnects_refused += 1
+            self.active = self.ramping_down = False
+            text = "reconnect refused, not writing: " + refusal
+            self.audit_event("", text, LIMIT_ABSOLUTE)
+            self.report(ACTIVATION_REFUSED, text)
         return adopted
 
     def activate(self, enabled: bool) -> str | None:
         """Writes follow the predictions; ``enabled`` False keeps the offsets ramping to zero.
         Refused (returns the one-line reason, audited, nothing changes) while the last
-        start-up found an offset applied beyond the envelope; None when active."""
+        start-up or reconnection found an offset applied beyond the envelope; None when active."""
+        self.readopt_after_reconnect()
         if self.held_refusal is not None:
             self.counters.activations_refused += 1
             text = "activate refused: " + self.held_refusal
@@ -164,7 +201,9 @@ class BridgeCore:
         """Compensation off: offsets ramp to zero on the next updates. True while any is not 0."""
         self.active = False
         self.envelope.set_enabled(False)
-        self.ramping_down = any(abs(v) > 0 for v in self.envelope.applied.values())
+        # refused: the held offset is the operator's to bring back, not a ramp of this bridge
+        self.ramping_down = self.held_refusal is None and \
+            any(abs(v) > 0 for v in self.envelope.applied.values())
         return self.ramping_down
 
     # ------------------------------------------------------------------ the update
@@ -210,6 +249,9 @@ class BridgeCore:
         """One step at time ``t`` [s] with the last good ``errors`` (None: no prediction yet)
         and the reported axis ``positions``; ``fresh``: ``errors`` is a new prediction.
         Returns what was written, or None when nothing was (no axis yet, command refused)."""
+        self.readopt_after_reconnect()
+        if self.held_refusal is not None and not self.writing:   # held beyond the envelope
+            return None
         prof = self.profile
         commanded = None
         try:
@@ -278,3 +320,13 @@ class BridgeCore:
         if confirmed:
             c.last_confirmed_t = update.t_s
             c.last_confirmed_um.update(confirmed)
+
+
+def _held_refusal(adopted: list[HeldAdoption], lead: str) -> str | None:
+    """The one line refusing to write against offsets applied beyond the envelope (None: none)."""
+    refused = [a for a in adopted if a.refused]
+    if not refused:
+        return None
+    return (lead + "; ".join(f"{a.axis} = {a.held_um:.3f} um, {a.refused}" for a in refused)
+            + "; nothing written. Bring the held offset within the limit or switch the axis' "
+              "compensation off on the CNC, then configure again")

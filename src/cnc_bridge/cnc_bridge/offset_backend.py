@@ -57,7 +57,7 @@ class TwinBackend:
 
 def adopt_held_state(envelope, backend) -> list:
     """Start ``envelope`` from what the machine behind ``backend`` holds, before any write:
-    every start-up of a bridge (a first start or a restart) goes through here, so the held
+    every start-up of a bridge (a first start, a restart, a reconnection) goes through here, so the held
     offsets are adopted only within the envelope (beyond it: marked refused, never clamped;
     an axis whose compensation is off counts as 0) and the first write moves from them
     within the rate limit. Returns the
@@ -68,6 +68,12 @@ def adopt_held_state(envelope, backend) -> list:
     if hasattr(backend, "adopt"):
         backend.adopt({a.axis: a.adopted_um for a in adopted})
     return adopted
+
+
+def reconnect_pending(backend) -> bool:
+    """``backend`` reconnected and what the machine holds now is not adopted yet: its writes
+    are refused until :func:`adopt_held_state` ran again (a restarted CNC may hold anything)."""
+    return bool(getattr(backend, "reconnect_pending", False))
 
 
 def make_backend(p: Mapping[str, Any]):

@@ -21,10 +21,14 @@
 * **Reconnect**: a supervisor task checks the session (a read of the server's state every
   ``check_period_s`` in which no write was answered: while writes flow, their answers prove
   the session and a failed write marks it lost at once), and on any failure disconnects,
-  waits with exponential back-off, reconnects, re-creates the subscription on the axis
-  positions and re-applies the last confirmed offsets (a CNC that restarted with its
-  compensation reset gets back what it held). Writes asked for while disconnected fail
-  at once (they are never queued and replayed later, so none is applied twice or late).
+  waits with exponential back-off, reconnects and re-creates the subscription on the axis
+  positions. A reconnection is a start-up again: it only reads what the CNC holds now (a
+  CNC that restarted may hold 0, a stale value, compensation off, a value beyond the
+  envelope) and writes nothing until the caller adopted it (:attr:`reconnect_pending`,
+  :func:`cnc_bridge.offset_backend.adopt_held_state`, the rule of the first start-up); the
+  next write then re-arms (slope 0, reference 0, the adopted offsets, enable 1) and the
+  envelope ramps from there. Writes asked for while disconnected or before that adoption
+  fail at once (never queued and replayed later, so none is applied twice or late).
 * **Security**: user name/password and Basic256Sha256 Sign&Encrypt with certificates;
   ``security_required`` refuses to connect without it, and then needs a user and a trust
   list of server certificates (:mod:`cnc_bridge.trust_list`) or one pinned certificate:
@@ -97,11 +101,13 @@ class OpcUaBackend:
         self._lost: asyncio.Event | None = None
         self._lock: asyncio.Lock | None = None
         self._closing = False
-        self._armed = False                   # set by the first write: from then on re-apply
+        self._armed = False                   # set by the first write after each connection
         #: monotonic time of the server's last answer to a write: the health check reads the
         #: server's state only when no write was answered within ``check_period_s``
         self._answered_at = -math.inf
         self._held: dict[str, tuple[float, bool]] = {}
+        #: reconnected, and what the CNC holds now not yet adopted: no write until it is
+        self._reconnect_pending = False
         self._trust = TrustList.from_paths(config.server_trust, "server trust list") \
             if config.server_trust else None
         self._io = InlineLoop("opcua-client") if inline else LoopThread("opcua-client")
@@ -177,10 +183,9 @@ class OpcUaBackend:
                     ua.MessageSecurityMode.SignAndEncrypt:
                 raise OpcUaConfigError("security_required but the channel is not Sign&Encrypt")
             await self._subscribe_positions(client)
-            if not self._armed:
-                await self._read_held(client)     # connecting never writes
-            else:
-                await self._reapply(client)
+            await self._read_held(client)     # connecting never writes
+            if self.connections > 0:          # a reconnection: the caller adopts what is held
+                self._armed, self._reconnect_pending = False, True
         except BaseException:
             await client.disconnect()
             raise
@@ -218,21 +223,29 @@ class OpcUaBackend:
                 self._confirmed_um[a] = um if on else 0.0
 
     def held_state(self) -> dict[str, tuple[float, bool]]:
-        """What the CNC held at this bridge's first connection: axis -> (offset um, compensation on)."""
+        """What the CNC held at this bridge's last connection: axis -> (offset um, compensation on)."""
         return dict(self._held)
+
+    @property
+    def reconnect_pending(self) -> bool:
+        """Reconnected and the held state not adopted yet (:meth:`adopt`): writes are refused."""
+        return self._reconnect_pending
 
     def held_offsets(self) -> dict[str, float]:
         """Offsets the CNC confirmed holding (um) in effect (0 where compensation was off)."""
         return dict(self._confirmed_um)
 
     def adopt(self, adopted_um: Mapping[str, float]) -> None:
-        """The envelope's adopted values become what a (re-)apply writes (the held offsets in effect)."""
+        """The envelope's adopted values become what a (re-)apply writes (the held offsets in
+        effect); after a reconnection this lets writes through again."""
         for a, v in adopted_um.items():
             if a in self._offset_axes and math.isfinite(float(v)):
                 self._confirmed_um[a] = float(v)
+        self._reconnect_pending = False
 
     async def _reapply(self, client: Client) -> None:
-        """After a (re)connection: slope 0, reference 0, enable 1, last confirmed offsets."""
+        """Before the first write after a (re)connection: slope 0, reference 0, the adopted
+        offsets (what the CNC holds in effect: no axis moves), enable 1."""
         nodes, values = [], []
         scale = self.config.offset_units_per_um
         for a in self._offset_axes:
@@ -258,6 +271,10 @@ class OpcUaBackend:
             if client is None or not self._connected.is_set():
                 return {a: None for a in offsets_um}
             axes = list(offsets_um)
+            if self._reconnect_pending:
+                self.last_error = ("reconnected: what the CNC holds now is not adopted yet; "
+                                   "nothing written")
+                return {a: None for a in axes}
             if not self._armed:
                 # the first write of this bridge: offsets (the adopted ones) before enable 1
                 try:

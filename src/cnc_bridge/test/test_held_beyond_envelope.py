@@ -163,3 +163,50 @@ def test_counters_for_the_diagnostics():
     assert not c.watchdog
     core.update(8.0 + 2000.0, None, ORIGIN, fresh=False)              # no fresh prediction: watchdog
     assert c.watchdog
+
+
+class ReconnectingCnc(ScriptedCnc):
+    """A ScriptedCnc that reconnects: ``restart(held)`` is what the OPC UA backend does when
+    the CNC comes back (reads what it holds, refuses writes until that is adopted)."""
+
+    reconnect_pending = False
+
+    def restart(self, held):
+        self.held, self.reconnect_pending = held, True
+
+    def write_offsets(self, offsets_um):
+        assert not self.reconnect_pending, "a write before the reconnection was adopted"
+        return super().write_offsets(offsets_um)
+
+    def adopt(self, adopted_um):
+        self.reconnect_pending = False
+
+
+def test_a_cnc_restart_is_adopted_by_the_start_up_rule(tmp_path):
+    cnc, rec = ReconnectingCnc({"X": (0.0, True)}), Recorder()
+    core = core_for(cnc, AuditLog(tmp_path / "audit.csv"), rec)
+    core.adopt_held()
+    assert core.activate(True) is None
+    drive(core, cnc, n=5)                                   # 0, 5, 10, 15, 20 um
+    cnc.restart({"X": (-10.0, True)})                       # back with -10 um
+    n = len(cnc.writes)
+    drive(core, cnc, t0=100.0, n=8)
+    assert cnc.writes[n]["X"] == pytest.approx(-10.0 + RATE * DT), "from what is held, at the rate"
+    assert unsafe_steps([w["X"] for w in cnc.writes[n:]], -10.0) == []
+    assert cnc.writes[-1]["X"] == pytest.approx(20.0)
+    cnc.restart({"X": (20.0, True)})                        # back with what was confirmed
+    drive(core, cnc, t0=200.0, n=1)
+    cnc.restart({"X": (-5000.0, True)})                     # back with -5 mm, compensation on
+    n = len(cnc.writes)
+    drive(core, cnc, t0=300.0)
+    assert len(cnc.writes) == n and not core.writing and not core.active
+    assert rec.kinds() == [bc.ACTIVATION_REFUSED] and rec.reports[0][1].startswith(
+        "reconnect refused, not writing: after a reconnection the CNC applies X = -5000.000 um")
+    assert not core.deactivate(), "refused: deactivating does not ramp the held offset either"
+    assert core.activate(True) is not None, "stays inactive until configured again"
+    c = core.counters
+    assert (c.reconnections, c.reconnect_adoptions, c.reconnects_refused) == (3, 1, 1)
+    notes = [r["note"].split(":")[0] for r in read_audit_log(tmp_path / "audit.csv")
+             if r["note"].startswith("reconnect")]
+    assert notes == ["reconnect|adopted-held", "reconnect|as-confirmed", "reconnect|refused",
+                     "reconnect refused, not writing"]

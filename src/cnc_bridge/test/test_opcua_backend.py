@@ -88,16 +88,24 @@ def test_server_restart_mid_run_loses_no_write_and_duplicates_none(emulator, por
         assert be.write_offsets({"X": 99.0}) == {"X": None}   # ... a write now fails, visibly
         emulator.start()                              # ... and comes back with its compensation reset
         wait_for(lambda: be.connected and be.connections == 2, 15, "reconnection", be)
-        assert emulator.applied_um()["X"] == pytest.approx(confirmed[-1])   # re-applied
+        # a reconnection only reads: the CNC keeps its 0, no write until what it holds is adopted
+        assert be.reconnect_pending and be.held_state()["X"] == (0.0, False)   # reset: off
+        assert emulator.applied_um()["X"] == 0.0
+        assert be.write_offsets({"X": confirmed[-1]}) == {"X": None}
+        assert "not adopted" in be.last_error
         emulator.set_position("Y", 42.0)                                    # re-subscribed
         wait_for(lambda: be.axis_positions().get("Y") == 42.0, 5, "Y position after restart", be)
-        for k in range(6, 9):
+        be.adopt({a: v for a, (v, _) in be.held_state().items()})         # the envelope adopts 0
+        assert not be.reconnect_pending
+        for k in range(1, 4):                                              # and ramps from there
             assert be.write_offsets({"X": 0.5 * k})["X"] == pytest.approx(0.5 * k)
             confirmed.append(0.5 * k)
-        # the CNC saw: initial state, each confirmed write once, the re-apply, the rest; never 99
+        # the CNC saw: initial state, each confirmed write once, the re-arm at what it held
+        # (0), the rest; never 99, never the pre-restart value over the 0 it came back with
         seen = [v * 1000.0 for v in offset_writes(emulator, "X")]
-        assert seen == pytest.approx([0.0] + confirmed[:5] + [confirmed[4]] + confirmed[5:])
-        assert emulator.applied_um()["X"] == pytest.approx(4.0)
+        assert seen == pytest.approx([0.0] + confirmed[:5] + [0.0] + confirmed[5:])
+        assert emulator.applied_um()["X"] == pytest.approx(1.5)
+        assert max(abs(after - before) for a, before, after in emulator.moves if a == "X") <= 0.5 + 1e-9
     finally:
         be.close()
 

@@ -101,6 +101,9 @@ class CncEmulator:
                 comp.setdefault(item, 0.0)
         #: every client write that the server accepted: (node id string, value), in order
         self.write_log: list[tuple[str, float]] = []
+        #: per client write request, each axis it touched: (axis, applied um before, after):
+        #: what the write did to the machine, whatever the CNC held before (a restart's value)
+        self.moves: list[tuple[str, float, float]] = []
         #: every client write refused as out of range: (node id string, value, reason)
         self.refused_writes: list[tuple[str, object, str]] = []
         self.trust = TrustList.from_paths(config.client_trust, "client trust list") \
@@ -235,6 +238,7 @@ class CncEmulator:
         if not event.is_external:       # the server's own updates of Applied/Position
             return
         changed: list[str] = []
+        before = self.applied_um()
         for wv, status in zip(event.request_params.NodesToWrite, event.response_params):
             if not status.is_good() or wv.AttributeId != ua.AttributeIds.Value:
                 continue
@@ -247,6 +251,8 @@ class CncEmulator:
                 if axis not in changed:
                     changed.append(axis)
         if changed:      # only the written axes: a position change refreshes them all
+            after = self.applied_um()
+            self.moves.extend((a, before[a], after[a]) for a in changed)
             await self._refresh_applied(changed)
 
     async def set_position(self, axis: str, value: float) -> None:

@@ -26,7 +26,8 @@ def startup_deadline_s(base_s: float = STARTUP_BASE_S) -> float:
 class CncEmulatorThread:
     """:class:`CncEmulator` in its own thread and event loop, driven from synchronous code.
 
-    ``restart(keep_state=False)`` emulates a CNC whose compensation was reset to zero.
+    ``restart(keep_state=False)`` emulates a CNC whose compensation was reset to zero,
+    ``restart(state=...)`` one that came back holding something else.
     """
 
     def __init__(self, config: EmulatorConfig, probe_move: ProbeMove | None = None,
@@ -37,6 +38,7 @@ class CncEmulatorThread:
         self._io = LoopThread("cnc-emulator")
         self.emulator: CncEmulator | None = None
         self.write_log: list[tuple[str, float]] = []   # accumulated over restarts
+        self.moves: list[tuple[str, float, float]] = []  # CncEmulator.moves, over restarts
 
     def _run(self, coro, timeout: float = 20.0):
         return self._io.run(coro, timeout)
@@ -44,6 +46,7 @@ class CncEmulatorThread:
     def start(self, state: EmulatorState | None = None) -> "CncEmulatorThread":
         self.emulator = CncEmulator(self.config, self._probe_move, self._on_comp, state)
         self.emulator.write_log = self.write_log
+        self.emulator.moves = self.moves
         deadline = startup_deadline_s()
         try:
             self._run(self.emulator.start(), deadline)
@@ -56,8 +59,10 @@ class CncEmulatorThread:
         if self.emulator is not None:
             self._run(self.emulator.stop())
 
-    def restart(self, keep_state: bool = True) -> None:
-        state = self.emulator.state if keep_state else None
+    def restart(self, keep_state: bool = True, state: EmulatorState | None = None) -> None:
+        """Stop and start again: with its state, reset (``keep_state`` False) or holding ``state``."""
+        if state is None and keep_state:
+            state = self.emulator.state
         self.stop()
         self.start(state)
 

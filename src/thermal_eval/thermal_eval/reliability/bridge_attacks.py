@@ -21,6 +21,7 @@ import time
 
 from asyncua import Client, ua
 
+from cnc_bridge.audit_log import AuditLog, read_audit_log
 from cnc_bridge.bridge_core import BridgeCore
 from cnc_bridge.certificates import make_certificate
 from cnc_bridge.cnc_emulator import (CncEmulatorThread, EmulatorConfig, EmulatorState, compensation_node_id,
@@ -32,6 +33,7 @@ from thermal_comp.cell.config import CellConfigError, parse_cell
 
 from thermal_eval.reliability.fault_injection import (offset_violations, step_violations,
                                                      written_offsets_um)
+from thermal_eval.reliability.fault_rows import guarded
 
 LIMIT_UM, RATE_UM_PER_S, DT_S = 30.0, 0.5, 10.0
 
@@ -112,6 +114,94 @@ def _activation_against_held(port: int, held_mm: float) -> tuple[str | None, int
     finally:
         be.close()
         emu.close()
+
+
+def _backend(emu) -> OpcUaBackend:
+    """An X-only backend as the node runs it (its loop inline), quick to notice a lost session."""
+    return OpcUaBackend(OpcUaConfig(endpoint=emu.config.endpoint, timeout_s=1.0, check_period_s=0.2,
+                                    reconnect_min_s=0.1, reconnect_max_s=0.3,
+                                    node_map=default_node_map(("X",), position_axes=())), inline=True)
+
+
+def _serve_until(condition, be: OpcUaBackend, timeout_s: float, what: str) -> None:
+    """Serve the backend's inline loop (what the node's timer does) until ``condition()``."""
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what} not within {timeout_s:g} s ({be.last_error})")
+        be.serve()
+        time.sleep(0.01)
+
+
+def restart_case(port: int, held_um: float, enabled: int, restart: str = "cnc",
+                 steps_before: int = 6, steps_after: int = 12) -> dict:
+    """The bridge's write path (:class:`BridgeCore`, kinematic: the command is X itself) ramps
+    X towards +20 um, then ``restart`` happens: ``"cnc"``, the CNC restarts holding ``held_um``
+    (compensation ``enabled``) while the bridge is connected; ``"bridge"``, the bridge stops,
+    the CNC comes back holding it, a new bridge configures and activates. The bridge keeps
+    driving. Returns the audit notes of the restart, the refusal line (or None), the CNC's
+    applied X at the end, how many writes moved X after the restart and the unsafe ones among
+    every write (a step beyond one update's rate allowance from what the CNC applied before
+    it, restart included, or beyond the absolute limit)."""
+    emu = _emulator(port, 0.0, 1)
+    held = EmulatorState(compensation={"X": {"SD43900": held_um / 1000.0, "SD43910": 0.0,
+                                             "SD43920": 0.0, "MD32750": enabled}})
+    cores: list[BridgeCore] = []
+    with tempfile.TemporaryDirectory(prefix="bench_restart_") as d:
+        audit = AuditLog(pathlib.Path(d) / "audit.csv")
+        try:
+            core = _active_core(_backend(emu), audit)
+            cores.append(core)
+            for k in range(steps_before):
+                core.update(k * DT_S, {"X": 20.0}, {}, fresh=True)
+            moved_before = len(emu.moves)
+            if restart == "cnc":
+                emu.restart(state=held)
+                _serve_until(lambda: core.backend.connected and core.backend.connections == 2,
+                             core.backend, 30.0, "reconnection")
+            else:
+                core.backend.close()
+                emu.restart(state=held)
+                core = _active_core(_backend(emu), audit)
+                cores.append(core)
+            for k in range(steps_before, steps_before + steps_after):
+                if core.writing:
+                    core.update(k * DT_S, {"X": 20.0}, {}, fresh=True)
+            unsafe = sum(len(step_violations([after], RATE_UM_PER_S * DT_S, LIMIT_UM, a, start_um=before))
+                         for a, before, after in emu.moves)
+            notes = [r["note"] for r in read_audit_log(audit.path)
+                     if r["note"].startswith(("reconnect", "start-up: X", "activate refused"))]
+            return {"notes": notes[1:], "refused": core.held_refusal, "writing": core.writing,
+                    "applied_um": emu.applied_um()["X"], "moves_after": len(emu.moves) - moved_before,
+                    "unsafe": unsafe, "reconnect_adoptions": core.counters.reconnect_adoptions}
+        finally:
+            for c in cores:
+                c.backend.close()
+            audit.close()
+            emu.close()
+
+
+def _active_core(be: OpcUaBackend, audit: AuditLog) -> BridgeCore:
+    """Configure (connect, read, adopt) and activate, as the node does."""
+    if not be.wait_connected(10.0):
+        raise RuntimeError(f"no connection: {be.last_error}")
+    env = SafetyEnvelope(EnvelopeConfig(LIMIT_UM, max_rate_um_per_s=RATE_UM_PER_S, max_step_s=DT_S),
+                         enabled=False)
+    core = BridgeCore(env, be, audit, kinematic=True)
+    core.adopt_held()
+    core.activate(True)
+    return core
+
+
+def _restart_row(port: int, restart: str, held_um: float, enabled: int, what: str) -> dict:
+    r = restart_case(port, held_um, enabled, restart)
+    beyond = enabled and abs(held_um) > LIMIT_UM
+    ok = r["unsafe"] == 0 and ((r["refused"] is not None and not r["writing"] and r["moves_after"] == 0)
+                               if beyond else (r["refused"] is None and abs(r["applied_um"] - 20.0) < 1e-6))
+    head = (r["refused"] or "")[:40] if beyond else f"CNC at {r['applied_um']:g} um at the end"
+    return _row(f"{restart} restart: {what} held", ok, r["unsafe"],
+                f"{r['moves_after']} writes after; {head}; audit: " + " / ".join(
+                    n.split(":")[0] for n in r["notes"]))
 
 
 def _values_refused(port: int) -> tuple[int, int]:
@@ -221,6 +311,11 @@ def rows() -> list[dict]:
     a, applied, unsafe, _ = _start_up(free_tcp_port(), 0.0, 0, limit_after=1.0)
     out.append(_row("abs_limit_um 30 -> 1 at run time", unsafe == 0 and abs(applied[-1]) <= 1.0 + 1e-9,
                     unsafe, f"20 um asked; applied {applied[4]:g} before, {applied[-1]:g} um at the end"))
+    for restart, held_um, enabled, what in (("cnc", -10.0, 1, "-10 um"), ("cnc", -5000.0, 1, "-5 mm"),
+                                            ("cnc", 5000.0, 0, "5 mm, compensation off"),
+                                            ("bridge", -5000.0, 1, "-5 mm")):
+        out += guarded("bridge", f"{restart} restart: {what} held",
+                       lambda a=(restart, held_um, enabled, what): _restart_row(free_tcp_port(), *a))
     refused, accepted = _values_refused(free_tcp_port())
     out.append(_row("NaN/inf/-inf/1e9 mm written to the CNC", refused == 4 and accepted == 0, accepted,
                     f"{refused}/4 refused with BadOutOfRange"))

@@ -9,11 +9,11 @@ from dataclasses import dataclass
 from asyncua import ua
 
 from cnc_bridge.cnc_emulator import CncEmulatorThread, EmulatorConfig
-from cnc_bridge.offset_backend import adopt_held_state
+from cnc_bridge.offset_backend import adopt_held_state, reconnect_pending
 from cnc_bridge.opcua_backend import OpcUaBackend
 from cnc_bridge.opcua_config import OpcUaConfig, default_node_map
 from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
-from thermal_eval.reliability.offset_safety_checks import OffsetViolation, step_violations, written_offsets_um
+from thermal_eval.reliability.offset_safety_checks import OffsetViolation, step_violations
 
 @dataclass
 class LinkFaultResult:
@@ -41,8 +41,9 @@ def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: 
     - ``bridge_restart``: a new backend and envelope (a restarted bridge process) take over
       while the CNC holds an offset.
 
-    The envelope's command ramps to ``target_um`` on axis X (and Y). Unsafe = any value
-    written to the CNC that moves by more than ``max_rate * dt`` from the previous write.
+    The envelope's command ramps to ``target_um`` on axis X (and Y). Unsafe = any write
+    that moves the CNC's applied offset by more than ``max_rate * dt`` from what it applied
+    before (a restart's value included), or beyond the absolute limit.
     """
 
     endpoint = f"opc.tcp://127.0.0.1:{port}/thermal-comp/cnc"
@@ -71,6 +72,8 @@ def run_link_fault(fault: str, port: int, steps_before: int = 12, steps_during: 
         def step(during: bool) -> None:
             nonlocal t, failed
             t += dt_s
+            if reconnect_pending(backend):      # a restarted CNC: adopted as at start-up
+                adopt_held_state(env, backend)
             decisions = env.step(t, {a: target_um for a in axes}, fresh=True)
             back = backend.write_offsets({d.axis: d.applied_um for d in decisions})
             for d in decisions:
@@ -131,9 +134,8 @@ def _verdict(fault: str, backend, emu, env, axes, failed: int, max_step_um: floa
         time.sleep(0.05)
     applied = emu.applied_um()
     violations = []
-    for a in axes:
-        violations += step_violations(written_offsets_um(emu.write_log, a), max_step_um,
-                                      env.config.abs_limit_um, a)
+    for a, before, after in emu.moves:       # each write against what the CNC held before it
+        violations += step_violations([after], max_step_um, env.config.abs_limit_um, a, start_um=before)
     if fault == "wrong_credentials":
         survived = not backend.connected and all(abs(v) < 1e-9 for v in applied.values())
         detail = f"refused: {backend.last_error}"
