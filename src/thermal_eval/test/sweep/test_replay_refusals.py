@@ -107,3 +107,15 @@ def test_evaluate_and_diagnose_refuse_a_cut_bag_unless_allowed(cut_bag, tmp_path
     assert evaluate_parser().parse_args([str(cut_bag), "--out", "x", "--allow-truncated"]).allow_truncated
     assert diagnose_parser().parse_args(["--twin", "t", "--recording", "r", "--out", "o",
                                          "--allow-truncated"]).allow_truncated
+
+
+def test_sweep_refuses_a_cut_bag_unless_allowed(cut_bag, tmp_path, capsys):
+    from thermal_eval.sweep.cli import main as sweep_main      # the sweep's CLI only in this test
+    common = ["--limit", "1", "--jobs", "1", "--no-progress", "--set", "cp_length_h=2"]
+    assert sweep_main([str(cut_bag), "--out", str(tmp_path / "refused"), *common]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("thermal-comp sweep: ") and "the bag ends early, it ends at t = " in err, err
+    assert "\n" not in err and not (tmp_path / "refused" / "results.jsonl").exists()
+    assert sweep_main([str(cut_bag), "--out", str(tmp_path / "allowed"), *common, "--allow-truncated"]) == 0
+    assert "warning: " in capsys.readouterr().err
+    assert (tmp_path / "allowed" / "results.jsonl").read_text().count("\n") == 1

@@ -8,6 +8,7 @@ import pathlib
 import sys
 import time
 
+from thermal_comp_common.bags.truncation import truncated_bags_allowed
 from thermal_comp_common.runtime.engine_options import engine_from_args
 from thermal_comp_common.runtime.task_engine import TaskEngineError
 
@@ -35,7 +36,10 @@ def run(args) -> int:
                                parse_grid_subset(args.grid_subset), args.limit)
         if not points:
             raise SweepError(f"--grid-subset {args.grid_subset!r}: selects no combination of the grid")
-        rec = load_replay_recording(args.recording)
+        with truncated_bags_allowed(args.allow_truncated):     # read in this process only
+            rec = load_replay_recording(args.recording)
+        for w in rec.warnings:                                 # what was used is said before the work
+            print(f"warning: {w}", file=sys.stderr)
         run = SweepRun("talc", base, args.probe_noise_um, args.probe_noise_um_per_m, args.probe_resolution_um,
                        args.seed, str(pathlib.Path(args.recording).resolve()))
         t0 = time.perf_counter()
