@@ -3,6 +3,8 @@ its reason and the other rows are kept; the integrity rows (tampered prior and s
 launch, full disk) run in seconds and survive."""
 from __future__ import annotations
 
+import pytest
+
 from thermal_eval.bench import faults
 from thermal_eval.reliability import hang_and_file_faults, integrity_faults
 from thermal_eval.reliability.fault_rows import guarded
@@ -72,3 +74,31 @@ def test_the_full_disk_row_fails_when_flushed_messages_are_lost(tmp_path, monkey
     monkeypatch.setattr(integrity_faults, "read_bag", read_without_the_first)
     row = integrity_faults.full_disk_row(tmp_path)
     assert not row["survived"] and row["data_lost"] >= 1
+
+
+@pytest.mark.ros
+def test_the_forged_stamp_rows_run_and_survive(ros_domain_id):
+    from thermal_eval.reliability import stamp_faults
+    rows = stamp_faults.rows(ros_domain_id)
+    assert [r["fault"] for r in rows] == ["temperatures stamped 1e7 s ahead -> model",
+                                          "prediction stamped 1e7 s ahead -> bridge"]
+    assert all(r["survived"] for r in rows), [r["detail"] for r in rows]
+    assert sum(r["data_lost"] + r["unsafe_writes"] for r in rows) == 0
+    assert rows[0]["detail"] == "model clock 18000 s after it; state saved at 18300 s; 1 refused"
+
+
+def test_the_bridge_stamp_row_fails_when_a_forged_prediction_gets_through(monkeypatch):
+    # a guard that accepts every stamp: the forged -30 um is followed, the watchdog never fires
+    from thermal_eval.reliability import stamp_faults
+    monkeypatch.setattr(stamp_faults.StampGuard, "_verdict", lambda self, s, c: (None, ""))
+    r = stamp_faults.bridge_case()
+    assert r["refused"] == 0 and not any(r["watchdog"])
+    row = stamp_faults.bridge_row()
+    assert not row["survived"]
+
+
+def test_the_bridge_follows_honest_predictions_at_the_rate_limit_after_a_forged_one():
+    from thermal_eval.reliability import stamp_faults
+    r = stamp_faults.bridge_case(honest_after=6, silent_steps=4)
+    assert r["applied_um"][:10] == [0.0, 2.5, 5.0, 5.0, 7.5, 10.0, 10.0, 10.0, 10.0, 10.0]
+    assert r["watchdog"] == [False] * 10 + [True] * 4 and r["refused"] == 5 and r["violations"] == []

@@ -15,6 +15,10 @@ Faults (policies in docs/reliability.md):
 - load: N cells (20; ``--quick``: 2) at once, each its own namespace and ROS_DOMAIN_ID, a
   simulated day each (``--quick``: 4 h): message loss, CPU seconds and peak memory per node.
 
+- bridge: activation against an offset held beyond the envelope, a CNC and a bridge restart
+  holding another offset, limits lowered at run time, hostile writes, logins and cell files.
+- stamps: a temperature message and a prediction stamped 10^7 s ahead of the graph's clock,
+  fed to the model node and to the bridge's write path (in-process, simulated time).
 - integrity: a tampered prior (x1000 ARX, a flipped byte), a tampered model state, a second
   launch of a running cell, a full disk under the bag writer (in-process, seconds).
 
@@ -49,7 +53,7 @@ from thermal_comp_common.bags.reader import read_bag
 from thermal_comp_common.runtime.domain_ids import claim_domain_id
 from thermal_twin.machine.artefact_geometry import ArtefactGeometry
 
-from thermal_eval.reliability import bridge_attacks, hang_and_file_faults, integrity_faults
+from thermal_eval.reliability import bridge_attacks, hang_and_file_faults, integrity_faults, stamp_faults
 from thermal_eval.reliability import fault_injection as fi
 from thermal_eval.reliability.fault_rows import guarded
 
@@ -285,6 +289,7 @@ def run(args) -> dict[str, Any]:
     rows += _rows_and_figures("probing", "probing", lambda: probing_rows(hours), figures)
     rows += link_rows()
     rows += guarded("bridge", "(every bridge row)", bridge_attacks.rows)
+    rows += stamp_faults.rows(claim_domain_id())
     rows += _rows_and_figures("process", "processes",
                               lambda: process_rows(out / "graph", 6.0 if quick else 10.0), figures)
     rows += hang_and_file_faults.rows(out / "hang_and_files", claim_domain_id())
