@@ -89,6 +89,7 @@ class BridgeCounters:
     reconnect_adoptions: int = 0     # axes found holding other than the last confirmed offset
     reconnects_refused: int = 0      # reconnections that found an offset beyond the envelope
     last_confirmed_t: float | None = None                         # stamp of the last confirmed write
+    last_confirmed_wall: float | None = None                      # its host time (epoch s)
     last_confirmed_um: dict[str, float] = field(default_factory=dict)   # its read-back per axis
     watchdog: bool = False           # the last write was held or ramped by the watchdog
 
@@ -318,7 +319,7 @@ class BridgeCore:
         c.watchdog = any(a.flags & LIMIT_WATCHDOG for a in update.axes)
         confirmed = {a.axis: a.read_back_um for a in update.axes if a.confirmed}
         if confirmed:
-            c.last_confirmed_t = update.t_s
+            c.last_confirmed_t, c.last_confirmed_wall = update.t_s, time.time()
             c.last_confirmed_um.update(confirmed)
 
 

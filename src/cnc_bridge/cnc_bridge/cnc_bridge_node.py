@@ -31,9 +31,13 @@ launcher drives them, ``autostart:=true`` does it without a manager).
   (:mod:`cnc_bridge.bridge_params`). Credentials come from :mod:`cnc_bridge.credentials`;
   a password, user or private key given as a parameter is refused.
 * **diagnostics**: one status ``bridge`` on ``/diagnostics`` (1 Hz and on change) with the
-  lifecycle state, the connection and its security, the last confirmed write (stamp, values),
-  the counts of writes, clamps, rate-limited writes, refusals and failed writes, and the
-  watchdog; the counters live in :class:`~cnc_bridge.bridge_core.BridgeCore`.
+  lifecycle state, the connection, its security and reconnections, the last confirmed write
+  (stamp, host time, values), the counts of writes, clamps, rate-limited writes, refusals and
+  failed writes, and the watchdog (:mod:`cnc_bridge.bridge_status`); the counters live in
+  :class:`~cnc_bridge.bridge_core.BridgeCore`.
+* **a reconnection** (a restarted CNC) is a start-up again: what the CNC holds now is adopted
+  and ramped from, or, beyond the envelope with compensation on, the bridge stops writing with
+  one error line until it is configured again (:meth:`BridgeCore.readopt_after_reconnect`).
 * **activation is refused** (one error line, audited, the node stays inactive) while the CNC
   applied an offset beyond the envelope at configure: no write could bring it back within
   the rate limit. The operator brings the CNC's offset within the limit (or switches its
@@ -73,6 +77,7 @@ from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErr
 from cnc_bridge.audit_log import AuditLog
 from cnc_bridge.bridge_core import (ACTIVATION_REFUSED, NOT_CONFIRMED, POSITIONS_ASSUMED, RAMP_DONE,
                                     TRANSFORM_FAILED, WRITE_FAILED, BridgeCore, BridgeUpdate)
+from cnc_bridge.bridge_status import bridge_status
 from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
                                       loosening)
 from cnc_bridge.credentials import SECRET_NAMES
@@ -294,42 +299,11 @@ class CncBridgeNode(LifecycleNode):
             log.error(text)
 
     def _diagnose(self) -> None:
-        """The ``bridge`` status from the core's counters (level: ERROR when configure failed,
-        activation is refused or the CNC is not connected; WARN not writing or watchdog; OK)."""
-        core, backend = self.core, self.backend
-        if core is None:
-            state = "unconfigured"
-        else:
-            state = "active" if core.active else ("ramping to zero" if core.ramping_down else "inactive")
-        connected = getattr(backend, "connected", backend is not None)
-        cfg = getattr(backend, "config", None)
-        security = "n/a (twin)" if cfg is None else (
-            ("Basic256Sha256 Sign&Encrypt" if cfg.certificate else "None")
-            + (", user" if cfg.user else "") + (", required" if cfg.security_required else ""))
-        c = core.counters if core is not None else None
-        if core is None and self._configure_error:
-            level, message = "ERROR", f"configure failed: {self._configure_error}"
-        elif core is not None and core.held_refusal is not None:
-            level, message = "ERROR", "activation refused: " + core.held_refusal
-        elif core is not None and not connected:
-            level, message = "ERROR", f"{state}: not connected ({getattr(backend, 'last_error', '')})"
-        elif any(g.in_burst for g in self.stamps.values()):
-            level, message = "WARN", f"{state}: refusing messages stamped off the graph's clock"
-        elif state != "active" or (c is not None and c.watchdog):
-            level = "WARN"
-            message = state + (": watchdog holds the offsets" if c is not None and c.watchdog else
-                               ": not following the predictions")
-        else:
-            level, message = "OK", "active: writing offsets"
-        values = dict(state=state, backend=self._p["backend"], endpoint=self._p["endpoint"],
-                      connected=bool(connected), security=security, **stamp_values(self.stamps.values()))
-        if c is not None:
-            values.update(
-                writes=c.writes, clamps=c.clamps, rate_limited=c.rate_limited,
-                refusals=c.refusals, activations_refused=c.activations_refused,
-                write_failures=c.write_failures, watchdog=c.watchdog,
-                last_write_t_s="none" if c.last_confirmed_t is None else c.last_confirmed_t,
-                last_write_um=self._fmt(c.last_confirmed_um))
+        """The ``bridge`` status (:func:`~cnc_bridge.bridge_status.bridge_status`)."""
+        level, message, values = bridge_status(
+            self.core, self.backend, self._p, self._state_machine.current_state[1],
+            stamp_values(self.stamps.values()), any(g.in_burst for g in self.stamps.values()),
+            self._configure_error, self._fmt)
         self.diag.set("bridge", level, message, **values)
 
     # ------------------------------------------------------------------ parameters

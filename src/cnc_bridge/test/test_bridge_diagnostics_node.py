@@ -56,6 +56,8 @@ def test_diagnostics_carry_state_connection_last_write_and_counts(ros_domain_id)
         # 0, 5, 10, 15 um on Z: clamped at 15 um every time, rate-limited three times
         assert (v["clamps"], v["rate_limited"], v["refusals"]) == ("4", "3", "0")
         assert (v["write_failures"], v["activations_refused"], v["watchdog"]) == ("0", "0", "False")
+        assert (v["lifecycle"], v["reconnections"], v["reconnects_refused"]) == ("active", "n/a", "0")
+        assert v["last_write_utc"].endswith("+00:00") and v["watchdog_timeout_s"] == "900.0"
     finally:
         cell.close()
         stop(proc)
