@@ -147,6 +147,30 @@ if ! stamp_ok msgs "$h" || ! "$PY" -c 'import thermal_comp_msgs.msg' 2>/dev/null
 fi
 
 # ---------------------------------------------------------------------------------------
+# tf2_msgs/TFMessage (static frames on /tf_static): no wheel carries tf2_msgs, so its one-line
+# definition is built like thermal_comp_msgs (same type and hash on the wire as ROS's own).
+STEP="build and install interfaces/tf2_msgs into the venv"
+TF_SRC="$ROOT/interfaces/tf2_msgs"
+h=$(cd "$TF_SRC" && find . -type f | sort | xargs sha256sum | sha256sum | cut -d' ' -f1)
+h="$h-$(cat "$STAMPS/cmake-paths")"
+if ! stamp_ok tf2msgs "$h" || ! "$PY" -c 'import tf2_msgs.msg' 2>/dev/null; then
+  say "building tf2_msgs (cmake, about 30 s)"
+  BUILD="$ROOT/build/tf2_msgs"
+  mkdir -p "$BUILD"
+  (
+    export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
+    cd "$BUILD"
+    cmake "$TF_SRC" -DCMAKE_PREFIX_PATH="$VENV" -DCMAKE_INSTALL_PREFIX="$VENV" \
+      -DPython3_EXECUTABLE="$PY" -DPYTHON_EXECUTABLE="$PY" -DBUILD_TESTING=OFF \
+      -DCMAKE_BUILD_TYPE=Release >"$ROOT/build/tf2_msgs.log" 2>&1 \
+      && make -j"$(nproc)" install >>"$ROOT/build/tf2_msgs.log" 2>&1
+  ) || { tail -30 "$ROOT/build/tf2_msgs.log" >&2; false; }
+  "$PY" -c 'from tf2_msgs.msg import TFMessage' \
+    || { echo "setup.sh: tf2_msgs built but does not import" >&2; false; }
+  stamp_set tf2msgs "$h"
+fi
+
+# ---------------------------------------------------------------------------------------
 STEP="install our packages (editable)"
 PKGS=(thermal_comp_common thermal_comp_testing thermal_twin thermal_sensors probe_cycle talc_model cnc_bridge thermal_comp thermal_eval)
 h=$(for p in "${PKGS[@]}"; do cat "$ROOT/src/$p/setup.py" "$ROOT/src/$p/setup.cfg" "$ROOT/src/$p/package.xml"; done | sha256sum | cut -d' ' -f1)
@@ -161,7 +185,7 @@ fi
 STEP="check the installation"
 "$PY" - <<'EOF'
 import importlib
-for m in ["rclpy", "thermal_comp_msgs.msg", "thermal_comp_msgs.action", "thermal_comp_common", "thermal_comp_testing.pytest_plugin", "thermal_comp", "thermal_eval",
+for m in ["rclpy", "thermal_comp_msgs.msg", "thermal_comp_msgs.action", "tf2_msgs.msg", "thermal_comp_common", "thermal_comp_testing.pytest_plugin", "thermal_comp", "thermal_eval",
           "thermal_twin", "thermal_sensors", "probe_cycle", "talc_model", "cnc_bridge",
           "mcap_ros2", "rosbags", "rerun", "asyncua", "pymodbus", "sklearn"]:
     importlib.import_module(m)

@@ -51,6 +51,7 @@ setup(
             "bag_recorder = thermal_comp.bags.recorder_node:main",
             "bag_player = thermal_comp.bags.player_node:main",
             "rerun_view = thermal_comp.view.rerun_view_node:main",
+            "static_frames = thermal_comp.frames.static_frames_node:main",
         ],
     },
 )

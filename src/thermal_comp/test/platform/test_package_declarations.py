@@ -44,7 +44,7 @@ TESTS_RUN_UNDER = {pkg: {TEST_SUPPORT} for pkg in LEVEL if LEVEL[pkg] > LEVEL[TE
 # ROS 2 packages imported by our code: the rosdep key is the package name.
 ROS_PACKAGES = {"rclpy", "std_msgs", "std_srvs", "builtin_interfaces", "rosgraph_msgs",
                 "diagnostic_msgs", "lifecycle_msgs", "rcl_interfaces", "action_msgs", "launch", "launch_ros",
-                "ament_index_python", "unique_identifier_msgs"}
+                "ament_index_python", "unique_identifier_msgs", "geometry_msgs", "tf2_msgs"}
 
 # Python module -> (rosdep key, PyPI distribution). Keys without "-pip" are in rosdistro's
 # rosdep/python.yaml; the "-pip" ones are defined in rosdep/thermal_comp.yaml.
