@@ -8,8 +8,9 @@ import re
 
 import pytest
 
-from thermal_comp.api import BRIDGE_LIMITS, demo_cell, probe_goal, validated_tightening
+from thermal_comp.api import BRIDGE_LIMITS, Cell, demo_cell, probe_goal, validated_tightening
 from thermal_comp.api.graph import is_hidden
+from thermal_comp.cell.inspect_cli import echo_main, nodes_main, probe_main, topics_main
 
 DOCS = pathlib.Path(__file__).resolve().parents[4] / "docs" / "api.md"
 CURRENT = {"abs_limit_um": 50.0, "max_rate_um_per_s": 0.5, "max_step_s": 600.0, "watchdog_timeout_s": 900.0,
@@ -69,7 +70,6 @@ def test_the_docs_example_runs(capsys):
 
 @pytest.fixture(scope="module")
 def running_cell():
-    from thermal_comp.api import Cell   # ROS: only for the tests that run a cell
     cell = Cell.start(demo_cell(name="api_cli", hours=100, real_time_factor=300))
     try:
         cell.wait_until_ready(timeout_s=90)
@@ -80,7 +80,6 @@ def running_cell():
 
 @pytest.mark.ros
 def test_listings_wait_for_the_graph_and_hide_helpers(running_cell, capsys):
-    from thermal_comp.cell.inspect_cli import nodes_main, topics_main
     assert nodes_main([]) == 0
     out, err = capsys.readouterr()
     nodes = out.split()
@@ -100,7 +99,6 @@ def test_listings_wait_for_the_graph_and_hide_helpers(running_cell, capsys):
 
 @pytest.mark.ros
 def test_probe_and_echo_commands(running_cell, capsys):
-    from thermal_comp.cell.inspect_cli import echo_main, probe_main
     assert probe_main(["--namespace", "/api_cli", "--busy-retry", "60", "--deadline", "120"]) == 0
     out = capsys.readouterr().out
     assert "probing: C=0" in out and "\r" not in out
@@ -111,3 +109,8 @@ def test_probe_and_echo_commands(running_cell, capsys):
     assert "no '/api_cli_none/probe_cycle' action server" in capsys.readouterr().err
     assert echo_main(["/api_cli/model_status", "--once", "--reliable", "--wait", "20"]) == 0
     assert "model_kind: talc" in capsys.readouterr().out
+    # latched: the static frames published once at start-up arrive to a late echo
+    assert echo_main(["/tf_static", "--once", "--wait", "20"]) == 0
+    tf = capsys.readouterr().out
+    for frame in ("frame_id: machine_base", "child_frame_id: body_table", "child_frame_id: sensor_ambient"):
+        assert frame in tf

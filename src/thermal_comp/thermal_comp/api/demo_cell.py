@@ -1,4 +1,4 @@
-"""A small cell to try the API on: the 5-axis twin free-running, its sensors, probing, model and bridge.
+"""A small cell to try the API on: the 5-axis twin, its sensors, probing, model, frames and bridge.
 
 The twin runs in lock-step with the sensors, the model and the bridge (docs/architecture.md),
 at most ``real_time_factor`` simulated seconds per wall second: simulated time stands still
@@ -29,6 +29,8 @@ def demo_cell(name: str = "api_demo", domain_id: int | None = None, hours: float
         {"name": "probe_cycle", "module": "probe_cycle.probe_cycle_node", "parameters": {"backend": "twin"}},
         {"name": "model", "module": "talc_model.talc_model_node",
          "parameters": {"model_kind": "talc", "artefact": "sphere", "lockstep_participant": True}},
+        {"name": "static_frames", "module": "thermal_comp.frames.static_frames_node",
+         "parameters": {"machine": "nmv5000"}},
         {"name": "bridge", "module": "cnc_bridge.cnc_bridge_node", "lifecycle": True,
          "parameters": {"backend": "twin", "lockstep": True, "compensation_mode": "kinematic",
                         "abs_limit_um": 50.0}},

@@ -71,7 +71,8 @@ def echo_main(argv: list[str] | None = None) -> int:
     ap.add_argument("-n", "--count", type=int, default=0, help="stop after N messages (default: run until Ctrl-C)")
     ap.add_argument("--once", action="store_true", help="same as --count 1")
     ap.add_argument("--reliable", action="store_true",
-                    help="subscribe reliable (default best effort, which matches any publisher)")
+                    help="subscribe reliable (default: reliable and transient local only where every "
+                         "publisher offers them, else best effort and volatile, which match any publisher)")
     args = ap.parse_args(argv)
     _check_waits(ap, args)
     return run_parsed("thermal_comp.cell.inspect_graph:echo", args)

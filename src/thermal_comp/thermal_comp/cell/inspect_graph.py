@@ -75,9 +75,7 @@ def echo(args) -> int:
         except ValueError as exc:
             print(f"thermal-comp echo: {exc}", file=sys.stderr)
             return 2
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
-                         reliability=ReliabilityPolicy.RELIABLE if args.reliable else ReliabilityPolicy.BEST_EFFORT,
-                         durability=DurabilityPolicy.VOLATILE)
+        qos = _echo_qos(cell, args.topic, args.reliable)
 
         def on_msg(msg):
             received.append(msg)
@@ -92,6 +90,19 @@ def echo(args) -> int:
     finally:
         cell.close()
     return 0
+
+
+def _echo_qos(cell: Cell, topic: str, reliable: bool) -> QoSProfile:
+    """Best effort and volatile match any publisher; like ``ros2 topic echo``, take reliable and
+    transient local where every publisher offers them, so a latched message (``/tf_static``, the
+    model's status) arrives at once."""
+    pubs = cell.node.get_publishers_info_by_topic(topic)
+    offered = [p.qos_profile for p in pubs]
+    all_reliable = bool(offered) and all(q.reliability == ReliabilityPolicy.RELIABLE for q in offered)
+    all_latched = bool(offered) and all(q.durability == DurabilityPolicy.TRANSIENT_LOCAL for q in offered)
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                      reliability=ReliabilityPolicy.RELIABLE if (reliable or all_reliable) else ReliabilityPolicy.BEST_EFFORT,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if all_latched else DurabilityPolicy.VOLATILE)
 
 
 def probe(args, angles: list[float]) -> int:
