@@ -17,7 +17,15 @@ Figures:
   (:mod:`talc_model.open_loop.load_probing`; ``--bucket-credit=0``: never above one per hour on average);
 - ``*.seconds`` per model: what dominates the wall time (target < 300 s on FL_THERMAL).
 
-``--quick``: every 4th FL_THERMAL row (a smoke run; its figures differ from the full run).
+- ``fl_thermal_runs``: FL_THERMAL cut into 5 runs (3 train, 1 test, 1 validation: the authors'
+  rows), each with its own start reference and probing clock; ``fl_thermal_beside`` puts its
+  test-run MAE beside the single recording's (:mod:`thermal_eval.datasets.bench_runs`);
+- ``fleet``: a twin-made fleet per preset (4 units x 5 runs of 5 h, probe noise), trained on 3
+  runs of 3 units, scored on their other runs and on the unseen unit, adaptive at one probing
+  per hour beside holding; ``--timing-runs=40``: wall time of ``evaluate`` on 40 runs of 5 h.
+
+``--quick``: every 4th FL_THERMAL row and a smaller fleet (a smoke run; its figures differ).
+``--sections=fl_thermal,plateau,segments,fleet`` picks the parts (default: all of them).
 """
 from __future__ import annotations
 
@@ -30,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from thermal_comp_common.runtime.task_engine import EngineSpec
+from thermal_eval.datasets.bench_runs import beside, run_fl_segments, run_fleet, run_timing
 from thermal_eval.evaluate.adaptive import ProbingBudget
 from thermal_eval.evaluate.report import print_table
 from thermal_eval.evaluate.run import evaluate
@@ -176,15 +185,32 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ap.add_argument("--bucket-credit", type=float, default=1.0, choices=(0.0, 1.0),
                     help="with --load-probing: probings the bucket holds when calibration ends (0: never above "
                          "one per hour on average)")
+    ap.add_argument("--sections", default="fl_thermal,plateau,segments,fleet",
+                    help="comma-separated parts: fl_thermal, plateau, segments (FL_THERMAL cut into runs), fleet")
+    ap.add_argument("--timing-runs", type=int, default=0, metavar="N",
+                    help="also time evaluate on N twin runs of 5 h (default 0: off)")
     opts = ap.parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
+    sections = set(opts.sections.split(","))
     every = 4 if getattr(args, "quick", False) else 1
     t0 = time.perf_counter()
     engine = EngineSpec("local", workers=opts.jobs)
-    figures = {"fl_thermal": run_fl_thermal(opts.csv, every, show_progress=True, engine=engine,
+    figures: dict[str, Any] = {"engine": engine.describe()}
+    if "fl_thermal" in sections:
+        figures["fl_thermal"] = run_fl_thermal(opts.csv, every, show_progress=True, engine=engine,
                                                probe_phases=opts.probe_phases, load_probing=opts.load_probing,
-                                               bucket_credit=opts.bucket_credit)}
-    figures["fl_thermal_seconds"] = round(time.perf_counter() - t0, 1)
-    figures["engine"] = engine.describe()
-    if not opts.no_plateau:
+                                               bucket_credit=opts.bucket_credit)
+        figures["fl_thermal_seconds"] = round(time.perf_counter() - t0, 1)
+    if "plateau" in sections and not opts.no_plateau:
         figures["plateau"] = run_plateau(show_progress=True, engine=engine)
+    if "segments" in sections:
+        figures["fl_thermal_runs"] = run_fl_segments(opts.csv or str(default_csv_path()), 5, engine, every)
+        if "fl_thermal" in figures:
+            figures["fl_thermal_beside"] = beside(figures["fl_thermal"], figures["fl_thermal_runs"])
+            for k, v in figures["fl_thermal_beside"].items():
+                print(f"{k}: test MAE (um) single recording -> cut into runs: " + ", ".join(
+                    f"{ch} {c['single_recording']} -> {c['cut_into_runs']}" for ch, c in v.items()))
+    if "fleet" in sections:
+        figures["fleet"] = run_fleet(engine, quick=every > 1)
+    if opts.timing_runs:
+        figures["timing"] = run_timing(opts.timing_runs, engine)
     return figures

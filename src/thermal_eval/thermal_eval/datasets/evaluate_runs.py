@@ -32,11 +32,15 @@ FIGURES = (("mae_um", mae), ("rmse_um", rmse), ("p99_um", p99))
 
 
 def _residuals(result: EvaluationResult, y: dict[str, np.ndarray], rows: slice) -> dict[str, dict]:
-    """mode -> model -> channel -> residual on the held-out rows (open_loop, adaptive, hold)."""
+    """mode -> model -> channel -> residual on the held-out rows (open_loop, adaptive, hold).
+    The held-out run starts at its own reference (row ``rows.start - 1``, displacement 0): an
+    open-loop prediction is scored as its change since that row, as the run's displacement is."""
     out: dict[str, dict] = {"open_loop": {}, "adaptive": {}, "hold": {}}
+    ref = rows.start - 1
     for mode, per in (("open_loop", result.open_loop), ("adaptive", result.adaptive), ("hold", result.hold)):
         for model, chans in per.items():
-            out[mode][model] = {c: (y[c][rows] - p[rows]) for c, p in chans.items()}
+            out[mode][model] = {c: (y[c][rows] - (p[rows] - p[ref] if mode == "open_loop" else p[rows]))
+                                for c, p in chans.items()}
     return out
 
 
