@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from thermal_comp.api import BRIDGE_LIMITS, Cell, demo_cell, probe_goal, validated_tightening
+from thermal_comp.api import BRIDGE_LIMITS, Cell, CellTimeout, demo_cell, probe_goal, validated_tightening
 from thermal_comp.api.graph import is_hidden
 from thermal_comp.cell.inspect_cli import echo_main, nodes_main, probe_main, topics_main
 
@@ -66,6 +66,21 @@ def test_the_docs_example_runs(capsys):
     assert re.search(r"^E_Z0T predicted [+-][0-9.]+ um at t = \d+ s$", out, flags=re.M)
     assert "abs_limit_um now 40.0" in out
     assert "refused: only tighter limits" in out
+
+
+@pytest.mark.ros
+def test_attach_waits_for_named_nodes_and_bounds_every_wait():
+    cell = Cell.attach("/nobody_here", nodes=["model"])
+    try:
+        with pytest.raises(CellTimeout, match="nodes not seen: /nobody_here/model"):
+            cell.wait_until_ready(timeout_s=0.5)
+        with pytest.raises(CellTimeout, match="/nobody_here/model_status within 0.3 s"):
+            cell.model_status(timeout_s=0.3)
+        with pytest.raises(CellTimeout, match="parameter services not found"):
+            cell.bridge_limits(timeout_s=0.3)
+    finally:
+        cell.stop()
+        cell.stop()          # a second stop has nothing left to do
 
 
 @pytest.fixture(scope="module")

@@ -78,9 +78,12 @@ class Cell:
 
     # ------------------------------------------------------------------ start / attach / stop
     @classmethod
-    def attach(cls, namespace: str = "", domain_id: int | None = None, bridge_node: str = "bridge") -> "Cell":
-        """A cell that runs already, in ``namespace`` on ``domain_id`` (None: the environment's)."""
-        return cls(namespace, domain_id, bridge_node)
+    def attach(cls, namespace: str = "", domain_id: int | None = None, bridge_node: str = "bridge",
+               nodes: list[str] = ()) -> "Cell":
+        """A cell that runs already, in ``namespace`` on ``domain_id`` (None: the environment's);
+        ``nodes`` (names in the namespace) are what :meth:`wait_until_ready` waits for."""
+        ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+        return cls(namespace, domain_id, bridge_node, expected_nodes=[f"{ns}/{n.strip('/')}" for n in nodes])
 
     @classmethod
     def start(cls, cell: str | pathlib.Path | Mapping | CellConfig, run_dir: str | pathlib.Path | None = None,
@@ -108,7 +111,10 @@ class Cell:
                 return
 
     def stop(self) -> None:
-        """Stop what :meth:`start` launched (managed nodes deactivated first) and close the node."""
+        """Stop what :meth:`start` launched (managed nodes deactivated first) and close the node;
+        the launcher stays readable (``cell.launcher.run_dir`` holds the nodes' logs)."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         if self._supervisor is not None:
             self._supervisor.join(timeout=5.0)
@@ -116,6 +122,7 @@ class Cell:
             self.launcher.stop()
         if self._probe is not None:
             self._probe.destroy()
+            self._probe = None
         self.graph.close()
 
     close = stop
