@@ -115,8 +115,8 @@ def test_listings_wait_for_the_graph_and_hide_helpers(running_cell, capsys):
 @pytest.mark.ros
 def test_probe_and_echo_commands(running_cell, capsys):
     assert probe_main(["--namespace", "/api_cli", "--busy-retry", "60", "--deadline", "120"]) == 0
-    out = capsys.readouterr().out
-    assert "probing: C=0" in out and "\r" not in out
+    out, err = capsys.readouterr()
+    assert re.search(r"^probing: 25/25 points \(100 %\), done", err, flags=re.M) and "\r" not in err
     for c in ("E_X0C", "E_C0C", "U (k=2)", "um/m"):
         assert c in out
     assert probe_main(["--angles", "0,90,x"]) == 2

@@ -15,6 +15,7 @@ from thermal_comp.api.cell import Cell, CellError
 from thermal_comp.api.graph import MIN_WATCH_S, CellTimeout, type_class
 from thermal_comp.api.results import ProbeResult
 from thermal_comp_common.bags.message_text import message_to_yaml
+from thermal_comp_common.plain_output import Progress, console, progress
 
 
 def _listing(command: str, args, names_of) -> int:
@@ -108,14 +109,15 @@ def _echo_qos(cell: Cell, topic: str, reliable: bool) -> QoSProfile:
 def probe(args, angles: list[float]) -> int:
     """Run the cycle the parsed arguments ask for; the exit code (0 succeeded, 1 failed or
     refused, 2 no server answered)."""
-    console = Console()
+    out = console()
     cell = Cell.attach(args.namespace, args.domain_id)
-    last_stage = [""]
+    bar: list[Progress] = []
 
-    def on_feedback(fb) -> None:   # one plain line per stage: readable in a terminal and in a log file
-        if fb.stage != last_stage[0]:
-            last_stage[0] = fb.stage
-            print(f"probing: {fb.stage} ({fb.points_done}/{fb.points_total} points)", flush=True)
+    def on_feedback(fb) -> None:   # a bar on a terminal, a plain line per tenth in a log file
+        if not bar and fb.points_total > 0:
+            bar.append(progress(fb.points_total, "probing", "points"))
+        if bar:
+            bar[0].to(fb.points_done)
 
     try:
         result = cell.probe(guide_bush=args.guide_bush, set_reference=args.set_reference,
@@ -130,11 +132,13 @@ def probe(args, angles: list[float]) -> int:
         print(f"thermal-comp probe: {exc}", file=sys.stderr)
         return 1
     finally:
+        if bar:
+            bar[0].close()
         cell.close()
     if not result.success:
-        console.print(f"[red]probe cycle failed:[/red] {result.message}")
+        out.print(f"[red]probe cycle failed:[/red] {result.message}")
         return 1
-    _print_result(console, result)
+    _print_result(out, result)
     return 0
 
 
