@@ -13,8 +13,8 @@ setup(
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
     install_requires=[
-        "setuptools", "dask", "distributed", "mcap", "numpy", "pyyaml", "rosbags",
-        "threadpoolctl",
+        "setuptools", "dask", "distributed", "mcap", "numpy", "pyyaml", "rich", "rosbags",
+        "threadpoolctl", "tqdm",
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,

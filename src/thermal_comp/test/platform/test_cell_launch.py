@@ -1,10 +1,12 @@
 """The cell launch files: the node list is the launcher's, and cell.launch.py builds it right.
 
-launch/launch_ros have no wheels for this venv, so `ros2 launch` itself cannot run here. What is
-tested: ``launch_plan`` as a pure function of the cell file, its agreement with the processes
-``thermal-comp launch`` would start (argv, parameters file, environment), and the launch files
-executed against recording doubles of the launch classes that accept only the keyword
-arguments the Jazzy classes take.
+launch/launch_ros cannot be installed here (no wheels, no Debian package: docs/launch.md), so
+`ros2 launch` itself cannot run. What is tested: ``launch_plan`` and the launch arguments as pure
+functions of the cell file, their agreement with the processes ``thermal-comp launch`` would
+start (argv, parameters file, environment), the launch files' actions against doubles that
+accept only the keyword arguments of the Jazzy classes, and cell.launch.py run by
+``launch_double``: real processes, launch's events, and the bridge's lifecycle driven by
+ChangeState / OnStateTransition over its real transition_event topic and change_state service.
 """
 from __future__ import annotations
 
@@ -19,8 +21,11 @@ import types
 import pytest
 import yaml
 
-from thermal_comp.cell.config import load_cell, parameters_file_text, parse_cell
-from thermal_comp.cell.launch_plan import launch_plan
+from cnc_bridge.cnc_emulator import free_tcp_port
+from thermal_comp.cell.config import CellConfigError, load_cell, parameters_file_text, parse_cell
+from thermal_comp.cell.launch_plan import LAUNCH_ARGUMENTS, launch_plan, resolve_cell
+
+import launch_double
 from thermal_comp.cell.launcher import Launcher
 
 PKG = pathlib.Path(__file__).resolve().parents[2]
@@ -28,16 +33,6 @@ REPO = PKG.parents[1]
 LAUNCH_DIR = PKG / "launch"
 NMV5000_CELL = REPO / "config" / "cells" / "nmv5000_twin.yaml"
 MODULE_CELL = pathlib.Path(__file__).resolve().parent / "cells" / "two_nodes.yaml"
-
-# Keyword arguments of launch_ros.actions.Node / launch.actions.ExecuteProcess in Jazzy
-# (Node passes what it does not take itself on to ExecuteProcess).
-EXECUTE_PROCESS_KW = {"cmd", "name", "cwd", "env", "additional_env", "shell", "sigterm_timeout",
-                      "sigkill_timeout", "emulate_tty", "output", "output_format", "log_cmd",
-                      "on_exit", "respawn", "respawn_delay", "respawn_max_retries", "prefix",
-                      "cached_output"}
-NODE_KW = {"executable", "package", "name", "namespace", "exec_name", "parameters", "remappings",
-           "ros_arguments", "arguments"} | (EXECUTE_PROCESS_KW - {"cmd"})
-
 
 def test_plan_of_the_nmv5000_cell():
     cell = load_cell(NMV5000_CELL)
@@ -82,47 +77,8 @@ def test_plan_of_module_nodes_has_no_package():
     assert [(n.respawn_delay_s, n.respawn_max_retries) for n in plan] == [(0.5, 3)] * 2
 
 
-class _Recorded:
-    """Stands in for a launch class: checks and keeps its keyword arguments."""
-
-    allowed: set[str] = set()
-
-    def __init__(self, *args, **kwargs):
-        unknown = set(kwargs) - self.allowed
-        assert not unknown, f"{type(self).__name__} takes no {sorted(unknown)}"
-        self.args, self.kwargs = args, kwargs
-
-
-def _fake_launch_modules() -> dict[str, types.ModuleType]:
-    def cls(name, allowed):
-        return type(name, (_Recorded,), {"allowed": set(allowed)})
-
-    class LaunchConfiguration:
-        def __init__(self, name):
-            self.name = name
-
-        def perform(self, context):
-            return context[self.name]
-
-    mods = {n: types.ModuleType(n) for n in ["launch", "launch.actions", "launch.substitutions",
-                                             "launch.launch_description_sources", "launch_ros",
-                                             "launch_ros.actions", "ament_index_python",
-                                             "ament_index_python.packages"]}
-    mods["launch"].LaunchDescription = lambda actions: list(actions)
-    acts = mods["launch.actions"]
-    acts.DeclareLaunchArgument = cls("DeclareLaunchArgument", {"default_value", "description", "choices"})
-    acts.OpaqueFunction = cls("OpaqueFunction", {"function", "args", "kwargs"})
-    acts.ExecuteProcess = cls("ExecuteProcess", EXECUTE_PROCESS_KW)
-    acts.IncludeLaunchDescription = cls("IncludeLaunchDescription", {"launch_arguments"})
-    mods["launch.substitutions"].LaunchConfiguration = LaunchConfiguration
-    mods["launch.launch_description_sources"].PythonLaunchDescriptionSource = cls("PythonLaunchDescriptionSource", set())
-    mods["launch_ros.actions"].Node = cls("Node", NODE_KW)
-    mods["ament_index_python.packages"].get_package_share_directory = lambda pkg: f"/opt/share/{pkg}"
-    return mods
-
-
 def _load_launch_file(name: str, monkeypatch) -> types.ModuleType:
-    for mod_name, mod in _fake_launch_modules().items():
+    for mod_name, mod in launch_double.modules().items():
         monkeypatch.setitem(sys.modules, mod_name, mod)
     spec = importlib.util.spec_from_file_location(name.replace(".", "_"), LAUNCH_DIR / name)
     module = importlib.util.module_from_spec(spec)
@@ -130,38 +86,41 @@ def _load_launch_file(name: str, monkeypatch) -> types.ModuleType:
     return module
 
 
+class _Context:
+    def __init__(self, **configs):
+        self.launch_configurations = configs
+
+
 @pytest.mark.parametrize("cell_file", [NMV5000_CELL, MODULE_CELL], ids=["executables", "modules"])
 def test_cell_launch_file_builds_the_plan(cell_file, monkeypatch, tmp_path):
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # where the launch file writes
+    cell = load_cell(cell_file)
+    if cell.domain_id is not None:
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(cell.domain_id))
     module = _load_launch_file("cell.launch.py", monkeypatch)
-    declare, opaque = module.generate_launch_description()
-    assert declare.args == ("cell_file",)
-    actions = opaque.kwargs["function"]({"cell_file": str(cell_file)})
-    plan = launch_plan(load_cell(cell_file))
-    drivers = {a.kwargs["name"]: a for a in actions if a.kwargs.get("name", "").endswith("_lifecycle")}
-    actions = [a for a in actions if a.kwargs.get("name", "") not in drivers]
-    assert len(actions) == len(plan)
-    managed = [spec for spec in plan if spec.lifecycle]
-    assert sorted(drivers) == sorted(f"{load_cell(cell_file).cell}_{s.name}_lifecycle" for s in managed)
-    for spec in managed:   # configure + activate by the launcher's own driver, in the node's environment
-        kw = drivers[f"{load_cell(cell_file).cell}_{spec.name}_lifecycle"].kwargs
-        assert kw["cmd"] == spec.lifecycle_command(sys.executable)
-        assert kw["cmd"][-2:] == ["configure", "activate"] and kw["additional_env"] == spec.env
-    for action, spec in zip(actions, plan):
+    *declares, opaque = module.generate_launch_description()
+    assert [d.args[0] for d in declares] == [a.name for a in LAUNCH_ARGUMENTS] == ["cell_file", "namespace", "domain_id"]
+    assert "default_value" not in declares[0].kwargs and all(d.kwargs["default_value"] == "" for d in declares[1:])
+    actions = opaque.kwargs["function"](_Context(cell_file=str(cell_file), namespace="", domain_id=""))
+    plan = launch_plan(cell)
+    nodes = [a for a in actions if type(a).__name__ in ("Node", "LifecycleNode")]
+    assert len(nodes) == len(plan)
+    for action, spec in zip(nodes, plan):
         kw = action.kwargs
-        params_file = pathlib.Path(kw["parameters"][0] if spec.package else kw["cmd"][-1])
-        assert params_file.read_text() == spec.parameters_yaml
+        assert type(action).__name__ == ("LifecycleNode" if spec.lifecycle else "Node")
+        assert pathlib.Path(kw["parameters"][0]).read_text() == spec.parameters_yaml
         assert (kw["respawn"], kw["respawn_delay"], kw["respawn_max_retries"]) == \
             (spec.respawn, spec.respawn_delay_s, spec.respawn_max_retries)
         assert kw["additional_env"] == spec.env
-        if spec.package:
-            assert type(action).__name__ == "Node"
-            assert (kw["package"], kw["executable"], kw["name"], kw["namespace"], kw["arguments"]) == \
-                (spec.package, spec.executable, spec.name, spec.namespace, spec.arguments)
-        else:
-            assert type(action).__name__ == "ExecuteProcess"
-            assert kw["cmd"] == [sys.executable, "-m", spec.module, *spec.arguments,
-                                 *spec.ros_arguments(str(params_file))]
+        assert (kw["package"], kw["name"], kw["namespace"]) == (spec.package, spec.name, spec.namespace)
+        assert (kw["executable"], kw["arguments"]) == spec.node_arguments(sys.executable)
+        handlers = [a.kwargs["event_handler"] for a in actions if type(a).__name__ == "RegisterEventHandler"]
+        mine = [h for h in handlers if action in (h.kwargs.get("target_action"), h.kwargs.get("target_lifecycle_node"))]
+        kinds = sorted(type(h).__name__ for h in mine)
+        assert kinds == (["OnProcessExit", "OnProcessStart"] + ["OnStateTransition"] * 4 if spec.lifecycle
+                         else ["OnProcessExit"])
+        # configure at the first start only: a respawned bridge stays unconfigured (writes nothing)
+        assert all(h.kwargs["handle_once"] for h in mine if type(h).__name__ == "OnProcessStart")
 
 
 def test_nmv5000_launch_file_includes_the_cell_launch_with_the_installed_cell(monkeypatch):
@@ -174,8 +133,8 @@ def test_nmv5000_launch_file_includes_the_cell_launch_with_the_installed_cell(mo
 
 
 def test_launch_files_import_only_launch_and_our_packages():
-    allowed = {"launch", "launch_ros", "ament_index_python", "thermal_comp", "os", "pathlib", "sys",
-               "tempfile"}
+    allowed = {"launch", "launch_ros", "ament_index_python", "lifecycle_msgs", "thermal_comp", "os",
+               "pathlib", "sys", "tempfile"}
     files = sorted(LAUNCH_DIR.glob("*.launch.py"))
     assert [f.name for f in files] == ["cell.launch.py", "nmv5000_twin.launch.py"]
     for f in files:
@@ -213,3 +172,86 @@ def test_a_crashed_node_that_is_not_restarted_ends_the_cell(tmp_path, restart, w
     assert all(mp.popen.poll() is not None for mp in launcher.processes)   # nothing left running
     assert len(lines) == 1 + ("limit" in why)      # the crash before the restart, then the last one
     assert "crashcell/model exited" not in out.getvalue()   # the stopped nodes are no crash of their own
+
+
+# --- cell.launch.py run by the launch double: real processes, launch's events, the bridge's
+# --- lifecycle over its transition_event topic and change_state service (see launch_double)
+
+def _run_launch_file(tmp_path, monkeypatch, ros_context, doc: dict, until, timeout_s=120.0):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    cell_file = tmp_path / "cell.yaml"
+    cell_file.write_text(yaml.safe_dump(doc))
+    module = _load_launch_file("cell.launch.py", monkeypatch)
+    runner = launch_double.MiniLaunch(ros_context)
+    runner.run(module.generate_launch_description(), {"cell_file": str(cell_file)}, until, timeout_s)
+    return runner
+
+
+def _bridge_doc(cell: str, domain_id: int, restart: dict, **params) -> dict:
+    return {"cell": cell, "domain_id": domain_id, "nodes": [
+        {"name": "bridge", "module": "cnc_bridge.cnc_bridge_node", "parameters": params, "restart": restart}]}
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_launch_file_configures_and_activates_the_bridge_by_events(tmp_path, monkeypatch, ros_context,
+                                                                   ros_domain_id):
+    def until(run):
+        return "[launch] /lcl/bridge: configured and active" in run.lines
+
+    run = _run_launch_file(tmp_path, monkeypatch, ros_context, _bridge_doc(
+        "lcl", ros_domain_id, {"enabled": True, "max_restarts": 2, "backoff_s": 0.5}, backend="twin"), until)
+    assert run.shutdown_reason is None
+    steps = [(start, goal) for node, start, goal in run.transitions if node == "/lcl/bridge"]
+    assert steps == [("unconfigured", "configuring"), ("configuring", "inactive"),
+                     ("inactive", "activating"), ("activating", "active")], steps
+    assert any("active: writing offsets" in ln for ln in run.lines)
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_launch_file_ends_the_cell_when_the_bridge_cannot_configure(tmp_path, monkeypatch, ros_context,
+                                                                    ros_domain_id):
+    run = _run_launch_file(tmp_path, monkeypatch, ros_context, _bridge_doc(
+        "lcl_bad", ros_domain_id, {"enabled": True, "max_restarts": 2, "backoff_s": 0.5}, backend="opcua",
+        connect_timeout_s=1.0, endpoint=f"opc.tcp://127.0.0.1:{free_tcp_port()}/nobody"), lambda run: False)
+    assert run.shutdown_reason == "/lcl_bad/bridge: configure failed"
+    assert "[launch] ERROR /lcl_bad/bridge: transition 'configure' failed (see the node's log); " \
+           "stopping the cell" in run.lines
+    assert ("/lcl_bad/bridge", "configuring", "unconfigured") in run.transitions
+    assert not any(goal == "active" for _, _, goal in run.transitions)
+
+
+@pytest.mark.ros
+def test_launch_file_ends_the_cell_when_a_node_without_restart_crashes(tmp_path, monkeypatch, ros_context):
+    doc = {"cell": "crash", "nodes": [
+        {"name": "machine_sim", "module": "sim_crash", "env": {"PYTHONPATH": str(tmp_path)}},
+        {"name": "model", "module": "wait_forever", "env": {"PYTHONPATH": str(tmp_path)}}]}
+    _crash_cell(tmp_path, {"enabled": False})       # writes the two node modules
+    run = _run_launch_file(tmp_path, monkeypatch, ros_context, doc, lambda run: False)
+    assert run.shutdown_reason == "/crash/machine_sim exited with code 3"
+    assert "[launch] /crash/machine_sim exited with code 3 and is not restarted: the cell cannot go on " \
+           "without it; stopping every node" in run.lines
+
+
+def test_launch_arguments_set_namespace_and_domain_and_refuse_bad_values(monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "42")
+    cell = resolve_cell(str(NMV5000_CELL))
+    assert (cell.namespace, cell.domain_id) == ("/nmv5000", 42)
+    cell = resolve_cell(str(NMV5000_CELL), namespace="/line2_nmv", domain_id="42")
+    assert cell.namespace == "/line2_nmv"
+    assert {n.env["ROS_DOMAIN_ID"] for n in launch_plan(cell)} == {"42"}
+    assert all(n.namespace == "/line2_nmv" and f"'/line2_nmv/{n.name}':" in n.parameters_yaml
+               for n in launch_plan(cell))
+    for ns in ("/a/b", "2cell", "/"):
+        with pytest.raises(CellConfigError, match=rf"launch argument namespace: .* got '{ns}'"):
+            resolve_cell(str(NMV5000_CELL), namespace=ns)
+    for did in ("233", "-1", "x"):
+        with pytest.raises(CellConfigError, match=rf"launch argument domain_id: .* got '{did}'"):
+            resolve_cell(str(NMV5000_CELL), domain_id=did)
+    # the bridge is managed: its transitions come from the launch process, on its own domain
+    with pytest.raises(CellConfigError, match=r"runs on ROS_DOMAIN_ID 7, this launch on 42: .* "
+                                              r"\['bridge'\] .* ROS_DOMAIN_ID=7 ros2 launch"):
+        resolve_cell(str(NMV5000_CELL), domain_id="7")
+    monkeypatch.delenv("ROS_DOMAIN_ID")
+    assert resolve_cell(str(MODULE_CELL), domain_id="7").domain_id == 7   # no managed node: any domain

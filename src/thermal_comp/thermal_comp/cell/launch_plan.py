@@ -1,17 +1,45 @@
 """What `ros2 launch thermal_comp cell.launch.py cell_file:=CELL.yaml` starts, as plain data.
 
 The launch file (``launch/cell.launch.py``) turns each :class:`NodeLaunch` into a launch_ros
-``Node`` (or an ``ExecuteProcess`` for a node given by ``module``). It is computed here from a
-parsed cell file, with the same parameters-file text, namespace, node name, arguments and
-environment as ``thermal-comp launch`` (``launcher.py``), so the two ways to start a cell are
-equivalent by construction. Kept free of ``launch`` imports: launch has no wheels for this
-venv, and the plan is tested as a pure function of the cell file.
+``Node``, or a ``LifecycleNode`` for a managed node, whose configure and activate are
+``ChangeState`` events sent on its ``OnStateTransition`` events. It is computed here from a
+parsed cell file and the launch arguments (:data:`LAUNCH_ARGUMENTS`, :func:`resolve_cell`),
+with the same parameters-file text, namespace, node name, arguments and environment as
+``thermal-comp launch`` (``launcher.py``), so the two ways to start a cell are equivalent by
+construction. Kept free of ``launch`` imports: launch has no wheels for this venv, and the
+plan is tested as a pure function of the cell file.
 """
 from __future__ import annotations
 
+import dataclasses
+import os
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from thermal_comp.cell.config import CellConfig, NodeSpec, parameters_file_text
+from thermal_comp.cell.config import (MAX_DOMAIN_ID, NAME_RE, CellConfig, CellConfigError, NodeSpec,
+                                      load_cell, parameters_file_text)
+
+
+@dataclass(frozen=True)
+class LaunchArgument:
+    """A launch argument of ``cell.launch.py`` (``DeclareLaunchArgument``)."""
+
+    name: str
+    default: str | None          # None: required
+    description: str
+
+
+#: The arguments ``cell.launch.py`` declares, in the order ``ros2 launch -s`` lists them.
+LAUNCH_ARGUMENTS = (
+    LaunchArgument("cell_file", None, "cell YAML file: the nodes, their parameters, restart "
+                   "policy and domain (thermal_comp.cell.config)"),
+    LaunchArgument("namespace", "", "namespace of the cell's nodes, one level such as /line2_nmv "
+                   "(empty: /CELL, the cell file's name)"),
+    LaunchArgument("domain_id", "", "ROS_DOMAIN_ID of the cell's nodes, 0-232, 0-101 safe on Linux "
+                   "(empty: the cell file's domain_id, else the launching environment's); with a "
+                   "managed node it must be the launching environment's, where launch_ros's own "
+                   "node sends the lifecycle transitions"),
+)
 
 
 @dataclass(frozen=True)
@@ -29,13 +57,19 @@ class NodeLaunch:
     respawn: bool = False
     respawn_delay_s: float = 0.0
     respawn_max_retries: int = -1
-    lifecycle: bool = False          # a managed node: configure + activate after its start
+    lifecycle: bool = False          # a managed node: configure + activate after each start
     lifecycle_timeout_s: float = 30.0
 
-    def lifecycle_command(self, python: str, transitions=("configure", "activate")) -> list[str]:
-        """The driver ``thermal-comp launch`` runs for a managed node (same deadline per transition)."""
-        return [python, "-m", "thermal_comp.cell.lifecycle_driver", "--timeout", f"{self.lifecycle_timeout_s:g}",
-                f"{self.namespace}/{self.name}", *transitions]
+    @property
+    def full_name(self) -> str:
+        return f"{self.namespace}/{self.name}"
+
+    def node_arguments(self, python: str) -> tuple[str, list[str]]:
+        """(executable, arguments) of a launch_ros ``Node`` for this node: the package's
+        executable, or interpreter ``python`` with ``-m module`` for a node given by module."""
+        if self.package is not None:
+            return self.executable, list(self.arguments)
+        return python, ["-m", self.module, *self.arguments]
 
     def ros_arguments(self, params_file: str) -> list[str]:
         """The ``--ros-args`` part of the command line, as ``thermal-comp launch`` builds it."""
@@ -69,3 +103,42 @@ def launch_plan(cell: CellConfig) -> list[NodeLaunch]:
             respawn_max_retries=node.restart.max_restarts if node.restart.enabled else -1,
             lifecycle=node.lifecycle, lifecycle_timeout_s=node.lifecycle_timeout_s))
     return plan
+
+
+def _launch_value(name: str, value) -> str:
+    if not isinstance(value, str):
+        raise CellConfigError(f"launch argument {name}: expected text, got {value!r}")
+    return value.strip()
+
+
+def resolve_cell(cell_file: str, namespace: str = "", domain_id: str = "",
+                 environ: Mapping[str, str] | None = None) -> CellConfig:
+    """The cell ``cell.launch.py`` starts: the cell file with the launch arguments applied.
+
+    CellConfigError (one line naming the argument and its value) for a bad value, and for a
+    managed node on a domain other than the launching environment's: launch_ros sends lifecycle
+    transitions from the launch process's own node, which would never reach it.
+    """
+    environ = os.environ if environ is None else environ
+    cell = load_cell(_launch_value("cell_file", cell_file))
+    ns = _launch_value("namespace", namespace)
+    if ns:
+        name = ns[1:] if ns.startswith("/") else ns
+        if not NAME_RE.match(name):
+            raise CellConfigError(f"launch argument namespace: expected one level such as /line2_nmv "
+                                  f"(a letter, then letters, digits, _), got {namespace!r}")
+        cell = dataclasses.replace(cell, cell=name)
+    did = _launch_value("domain_id", domain_id)
+    if did:
+        if not did.isdigit() or not 0 <= int(did) <= MAX_DOMAIN_ID:
+            raise CellConfigError(f"launch argument domain_id: expected an integer in "
+                                  f"[0, {MAX_DOMAIN_ID}], got {domain_id!r}")
+        cell = dataclasses.replace(cell, domain_id=int(did))
+    own = environ.get("ROS_DOMAIN_ID", "").strip() or "0"
+    managed = [n.name for n in cell.nodes if n.lifecycle]
+    if managed and cell.domain_id is not None and str(cell.domain_id) != own:
+        raise CellConfigError(
+            f"launch: cell {cell.namespace} runs on ROS_DOMAIN_ID {cell.domain_id}, this launch on "
+            f"{own}: launch_ros drives the managed node(s) {managed} from its own node, which would "
+            f"not reach them; start it as ROS_DOMAIN_ID={cell.domain_id} ros2 launch ...")
+    return cell
