@@ -57,6 +57,7 @@ class Param:
     lo: float
     hi: float
     log: bool
+    unit_text: str = ""       # the unit when the kind's is not the whole story (a coefficient per input^n)
 
     @property
     def theta_bounds(self) -> tuple[float, float]:
@@ -73,7 +74,7 @@ class Param:
 
     @property
     def unit(self) -> str:
-        return UNITS[self.kind]
+        return self.unit_text or UNITS[self.kind]
 
 
 def all_parameters(spec: Mapping) -> list[tuple[str, str, tuple[str, ...], float]]:
@@ -174,8 +175,22 @@ def free_parameters(spec: Mapping, section: Mapping | None = None) -> list[Param
             continue
         p = _apply(name, kind, path, v0, rule)
         if p is not None:
-            out.append(p)
+            out.append(replace(p, unit_text=_unit_of(spec, path)))
     return out
+
+
+def _unit_of(spec: Mapping, path: tuple) -> str:
+    """A source coefficient is W per (input unit)^exponent and a convection W/K per
+    (input unit)^exponent, not W or W/K: the unit printed with its input (empty: the kind's)."""
+    if path[0] == "sources" and path[-1] == "coefficient":
+        d = spec["sources"][path[1]]
+        unit = (spec.get("inputs", {}).get(d["input"]) or {}).get("unit", d["input"])
+        return f"W per ({unit})^{float(d.get('exponent', 1.0)):g}"
+    if path[0] == "links" and path[2] == "varies_with":
+        v = spec["links"][path[1]]["varies_with"][path[3]]
+        unit = (spec.get("inputs", {}).get(path[3]) or {}).get("unit", path[3])
+        return f"W/K per ({unit})^{float(v.get('exponent', 1.0)):g}"
+    return ""
 
 
 def set_values(spec: dict, params: list[Param], values) -> dict:

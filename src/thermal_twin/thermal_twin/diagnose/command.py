@@ -79,8 +79,10 @@ def run(args) -> int:
                   + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else ""))
     sel = d.report["selected"]
     for u in d.report.get("unnamed", []):
-        print(f"unnamed (not in the vocabulary; nearest word {u['nearest_vocabulary_word']}): {u['formula']}; "
-              f"held-out improvement {u['holdout_improvement_pct']:.1f} %")
+        c = d.report["channels"].get(u["channel"], {})
+        print(f"unnamed (not in the vocabulary; nearest vocabulary word, said as such: {u['nearest_vocabulary_word']}): "
+              f"{u['formula']}; {u['channel']} held-out RMSE {c.get('holdout_rmse_before', float('nan')):.4g} -> "
+              f"{c.get('holdout_rmse_after', float('nan')):.4g} {c.get('unit', '')}")
     if sel == "none" and not d.report.get("unnamed"):
         print("selected: none (no effect improves the held-out fit significantly)")
     elif sel != "none":

@@ -171,8 +171,10 @@ def _verdict_lines(report: dict) -> list[str]:
                       "nothing is missing."]
         L += ["", "**Missing** (mechanisms added):", ""]
     for u in report.get("unnamed", []):
-        L.append(f"- **unnamed** (outside the vocabulary; nearest word: {u['nearest_vocabulary_word']}): "
-                 f"`{u['formula']}`; held-out improvement {u['holdout_improvement_pct']:.1f} %")
+        L.append(f"- **unnamed** (outside the vocabulary; the nearest vocabulary word, said only as the nearest: "
+                 f"{u['nearest_vocabulary_word']}): `{u['formula']}`; {_channel_change(report, u['channel'])}; "
+                 f"its terms cut the held-out sum of squares left by a constant offset by "
+                 f"{u['holdout_improvement_pct']:.1f} %")
     if not report.get("unnamed") and (sel == "none" or not sel):
         L.append("**none**: no effect of the library improves the held-out fit significantly.")
     elif sel and sel != "none":
@@ -188,6 +190,17 @@ def _verdict_lines(report: dict) -> list[str]:
     for note in report.get("notes", []):
         L.append(f"\n> {note}")
     return L
+
+
+def _channel_change(report: dict, channel: str) -> str:
+    """The channel's held-out RMSE before -> after as the channel table states it."""
+    d = report["channels"].get(channel)
+    if not d:
+        return f"`{channel}` is not in the channel table"
+    b, a = d["holdout_rmse_before"], d["holdout_rmse_after"]
+    worse = a is not None and b is not None and a > b
+    return (f"`{channel}` held-out RMSE {_fmt(b)} -> {_fmt(a)} {d.get('unit', '')}"
+            + (" (**worse** than the twin as given)" if worse else ""))
 
 
 def _channel_lines(report: dict) -> list[str]:
