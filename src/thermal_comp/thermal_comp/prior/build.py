@@ -59,14 +59,27 @@ def training_scenarios(kind: str, machine: str) -> list[str] | None:
 
 def default_config(machine: str, kind: str) -> dict:
     """The model configuration the demo runs ``machine`` with: TALC's shipped YAML; the AGP's
-    and CD's defaults ({}), as the model node uses them without a ``model_config``."""
+    and CD's defaults ({}), as the model node uses them without a ``model_config``. ``machine``
+    a twin YAML (a unit's twin): its type's configuration with that file as the soft-sensor twin
+    (``type_model``), so the prior and the run read the twin they were given."""
     if kind != "talc":
         return {}
-    return yaml.safe_load(default_config_path(machine).read_text()) or {}
+    config = yaml.safe_load(default_config_path(machine).read_text()) or {}
+    if is_twin_file(machine) and config.get("type_model"):
+        config["type_model"] = str(pathlib.Path(machine).resolve())
+    return config
+
+
+def is_twin_file(machine: str) -> bool:
+    """``machine`` names a twin YAML file rather than a preset."""
+    return pathlib.Path(machine).suffix in (".yaml", ".yml") and pathlib.Path(machine).is_file()
 
 
 def default_config_path(machine: str) -> pathlib.Path:
-    """The TALC configuration the demo ships for ``machine``."""
+    """The TALC configuration the demo ships for ``machine`` (a twin file: for its type)."""
+    if is_twin_file(machine):
+        machine = type_name(machine).replace("_", "-") if type_name(machine).replace("_", "-") in MACHINES \
+            else type_name(machine)
     m = MACHINES.get(machine, {})
     if not m.get("model_config"):
         raise PriorError(f"--machine: {machine!r} has no shipped TALC configuration; give --config")
@@ -192,6 +205,11 @@ def run(a) -> int:
             kind = a.model or default_model_kind(a.machine)
             config = ((yaml.safe_load(pathlib.Path(a.config).read_text()) or {}) if a.config
                       else default_config(a.machine, kind))
+            twin_file = str(pathlib.Path(a.machine).resolve()) if is_twin_file(a.machine) else None
+            if twin_file and config.get("type_model") and config["type_model"] != twin_file:
+                print(f"prior: soft-sensor twin 'type_model' {config['type_model']!r} -> {twin_file!r} "
+                      "(the twin of --machine)", file=sys.stderr)
+                config["type_model"] = twin_file
             scenarios = a.scenarios.split(",") if a.scenarios else training_scenarios(kind, a.machine)
             if not scenarios:
                 raise PriorError(f"--scenarios: no default training scenarios for a {kind} prior of "

@@ -34,20 +34,29 @@ def beside_probe_and_hold(result, q_prod_pct: float, noise: Mapping[str, float],
                           probe_duration_s: float = metrics.PROBE_CYCLE_DURATION_S, seed: int = 0
                           ) -> tuple[dict[str, Any], str]:
     """(JSON-ready figures, printable text) for a ``VirtualExperimentResult``."""
-    t = np.asarray(result.time_s, float)
     comp = np.asarray(result.phase) != PHASE_CALIBRATION
-    true = {c: np.asarray(result.true[c], float) for c in result.components}
     out: dict[str, Any] = {}
     lines = []
-    for name, mask in (("whole_run", np.ones(t.size, bool)), ("compensation_part", comp)):
-        if not mask.any() or not (math.isfinite(q_prod_pct) and 0 <= q_prod_pct < 100):
-            out[name] = None
-            continue
-        model = _model_p99(result, mask)
-        base = probe_and_hold(t, true, q_prod_pct, noise, resolution_um, window=mask,
-                              probe_duration_s=probe_duration_s, seed=seed)
-        ratio = model["p99_lin_um"] / base["p99_lin_um"] if base["p99_lin_um"] else math.nan
-        out[name] = {"model": model, "probe_and_hold": base, "p99_lin_ratio": ratio}
-        lines.append(f"{name.replace('_', ' ')}:")
-        lines.append(format_beside(model, base, result.components, label="model"))
+    for name, mask in (("whole_run", np.ones(comp.size, bool)), ("compensation_part", comp)):
+        out[name] = beside_in_window(result, mask, q_prod_pct, noise, resolution_um, probe_duration_s, seed)
+        if out[name] is not None:
+            lines.append(f"{name.replace('_', ' ')}:")
+            lines.append(format_beside(out[name]["model"], out[name]["probe_and_hold"], result.components,
+                                       label="model"))
     return out, "\n".join(lines)
+
+
+def beside_in_window(result, mask: np.ndarray, q_prod_pct: float, noise: Mapping[str, float],
+                     resolution_um: float, probe_duration_s: float = metrics.PROBE_CYCLE_DURATION_S,
+                     seed: int = 0) -> dict[str, Any] | None:
+    """The model's P99 on the rows of ``mask`` beside probe-and-hold at ``q_prod_pct`` probing
+    within the same rows (None: no row, or no Q_prod to probe at)."""
+    if not mask.any() or not (math.isfinite(q_prod_pct) and 0 <= q_prod_pct < 100):
+        return None
+    t = np.asarray(result.time_s, float)
+    true = {c: np.asarray(result.true[c], float) for c in result.components}
+    model = _model_p99(result, mask)
+    base = probe_and_hold(t, true, q_prod_pct, noise, resolution_um, window=mask,
+                          probe_duration_s=probe_duration_s, seed=seed)
+    ratio = model["p99_lin_um"] / base["p99_lin_um"] if base["p99_lin_um"] else math.nan
+    return {"model": model, "probe_and_hold": base, "p99_lin_ratio": ratio}

@@ -107,3 +107,16 @@ def test_a_restored_state_resumes_where_the_twin_was(run):
         assert resumed.update(t, temps, state) == whole.update(t, temps, state)
     with pytest.raises(SoftSensorError, match="'machine' 'swiss_lathe'"):
         resumed.restore({**first.to_state(), "machine": "swiss_lathe"})
+
+
+def test_a_biased_hall_sensor_of_the_twin_is_read_backwards():
+    """A unit twin that says its hall sensor reads 0.6 K high feeds the boundary 0.6 K lower."""
+    from thermal_twin.machine.schema import load_machine     # this test only
+    spec = load_machine("nmv5000").to_dict()
+    spec["sensors"]["ambient"]["bias"] = 0.6
+    plain, biased = TypeSoftSensors("nmv5000"), TypeSoftSensors(spec)
+    temps = {"ambient": 21.6, "ws_mwf": 22.0, "c_coolant_delta": 0.0, "c_motor_internal": 22.0}
+    plain.update(0.0, temps, {})
+    biased.update(0.0, temps, {})
+    assert plain.last_inputs["ambient_degc"] == pytest.approx(21.6)
+    assert biased.last_inputs["ambient_degc"] == pytest.approx(21.0)

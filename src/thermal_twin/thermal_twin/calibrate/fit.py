@@ -155,7 +155,8 @@ def _relevant(params: list[Param], machine, channels: list[str]) -> tuple[list[P
 def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
               section: Mapping | None = None, max_nfev: int = 30,
               progress: Callable[[str], None] | None = None, prior: bool = True,
-              start: Mapping[str, float] | None = None, engine: EngineSpec | None = None) -> CalibrationResult:
+              start: Mapping[str, float] | None = None, engine: EngineSpec | None = None,
+              sigma: Mapping[str, float] | None = None) -> CalibrationResult:
     """Fit the free parameters of ``twin`` (path, preset, mapping or Machine) to
     ``recording``; ``section`` overrides the machine's own ``calibration`` section.
     ``prior``: pull every parameter toward its nominal value (a Gaussian prior whose 95 %
@@ -164,17 +165,19 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
     ``start``: values (by parameter name) to start the fit from; the prior stays at the
     twin's own values. ``engine``: where the Jacobian's finite-difference columns run
     (default serial; the same answer on every engine). BLAS runs on one thread
-    (``single_thread_blas``)."""
+    (``single_thread_blas``). ``sigma``: the measurement noise of channels whose noise the
+    recording cannot show (sparse probes of an error channel), by column; the others' comes
+    from their second differences."""
     with single_thread_blas(), held_engine(engine) as held:
         t_start = time.perf_counter()
-        jacobian = _setup(twin, recording, holdout_fraction, section, progress)
+        jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma)
         jacobian.engine = held
         theta, status = _fit(jacobian, max_nfev, prior, start)
         return _result(jacobian, recording, theta, status, prior, t_start)
 
 
 def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping | None,
-           progress: Callable[[str], None] | None) -> "Jacobian":
+           progress: Callable[[str], None] | None, sigma: Mapping[str, float] | None = None) -> "Jacobian":
     """Check twin and recording, choose the free parameters; the residual and its Jacobian."""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise CalibrationError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
@@ -195,7 +198,12 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
                                f"need at least {MIN_RECORDING_ROWS}")
     res = {c: machine.sensors[s].resolution for s in machine.sensors
            for c in [machine.sensors[s].column]}
-    fp = FitProblem(recording, channels, n_train, resolution=res)
+    given = {c: float(v) for c, v in (sigma or {}).items() if c in channels}
+    if any(not (math.isfinite(v) and v > 0) for v in given.values()):
+        raise CalibrationError(f"sigma: {given} must be finite and > 0 for every channel given")
+    rest = [c for c in channels if c not in given]
+    fp = FitProblem(recording, channels, n_train, resolution=res,
+                    sigma={**(FitProblem(recording, rest, n_train, resolution=res).sigma if rest else {}), **given})
     jacobian = Jacobian(_Model(spec0, params, recording, channels), fp, machine, progress)
     jacobian.fixed = fixed
     return jacobian

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thermal_twin.machine.schema import Machine
+from thermal_comp_common.machine_state_fields import message_input_name
 from thermal_comp_common.recording_csv import Recording
 
 
@@ -73,15 +74,18 @@ class InputsTimeline:
 def timeline_from_recording(machine: Machine, rec: Recording) -> InputsTimeline:
     """The inputs of a recording as a time line for ``machine``.
 
-    Input columns the machine declares are taken as they are; a missing input with
-    ``from_sensor`` is filled from that sensor's column (real recordings have no true
-    ambient, only an ambient sensor); others take their default. Unknown input columns
-    of the recording are ignored.
+    Input columns the machine declares are taken as they are, under the twin's name or the
+    name a cell's bag gives it (MachineState: ``C_axis_rpm`` for ``c_speed_rpm``,
+    ``machine_state_fields.message_input_name``); a missing input with ``from_sensor`` is filled
+    from that sensor's column (real recordings have no true ambient, only an ambient sensor);
+    others take their default. Unknown input columns of the recording are ignored.
     """
     vals: dict[str, np.ndarray] = {}
     for name, spec in machine.inputs.items():
         if name in rec.columns:
             vals[name] = rec.columns[name]
+        elif message_input_name(name) in rec.columns:
+            vals[name] = rec.columns[message_input_name(name)]
         elif spec.from_sensor and f"{spec.from_sensor}_c" in rec.columns:
             col = np.asarray(rec.columns[f"{spec.from_sensor}_c"], dtype=float)
             if np.any(~np.isfinite(col)):

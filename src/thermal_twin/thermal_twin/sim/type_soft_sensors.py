@@ -15,7 +15,8 @@ under its own name (a replayed recording) or its MachineState name
 input with ``from_sensor`` comes from that temperature sensor. The inputs of an instant hold
 until the next one (zero-order hold, as :func:`thermal_twin.sim.simulate.simulate`); the twin
 starts at its ``initial_state`` for the first instant's inputs. A missing or NaN input holds
-its last value (its default before any), counted. No rclpy here.
+its last value (its default before any), counted. A sensor the twin gives a bias or gain is
+read backwards through them (a unit twin's diagnosed hall-sensor bias). No rclpy here.
 """
 from __future__ import annotations
 
@@ -90,6 +91,8 @@ class TypeSoftSensors:
                         raise SoftSensorError(f"soft sensors of {self.machine.name}: input '{name}' <- '{key}': "
                                               f"{signals[key]!r} is not a number") from None
                     break
+            if where == "temperatures" and math.isfinite(v):
+                v = self._true_temperature(keys[0], v)
             if math.isfinite(v):
                 self.last_inputs[name] = v
             else:
@@ -99,6 +102,15 @@ class TypeSoftSensors:
             out[name] = v
         self.held_now = held
         return out
+
+    def _true_temperature(self, sensor: str, reading: float) -> float:
+        """The temperature a reading of ``sensor`` stands for: the twin's sensor model read
+        backwards (reading = gain x T + bias), so a unit twin's diagnosed bias of the hall
+        sensor reaches the boundary it drives."""
+        spec = self.machine.sensors.get(sensor)
+        if spec is None or (spec.bias == 0.0 and spec.gain == 1.0):
+            return reading
+        return (reading - spec.bias) / spec.gain
 
     def update(self, t_s: float, temperatures: Mapping[str, float],
                machine_state: Mapping[str, float]) -> dict[str, float]:
