@@ -74,7 +74,7 @@ PARAMS = [
     Param("on_late", "stop", "lock-step: what a late or inconsistent participant causes: stop the graph "
           "(exit code 3), drop it from the lock-step and go on, or wait and report again",
           choices=("stop", "drop", "wait")),
-    Param("participant_gone_s", 5.0, "lock-step: wall s a participant may be gone from the graph (no "
+    Param("participant_gone_s", 10.0, "lock-step: wall s a participant may be gone from the graph (no "
           "publisher of its name on sim_sync) before the graph goes on without it; it is re-admitted "
           "when it is back", 0.1, 3600.0),
     Param("max_stamp_ahead_s", 1.0, "refuse offsets stamped more than this ahead of the simulated time "

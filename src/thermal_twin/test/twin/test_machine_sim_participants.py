@@ -22,7 +22,7 @@ from thermal_comp_msgs.msg import AxisOffsets, SimSync  # noqa: E402
 from test_machine_sim_resend import _Pub, _counts, _touch
 
 NS = "/participants_test"
-GONE_S = 3.0
+GONE_S = 3.0   # the test's bound (the default is 10 s)
 
 
 class _Clock:
