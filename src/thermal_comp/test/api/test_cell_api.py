@@ -9,7 +9,7 @@ import re
 import pytest
 
 from thermal_comp.api import BRIDGE_LIMITS, Cell, CellTimeout, demo_cell, probe_goal, validated_tightening
-from thermal_comp.api.graph import is_hidden
+from thermal_comp.api.graph import MIN_WATCH_S, SettleRule, is_hidden
 from thermal_comp.cell.inspect_cli import echo_main, nodes_main, probe_main, topics_main
 
 DOCS = pathlib.Path(__file__).resolve().parents[4] / "docs" / "api.md"
@@ -129,3 +129,36 @@ def test_probe_and_echo_commands(running_cell, capsys):
     tf = capsys.readouterr().out
     for frame in ("frame_id: machine_base", "child_frame_id: body_table", "child_frame_id: sensor_ambient"):
         assert frame in tf
+
+
+# Seconds after start at which each node of a running demo cell was discovered (three runs on a
+# loaded 2-core machine, docs/api.md): the last ones come after 2.8 s, some after gaps of 1.5 s.
+MEASURED_DISCOVERY = [[0.0, 0.3, 0.3, 0.3, 0.6, 1.3, 1.3, 1.3, 2.82],
+                      [0.0, 0.2, 0.81, 1.21, 1.21, 1.21, 2.61, 3.01, 3.12],
+                      [0.0, 0.3, 0.3, 0.3, 1.41, 2.11, 2.31, 2.31, 3.21]]
+
+
+def _stop_time(appear: list[float], rule: SettleRule, poll_s: float = 0.1, max_s: float = 10.0):
+    """(when the rule stops watching, how many nodes it saw) on a discovery timeline."""
+    t = 0.0
+    while t < max_s:
+        seen = {f"/n{i}" for i, a in enumerate(appear) if a <= t}
+        if rule.settled(set(), seen, t):
+            return t, len(seen)
+        t = round(t + poll_s, 6)
+    return max_s, len(appear)
+
+
+@pytest.mark.parametrize("appear", MEASURED_DISCOVERY)
+def test_the_minimum_watch_sees_every_measured_discovery(appear):
+    t, n = _stop_time(appear, SettleRule(0.0, 1.5, MIN_WATCH_S))
+    assert n == len(appear) and MIN_WATCH_S <= t < 5.0
+    # with the expected names given, it stops as soon as they are seen
+    t, _ = _stop_time(appear, SettleRule(0.0, 0.0, 0.0, expect_nodes={"/n4"}))
+    assert t == pytest.approx(appear[4], abs=0.1)
+
+
+@pytest.mark.parametrize("appear", MEASURED_DISCOVERY)
+def test_a_fixed_two_second_watch_misses_nodes_of_every_measured_run(appear):
+    t, n = _stop_time(appear, SettleRule(0.0, 0.0, 2.0))     # the former default: watch 2 s
+    assert n < len(appear) and t == pytest.approx(2.0)

@@ -64,6 +64,26 @@ def type_class(type_name: str):
         raise ValueError(f"message type {type_name!r} is not installed in this environment") from None
 
 
+class SettleRule:
+    """When a watched graph counts as discovered: at least ``min_s`` after ``start``, nothing
+    changed for ``settle_s``, and every expected topic and node seen (times in seconds)."""
+
+    def __init__(self, start: float, settle_s: float, min_s: float, expect_topics=frozenset(),
+                 expect_nodes=frozenset()):
+        self.start, self.settle_s, self.min_s = start, settle_s, min_s
+        self.expect_topics, self.expect_nodes = set(expect_topics), set(expect_nodes)
+        self.last: tuple | None = None
+        self.since = start
+
+    def settled(self, topics: set[str], nodes: set[str], now: float) -> bool:
+        seen = (frozenset(topics), frozenset(nodes))
+        if seen != self.last:
+            self.last, self.since = seen, now
+        if not (self.expect_topics <= topics and self.expect_nodes <= nodes):
+            return False
+        return now - self.since >= self.settle_s and now - self.start >= self.min_s
+
+
 class GraphView:
     """A hidden rclpy node in its own context on ``domain_id`` (None: the environment's)."""
 
@@ -116,17 +136,11 @@ class GraphView:
         ``settle_s`` and every expected name is seen, or ``max_wait_s`` passed; the snapshot says
         which and how long it took."""
         start = time.monotonic()
-        state = {"last": None, "since": start}
-        want_t, want_n = set(expect_topics), set(expect_nodes)
+        rule = SettleRule(start, settle_s, min_s, set(expect_topics), set(expect_nodes))
 
         def settled() -> bool:
-            now = time.monotonic()
-            seen = (tuple(n for n, _ in self.topics(include_hidden)), tuple(self.nodes(include_hidden)))
-            if seen != state["last"]:
-                state["last"], state["since"] = seen, now
-            if not (want_t <= set(seen[0]) and want_n <= set(seen[1])):
-                return False
-            return now - state["since"] >= settle_s and now - start >= min_s
+            names = ({n for n, _ in self.topics(include_hidden)}, set(self.nodes(include_hidden)))
+            return rule.settled(names[0], names[1], time.monotonic())
 
         stable = self.spin_until(settled, max_wait_s)
         return GraphSnapshot(self.topics(include_hidden), self.nodes(include_hidden),
