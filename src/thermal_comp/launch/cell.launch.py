@@ -11,8 +11,10 @@ events: the first start of its process emits ``ChangeState`` configure; its ``On
 to inactive emits activate; a respawned one stays unconfigured (writes nothing); a failed configure or activate is one error line and ends the launch
 (``Shutdown``), as ``thermal-comp launch`` stops on it. A crashed node is respawned after a
 fixed ``backoff_s`` (the launcher doubles it per crash); a node that crashes and is not
-respawned ends the launch.
+respawned ends the launch. A second launch of a running cell (same namespace and domain) is
+refused with a line naming the running one (``thermal_comp.cell.cell_lock``).
 """
+import os
 import pathlib
 import sys
 import tempfile
@@ -28,7 +30,10 @@ from launch_ros.event_handlers import OnStateTransition
 from launch_ros.events.lifecycle import ChangeState
 from lifecycle_msgs.msg import Transition
 
+from thermal_comp.cell.cell_lock import acquire_cell_lock
 from thermal_comp.cell.launch_plan import LAUNCH_ARGUMENTS, launch_plan, resolve_cell
+
+_LOCKS = []   # held for the life of the launch process: one cell, one owner
 
 
 def _change_state(node, transition_id):
@@ -80,6 +85,11 @@ def _end_on_crash(node, spec):
 
 def _cell_actions(context):
     cell = resolve_cell(*(LaunchConfiguration(a.name).perform(context) for a in LAUNCH_ARGUMENTS))
+    domain = cell.domain_id if cell.domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID") or 0)
+    lock = acquire_cell_lock(domain, cell.namespace)   # CellLockError names the running launch
+    if lock.warning:
+        print(f"[launch] {lock.warning}", file=sys.stderr, flush=True)
+    _LOCKS.append(lock)
     params_dir = pathlib.Path(tempfile.mkdtemp(prefix=f"thermal_comp_{cell.cell}_"))
     actions = []
     for spec in launch_plan(cell):

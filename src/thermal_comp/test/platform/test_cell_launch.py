@@ -13,6 +13,7 @@ from __future__ import annotations
 import ast
 import importlib.util
 import io
+import os
 import pathlib
 import sys
 import tempfile
@@ -23,7 +24,8 @@ import yaml
 
 from cnc_bridge.cnc_emulator import free_tcp_port
 from thermal_comp.cell.config import CellConfigError, load_cell, parameters_file_text, parse_cell
-from thermal_comp.cell.launch_plan import LAUNCH_ARGUMENTS, launch_plan, resolve_cell
+from thermal_comp.cell import cell_lock
+from thermal_comp.cell.launch_plan import LAUNCH_ARGUMENTS, launch_arguments_text, launch_plan, resolve_cell
 
 import launch_double
 from thermal_comp.cell.launcher import Launcher
@@ -78,6 +80,8 @@ def test_plan_of_module_nodes_has_no_package():
 
 
 def _load_launch_file(name: str, monkeypatch) -> types.ModuleType:
+    """The launch file on the doubles; its cell locks in this test's own folder."""
+    monkeypatch.setattr(cell_lock, "LOCK_DIR", pathlib.Path(tempfile.mkdtemp(prefix="cell_locks_")))
     for mod_name, mod in launch_double.modules().items():
         monkeypatch.setitem(sys.modules, mod_name, mod)
     spec = importlib.util.spec_from_file_location(name.replace(".", "_"), LAUNCH_DIR / name)
@@ -255,3 +259,19 @@ def test_launch_arguments_set_namespace_and_domain_and_refuse_bad_values(monkeyp
         resolve_cell(str(NMV5000_CELL), domain_id="7")
     monkeypatch.delenv("ROS_DOMAIN_ID")
     assert resolve_cell(str(MODULE_CELL), domain_id="7").domain_id == 7   # no managed node: any domain
+
+
+def test_docs_list_the_launch_arguments_as_ros2_launch_s_does():
+    text = (REPO / "docs" / "launch.md").read_text()
+    block = text.split("<!-- launch-arguments -->\n```\n")[1].split("```\n<!-- /launch-arguments -->")[0]
+    assert block == launch_arguments_text()
+
+
+def test_a_second_launch_of_a_running_cell_is_refused(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    module = _load_launch_file("cell.launch.py", monkeypatch)
+    context = _Context(cell_file=str(MODULE_CELL), namespace="", domain_id="")
+    module._cell_actions(context)
+    with pytest.raises(cell_lock.CellLockError, match=rf"cell /example on ROS_DOMAIN_ID \d+ runs already \(pid {os.getpid()}"):
+        module._cell_actions(context)
+    module._LOCKS.pop().release()

@@ -77,6 +77,16 @@ class NodeLaunch:
                 "--params-file", params_file]
 
 
+def launch_arguments_text() -> str:
+    """:data:`LAUNCH_ARGUMENTS` as ``ros2 launch thermal_comp cell.launch.py -s`` lists them."""
+    lines = ["Arguments (pass arguments as '<name>:=<value>'):"]
+    for a in LAUNCH_ARGUMENTS:
+        lines += ["", f"    '{a.name}':", f"        {a.description}"]
+        if a.default is not None:
+            lines.append(f"        (default: '{a.default}')")
+    return "\n".join(lines) + "\n"
+
+
 def node_env(cell: CellConfig, node: NodeSpec) -> dict[str, str]:
     """Environment a node adds to the launching one: the cell's, the node's, the domain id."""
     env = {**cell.env, **node.env, "PYTHONUNBUFFERED": "1"}
