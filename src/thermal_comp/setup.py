@@ -19,6 +19,7 @@ setup(
     ],
     install_requires=[
         "setuptools", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich", "tqdm",
+        "websocket-client",   # the headless-browser check of the web viewer (view.browser)
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
@@ -35,6 +36,7 @@ setup(
             "echo = thermal_comp.cell.inspect_cli:echo_main",
             "nodes = thermal_comp.cell.inspect_cli:nodes_main",
             "probe = thermal_comp.cell.inspect_cli:probe_main",
+            "frames = thermal_comp.frames.cli:main",
             "demo = thermal_comp.demo.cli:main",
             "record = thermal_comp.bags.record_cli:main",
             "play = thermal_comp.bags.play_cli:main",

@@ -12,6 +12,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from tf2_msgs.msg import TFMessage
 
+from thermal_comp.frames.cli import main as frames_main
 from thermal_comp.frames.description import load_description
 from thermal_comp_common.frames import MACHINE_BASE_FRAME, FrameError, frame_tree, positions_in_root
 from thermal_comp.frames.static_frames_node import STATIC_TF_QOS, StaticFramesNode
@@ -76,3 +77,15 @@ def test_node_latches_the_tree_on_tf_static(ros_context, tmp_path):
     ex.shutdown()
     late.destroy_node()
     node.destroy_node()
+
+
+def test_frames_command_prints_the_tree_indented(capsys):
+    assert frames_main(["nmv5000", "--prefix", "m1/"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "m1/machine_base"
+    # a sensor on a body is indented under it, with its position in the root
+    i = next(k for k, line in enumerate(lines) if line.strip().startswith("m1/sensor_ws_mwf"))
+    assert lines[i - 1].strip().startswith("m1/body_mwf_tube") and lines[i].startswith("    ")
+    assert "in root [+0.300, -0.250, +0.300]" in lines[i]
+    assert frames_main(["no-such-machine"]) == 2
+    assert "neither a file nor a twin preset" in capsys.readouterr().err
