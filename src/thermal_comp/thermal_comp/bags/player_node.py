@@ -166,6 +166,17 @@ class BagPlayerNode(Node):
                                            f"t={t_ns * 1e-9:.3f} s within {timeout} s")
                     self._ack_cv.wait(min(left, 0.1))
 
+    def _make_room(self, pub, unacked: dict) -> None:
+        """Before a reliable writer's history (keep-last ``depth``) would drop a sample no
+        subscriber has acknowledged, wait for the acknowledgements: nothing is overwritten at
+        any rate (the replay falls behind the asked rate instead, see the summary line)."""
+        if pub.qos_profile.reliability != ReliabilityPolicy.RELIABLE or unacked.get(pub, 0) < pub.qos_profile.depth:
+            return
+        timeout = self.p["ack_timeout_s"]
+        if not pub.wait_for_all_acked(Duration(seconds=timeout)):
+            self.get_logger().warning(f"{pub.topic_name}: not acknowledged within {timeout} s")
+        unacked[pub] = 0
+
     def _run(self) -> None:
         r = self.result
         try:
@@ -177,6 +188,7 @@ class BagPlayerNode(Node):
             fast = self.p["as_fast_as_possible"]
             rate = self.p["rate"]
             bar = None
+            unacked: dict = {}     # publisher -> messages published since its last acknowledgement
             if self.p["progress"] and msgs:
                 bar = progress(round((msgs[-1].stamp_ns - start) / 3.6e12, 3), "play", "sim h",
                                decimals=2)
@@ -198,7 +210,9 @@ class BagPlayerNode(Node):
                 used = []
                 for m in group:
                     pub = self._pubs[m.topic]
+                    self._make_room(pub, unacked)
                     pub.publish(m.data)
+                    unacked[pub] = unacked.get(pub, 0) + 1
                     used.append(pub)
                     r.published += 1
                 r.instants += 1
@@ -207,6 +221,7 @@ class BagPlayerNode(Node):
                     bar.to((t_ns - start) / 3.6e12)
                 if fast:
                     self._wait_acked(t_ns, dict.fromkeys(used))
+                    unacked.clear()
             if bar is not None:
                 bar.close()
         except Exception as exc:  # report, never crash the process
@@ -216,6 +231,10 @@ class BagPlayerNode(Node):
             summary = f"replayed {r.published} messages in {r.instants} instants"
             if r.last_time_ns is not None:
                 summary += f", up to t={r.last_time_ns * 1e-9:.3f} s"
+                wall = time.monotonic() - wall0
+                if not self.p["as_fast_as_possible"] and wall > 0 and r.instants > 1:
+                    summary += (f"; {(r.last_time_ns - start) * 1e-9 / wall:.4g} bag s per wall s "
+                                f"(asked {self.p['rate']:g})")
             self.get_logger().info(summary)
             if r.damage:
                 self.get_logger().error(f"bag damaged, replay stopped there: {r.damage}")

@@ -123,7 +123,10 @@ def _qos_to_dict(q: QoSProfile) -> dict:
 
 
 def _receive_qos(q: QoSProfile) -> QoSProfile:
-    return QoSProfile(history=q.history, depth=max(q.depth, RECEIVE_DEPTH) if q.depth > 1 else q.depth,
+    """The publisher's QoS with a deep receive queue, latched (depth 1) topics too: a burst of
+    model_status faster than this node takes them must queue, not overwrite (a latched
+    writer still hands a late joiner only its own depth)."""
+    return QoSProfile(history=q.history, depth=max(q.depth, RECEIVE_DEPTH),
                       reliability=q.reliability, durability=q.durability)
 
 
