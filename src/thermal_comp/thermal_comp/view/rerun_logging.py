@@ -53,7 +53,6 @@ from typing import Any, Iterable
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 import yaml
 
 TIMELINE = "sim_time"
@@ -177,7 +176,8 @@ def split_topic(topic: str) -> tuple[str, str]:
     return "", t
 
 
-def _part(name: str) -> str:
+def path_part(name: str) -> str:
+    """One entity-path part (escaped; "_" for an empty name)."""
     return rr.escape_entity_path_part(str(name)) if name else "_"
 
 
@@ -329,10 +329,10 @@ class RerunLogger:
         self._t_s = (arrival_s if arrival_s is not None else self._data_t_s) if wall else stamp_s
 
     def _log_TemperatureArray(self, p: str, rel: str, m) -> None:
-        tree = TEMPERATURE_TREES.get(rel, _part(rel))
+        tree = TEMPERATURE_TREES.get(rel, path_part(rel))
         values = [float(v) for v in m.temperatures_degc]
         for sid, v, st in zip(m.sensor_ids, values, m.status):
-            self._scalar(f"{p}{tree}/{_part(sid)}", v)
+            self._scalar(f"{p}{tree}/{path_part(sid)}", v)
             key = f"{p}{tree}/{sid}"
             if self._last_status.get(key, 0) != int(st):
                 self._event(p, f"sensor {sid} ({rel}): {STATUS.get(int(st), st)}",
@@ -371,7 +371,7 @@ class RerunLogger:
         kind = SOURCES.get(int(m.source), f"source_{int(m.source)}")
         us = list(m.uncertainties) if len(m.uncertainties) == len(m.values) else [math.nan] * len(m.values)
         for comp, v, u in zip(m.component_names, m.values, us):
-            base = f"{p}errors/{_part(comp)}"
+            base = f"{p}errors/{path_part(comp)}"
             self._scalar(f"{base}/{kind}", float(v), kind, f"{comp} {kind}")
             if kind == "predicted" and math.isfinite(float(u)):
                 self._scalar(f"{base}/predicted_upper_2sigma", float(v) + 2 * float(u), "band", f"{comp} +2u")
@@ -382,7 +382,7 @@ class RerunLogger:
 
     def _log_AxisOffsets(self, p: str, rel: str, m) -> None:
         for i, axis in enumerate(m.axis_names):
-            base = f"{p}offsets/{_part(axis)}"
+            base = f"{p}offsets/{path_part(axis)}"
             if i < len(m.commanded_offsets_um):
                 self._scalar(f"{base}/commanded", float(m.commanded_offsets_um[i]), "commanded",
                              f"{axis} commanded")
@@ -406,13 +406,13 @@ class RerunLogger:
 
     def _log_MachineState(self, p: str, rel: str, m) -> None:
         for name, v in zip(m.spindle_names, m.spindle_speeds_rpm):
-            self._scalar(f"{p}machine/spindle/{_part(name)}_rpm", float(v))
+            self._scalar(f"{p}machine/spindle/{path_part(name)}_rpm", float(v))
         for name, v in zip(m.rotary_axis_names, m.rotary_axis_speeds_rpm):
-            self._scalar(f"{p}machine/rotary/{_part(name)}_rpm", float(v))
+            self._scalar(f"{p}machine/rotary/{path_part(name)}_rpm", float(v))
         for name, v in zip(m.drive_names, m.drive_powers_w):
-            self._scalar(f"{p}machine/drive_power/{_part(name)}_w", float(v))
+            self._scalar(f"{p}machine/drive_power/{path_part(name)}_w", float(v))
         for name, v in zip(m.axis_names, m.axis_positions):
-            self._scalar(f"{p}machine/axis/{_part(name)}", float(v))
+            self._scalar(f"{p}machine/axis/{path_part(name)}", float(v))
         self._scalar(f"{p}machine/coolant_on", 1.0 if m.coolant_on else 0.0)
         self._scalar(f"{p}machine/coolant_temperature_degc", float(m.coolant_temperature_degc))
         self._scalar(f"{p}machine/door_open", 1.0 if m.door_open else 0.0)
@@ -427,7 +427,7 @@ class RerunLogger:
         for st in m.status:
             node, _, name = str(st.name).rpartition(": ")
             name = name.replace(" ", "_")     # 'sensor spindle' -> sensor_spindle (no escaped spaces)
-            path = f"{p}diagnostics/{_part(node) + '/' if node else ''}{_part(name)}"
+            path = f"{p}diagnostics/{path_part(node) + '/' if node else ''}{path_part(name)}"
             level = int.from_bytes(st.level, "little") if isinstance(st.level, bytes) else int(st.level)
             self._scalar(f"{path}/level", float(level))
             if self._last_diagnostic.get(path) != (level, st.message):
@@ -439,54 +439,8 @@ class RerunLogger:
     def _log_Log(self, p: str, rel: str, m) -> None:
         """One /rosout line under the node that wrote it."""
         node = str(m.name).replace(".", "/").strip("/")
-        self._text(f"{p}rosout/{'/'.join(_part(x) for x in node.split('/')) if node else '_'}",
+        self._text(f"{p}rosout/{'/'.join(path_part(x) for x in node.split('/')) if node else '_'}",
                    f"[{m.name}] {m.msg}", ROSOUT_LEVELS.get(int(m.level), "INFO"))
 
     def _log_SimSync(self, p: str, rel: str, m) -> None:
         """Lock-step handshakes carry no measurement; counted, not drawn."""
-
-
-def _series(origin: str, name: str, **kw) -> rrb.TimeSeriesView:
-    """A time-series view whose x axis shows the whole recording (not only the last seconds)."""
-    whole = rrb.TimeRange(start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite())
-    return rrb.TimeSeriesView(origin=origin, name=name, axis_x=rrb.TimeAxis(view_range=whole), **kw)
-
-
-def default_blueprint(namespace: str = "", error_components: Iterable[str] = ()) -> rrb.Blueprint:
-    """Errors (one plot per component when they are known: units differ), temperatures,
-    offsets and model on the left; 3D sensor layout, machine state and, in tabs, events,
-    health (``/diagnostics``) and the ``/rosout`` log on the right."""
-    p = f"/{namespace.strip('/')}" if namespace.strip("/") else ""
-    comps = list(error_components)
-    if comps:
-        # small tiles: no legend (it would hide the curves); colours as in COLOURS and the title
-        errors = rrb.Grid(*[_series(f"{p}/errors/{_part(c)}",
-                                    f"{c}: true magenta, predicted +-2u blue, measured orange",
-                                    plot_legend=rrb.PlotLegend(visible=False))
-                            for c in comps])
-    else:
-        errors = _series(f"{p}/errors", "Thermal errors (true / predicted +-2u / measured)")
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                errors,
-                _series(f"{p}/temperatures", "Temperatures (degC)"),
-                rrb.Horizontal(
-                    _series(f"{p}/offsets", "CNC offsets (um)"),
-                    _series(f"{p}/model", "Model"),
-                ),
-                row_shares=[3, 2, 2] if comps else [2, 2, 2],
-            ),
-            rrb.Vertical(
-                rrb.Spatial3DView(origin=f"{p}/machine/sensors", name="Sensor layout"),
-                _series(f"{p}/machine", "Machine state", contents=["$origin/**", "- $origin/sensors/**"]),
-                rrb.Tabs(rrb.TextLogView(origin=f"{p}/events", name="Events"),
-                         rrb.TextLogView(origin="/diagnostics", name="Health (/diagnostics)"),
-                         rrb.TextLogView(origin="/rosout", name="Log (/rosout)")),
-            ),
-            column_shares=[3, 2],
-        ),
-        # opens on simulated time, the cursor on the newest data (each plot shows the whole run)
-        rrb.TimePanel(timeline=TIMELINE, state="collapsed", play_state="following"),
-        collapse_panels=True,
-    )

@@ -13,7 +13,8 @@ from rclpy.node import Node
 
 from thermal_comp_common.runtime import node_runtime as rt
 from thermal_comp.bags.recorder_node import DEFAULT_TOPICS, HEALTH_TOPICS, message_class
-from thermal_comp.view.rerun_logging import RerunLogger, default_blueprint, resolve_layout
+from thermal_comp.view.blueprint import default_blueprint
+from thermal_comp.view.rerun_logging import RerunLogger, resolve_layout
 from thermal_comp.view.rerun_sinks import RerunOutput, open_output
 
 

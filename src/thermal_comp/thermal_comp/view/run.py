@@ -12,8 +12,8 @@ import numpy as np
 import rerun as rr
 from tqdm import tqdm
 
-from thermal_comp.view.rerun_logging import (FOREIGN_TYPES, LayoutError, RerunLogger, default_blueprint,
-                                             resolve_layout, split_topic)
+from thermal_comp.view.blueprint import default_blueprint
+from thermal_comp.view.rerun_logging import FOREIGN_TYPES, LayoutError, RerunLogger, resolve_layout, split_topic
 from thermal_comp.view.rerun_sinks import FLUSH_TIMEOUT_S, SinkError, new_recording, open_output
 from thermal_comp_common.bags import msg_definitions
 from thermal_comp_common.bags.reader import BagReadError, read_bag

@@ -5,7 +5,7 @@ The plots are located from the page itself, not from the data: rerun draws a one
 separator line (``SEPARATOR`` grey) between views. The viewport lies between the first and
 the last full-width separator (top bar, time panel); the main column divider is the longest
 vertical separator; the error grid is the region its internal vertical separators span
-(top left, see ``default_blueprint``), cut into cells by them and by the horizontal
+(top left, see ``blueprint.default_blueprint``), cut into cells by them and by the horizontal
 separators across it. Cells are numbered in reading order, as rerun fills a grid. A cell shows
 data when its plot area (below the view's title bar) holds enough strongly coloured pixels
 (axes, grid lines, text and icons are grey; our series are magenta, blue and orange) spread
