@@ -46,6 +46,7 @@ setup(
             "scale = thermal_eval.bench.scale:run",
             "sensors = thermal_eval.bench.sensors:run",
             "twin = thermal_eval.bench.twin:run",
+            "view = thermal_eval.bench.view:run",
         ],
         # twin scenarios a dataset owns: "name = module:SCENARIO" (thermal_twin.sim.scenarios.PLUGIN_GROUP)
         "thermal_twin.sim.scenarios": ["fl-thermal-programme = thermal_eval.fl_thermal.scenario:SCENARIO"],
