@@ -56,3 +56,18 @@ def test_held_beyond_the_envelope_with_compensation_on_is_refused_and_nothing_is
         assert r["notes"][1].startswith("reconnect refused, not writing: after a reconnection the CNC applies X")
     else:
         assert r["notes"][-1].startswith("activate refused: the CNC applies X")
+
+
+def test_the_row_sees_the_old_re_apply_as_an_unsafe_write(monkeypatch):
+    """The re-apply of the last confirmed offset over what a restarted CNC holds (the bridge's
+    behaviour before a reconnection was a start-up) is one write of 30 um where 5 um are allowed."""
+    from cnc_bridge.bridge_core import BridgeCore
+    from thermal_eval.reliability import bridge_attacks
+
+    def re_apply_last_confirmed(core):
+        if core.backend.reconnect_pending:
+            core.backend.adopt(core.envelope.applied)
+        return []
+    monkeypatch.setattr(BridgeCore, "readopt_after_reconnect", re_apply_last_confirmed)
+    row = bridge_attacks._restart_row(free_tcp_port(), "cnc", -10.0, 1, "-10 um")
+    assert not row["survived"] and row["unsafe_writes"] == 1

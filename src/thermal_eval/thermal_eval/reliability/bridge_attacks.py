@@ -198,10 +198,10 @@ def _restart_row(port: int, restart: str, held_um: float, enabled: int, what: st
     beyond = enabled and abs(held_um) > LIMIT_UM
     ok = r["unsafe"] == 0 and ((r["refused"] is not None and not r["writing"] and r["moves_after"] == 0)
                                if beyond else (r["refused"] is None and abs(r["applied_um"] - 20.0) < 1e-6))
-    head = (r["refused"] or "")[:40] if beyond else f"CNC at {r['applied_um']:g} um at the end"
-    return _row(f"{restart} restart: {what} held", ok, r["unsafe"],
-                f"{r['moves_after']} writes after; {head}; audit: " + " / ".join(
-                    n.split(":")[0] for n in r["notes"]))
+    head = "refused, not writing" if r["refused"] else f"ramped back to {r['applied_um']:g} um"
+    return _row(f"{restart} restart holding {what}", ok, r["unsafe"],
+                f"{r['moves_after']} writes after it; {head}; audit: " + ", ".join(
+                    n.split(":")[0].split(",")[0] for n in r["notes"]))
 
 
 def _values_refused(port: int) -> tuple[int, int]:
@@ -314,7 +314,7 @@ def rows() -> list[dict]:
     for restart, held_um, enabled, what in (("cnc", -10.0, 1, "-10 um"), ("cnc", -5000.0, 1, "-5 mm"),
                                             ("cnc", 5000.0, 0, "5 mm, compensation off"),
                                             ("bridge", -5000.0, 1, "-5 mm")):
-        out += guarded("bridge", f"{restart} restart: {what} held",
+        out += guarded("bridge", f"{restart} restart holding {what}",
                        lambda a=(restart, held_um, enabled, what): _restart_row(free_tcp_port(), *a))
     refused, accepted = _values_refused(free_tcp_port())
     out.append(_row("NaN/inf/-inf/1e9 mm written to the CNC", refused == 4 and accepted == 0, accepted,
