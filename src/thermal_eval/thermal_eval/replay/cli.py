@@ -6,7 +6,8 @@ folder or an ``.mcap`` file) through an adaptive model, without ROS, probing onl
 model asks, with realistic probe noise (Table 5.4: 0.25 um linear, 1.2 um/m angular, 0.25 um
 resolution). Prints a Table 6.5-style table, writes the indicators as JSON and a PNG of true
 error, compensation and residual per component. A model component is named as its error column
-(``z_um``) or without its ``_um``; ``--score-from-h`` scores a held-out window only.
+(``z_um``) or without its ``_um``; ``--score-from-h`` scores a held-out window only. An existing
+output is refused (exit code 3) unless ``--force``.
 """
 from __future__ import annotations
 
@@ -25,11 +26,14 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp replay", description=__doc__.split("\n\n")[0])
     ap.add_argument("recording", metavar="REC", help="twin CSV, bag folder or .mcap file")
     ap.add_argument("--model", required=True, choices=MODEL_KINDS, help="model kind")
-    ap.add_argument("--config", metavar="YAML", help="model parameters (a mapping; `preset:` for TALC)")
+    ap.add_argument("--config", metavar="YAML",
+                    help="model parameters (a mapping; `preset:` for TALC); `sensors` and `components` for every "
+                         "model (components default to the recording's error columns)")
     ap.add_argument("--set", metavar="KEY=VALUE", action="append", default=[], dest="overrides",
                     help="override one parameter (YAML value, e.g. post_cp_interval_h=inf); repeatable")
     ap.add_argument("--json", metavar="OUT", required=True, help="write the indicators to this JSON file")
     ap.add_argument("--png", metavar="OUT", help="plot (default: the JSON path with .png)")
+    ap.add_argument("--force", action="store_true", help="overwrite an existing --json / --png (refused otherwise)")
     ap.add_argument("--probe-noise-um", type=float, default=TABLE_5_4_NOISE_LINEAR_UM,
                     help="probe noise sigma on linear components, um (default %(default)s, Table 5.4)")
     ap.add_argument("--probe-noise-um-per-m", type=float, default=TABLE_5_4_NOISE_ANGULAR_UM_PER_M,

@@ -9,10 +9,11 @@ import sys
 import time
 
 from thermal_eval.replay.baseline_beside import beside_probe_and_hold
+from thermal_eval.replay.config_keys import ConfigKeyError, canonical_config, replay_warnings
 from thermal_eval.replay.summary import (ReplayInputError, build_model, check_replay_recording, format_table,
                                          load_config_file, load_replay_recording, parse_overrides, probe_noise,
                                          summarise)
-from thermal_eval.replay.virtual_experiment import plot_virtual_experiment, run_virtual_experiment
+from thermal_eval.replay.virtual_experiment import ReplayColumns, plot_virtual_experiment, run_virtual_experiment
 
 
 def _with_prior(kind: str, config: dict, path: str):
@@ -59,8 +60,18 @@ def _writable(path: str, flag: str) -> pathlib.Path:
     return p
 
 
+def _refuse_existing(args) -> str | None:
+    """The overwrite rule of every output: an existing file is refused unless --force."""
+    paths = [("--json", args.json), ("--png", args.png or str(pathlib.Path(args.json).with_suffix(".png")))]
+    for flag, p in paths:
+        if pathlib.Path(p).is_file() and not args.force:
+            return f"{flag} {p!r} exists (use --force to overwrite it)"
+    return None
+
+
 def run(args) -> int:
-    """Replay as the parsed arguments say; the exit code (0 written, 2 bad input)."""
+    """Replay as the parsed arguments say; the exit code (0 written, 2 bad input, 3 output exists:
+    the inputs are checked first, then an existing output is refused before the replay runs)."""
     try:
         png_path = _writable(args.png, "--png") if args.png else None
         json_path = _writable(args.json, "--json")
@@ -72,12 +83,20 @@ def run(args) -> int:
             raise ReplayInputError(f"--hours: {args.hours!r} must be a finite number > 0")
         config = load_config_file(args.config) if args.config else {}
         config.update(parse_overrides(args.overrides))
-        model = build_model(args.model, config) if not args.prior else _with_prior(args.model, config, args.prior)
         rec = load_replay_recording(args.recording, args.errors_topic, args.temperatures_topic)
+        config, notes = canonical_config(args.model, config, rec.names("error"))
+        model = build_model(args.model, config) if not args.prior else _with_prior(args.model, config, args.prior)
         stop = None
         if args.hours is not None:
             stop = int((rec.time_s <= rec.time_s[0] + 3600.0 * args.hours).sum())
         check_replay_recording(rec, model.component_names, stop)
+        named = ReplayColumns.from_recording(rec).errors
+        refused = _refuse_existing(args) if all(c in named for c in model.component_names) else None
+        if refused:       # (a component without a column is named by the replay itself: exit 2)
+            print(f"thermal-comp replay: {refused}", file=sys.stderr)
+            return 3
+        for note in notes:
+            print(f"warning: {note}", file=sys.stderr)
         for warning in rec.warnings:
             print(f"warning: {warning}", file=sys.stderr)
         noise = probe_noise(model.component_names, args.probe_noise_um, args.probe_noise_um_per_m)
@@ -88,15 +107,18 @@ def run(args) -> int:
         wall = time.perf_counter() - t0
         status = model.status(float(result.time_s[-1]))
         summary = summarise(result, status, args.score_from_h)
-    except (ReplayInputError, ValueError) as exc:
+    except (ReplayInputError, ConfigKeyError, ValueError) as exc:
         print(f"thermal-comp replay: {exc}", file=sys.stderr)
         return 2
+    for note in replay_warnings(summary):
+        print(f"warning: {note}", file=sys.stderr)
     beside, text = beside_probe_and_hold(result, summary["q_prod_pct"], noise, args.probe_resolution_um, seed=args.seed)
     out = {"recording": str(args.recording), "model": args.model, "config": config,
            "errors_topic": args.errors_topic, "temperatures_topic": args.temperatures_topic,
            "probe_noise": {"linear_um": args.probe_noise_um, "angular_um_per_m": args.probe_noise_um_per_m,
                            "resolution_um": args.probe_resolution_um, "seed": args.seed},
-           "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3)}
+           "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3),
+           "warnings": replay_warnings(summary)}
     json_path.write_text(json.dumps(_json_safe(out), indent=2) + "\n")
     png = png_path or json_path.with_suffix(".png")
     plot_virtual_experiment(result, png, title=f"{args.model} {pathlib.Path(args.recording).name}")
