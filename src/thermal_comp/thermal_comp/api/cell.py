@@ -153,8 +153,10 @@ class Cell:
 
         if not self.graph.spin_until(ready, timeout_s):
             missing = sorted(want - set(self.graph.nodes()))
+            logs = f" (node logs in {self.launcher.run_dir})" if self.launcher is not None else ""
             raise CellTimeout(f"cell not ready within {timeout_s:g} s: "
-                              + (f"nodes not seen: {', '.join(missing)}" if missing else "managed nodes not active"))
+                              + (f"nodes not seen: {', '.join(missing)}" if missing else "managed nodes not active")
+                              + logs)
         if self.launcher is not None and self.launcher.lifecycle_failures:
             raise CellError("; ".join(self.launcher.lifecycle_failures))
         return time.monotonic() - start
