@@ -21,6 +21,7 @@ from talc_model.adaptive_model import (PHASE_CALIBRATION, PHASE_COMPENSATION, Mo
                                        prior_model_class, register_model)
 from talc_model.agp.gaussian_process import AgpConfigError, ArdGaussianProcess
 from talc_model.agp.offset_model import OffsetModel
+from talc_model.probing.hold_fallback import HoldFallback, probe_totals
 from talc_model.open_loop.sensor_selection import calibration_points_needed
 
 
@@ -59,6 +60,9 @@ class AgpConfig:
     max_history_rows: int = 20000             # input history kept for the k-means grouping
     seed: int = 0
     offset_models: list[dict] = field(default_factory=list)   # OffsetModel.to_state() dicts
+    #: per component, hold the last probe while the model's prequential score is not better than
+    #: holding it (talc_model.probing.hold_fallback; False = always the model's prediction)
+    hold_fallback: bool = True
 
     @classmethod
     def from_mapping(cls, config: Mapping[str, Any]) -> "AgpConfig":
@@ -92,6 +96,8 @@ class AgpConfig:
             raise AgpConfigError(f"agp config: 'max_optimize_points' must be >= 0, got {self.max_optimize_points!r}")
         if int(self.max_training_points) < 10:
             raise AgpConfigError(f"agp config: 'max_training_points' must be >= 10, got {self.max_training_points!r}")
+        if not isinstance(self.hold_fallback, bool):
+            raise AgpConfigError(f"agp config: 'hold_fallback' must be true or false, got {self.hold_fallback!r}")
         if int(self.points_per_group) < 1 or int(self.max_groups) < 1:
             raise AgpConfigError(f"agp config: 'points_per_group' and 'max_groups' must be >= 1, got "
                                  f"{self.points_per_group!r}, {self.max_groups!r}")
@@ -141,6 +147,8 @@ class AdaptiveGaussianProcess:
         self.message = "calibration: compensating with the measured error"
         self._cache_key: int = 0
         self._cache: tuple[int, dict, dict] | None = None
+        #: per component: the model's prediction or its last probe (probing.hold_fallback)
+        self.hold = HoldFallback(self.component_names, cfg.hold_fallback)
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> "AdaptiveGaussianProcess":
@@ -210,6 +218,16 @@ class AdaptiveGaussianProcess:
         return mean, std
 
     def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
+        """The compensation: per component the model's prediction or, where it is not worth more
+        than the last probe, that probe (:attr:`hold`; the calibration phase holds it anyway)."""
+        values, stds = self._predict_raw(t_s)
+        return self.hold.output(float(t_s), values, self._has_prediction()), stds
+
+    def _has_prediction(self) -> bool:
+        """Whether the output is the model's own (the calibration phase holds the measured error)."""
+        return self.phase != PHASE_CALIBRATION
+
+    def _predict_raw(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
         mean, std = self._base_prediction()
         values, stds = dict(mean), dict(std)
         for om in self.offset_models:
@@ -265,6 +283,13 @@ class AdaptiveGaussianProcess:
 
     def add_measurement(self, t_s: float, measured: Mapping[str, float],
                         applied_compensation: Mapping[str, float]) -> None:
+        """Learn from a probe (:meth:`_learn`), then score the prediction made before it against
+        holding the previous probe (:attr:`hold`)."""
+        self._learn(t_s, measured, applied_compensation)
+        self.hold.observe(float(t_s), probe_totals(measured, applied_compensation))
+
+    def _learn(self, t_s: float, measured: Mapping[str, float],
+               applied_compensation: Mapping[str, float]) -> None:
         cfg = self.config
         if self.current_x is None:
             raise AgpConfigError("add_measurement: no inputs yet (call update_inputs first)")
@@ -365,14 +390,14 @@ class AdaptiveGaussianProcess:
         elapsed = 0.0 if self.t_start is None else max(t_s - self.t_start, 0.0)
         probing = (self.probing_cycles + self.failed_probing_cycles) * self.config.probe_duration_s
         q = 100.0 if elapsed <= 0 else max(0.0, 100.0 * (1.0 - probing / elapsed))
-        _, stds = self.predict(t_s)
+        _, stds = self._predict_raw(t_s)
         finite = [s for s in stds.values() if math.isfinite(s)]
         return ModelStatusData(phase=self.phase, probing_cycles=self.probing_cycles,
                                failed_probing_cycles=self.failed_probing_cycles, no_good_phases=0,
                                parameter_updates=self.parameter_updates, training_samples=len(self.train_x),
                                q_prod_pct=q, next_probing_due_s=self._next_due(),
                                max_uncertainty=max(finite) if finite else math.nan,
-                               excluded_sensor_ids=list(self.excluded), message=self.message)
+                               excluded_sensor_ids=list(self.excluded), message=self.message + self.hold.note())
 
     def to_state(self) -> dict:
         cfg = asdict(self.config)
@@ -388,7 +413,7 @@ class AdaptiveGaussianProcess:
                 "parameter_updates": self.parameter_updates, "recalibration_times": self.recalibration_times,
                 "control_measurements": self.control_measurements, "n_min": self.n_min,
                 "n_groups": self.n_groups, "message": self.message, "pending_reason": self.pending_reason,
-                "gps": {c: gp.to_state() for c, gp in self.gps.items()}}
+                "gps": {c: gp.to_state() for c, gp in self.gps.items()}, "hold_fallback": self.hold.to_state()}
 
     @classmethod
     def from_state(cls, state: dict) -> "AdaptiveGaussianProcess":
@@ -405,6 +430,8 @@ class AdaptiveGaussianProcess:
                 setattr(model, key, state[key])
             model.current_x = None if state["current_x"] is None else np.asarray(state["current_x"], dtype=float)
             model.gps = {c: ArdGaussianProcess.from_state(s) for c, s in state["gps"].items()}
+            model.hold = HoldFallback.from_state(state.get("hold_fallback"), model.component_names,
+                                                 model.config.hold_fallback)
         except KeyError as exc:
             raise AgpConfigError(f"model state: missing key {exc}") from None
         if set(model.gps) != set(model.config.components):

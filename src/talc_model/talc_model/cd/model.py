@@ -36,6 +36,7 @@ from talc_model.adaptive_model import (PHASE_CALIBRATION, PHASE_COMPENSATION, Mo
                                        register_model)
 from talc_model.cd.input_selection import forward_selection
 from talc_model.cd.diagram import CharacteristicDiagram, load_case_update
+from talc_model.probing.hold_fallback import HoldFallback, probe_totals
 from talc_model.type_inputs import held_input_labels, load_soft_sensors, restore_soft_sensors
 from thermal_comp_common.components import FIVE_AXIS_COMPONENTS
 
@@ -73,6 +74,9 @@ class CdConfig:
     update_rmse_floor: float = 0.0
     probe_duration_s: float = 95.0
     seed: int = 0
+    #: per component, hold the last probe while the model's prequential score is not better than
+    #: holding it (talc_model.probing.hold_fallback; False = always the model's prediction)
+    hold_fallback: bool = True
 
     @classmethod
     def from_mapping(cls, config: Mapping[str, Any]) -> "CdConfig":
@@ -101,6 +105,8 @@ class CdConfig:
         if cfg.type_inputs and not cfg.type_model:
             raise CdModelError(f"cd config: 'type_inputs' {cfg.type_inputs} are soft sensors of the machine type, "
                                "but 'type_model' names no type (a preset name or a machine YAML)")
+        if not isinstance(cfg.hold_fallback, bool):
+            raise CdModelError(f"cd config: 'hold_fallback' must be true or false, got {cfg.hold_fallback!r}")
         if not (isinstance(cfg.min_calibration_s, (int, float)) and cfg.min_calibration_s >= 0):
             raise CdModelError(f"cd config: 'min_calibration_s' must be >= 0, got {cfg.min_calibration_s!r}")
         return cfg
@@ -152,6 +158,8 @@ class CharacteristicDiagramModel:
                                                "'type_inputs'") if self.config.type_inputs else None)
         self._key = 0
         self._cache: tuple[int, dict, dict] | None = None
+        #: per component: the model's prediction or its last probe (probing.hold_fallback)
+        self.hold = HoldFallback(self.component_names, self.config.hold_fallback)
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> "CharacteristicDiagramModel":
@@ -222,6 +230,12 @@ class CharacteristicDiagramModel:
 
     # ------------------------------------------------------------------ prediction
     def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
+        """The compensation: per component the diagrams' prediction or, where it is not worth more
+        than the last probe, that probe (:attr:`hold`; the calibration phase holds it anyway)."""
+        values, stds = self._predict_raw(t_s)
+        return self.hold.output(float(t_s), values, self.phase != PHASE_CALIBRATION), stds
+
+    def _predict_raw(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
         if self._cache is not None and self._cache[0] == self._key:
             return dict(self._cache[1]), dict(self._cache[2])
         values, stds = {}, {}
@@ -255,6 +269,13 @@ class CharacteristicDiagramModel:
 
     def add_measurement(self, t_s: float, measured: Mapping[str, float],
                         applied_compensation: Mapping[str, float]) -> None:
+        """Learn from a probe (:meth:`_learn`), then score the prediction made before it against
+        holding the previous probe (:attr:`hold`)."""
+        self._learn(t_s, measured, applied_compensation)
+        self.hold.observe(float(t_s), probe_totals(measured, applied_compensation))
+
+    def _learn(self, t_s: float, measured: Mapping[str, float],
+               applied_compensation: Mapping[str, float]) -> None:
         if self.current is None:
             raise CdModelError("add_measurement: no inputs yet (call update_inputs first)")
         self.t_last_probe = float(t_s)
@@ -285,7 +306,7 @@ class CharacteristicDiagramModel:
                 self.message = f"base diagrams fitted at t={t_s:.0f} s on {len(self.base_u)} measurements"
             self._cache = None
             return
-        predicted, _ = self.predict(t_s)
+        predicted, _ = self._predict_raw(t_s)
         for c, v in totals.items():
             self.errors[c].append(v - predicted[c])
         self.new_u.append(self.current.tolist())
@@ -328,7 +349,7 @@ class CharacteristicDiagramModel:
     def status(self, t_s: float) -> ModelStatusData:
         elapsed = 0.0 if self.t_start is None else max(t_s - self.t_start, 0.0)
         probing = (self.probing_cycles + self.failed_probing_cycles) * self.config.probe_duration_s
-        _, stds = self.predict(t_s)
+        _, stds = self._predict_raw(t_s)
         finite = [s for s in stds.values() if math.isfinite(s)]
         return ModelStatusData(
             phase=self.phase, probing_cycles=self.probing_cycles, failed_probing_cycles=self.failed_probing_cycles,
@@ -337,7 +358,7 @@ class CharacteristicDiagramModel:
             next_probing_due_s=(self.t_start or 0.0) if self.t_last_probe is None else self.t_last_probe + self._interval(),
             max_uncertainty=max(finite) if finite else math.nan,
             excluded_sensor_ids=list(self.excluded) + held_input_labels(self.soft_sensors),
-            message=self.message)
+            message=self.message + self.hold.note())
 
     def to_state(self) -> dict:
         return {"kind": self.kind, "config": asdict(self.config), "phase": self.phase,
@@ -353,7 +374,8 @@ class CharacteristicDiagramModel:
                 "probing_cycles": self.probing_cycles, "failed_probing_cycles": self.failed_probing_cycles,
                 "parameter_updates": self.parameter_updates, "pending_since_update": self.pending_since_update,
                 "message": self.message,
-                "soft_sensors": None if self.soft_sensors is None else self.soft_sensors.to_state()}
+                "soft_sensors": None if self.soft_sensors is None else self.soft_sensors.to_state(),
+                "hold_fallback": self.hold.to_state()}
 
     @classmethod
     def from_state(cls, state: dict) -> "CharacteristicDiagramModel":
@@ -376,6 +398,7 @@ class CharacteristicDiagramModel:
             m.update = {c: CharacteristicDiagram.from_state(s) for c, s in state["update"].items()}
             m.errors = {c: deque(e, maxlen=m.config.uncertainty_window) for c, e in state["errors"].items()}
             m.message += restore_soft_sensors(m.soft_sensors, state)
+            m.hold = HoldFallback.from_state(state.get("hold_fallback"), m.component_names, m.config.hold_fallback)
         except KeyError as exc:
             raise CdModelError(f"model state: missing key {exc}") from None
         return m

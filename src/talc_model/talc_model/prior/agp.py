@@ -178,6 +178,7 @@ class AgpPriorModel(AdaptiveGaussianProcess):
         if not (math.isfinite(self.check_s) and self.check_s >= 0 and math.isfinite(self.agree_um) and self.agree_um > 0):
             raise PriorError(f"agp prior: check_s {self.check_s!r} must be >= 0 and agree_um {self.agree_um!r} > 0")
         self.message = "prior: compensating with the machine type's GP, checking it with the first probes"
+        self.hold.trust()
         self._prior_cache: tuple[int, dict[str, float]] | None = None
 
     def _new_gp(self) -> ArdGaussianProcess:
@@ -208,8 +209,8 @@ class AgpPriorModel(AdaptiveGaussianProcess):
         self._prior_cache = (self._cache_key, mean)
         return mean
 
-    def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
-        values, stds = super().predict(t_s)
+    def _predict_raw(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
+        values, stds = super()._predict_raw(t_s)
         pm = self.prior_mean()
         for c in self.config.components:
             values[c] += pm[c]
@@ -217,11 +218,15 @@ class AgpPriorModel(AdaptiveGaussianProcess):
             values[om.component] += pm[om.base]
         return values, stds
 
-    def add_measurement(self, t_s: float, measured: Mapping[str, float],
-                        applied_compensation: Mapping[str, float]) -> None:
+    def _has_prediction(self) -> bool:
+        """The prior's mean (plus the residual held in the shortened calibration) is a prediction."""
+        return True
+
+    def _learn(self, t_s: float, measured: Mapping[str, float],
+               applied_compensation: Mapping[str, float]) -> None:
         pm = self.prior_mean() if self.current_x is not None else {}
         residual = {c: (float(v) - pm.get(c, math.nan) if c in pm else v) for c, v in measured.items()}
-        super().add_measurement(t_s, residual, applied_compensation)
+        super()._learn(t_s, residual, applied_compensation)
 
     def _maybe_finish_calibration(self, t_s: float) -> None:
         elapsed = t_s - (self.t_start if self.t_start is not None else t_s)

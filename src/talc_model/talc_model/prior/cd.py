@@ -309,6 +309,7 @@ class CdPriorModel(CharacteristicDiagramModel):
         self.base_y = {c: list(prior["anchors"]["y"][c]) for c in self.component_names}
         self.phase = PHASE_COMPENSATION
         self.message = "prior: compensating with the machine type's characteristic diagrams"
+        self.hold.trust()
         self.anchored = bool(adapt.get("anchored", True))
         self.gain_window = int(adapt["gain_window"])
         self.min_pairs = int(adapt["min_pairs"])
@@ -359,7 +360,7 @@ class CdPriorModel(CharacteristicDiagramModel):
             return float(self.prior_gain.get(c, 1.0))
         return change_gain([x[1] for x in pairs], [x[2] for x in pairs])
 
-    def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
+    def _predict_raw(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
         """The level of the last probe plus the diagrams' predicted change since it, weighted by
         :meth:`change_gain` (before any probe: the change since the first row, where the errors,
         deltas from the start, are 0)."""
@@ -367,7 +368,7 @@ class CdPriorModel(CharacteristicDiagramModel):
             return {c: 0.0 for c in self.component_names}, {c: math.nan for c in self.component_names}
         if self._cache is not None and self._cache[0] == self._key:
             return dict(self._cache[1]), dict(self._cache[2])
-        raw, stds = super().predict(t_s)
+        raw, stds = super()._predict_raw(t_s)
         if not self.anchored:
             return raw, stds
         if self.anchor is None:
@@ -378,8 +379,8 @@ class CdPriorModel(CharacteristicDiagramModel):
         self._cache = (self._key, dict(values), dict(stds))
         return values, stds
 
-    def add_measurement(self, t_s: float, measured: Mapping[str, float],
-                        applied_compensation: Mapping[str, float]) -> None:
+    def _learn(self, t_s: float, measured: Mapping[str, float],
+               applied_compensation: Mapping[str, float]) -> None:
         """The CD model's measurement (load-case update), then the walk-forward pair (the change the
         diagrams predicted since the last probe, before learning from this one, against the
         measured change) and the new anchor."""
@@ -387,7 +388,7 @@ class CdPriorModel(CharacteristicDiagramModel):
         before = self._diagrams(self.current) if self.current is not None and self.anchor is not None else None
         u_prev = None if self.anchor is None else np.asarray(self.anchor["u"], float)
         prev = None if u_prev is None else self._diagrams(u_prev)
-        super().add_measurement(t_s, measured, applied_compensation)
+        super()._learn(t_s, measured, applied_compensation)
         if self.probing_cycles == done:                              # not learned from
             return
         totals = {c: float(measured[c]) + _finite(applied_compensation.get(c, 0.0)) for c in self.component_names}

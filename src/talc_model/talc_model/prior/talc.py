@@ -253,6 +253,7 @@ class TalcPriorModel(TalcModel):
         self.prior_gram: dict[str, np.ndarray] = {}
         if self.prior is not None:
             self._install_prior()
+            self.hold.trust()
 
     def _install_prior(self) -> None:
         trained = TalcModel.from_state(self.prior["talc_state"])

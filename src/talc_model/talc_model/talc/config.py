@@ -128,6 +128,9 @@ class TalcConfig:
     #: standard deviation of one probe (Table 5.4: U(k=2) 0.4-0.6 um, 2.3-2.6 um/m)
     probe_noise_linear_um: float = 0.25
     probe_noise_angular_um_per_m: float = 1.2
+    #: per component, hold the last probe while the model's prequential score is not better than
+    #: holding it (talc_model.probing.hold_fallback; False = always the model's prediction)
+    hold_fallback: bool = True
 
     def __post_init__(self) -> None:
         self.component_names = [str(c) for c in self.component_names]
@@ -195,6 +198,8 @@ class TalcConfig:
             raise ValueError(f"TALC config 'cp_gap_fill': {self.cp_gap_fill!r} is not 'predict' or 'interpolate'")
         if not self.component_names:
             raise ValueError("TALC config 'component_names': empty")
+        if not isinstance(self.hold_fallback, bool):
+            raise ValueError(f"TALC config 'hold_fallback': {self.hold_fallback!r} must be true or false")
 
     @classmethod
     def from_mapping(cls, config: Mapping[str, Any]) -> "TalcConfig":

@@ -27,6 +27,7 @@ from talc_model.talc.config import PRESETS, TalcConfig, input_signal, parse_inpu
 from talc_model.talc.grid import ModelGrid
 from talc_model.talc.identification import TalcIdentification
 from talc_model.talc.probing_schedule import TalcProbingSchedule
+from talc_model.probing.hold_fallback import HoldFallback
 from talc_model.type_inputs import held_input_labels, restore_soft_sensors, soft_sensors_for
 
 STATE_VERSION = 1
@@ -74,6 +75,8 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         self.message = "calibration phase: waiting for the first measurement"
         self.events: list[dict] = []               # phase transitions and updates (for reports)
         self.soft_sensors = soft_sensors_for(c)    # the machine type's twin (type_model), or None
+        #: per component: the model's prediction or its last probe (probing.hold_fallback)
+        self.hold = HoldFallback(self.component_names, c.hold_fallback)
         if self.input_names:
             self._init_grid()
 
@@ -232,6 +235,12 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
 
     # ------------------------------------------------------------------ prediction
     def predict(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
+        """The compensation: per component the model's prediction or, where it is not worth more
+        than the last probe (or in the calibration phase), that probe (:attr:`hold`)."""
+        values, stds = self._predict_raw(t_s)
+        return self.hold.output(float(t_s), values, self.phase != PHASE_CALIBRATION), stds
+
+    def _predict_raw(self, t_s: float) -> tuple[dict[str, float], dict[str, float]]:
         t_s = float(t_s)
         self._advance(t_s)
         self._maybe_periodic_update(t_s)
@@ -320,6 +329,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         self._probed(t_s)
         if self.phase != PHASE_CALIBRATION:
             self._resimulate_after(k)
+        self.hold.observe(t_s, total)
         self._after_measurement(t_s, residual)
 
     def _after_measurement(self, t_s: float, residual: Mapping[str, float]) -> None:
@@ -370,7 +380,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
             q_prod_pct=self.q_prod_pct(float(t_s)), next_probing_due_s=self.next_probe_due_s(),
             max_uncertainty=max(unc) if unc else math.nan,
             excluded_sensor_ids=list(self.held_inputs) + held_input_labels(self.soft_sensors),
-            message=self.message)
+            message=self.message + self.hold.note())
 
     # ------------------------------------------------------------------ persistence
     def to_state(self) -> dict:
@@ -391,6 +401,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
             "observer": {n: {"k": k, "p": p.tolist()} for n, (k, p) in self.observer.items()},
             "message": self.message, "events": list(self.events),
             "soft_sensors": self.soft_sensors.to_state() if self.soft_sensors is not None else None,
+            "hold_fallback": self.hold.to_state(),
         }
 
     @classmethod
@@ -434,6 +445,8 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
                           for n, d in (state.get("observer") or {}).items()}
         model.message = state.get("message", "") + restore_soft_sensors(model.soft_sensors, state)
         model.events = list(state.get("events", []))
+        model.hold = HoldFallback.from_state(state.get("hold_fallback"), model.component_names,
+                                             model.config.hold_fallback)
         return model
 
     @classmethod
@@ -455,4 +468,5 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         model.phase = PHASE_COMPENSATION
         model.nb_max_selected = trained.nb_max_selected
         model.message = "started from a pre-trained model (no calibration phase)"
+        model.hold.trust()
         return model

@@ -39,7 +39,7 @@ def _run(model_arx: ArxModel, plant_arx: ArxModel, state_update: str, hours: flo
     true[: plant_arx.orders.max_lag] = 0.0
     cfg = {"component_names": ["E_X0C"], "angular_components": [], "input_names": ["amb"],
            "update_interval_h": math.inf, "acl_linear_um": math.inf, "state_update": state_update,
-           "probe_noise_linear_um": noise_um}
+           "probe_noise_linear_um": noise_um, "hold_fallback": False}   # the observer alone
     m = TalcModel(cfg)
     m.models = {"E_X0C": model_arx}
     m.phase = PHASE_COMPENSATION

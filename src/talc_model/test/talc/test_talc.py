@@ -31,7 +31,8 @@ def plant(n, change_at=None, seed=0):
 def config(**over):
     cfg = dict(component_names=COMPONENTS, input_names=["a", "b"], model_step_s=STEP,
                cp_interval_s=STEP - 95.0, post_cp_interval_h=1.0, ng_interval_min=(STEP - 95.0) / 60,
-               ng_measurements=4, update_interval_h=1000.0, na_max=1, nb_max=2, nb_max_final=2)
+               ng_measurements=4, update_interval_h=1000.0, na_max=1, nb_max=2, nb_max_final=2,
+               hold_fallback=False)   # the thesis's state machine alone (the fall-back: test_hold_fallback)
     cfg.update(over)
     return cfg
 

@@ -28,6 +28,7 @@ na_max: 1
 nb_max: 1
 nb_max_final: 1
 cp_gap_fill: predict        # the fake plant jumps between samples: no interpolation of failed CP probes
+hold_fallback: false        # the fake machine measures against the published prediction; checked exactly below
 """
 
 

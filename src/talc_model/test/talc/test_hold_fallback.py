@@ -1,0 +1,122 @@
+"""talc_model.probing.hold_fallback: the prequential switch between a model and its last probe, the
+resolution of a quantised signal, and the fall-back inside TALC, the AGP and the CD model."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from talc_model.adaptive_model import make_model
+from talc_model.probing.hold_fallback import (MIN_SCORED, MODE_HOLD, MODE_MODEL, HoldFallback, probe_totals,
+                                              resolution)
+
+
+def test_resolution_of_a_quantised_signal_and_none_of_a_continuous_one():
+    rng = np.random.default_rng(0)
+    steps = 0.13 * rng.integers(-3, 4, 60)
+    assert resolution(steps) == pytest.approx(0.13)
+    assert math.isnan(resolution(rng.normal(0, 0.2, 60)))
+    assert math.isnan(resolution([0.13, 0.26]))                # too few steps to tell
+
+
+def test_probe_totals_add_the_applied_compensation_and_skip_unprobed():
+    assert probe_totals({"a": 1.0, "b": math.nan}, {"a": 2.0, "b": 5.0}) == {"a": 3.0}
+    assert probe_totals({"a": 1.0}, {"a": math.nan}) == {"a": 1.0}
+
+
+def _drive_core(hf, truth, model_error, probe_every=10):
+    """Probe every ``probe_every`` steps; the model predicts truth + model_error(k)."""
+    out = []
+    for k, y in enumerate(truth):
+        v = hf.output(float(k), {"c": y + model_error(k)}, True)["c"]
+        out.append(v)
+        if k % probe_every == 0:
+            hf.observe(float(k), {"c": y})
+    return np.array(out)
+
+
+def test_a_model_worse_than_holding_is_held_and_a_good_one_earns_the_model_mode():
+    t = np.arange(400)
+    truth = 0.01 * t                                   # a steady drift: holding lags it
+    rng = np.random.default_rng(1)
+    bad = HoldFallback(["c"], trusted=True)
+    _drive_core(bad, truth, lambda k: rng.normal(0, 3.0))
+    assert bad.mode("c") == MODE_HOLD and bad.components["c"].switches == 1
+    good = HoldFallback(["c"])
+    assert good.mode("c") == MODE_HOLD                 # from zero: the model earns its mode
+    _drive_core(good, truth, lambda k: 0.0)
+    assert good.mode("c") == MODE_MODEL
+    assert good.diagnostics()["c"]["ratio_to_hold"] < 0.2    # its start error is read one step after a probe
+
+
+def test_no_switch_before_min_scored_and_hysteresis_between_the_thresholds():
+    hf = HoldFallback(["c"], trusted=True)
+    for k in range(MIN_SCORED):                        # scored probes 1 .. MIN_SCORED-1 decide nothing
+        hf.output(float(k), {"c": 10.0}, True)
+        hf.observe(float(k), {"c": 0.0})
+    assert hf.mode("c") == MODE_MODEL
+    hf.output(float(MIN_SCORED), {"c": 10.0}, True)
+    hf.observe(float(MIN_SCORED), {"c": 0.0})
+    assert hf.mode("c") == MODE_HOLD
+    comp = hf.components["c"]
+    comp.scores.clear()
+    comp.scores.extend([(0.85 ** 2, 1.0)] * 8)         # ratio 0.85: between 0.8 and 0.95
+    hf._decide(comp)
+    assert hf.mode("c") == MODE_HOLD
+
+
+def test_hold_mode_outputs_the_last_probe_and_disabled_passes_the_model():
+    hf = HoldFallback(["c"])
+    hf.observe(0.0, {"c": 2.5})
+    assert hf.output(1.0, {"c": 9.0}, True) == {"c": 2.5}
+    assert hf.output(1.0, {"c": 9.0}, False) == {"c": 2.5}     # calibration: no prediction yet, hold
+    off = HoldFallback(["c"], enabled=False)
+    off.observe(0.0, {"c": 2.5})
+    assert off.output(1.0, {"c": 9.0}, True) == {"c": 9.0}
+
+
+def _plateau(hours=48.0, step_s=300.0, seed=3):
+    """A temperature-driven error quantised in 0.13-um steps with slow plateaus."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hours * 3600.0, step_s)
+    amb = 20.0 + np.cumsum(rng.normal(0, 0.02, t.size)) + 0.8 * np.sin(2 * np.pi * t / 86400.0)
+    smooth = np.convolve(amb - amb[0], np.ones(24) / 24, mode="full")[: t.size]
+    return t, amb, 0.13 * np.round(0.6 * smooth / 0.13)
+
+
+def _closed_loop(model, t, amb, y):
+    out, probes = np.zeros_like(y), []
+    for k in range(t.size):
+        model.update_inputs(float(t[k]), {"amb": float(amb[k])}, {})
+        v, _ = model.predict(float(t[k]))
+        out[k] = v["E"]
+        if model.probe_due(float(t[k])):
+            model.add_measurement(float(t[k]), {"E": y[k] - v["E"]}, {"E": v["E"]})
+            probes.append(k)
+    hold = np.zeros_like(y)
+    for a, b in zip(probes, probes[1:] + [t.size - 1]):
+        hold[a + 1:b + 1] = y[a]
+    return out, hold, probes
+
+
+@pytest.mark.parametrize("kind,config", [
+    ("talc", {"component_names": ["E"], "angular_components": [], "input_names": ["amb"], "post_cp_interval_h": 1.0}),
+    ("agp", {"components": ["E"], "sensors": ["amb"], "control_interval_s": 3600.0, "min_calibration_s": 7200.0,
+             "max_expected_error_um": 10.0}),
+    ("cd", {"components": ["E"], "sensors": ["amb"], "min_calibration_s": 7200.0, "max_inputs": 1,
+            "calibration_probe_interval_s": 900.0, "update_probe_interval_s": 3600.0}),
+])
+def test_on_a_quantised_plateau_signal_each_model_is_within_10_percent_of_holding_its_probes(kind, config):
+    t, amb, y = _plateau()
+    model = make_model(kind, config)
+    out, hold, probes = _closed_loop(model, t, amb, y)
+    rows = slice(probes[0] + 1, None)
+    mae, mae_hold = np.mean(np.abs(y[rows] - out[rows])), np.mean(np.abs(y[rows] - hold[rows]))
+    assert mae <= 1.1 * mae_hold + 1e-9, (kind, mae, mae_hold)
+    status = model.status(float(t[-1]))
+    assert "quantised in 0.13 steps" in status.message
+    diag = model.hold.diagnostics()["E"]
+    assert diag["resolution"] == pytest.approx(0.13)
+    back = type(model).from_state(json.loads(json.dumps(model.to_state())))
+    assert back.hold.diagnostics()["E"]["mode"] == diag["mode"]
+    assert back.hold.components["E"].last_total == model.hold.components["E"].last_total
