@@ -28,6 +28,7 @@ setup(
         "thermal_comp.commands": [
             "bench = thermal_eval.bench.cli:main",
             "evaluate = thermal_eval.evaluate.cli:main",
+            "learn = thermal_eval.learn.cli:main",
             "replay = thermal_eval.replay.cli:main",
             "sweep = thermal_eval.sweep.cli:main",
         ],
@@ -40,6 +41,7 @@ setup(
             "evaluate = thermal_eval.bench.evaluate:run",
             "faults = thermal_eval.bench.faults:run",
             "fl-thermal = thermal_eval.fl_thermal.benchmark:run",
+            "learn = thermal_eval.bench.learn:run",
             "model = thermal_eval.bench.model:run",
             "models = thermal_eval.bench.sweep:run",
             "probe = thermal_eval.bench.probe:run",

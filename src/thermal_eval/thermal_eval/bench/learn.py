@@ -1,0 +1,145 @@
+"""`thermal-comp bench learn`: the twin learns each unit from its cell's own probes.
+
+For every structural unit (thermal_eval.learn.units: an extra source, changed hall links, a
+thermo-elastic gain beyond tolerance, a biased hall sensor, a chiller that follows the hall;
+seeds 11-12, never looked at while building it) a 178 h talc-178h-dry run is simulated. TALC
+with the type's prior runs on it as a cell would and probes on its own schedule; the probes of
+the first 48 h (Table 5.4 noise, 0.25 um resolution) plus the recorded temperatures and machine
+inputs (no true hall, no ground truth) are all ``learn`` sees. A prior is built on the learned
+unit twin and TALC restarts from it at 48 h. Printed per unit, over the rest of the run: P99_lin
+and its ratio to probe-and-hold at the model's own Q_prod, before (type prior, running since
+0 h) and after learning, each component against half of Table 6.5, and the learning's wall time.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import pathlib
+import tempfile
+import time
+
+import numpy as np
+
+from talc_model.prior.dispatch import model_from_prior
+from talc_model.prior.talc import load_prior
+from thermal_comp.demo.summary import THESIS_TABLES
+from thermal_comp.prior.build import build_prior, cached_prior, default_config, training_scenarios
+from thermal_comp_common.recording_csv import Recording
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
+
+from thermal_eval.learn.command import UNIT_TWIN, learn
+from thermal_eval.learn.probes import ProbeSet, strip_errors
+from thermal_eval.learn.units import KINDS, structural_unit
+from thermal_eval.replay.baseline_beside import beside_in_window
+from thermal_eval.replay.summary import PROBE_RESOLUTION_UM, probe_noise
+from thermal_eval.replay.virtual_experiment import run_virtual_experiment
+
+SCENARIO, HOURS, TRAIN_H = "talc-178h-dry", 178.0, 48.0
+SEEDS = (11, 12)
+QUICK = {"kinds": ("extra_source", "links"), "seeds": (11,), "hours": 96.0, "train_h": 36.0}
+
+
+def cell_view(rec: Recording, machine) -> Recording:
+    """What a cell records: no error column and no environment input a twin takes from a sensor
+    (the true hall temperature)."""
+    cell = strip_errors(rec)
+    hidden = [n for n, s in machine.inputs.items() if s.from_sensor]
+    return Recording(cell.time_s, {k: v for k, v in cell.columns.items() if k not in hidden}, source=rec.source)
+
+
+def recorded_probes(result, rec: Recording, noise: dict, seed: int) -> ProbeSet:
+    """The probes a cell running ``result``'s model recorded: the true error (deltas from the
+    start) at its probing instants, Gaussian noise, quantised to the probe's resolution."""
+    rng = np.random.default_rng(seed)
+    idx = np.searchsorted(rec.time_s, np.asarray(result.probe_times_s, float))
+    values = {}
+    for c in result.components:
+        e = np.asarray(rec.columns[c], float)
+        v = e[idx] - e[0] + rng.normal(0.0, noise[c], idx.size)
+        values[c] = np.round(v / PROBE_RESOLUTION_UM) * PROBE_RESOLUTION_UM
+    return ProbeSet(rec.time_s[idx], values, dict(noise), source="bench")
+
+
+def _type_prior(progress):
+    cfg = default_config("nmv5000", "talc")
+    path, _ = cached_prior("nmv5000", cfg, training_scenarios("talc", "nmv5000"), progress=progress)
+    return cfg, load_prior(path)
+
+
+def _window(result, t_from: float, noise: dict, seed: int) -> dict:
+    """The model beside probe-and-hold (at its own Q_prod) on the rows from ``t_from`` on."""
+    q = result.final_status["q_prod_pct"]
+    row = beside_in_window(result, np.asarray(result.time_s) >= t_from, q, noise, PROBE_RESOLUTION_UM, seed=seed)
+    row["q_prod_pct"] = q
+    return row
+
+
+def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.Path, progress) -> dict:
+    unit = structural_unit(kind, seed)
+    rec = simulate(unit.machine, make_timeline("nmv5000", SCENARIO, hours=hours, seed=seed), seed=seed).to_recording()
+    cfg, prior = _type_prior(progress)
+    noise = probe_noise(list(prior["talc_state"]["models"]))
+    before = run_virtual_experiment(rec, model_from_prior("talc", cfg, prior), probe_noise_um=noise,
+                                    probe_resolution_um=PROBE_RESOLUTION_UM, seed=seed, compute_metrics=False)
+    t_train = float(rec.time_s[0]) + train_h * 3600.0
+    probes = recorded_probes(before, rec, noise, seed)
+    t0 = time.perf_counter()
+    report = learn("nmv5000", cell_view(rec, unit.machine), probes, out, train_h, build_priors=False,
+                   progress=progress)
+    t_learn = time.perf_counter() - t0
+    unit_cfg = default_config(str(out / UNIT_TWIN), "talc")
+    unit_prior = build_prior(str(out / UNIT_TWIN), unit_cfg, training_scenarios("talc", "nmv5000"))
+    t_prior = time.perf_counter() - t0 - t_learn
+    start = int(np.searchsorted(rec.time_s, t_train))
+    rows = {"before": _window(before, t_train, noise, seed)}
+    for name, c, p in (("type restart", cfg, prior), ("after", unit_cfg, unit_prior)):
+        res = run_virtual_experiment(rec, model_from_prior("talc", c, p), probe_noise_um=noise,
+                                     probe_resolution_um=PROBE_RESOLUTION_UM, seed=seed, start=start,
+                                     compute_metrics=False)
+        rows[name] = _window(res, t_train, noise, seed)
+    half = {c: v / 2.0 for c, v in THESIS_TABLES[SCENARIO]["p99_compensated"].items()}
+    comps = rows["after"]["model"]["components"]
+    moved = [p for p in report["parameters"] if p["at_bound"] or abs(p["change_pct"] or 0.0) >= 15.0]
+    return {"unit": unit.name, "kind": kind, "seed": seed, "truth": unit.truth,
+            "ratio_before": rows["before"]["p99_lin_ratio"], "ratio_after": rows["after"]["p99_lin_ratio"],
+            "ratio_type_restart": rows["type restart"]["p99_lin_ratio"],
+            "p99_lin_before_um": rows["before"]["model"]["p99_lin_um"],
+            "p99_lin_after_um": rows["after"]["model"]["p99_lin_um"],
+            "q_prod_before_pct": rows["before"]["q_prod_pct"], "q_prod_after_pct": rows["after"]["q_prod_pct"],
+            "components_above_half_table_6_5": sorted(c for c, v in comps.items()
+                                                      if math.isfinite(v["p99"]) and v["p99"] > half.get(c, math.inf)),
+            "learned_moves": [f"{p['name']} {p['change_pct']:+.0f} %{' (at bound)' if p['at_bound'] else ''}"
+                              for p in moved if p["change_pct"] is not None],
+            "held_out_probe_rmse": {k: {c: round(v[c]["rmse"], 3) if v[c]["rmse"] == v[c]["rmse"] else None
+                                        for c in v} for k, v in report["held_out_scores"].items()},
+            "learn_wall_s": round(t_learn, 1), "prior_wall_s": round(t_prior, 1),
+            "twin_simulated_h_per_s": report["twin_simulated_h_per_s"]}
+
+
+def run(args: argparse.Namespace | None = None) -> dict:
+    quick = bool(getattr(args, "quick", False)) if args is not None else False
+    kinds, seeds = (QUICK["kinds"], QUICK["seeds"]) if quick else (KINDS, SEEDS)
+    hours, train_h = (QUICK["hours"], QUICK["train_h"]) if quick else (HOURS, TRAIN_H)
+    root = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_learn_")) / "learn"
+    figures: dict = {"scenario": SCENARIO, "hours": hours, "train_h": train_h, "units": []}
+    cases = [(k, s) for s in seeds for k in kinds]
+    for i, (kind, seed) in enumerate(cases, 1):
+        print(f"[{i}/{len(cases)}] unit #{seed} ({kind}) ...", flush=True)
+        r = unit_case(kind, seed, hours, train_h, root / f"{kind}_{seed}", progress=lambda m: None)
+        figures["units"].append(r)
+        print(f"  {r['truth']}\n  ratio to probe-and-hold after {train_h:g} h: type prior running on "
+              f"{r['ratio_before']:.3f}, type prior restarted {r['ratio_type_restart']:.3f}, "
+              f"unit prior restarted {r['ratio_after']:.3f} (P99_lin {r['p99_lin_before_um']:.2f} -> {r['p99_lin_after_um']:.2f} um; "
+              f"Q_prod {r['q_prod_before_pct']:.1f} / {r['q_prod_after_pct']:.1f} %); above half Table 6.5: "
+              f"{', '.join(r['components_above_half_table_6_5']) or 'none'}; learn {r['learn_wall_s']} s, "
+              f"prior {r['prior_wall_s']} s; moved: {'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}",
+              flush=True)
+    after = [u["ratio_after"] for u in figures["units"]]
+    figures["worst_ratio_after"] = max(after) if after else math.nan
+    figures["units_worse_than_type_restart"] = sum(u["ratio_after"] > u["ratio_type_restart"] for u in figures["units"])
+    figures["units_worse_than_type_running_on"] = sum(u["ratio_after"] > u["ratio_before"] for u in figures["units"])
+    print(f"learn: worst ratio after learning {figures['worst_ratio_after']:.3f}; units where the unit prior is worse "
+          f"than the type prior restarted alike: {figures['units_worse_than_type_restart']} of {len(after)}, "
+          f"than the type prior running on: {figures['units_worse_than_type_running_on']} of {len(after)}")
+    return figures

@@ -1,0 +1,47 @@
+"""Learn a unit's twin from its cell's recording: ``thermal-comp learn REC --twin M --out DIR``.
+
+From what a cell records (temperatures, machine inputs, the probing results and the offsets
+the bridge held; never the ground-truth topic): the twin calibrated on the probes of the first
+``--train-h`` hours (``DIR/unit_twin.yaml``), a prior built on it whose soft sensors are that
+twin (``DIR/prior.json`` with ``DIR/model_config.yaml``), and a report (``report.md``,
+``report.json``): what moved and by how much, the held-out probes before and after, the type's
+and the unit's prior replayed over the recording's probes, beside holding the last probe, the
+training mean and a static regression. docs/learn.md.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
+from thermal_comp_common.command_line import run_parsed
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="thermal-comp learn", description=__doc__.split("\n\n")[0])
+    p.add_argument("recording", metavar="REC", help="the cell's bag (folder or .mcap) or a recording CSV whose "
+                                                   "error columns hold probe results (total error), empty elsewhere")
+    p.add_argument("--twin", required=True, help="the type's twin: machine YAML file or preset name")
+    p.add_argument("--out", required=True, help="output folder (new or empty unless --force)")
+    p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
+    p.add_argument("--train-h", type=float, default=48.0,
+                   help="learn from the probes of the first H hours; later ones are held out (default 48)")
+    p.add_argument("--max-nfev", type=int, default=20, help="at most this many optimiser iterations (default 20)")
+    p.add_argument("--probe-noise-um", type=float, default=None,
+                   help="the probes' standard uncertainty for linear components (default: Table 5.4, 0.25)")
+    p.add_argument("--probe-noise-um-per-m", type=float, default=None,
+                   help="the same for angular components (default: Table 5.4, 1.2)")
+    p.add_argument("--no-prior", action="store_true", help="only the unit twin and its held-out scores")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_allow_truncated_argument(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    with truncated_bags_allowed(args.allow_truncated):
+        return run_parsed("thermal_eval.learn.run:run", args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
