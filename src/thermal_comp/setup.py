@@ -19,7 +19,7 @@ setup(
     ],
     install_requires=[
         "setuptools", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich", "tqdm",
-        "websocket-client",   # the headless-browser check of the web viewer (view.browser)
+        "pillow", "websocket-client",   # the headless-browser check of the web viewer (view.browser)
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
