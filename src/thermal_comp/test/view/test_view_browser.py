@@ -71,8 +71,7 @@ def test_the_demo_recording_shows_every_error_plot_in_chromium(short_demo, tmp_p
     try:
         result = _check(browser.viewer_url(web, grpc), tmp_path, "demo_rrd")
     finally:
-        server.terminate()
-        server.wait(timeout=30)
+        browser.stop_server(server)
     assert result.with_data == N_ERRORS, (result.note, tmp_path)
 
 

@@ -8,6 +8,7 @@ import json
 import os
 import pathlib
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -152,9 +153,12 @@ def serve_rrd(rrd: str | os.PathLike, web_port: int, grpc_port: int, env: dict |
     """rerun's own viewer server (the venv's ``rerun --serve-web``) on an .rrd file, as a user
     opens a recording; returns once the web page answers (the caller terminates the process)."""
     exe = pathlib.Path(sys.executable).parent / "rerun"
+    # own session: the venv's 'rerun' is a wrapper whose viewer binary is a child; stop_server
+    # ends both
     proc = subprocess.Popen([str(exe if exe.is_file() else "rerun"), "--serve-web", "--web-viewer-port",
                              str(web_port), "--port", str(grpc_port), str(rrd)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env,
+                            start_new_session=True)
 
     def up() -> bool:
         if proc.poll() is not None:
@@ -167,7 +171,24 @@ def serve_rrd(rrd: str | os.PathLike, web_port: int, grpc_port: int, env: dict |
     try:
         wait_until(up, 60, "rerun's web viewer server")
     except Exception:
-        proc.kill()
-        proc.wait()
+        stop_server(proc)
         raise
     return proc
+
+
+def stop_server(proc: subprocess.Popen, timeout_s: float = 30.0) -> None:
+    """End a server from :func:`serve_rrd` and its children (its process group)."""
+    for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 10.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            pass
+        try:
+            proc.wait(timeout=wait_s)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)     # a child still left in the group
+    except ProcessLookupError:
+        pass

@@ -74,8 +74,7 @@ def _browser_rrd(rrd: pathlib.Path, n_plots: int, shots: pathlib.Path) -> dict:
     try:
         check = browser.check_error_plots(browser.viewer_url(web, grpc), n_plots, timeout_s=150)
     finally:
-        server.terminate()
-        server.wait(timeout=30)
+        browser.stop_server(server)
     if check.png:
         (shots / "demo_rrd.png").write_bytes(check.png)
     return _figure(check)
