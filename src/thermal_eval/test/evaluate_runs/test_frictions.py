@@ -67,3 +67,22 @@ def test_errors_name_the_users_file_not_a_temporary_copy(tmp_path, capsys):
 
 def test_rerun_entity_parts_have_no_spaces():
     assert entity_part("delta L") == "delta_L" and entity_part("ch1_um") == "ch1_um"
+
+
+def test_a_quantised_signal_is_detected_and_its_step_is_the_dead_band():
+    from thermal_eval.evaluate.adaptive import dead_band_um, reading_noise_um, resolution_um
+    rng = np.random.default_rng(3)
+    smooth = np.cumsum(rng.normal(0, 0.03, 2000))
+    y = np.round(smooth / 0.13) * 0.13                   # a gauge with 0.13 um steps
+    assert reading_noise_um(y, 1500) == 0.0               # most changes are 0: the noise says nothing
+    assert resolution_um(y, 1500) == pytest.approx(0.13, abs=1e-9)
+    assert dead_band_um(y, 1500) == pytest.approx(0.13, abs=1e-9)
+    assert resolution_um(smooth + rng.normal(0, 0.05, 2000), 1500) == 0.0   # a continuous signal is not
+
+
+def test_the_table_says_when_a_channel_is_quantised(capsys):
+    from thermal_eval.evaluate.report import quantised_notes
+    f = {"adaptive": {"m": {"channels": {"delta L": {"quantised_step_um": 0.13, "dead_band_um": 0.13},
+                                         "x_um": {"quantised_step_um": 0.0, "dead_band_um": 0.1}}}}}
+    assert quantised_notes(f) == ["note: delta L is quantised in steps of 0.13 um (measured on the training rows): "
+                                  "changes below the dead band of 0.13 um are not acted on"]

@@ -194,10 +194,31 @@ def reading_noise_um(y: np.ndarray, n_train: int) -> float:
     return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
 
 
+#: share of the row-to-row changes that must lie on one grid for a signal to count as quantised
+ON_GRID_SHARE = 0.95
+
+
+def resolution_um(y: np.ndarray, n_train: int) -> float:
+    """The step of a quantised displacement, measured on the training rows (0: not quantised):
+    the smallest non-zero change between two readings, when at least :data:`ON_GRID_SHARE` of
+    the non-zero changes are whole multiples of it (within 5 % of a step). On such a signal
+    most changes are 0 and the noise measured from them is 0, so the step is the dead band."""
+    d = np.abs(np.diff(np.asarray(y[:n_train], dtype=float)))
+    d = d[np.isfinite(d)]
+    scale = float(np.max(d)) if d.size else 0.0
+    nz = d[d > 1e-9 * max(scale, 1e-12)]
+    if nz.size < 10:
+        return 0.0
+    q = float(np.min(nz))
+    k = nz / q
+    return q if float(np.mean(np.abs(k - np.round(k)) <= 0.05)) >= ON_GRID_SHARE else 0.0
+
+
 def dead_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0) -> float:
-    """Predicted changes smaller than this are not acted on (the compensation holds): the larger
-    of the probe's resolution and two standard deviations of the difference of two readings."""
-    return max(float(probe_resolution_um), DEAD_BAND_SIGMAS * reading_noise_um(y, n_train))
+    """Predicted changes smaller than this are not acted on (the compensation holds): the largest
+    of the probe's resolution, two standard deviations of the difference of two readings, and the
+    step of a quantised signal (:func:`resolution_um`)."""
+    return max(float(probe_resolution_um), DEAD_BAND_SIGMAS * reading_noise_um(y, n_train), resolution_um(y, n_train))
 
 
 def shrink(dp: np.ndarray, band: float) -> np.ndarray:
@@ -287,7 +308,8 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         corr[c] = corrected
         weights[c] = float(np.mean(gains))
         rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),
-                    "training_gain": round(gain0, 3), "dead_band_um": round(band, 4)}
+                    "training_gain": round(gain0, 3), "dead_band_um": round(band, 4),
+                    "quantised_step_um": round(resolution_um(y, start), 4)}
     return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates, load)
 
 

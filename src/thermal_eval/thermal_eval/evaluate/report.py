@@ -74,8 +74,22 @@ def print_table(figures: dict[str, Any], console=None) -> None:
     if figures.get("probe_phases", 1) > 1:
         console.print(f"phases: the probing clock delayed by i/{figures['probe_phases']} of the interval; mean: x = "
                       "mean MAE / holding's mean MAE; worst phase: largest MAE, x = largest ratio (test rows).")
+    for line in quantised_notes(figures):
+        console.print(line)
     for f in failures:
         console.print(f"[red]failed[/red] {f}")
+
+
+def quantised_notes(figures: dict[str, Any]) -> list[str]:
+    """One line per channel whose displacement is quantised (the step measured on the training
+    rows) and whose dead band that step sets."""
+    seen: dict[str, tuple[float, float]] = {}
+    for row in figures["adaptive"].values():
+        for ch, c in row.get("channels", {}).items():
+            if c.get("quantised_step_um"):
+                seen.setdefault(ch, (c["quantised_step_um"], c["dead_band_um"]))
+    return [f"note: {ch} is quantised in steps of {q:g} um (measured on the training rows): changes below the "
+            f"dead band of {b:g} um are not acted on" for ch, (q, b) in seen.items()]
 
 
 def _phase_rows(table, v: dict, chs: list[str]) -> None:
