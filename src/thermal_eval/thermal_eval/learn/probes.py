@@ -58,7 +58,7 @@ class ProbeSet:
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
                 raise ProbeDataError(f"probes {self.source}: component {c!r} at t = {self.time_s[i]:.0f} s "
-                                     f"is {v[i]!r}, no measurement")
+                                     f"is {float(v[i])!r}, no measurement")
             s = self.noise.get(c)
             if s is None or not (math.isfinite(s) and s > 0):
                 raise ProbeDataError(f"probes {self.source}: noise of {c!r} is {s!r}, must be > 0")

@@ -1,0 +1,121 @@
+"""thermal-comp learn: a unit whose twin lacks a heat source is learned from its probes alone
+(sparse, noisy; no ground truth, no true hall), the learned twin predicts the held-out probes
+better than the type's twin, and what cannot be learned honestly is refused in one line."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from thermal_comp_common.recording_csv import write_recording_csv
+from thermal_eval.bench.learn import cell_view
+from thermal_eval.learn.cli import main as learn_main
+from thermal_eval.learn.probe_score import hold_last, score_table, static_regression, training_mean
+from thermal_eval.learn.probes import ProbeDataError, ProbeSet, cell_recording
+from thermal_eval.learn.unit_fit import LearnError, learn_unit_twin
+from thermal_eval.learn.units import KINDS, structural_unit
+from thermal_twin.sim.scenarios import make_timeline
+from thermal_twin.sim.simulate import simulate
+
+HOURS, TRAIN_H, EVERY_H = 36.0, 24.0, 1.0
+COMPS = ["E_X0C", "E_Y0C", "E_Z0T"]
+
+
+@pytest.fixture(scope="module")
+def unit_run():
+    unit = structural_unit("extra_source", 3)
+    rec = simulate(unit.machine, make_timeline("nmv5000", "talc-178h-dry", hours=HOURS, seed=3), seed=3).to_recording()
+    rng = np.random.default_rng(0)
+    idx = np.unique(np.searchsorted(rec.time_s, np.arange(0.0, HOURS * 3600.0, EVERY_H * 3600.0)))
+    probes = ProbeSet(rec.time_s[idx], {c: rec.columns[c][idx] - rec.columns[c][0] + rng.normal(0, 0.25, idx.size)
+                                         for c in COMPS}, {c: 0.25 for c in COMPS}, source="test")
+    return unit, rec, probes
+
+
+def test_a_cell_view_hides_the_truth_and_the_true_hall(unit_run):
+    unit, rec, _ = unit_run
+    cell = cell_view(rec, unit.machine)
+    assert not cell.errors and "ambient_degc" not in cell.columns and "ambient_c" in cell.columns
+
+
+def test_the_learned_twin_predicts_held_out_probes_better(unit_run):
+    unit, rec, probes = unit_run
+    fit = learn_unit_twin("nmv5000", cell_view(rec, unit.machine), probes, TRAIN_H * 3600.0)
+    assert fit.components == COMPS and fit.probes_train == 25 and fit.probes_held_out == 11
+    cal = fit.calibration
+    idx = np.searchsorted(cal.time_s, probes.time_s)
+    held = probes.time_s > TRAIN_H * 3600.0
+    before = {c: np.asarray(cal.before[c])[idx] for c in COMPS}
+    after = {c: np.asarray(cal.after[c])[idx] for c in COMPS}
+    table = score_table(probes, {"type": before, "unit": after, "hold": hold_last(probes),
+                                 "mean": training_mean(probes, TRAIN_H * 3600.0)}, held)
+    total_type = sum(table["type"][c]["rmse"] for c in COMPS)
+    total_unit = sum(table["unit"][c]["rmse"] for c in COMPS)
+    assert total_unit < 0.5 * total_type, table        # the missing source is learned
+    # no channel worse by more than twice the probe noise (E_X0C, ~1 um, loses about 0.3 um here)
+    assert all(table["unit"][c]["rmse"] <= table["type"][c]["rmse"] + 2 * 0.25 for c in COMPS), table
+    assert all(table["mean"][c]["n"] == 11 for c in COMPS)
+
+
+def test_probe_baselines_are_computed_before_each_probe():
+    t = np.arange(5) * 3600.0
+    p = ProbeSet(t, {"E_X0C": np.array([0.0, 1.0, 2.0, 3.0, 4.0])}, {"E_X0C": 0.25})
+    assert np.isnan(hold_last(p)["E_X0C"][0]) and list(hold_last(p)["E_X0C"][1:]) == [0.0, 1.0, 2.0, 3.0]
+    assert training_mean(p, 2 * 3600.0)["E_X0C"][4] == pytest.approx(1.0)
+
+
+def test_bad_probe_sets_are_named():
+    with pytest.raises(ProbeDataError, match="instants must increase"):
+        ProbeSet(np.array([0.0, 0.0]), {"E_X0C": np.zeros(2)}, {"E_X0C": 0.25})
+    with pytest.raises(ProbeDataError, match=r"'E_X0C' at t = 3600 s is inf"):
+        ProbeSet(np.array([0.0, 3600.0]), {"E_X0C": np.array([0.0, np.inf])}, {"E_X0C": 0.25})
+    with pytest.raises(ProbeDataError, match="noise of 'E_X0C' is 0.0"):
+        ProbeSet(np.array([0.0]), {"E_X0C": np.zeros(1)}, {"E_X0C": 0.0})
+
+
+def test_too_few_training_probes_are_refused(unit_run):
+    unit, rec, probes = unit_run
+    with pytest.raises(LearnError, match=r"only 3 probes of 'E_X0C' up to t = 2.0 h, need at least 4"):
+        learn_unit_twin("nmv5000", cell_view(rec, unit.machine), probes, 2.0 * 3600.0)
+
+
+def test_every_unit_kind_is_a_valid_twin_that_differs_from_the_type():
+    for kind in KINDS:
+        unit = structural_unit(kind, 5)
+        assert unit.truth and unit.machine.name == "nmv5000"
+        assert structural_unit(kind, 5).truth == unit.truth          # a seed is one unit
+
+
+def _csv(unit_run, tmp_path):
+    """The cell as a recording CSV: temperatures, machine inputs, probes in the error columns."""
+    unit, rec, probes = unit_run
+    cell = cell_view(rec, unit.machine)
+    cols = dict(cell.columns)
+    for c in COMPS:
+        col = np.full(len(cell), np.nan)
+        col[np.searchsorted(cell.time_s, probes.time_s)] = probes.values[c]
+        cols[c] = col
+    path = tmp_path / "cell.csv"
+    write_recording_csv(path, cell.time_s, cols)
+    return path
+
+
+def test_cli_writes_the_unit_twin_and_a_report_generated_from_its_json(unit_run, tmp_path, capsys):
+    path = _csv(unit_run, tmp_path)
+    rec, probes = cell_recording(path)
+    assert not rec.errors and sorted(probes.values) == sorted(COMPS)
+    out = tmp_path / "out"
+    assert learn_main([str(path), "--twin", "nmv5000", "--out", str(out), "--train-h", str(TRAIN_H),
+                       "--no-prior", "--quiet"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    md = (out / "report.md").read_text()
+    assert (out / "unit_twin.yaml").is_file() and rep["probes"] == {**rep["probes"], "train": 25, "held_out": 11}
+    for name, row in rep["held_out_scores"].items():      # every RMSE in the md is the JSON's
+        assert f"| {name} | " + " | ".join(f"{row[c]['rmse']:.3g}" for c in COMPS) + " |" in md
+    assert learn_main([str(path), "--twin", "nmv5000", "--out", str(out), "--no-prior", "--quiet"]) == 2
+    assert "exists and is not an empty folder" in capsys.readouterr().err
+    assert learn_main([str(path), "--twin", "nmv5000", "--out", str(tmp_path / "o2"), "--train-h", "35.9",
+                       "--no-prior", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("thermal-comp learn: --train-h 35.9: leaves") and "\n" not in err
