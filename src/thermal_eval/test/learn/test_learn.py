@@ -119,3 +119,32 @@ def test_cli_writes_the_unit_twin_and_a_report_generated_from_its_json(unit_run,
                        "--no-prior", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("thermal-comp learn: --train-h 35.9: leaves") and "\n" not in err
+
+
+def test_a_bag_gives_measured_plus_the_offsets_the_bridge_held(tmp_path):
+    """errors/measured holds residuals on a compensated machine; the total error adds what the
+    bridge reported holding at the probe (axis offsets seen by the probe as a table shift)."""
+    from thermal_comp_common.bags import msg_definitions                    # this test only
+    from thermal_comp_common.bags.csv_to_bag import recording_to_bag          # this test only
+    from thermal_comp_common.bags.writer import BagWriter, TopicInfo          # this test only
+    from thermal_comp_common.recording_csv import Recording                   # this test only
+    from thermal_eval.learn.probes import _applied_at                         # this test only
+    t = np.arange(6) * 300.0
+    meas = np.full(6, np.nan)
+    meas[[1, 4]] = [0.5, -0.25]
+    rec = Recording(t, {"ambient_c": np.full(6, 20.0), "c_speed_rpm": np.zeros(6), "E_X0C": meas})
+    recording_to_bag(rec, tmp_path / "bag", errors_as="measured")
+    got, probes = cell_recording(tmp_path / "bag")
+    assert not got.errors and list(probes.time_s) == [300.0, 1200.0]
+    assert list(probes.values["E_X0C"]) == [0.5, -0.25]         # no offsets recorded: nothing added
+    store = msg_definitions.typestore()
+    T = "thermal_comp_msgs/msg/AxisOffsets"
+    Msg, Header, Time = store.types[T], store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    with BagWriter(tmp_path / "offsets", [TopicInfo("/offsets", T)]) as bag:
+        for stamp, x, on in ((300, 3.0, True), (900, 4.0, False)):
+            msg = Msg(header=Header(stamp=Time(sec=stamp, nanosec=0), frame_id=""), axis_names=["X", "Y", "Z"],
+                      commanded_offsets_um=np.array([x, 0.0, 0.0]), applied_offsets_um=np.array([x, 0.0, 0.0]),
+                      applied=np.array([True] * 3), limits_hit=np.zeros(3, np.uint8), compensation_enabled=on)
+            bag.write("/offsets", stamp * 10**9, store.serialize_cdr(msg, T))
+    applied = _applied_at(tmp_path / "offsets", np.array([0.0, 300.0, 1200.0]), ["E_X0C", "E_A0C"], np.zeros(3))
+    assert applied.tolist() == [[0.0, 0.0], [3.0, 0.0], [0.0, 0.0]]    # before any, held, compensation off
