@@ -202,6 +202,8 @@ class RerunLogger:
         #: columnar: entity -> (sim times, wall times, values); NaN where a row has no such time
         self._scalars: dict[str, tuple[list[float], list[float], list[float]]] = {}
         self._texts: dict[str, tuple[list[float], list[float], list[str], list[str]]] = {}
+        #: columnar: 3D layout entity -> (sim times, points, colours, labels), a list item per row
+        self._points: dict[str, tuple[list[float], list, list, list]] = {}
         self._styled: set[str] = set()
         self._last_phase: dict[str, int] = {}
         self._last_status: dict[str, int] = {}
@@ -281,7 +283,15 @@ class RerunLogger:
             tx, lv = np.asarray(texts, dtype=object), np.asarray(levels, dtype=object)
             rows += self._send(path, times, walls, lambda sel, tx=tx, lv=lv: rr.TextLog.columns(
                 text=list(tx[sel]), level=list(lv[sel])))
-        self._scalars, self._texts = {}, {}
+        for path, (times, pts, cols, labels) in self._points.items():
+            n = sum(len(x) for x in pts)
+            self.rec.send_columns(path, indexes=[rr.TimeColumn(TIMELINE, duration=np.asarray(times))],
+                                  columns=rr.Points3D.columns(
+                                      positions=np.concatenate(pts), colors=np.concatenate(cols),
+                                      labels=[x for row in labels for x in row], radii=np.full(n, 0.04),
+                                  ).partition([len(x) for x in pts]))
+            rows += len(times)
+        self._scalars, self._texts, self._points = {}, {}, {}
         return rows
 
     def _send(self, path: str, times: list[float], walls: list[float], columns) -> int:
@@ -363,7 +373,13 @@ class RerunLogger:
             pts.append(xyz)
             cols.append(_blend((v - lo) / span) if math.isfinite(v) else (128, 128, 128))
             labels.append(f"{sid} {v:.2f} C" if math.isfinite(v) else f"{sid} failed")
-        if pts:
+        if pts and self.columnar:      # data messages: always on sim_time
+            times, rows, colours, texts = self._points.setdefault(f"{p}machine/sensors", ([], [], [], []))
+            times.append(self._t_s)
+            rows.append(np.asarray(pts, dtype=np.float32))
+            colours.append(np.asarray(cols, dtype=np.uint8))
+            texts.append(labels)
+        elif pts:
             self._timed().log(f"{p}machine/sensors", rr.Points3D(np.asarray(pts), colors=cols, labels=labels,
                                                            radii=0.04))
 
