@@ -312,8 +312,7 @@ class MachineSimNode(Node):
             self.get_logger().warning(f"lock-step: {n} is back at instant t = {t:.0f} s: re-admitted, "
                                       "its acknowledgement is awaited again")
         if gone or back:
-            if gone:
-                self.wait_since = now     # the remaining participants get a fresh deadline
+            self.wait_since = now     # the deadline counts from the change (a returned one catches up)
             suspended = sorted(self.roster.suspended)
             self.diag.set("lock-step", "WARN" if suspended else "OK",
                           f"going on without {', '.join(suspended)} (gone from the graph)" if suspended
