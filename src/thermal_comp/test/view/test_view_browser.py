@@ -57,7 +57,7 @@ def _need_chromium():
 
 
 def _check(url, tmp_path, name) -> browser.PlotCheck:
-    result = browser.check_error_plots(url, N_ERRORS, timeout_s=150)
+    result = browser.check_error_plots(url, N_ERRORS, timeout_s=300)
     if result.png:
         (tmp_path / f"{name}.png").write_bytes(result.png)
     return result
