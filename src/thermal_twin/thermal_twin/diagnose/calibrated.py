@@ -39,6 +39,50 @@ def moved(res: CalibrationResult) -> list[dict]:
     return out
 
 
+#: a parameter within this share of its tolerance range from a bound was pushed to it
+BOUND_SHARE = 0.02
+#: a channel whose calibrated training residual (mean removed) stays above this many noise
+#: sigmas RMS, and above half the twin-as-given's, is structured: the calibration did not explain it
+STRUCTURED_RMS = 2.0
+
+
+def at_bound(res: CalibrationResult) -> list[dict]:
+    """Parameters the calibration pushed to the builder's tolerance bound, largest change
+    first: evidence of missing or changed physics, not an answer."""
+    out = []
+    for e in res.estimates:
+        p = e.param
+        span = p.hi - p.lo
+        if span > 0 and min(e.value - p.lo, p.hi - e.value) <= BOUND_SHARE * span:
+            d = e.as_dict()
+            out.append({k: d[k] for k in ("name", "kind", "unit", "start", "value", "change_pct", "bounds")})
+    out.sort(key=lambda d: -abs(d["change_pct"] or 0.0))
+    return out
+
+
+def _train_rms(problem: FitProblem, y: np.ndarray) -> np.ndarray:
+    """Per channel: RMS of the weighted training residual of ``y`` with its mean removed."""
+    nt = problem.n_train
+    r = problem.weighted_residual(y, 0, nt)
+    v = problem._valid[:, :nt]
+    out = np.zeros(len(r))
+    for i in range(len(r)):
+        if v[i].sum() >= 2:
+            x = r[i][v[i]]
+            out[i] = float(np.sqrt(np.mean((x - x.mean()) ** 2)))
+    return out
+
+
+def structured_channels(problem: FitProblem, y_given: np.ndarray, y_cal: np.ndarray) -> list[dict]:
+    """Channels the calibration did not explain: its training residual (mean removed) stays
+    above :data:`STRUCTURED_RMS` noise sigmas RMS and above half the twin-as-given's, largest
+    first (the training window only: the held-out window stays for scoring)."""
+    given, cal = _train_rms(problem, y_given), _train_rms(problem, y_cal)
+    out = [{"channel": c, "train_rms_over_noise": float(cal[i]), "given_train_rms_over_noise": float(given[i])}
+           for i, c in enumerate(problem.channels) if cal[i] > STRUCTURED_RMS and cal[i] > 0.5 * given[i]]
+    return sorted(out, key=lambda d: -d["train_rms_over_noise"])
+
+
 def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: float,
                     section: Mapping | None = None, max_nfev: int = 20,
                     engine: EngineSpec | None = None) -> tuple[dict, dict]:
@@ -52,7 +96,11 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
     for label, spec in (("given", spec0), ("calibrated", res.spec)):
         r = problem.weighted_residual(problem.outputs(spec), nt)
         sse[label] = float(np.sum(r ** 2))
-    used = sse["calibrated"] <= sse["given"]
+    bound = at_bound(res)
+    structured = structured_channels(problem, problem.outputs(spec0), problem.outputs(res.spec))
+    # a parameter at its bound means the calibration stood in for physics it cannot reach:
+    # the search then starts from the twin as given, where that physics is still visible
+    used = sse["calibrated"] <= sse["given"] and not bound
     unid = [e.param.name for e in res.estimates if any(f.startswith("not identified") for f in e.flags)]
     section_out = {
         "used_as_base": used,
@@ -60,6 +108,8 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
         "not_identified": len(unid),
         "correlated_pairs": len(res.correlated),
         "mis_calibrated": moved(res),
+        "at_bound": bound,
+        "residual_structured": structured,
         "holdout_improvement_pct": 100.0 * (1.0 - sse["calibrated"] / max(sse["given"], 1e-300)),
         "cost_before": res.cost_before, "cost_after": res.cost_after,
         "twin_evaluations": res.n_evals, "wall_s": res.wall_s,
@@ -67,10 +117,14 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
         "note": ("effects below were fitted and tested against the calibrated twin: an effect is "
                  "adopted only if it beats, on held-out data, what re-calibrating the existing "
                  "parameters achieves" if used else
+                 f"{len(bound)} parameter(s) pushed to the builder's tolerance bound, evidence of missing "
+                 "or changed physics; the search starts from the twin as given and an effect is kept only "
+                 "if it beats the calibration alone" if bound else
                  "the calibrated twin fits the held-out window worse than the twin as given "
                  "(over-fitted on the training window); the search starts from the twin as given"),
     }
     section_out["_estimates"] = res.estimates      # for the joint test's start; dropped from the report
+    section_out["_spec"] = res.spec                # "calibration alone" of the joint test; dropped too
     return (res.spec if used else spec0), section_out
 
 
@@ -89,7 +143,10 @@ def joint_adoption_test(machine: Machine, problem: FitProblem, holdout_fraction:
     res = calibrate(spec, problem.recording, holdout_fraction=holdout_fraction, section=section,
                     max_nfev=max_nfev, start=start, engine=engine)
     nt = problem.n_train
-    sse_alone = float(np.sum(problem.weighted_residual(problem.outputs(base_spec), nt) ** 2))
+    # calibration alone: the better of the search's base and the calibrated twin (the search
+    # may start from the twin as given when the calibration pushed a parameter to its bound)
+    sse_alone = min(float(np.sum(problem.weighted_residual(problem.outputs(s), nt) ** 2))
+                    for s in (base_spec, calibrated.get("_spec", base_spec)))
     sse_joint = float(np.sum(problem.weighted_residual(problem.outputs(res.spec), nt) ** 2))
     gain = 100.0 * (1.0 - sse_joint / max(sse_alone, 1e-300))
     return {"effects": [f"{h.candidate.effect}:{h.candidate.target}:{h.candidate.driver or '-'}"

@@ -108,13 +108,19 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
 
 
 def _answer(found_unnamed: list, adopted: list, cal_section: dict | None, min_improvement_pct: float) -> str:
-    """unnamed, the first adopted effect, ``mis-calibrated`` (calibrate-first moved existing
-    parameters, improved the held-out fit by at least ``min_improvement_pct`` and nothing is
-    missing) or ``none``."""
+    """unnamed, the first adopted effect, ``beyond-tolerance`` (calibrate-first pushed a
+    parameter to its tolerance bound and nothing was named), ``unexplained`` (the calibrated
+    residual stays structured and nothing was named), ``mis-calibrated`` (calibrate-first moved
+    existing parameters, improved the held-out fit by at least ``min_improvement_pct`` and
+    nothing is missing) or ``none``."""
     if found_unnamed:
         return "unnamed"
     if adopted:
         return adopted[0].candidate.effect
+    if cal_section and cal_section.get("at_bound"):
+        return "beyond-tolerance"
+    if cal_section and cal_section.get("residual_structured"):
+        return "unexplained"
     if (cal_section and cal_section["used_as_base"] and cal_section["mis_calibrated"]
             and cal_section["holdout_improvement_pct"] >= min_improvement_pct):
         return "mis-calibrated"
@@ -295,6 +301,7 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
             adopted, base, y_base = [], cmp.base0, y_u
     if cal_section is not None:
         cal_section.pop("_estimates", None)
+        cal_section.pop("_spec", None)
     return _Found(adopted, all_hyps, base, y_base, tried, found_unnamed)
 
 

@@ -152,7 +152,7 @@ def _verdict_lines(report: dict) -> list[str]:
     sel = report.get("selected")
     cal = report.get("calibration")
     if cal:
-        L += [f"**Mis-calibrated** ({cal['free_parameters']} existing parameters fitted first; held-out "
+        L += [f"**Calibrated first** ({cal['free_parameters']} existing parameters fitted; held-out "
               f"improvement {cal['holdout_improvement_pct']:.1f} %; {cal['note']}):", ""]
         L += [f"- `{m['name']}`: {_fmt(m['start'])} -> {_fmt(m['value'])} {m['unit']}"
               + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else "")
@@ -166,6 +166,21 @@ def _verdict_lines(report: dict) -> list[str]:
             if t:
                 L.append(f"- test, {what}: held-out {t['holdout_improvement_pct']:.1f} % better -> "
                          f"{'passed' if t['passed'] else 'failed: not adopted'}")
+        for b in cal.get("at_bound", []):
+            L.append(f"- **beyond the builder's tolerance**: `{b['name']}` moved {_fmt(b['start'])} -> "
+                     f"{_fmt(b['value'])} {b['unit']}" + (f" ({b['change_pct']:+.0f} %)" if b["change_pct"] is not None
+                                                          else "")
+                     + f", at its bound [{_fmt(b['bounds'][0])}, {_fmt(b['bounds'][1])}]: missing or changed physics")
+        for r in cal.get("residual_structured", [])[:5]:
+            L.append(f"- the calibrated residual stays structured on `{r['channel']}` "
+                     f"({r['train_rms_over_noise']:.1f} noise sigmas RMS on the training window; the twin as "
+                     f"given: {r['given_train_rms_over_noise']:.1f})")
+        if report.get("answer") == "beyond-tolerance":
+            L += ["", "Answer **beyond-tolerance**: the calibration needed a parameter beyond the builder's "
+                      "tolerance and no mechanism of the vocabulary explains it."]
+        if report.get("answer") == "unexplained":
+            L += ["", "Answer **unexplained**: the calibrated residual stays structured and neither the "
+                      "vocabulary nor a sparse unnamed term explains it."]
         if report.get("answer") == "mis-calibrated":
             L += ["", "Answer **mis-calibrated**: the existing parameters explain the mismatch; "
                       "nothing is missing."]

@@ -4,7 +4,7 @@
 (a value, or a number inside one of its strings such as a formula), a time in seconds printed
 in hours (/3600) or a share printed in percent (x100), within the rounding of the printed digits.
 Digits inside names (``T11_c``, ``E_X0C``) are not numbers; the labels in :data:`LABELS` are
-the template's own (a 95 % interval is a label, not a result).
+the template's own (a 95 % interval is a label, not a result), and so is a table row's rank.
 
 :func:`contradicted_claims`: a line that claims a held-out improvement for a channel (an
 ``unnamed`` term ``C += ...``) while the report's own channel table shows that channel's held-out
@@ -64,6 +64,8 @@ def underived_numbers(md: str, report: dict) -> list[str]:
     cands = sorted({v for x in values for v in (x, abs(x), x / 3600.0, abs(x) / 3600.0, 100.0 * x, 100.0 * abs(x))})
     bad = []
     for line in md.splitlines():
+        # a table row's first cell "| 17 |" is its rank (the row's position), a label
+        line = re.sub(r"^\|\s*\d+\s*\|", "| |", line)
         for text in _numbers(line):
             x, tol = float(text), _tolerance(text)
             if abs(x) in LABELS:
