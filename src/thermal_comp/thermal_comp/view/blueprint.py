@@ -18,7 +18,7 @@ def _series(origin: str, name: str, **kw) -> rrb.TimeSeriesView:
 def default_blueprint(namespace: str = "", error_components: Iterable[str] = ()) -> rrb.Blueprint:
     """Errors (one plot per component when they are known: units differ), temperatures,
     offsets and model on the left; 3D sensor layout, machine state and, in tabs, events,
-    health (``/diagnostics``) and the ``/rosout`` log on the right."""
+    health (``/diagnostics``, the tab shown) and the ``/rosout`` log on the right."""
     p = f"/{namespace.strip('/')}" if namespace.strip("/") else ""
     comps = list(error_components)
     if comps:
@@ -43,9 +43,10 @@ def default_blueprint(namespace: str = "", error_components: Iterable[str] = ())
             rrb.Vertical(
                 rrb.Spatial3DView(origin=f"{p}/machine/sensors", name="Sensor layout"),
                 _series(f"{p}/machine", "Machine state", contents=["$origin/**", "- $origin/sensors/**"]),
+                # health in front: the bridge's status (what it writes to the CNC) at a glance
                 rrb.Tabs(rrb.TextLogView(origin=f"{p}/events", name="Events"),
                          rrb.TextLogView(origin="/diagnostics", name="Health (/diagnostics)"),
-                         rrb.TextLogView(origin="/rosout", name="Log (/rosout)")),
+                         rrb.TextLogView(origin="/rosout", name="Log (/rosout)"), active_tab=1),
             ),
             column_shares=[3, 2],
         ),
