@@ -72,7 +72,7 @@ def test_the_demo_recording_shows_every_error_plot_in_chromium(short_demo, tmp_p
         result = _check(browser.viewer_url(web, grpc), tmp_path, "demo_rrd")
     finally:
         browser.stop_server(server)
-    assert result.with_data == N_ERRORS, (result.note, tmp_path)
+    assert result.with_data == N_ERRORS and result.settled, (result.note, tmp_path)
 
 
 @pytest.mark.slow
@@ -91,4 +91,4 @@ def test_view_serve_web_of_the_demo_bag_shows_every_error_plot(short_demo, tmp_p
     finally:
         viewer.terminate()
         viewer.communicate(timeout=30)
-    assert result.with_data == N_ERRORS, (result.note, tmp_path)
+    assert result.with_data == N_ERRORS and result.settled, (result.note, tmp_path)

@@ -111,36 +111,51 @@ class HeadlessChromium:
 @dataclass
 class PlotCheck:
     """What the browser showed: error plots holding data of those expected, how long after the
-    page was opened they first all did (None: not within the timeout), the last screenshot."""
+    page was opened they first all did (None: not within the timeout), whether the page then
+    settled (two screenshots in a row alike: the viewer has drawn all it received), and the
+    last screenshot."""
     plots: int
     with_data: int
     seconds_to_data: float | None
     png: bytes | None
     note: str = ""
+    settled: bool = False
 
 
-def check_error_plots(url: str, n_plots: int, timeout_s: float = 90.0, poll_s: float = 1.0) -> PlotCheck:
+def _read(png: bytes, n_plots: int) -> tuple[int, str, bytes]:
+    """(plots with data, a note with each plot's figures, the screen's drawn content)."""
+    try:
+        cells = error_plots(png, n_plots)[:n_plots]
+    except LayoutNotFound as exc:
+        return 0, str(exc), b""
+    note = "data pixels (share of width): " + ", ".join(f"{c.data_pixels} ({c.width_share:.2f})" for c in cells)
+    return sum(c.has_data for c in cells), note, note.encode()
+
+
+def check_error_plots(url: str, n_plots: int, timeout_s: float = 90.0, poll_s: float = 1.0,
+                      settle_s: float = 60.0) -> PlotCheck:
     """Open ``url`` (a served web viewer) in headless Chromium and take a screenshot every
-    ``poll_s`` until each of the ``n_plots`` error plots shows data or ``timeout_s`` passes."""
+    ``poll_s`` until each of the ``n_plots`` error plots shows data or ``timeout_s`` passes;
+    then until two screenshots in a row read alike (the page settled) for up to ``settle_s``."""
     best = PlotCheck(n_plots, 0, None, None, "no screenshot")
     with HeadlessChromium() as browser:
         browser.open(url)
         t0 = time.monotonic()
-        while time.monotonic() - t0 < timeout_s:
+        last = None
+        while time.monotonic() - t0 < timeout_s + (settle_s if best.seconds_to_data is not None else 0):
             png = browser.screenshot()
             if png is not None:
-                try:
-                    cells = error_plots(png, n_plots)[:n_plots]
-                    shown = sum(c.has_data for c in cells)
-                    note = "data pixels (share of width): " + ", ".join(
-                        f"{c.data_pixels} ({c.width_share:.2f})" for c in cells)
-                except LayoutNotFound as exc:
-                    shown, note = 0, str(exc)
-                if best.png is None or shown >= best.with_data:
+                shown, note, seen = _read(png, n_plots)
+                if best.seconds_to_data is None and (best.png is None or shown >= best.with_data):
                     best = PlotCheck(n_plots, shown, None, png, note)
-                if shown == n_plots:
+                if shown == n_plots and best.seconds_to_data is None:
                     best.seconds_to_data = round(time.monotonic() - t0, 1)
-                    return best
+                if best.seconds_to_data is not None:
+                    best.with_data, best.png, best.note = shown, png, note   # the latest state counts
+                    if seen == last:
+                        best.settled = True
+                        return best
+                last = seen
             time.sleep(poll_s)
     return best
 
