@@ -3,10 +3,11 @@ a bag becomes an .rrd.
 
 A short demo (``thermal-comp demo``, twin CNC, no prior, fixed seed) is run; its ``demo.rrd``
 is served by rerun's own viewer server and its bag by ``thermal-comp view BAG --serve-web``,
-each opened in headless Chromium: the figure is the share of error plots whose plot area shows
-data across at least half its width (``thermal_comp.view.screenshot``) once the page has
-settled (two screenshots alike), and the seconds from opening the page until all first did. Conversion throughput: ``bag_to_rrd`` of the demo's bag and of
-the ``bags`` suite's synthetic 5-axis stream, median of three runs. What each figure means is in
+each opened in headless Chromium. Figures: the share of error plots whose plot area shows data
+across at least half its width (``thermal_comp.view.screenshot``) once the page has settled
+(two screenshots alike), and the seconds from opening the page until all first did.
+Conversion throughput: ``bag_to_rrd`` of the demo's bag and of the ``bags`` suite's synthetic
+5-axis stream, median of three runs, per wall and per CPU second. What each figure means is in
 docs/bags.md ("Views").
 """
 from __future__ import annotations
