@@ -55,3 +55,21 @@ def test_an_existing_json_is_refused_unless_force(tmp_path, capsys):
     out.write_text("{}")
     assert main([str(rec), "--model", "agp", "--json", str(out), "--no-progress"]) == 3
     assert "--force" in capsys.readouterr().err and out.read_text() == "{}"
+
+
+def test_several_recordings_are_replayed_alone_and_pooled(tmp_path, capsys):
+    import json
+    from thermal_eval.replay.runs import pooled_components
+    t = np.arange(0.0, 3600.0 * 30, 60.0)
+    for k in range(2):
+        a = 20 + np.sin(t / 20000 + k)
+        write_recording_csv(tmp_path / "runs" / f"day{k}.csv", t, {"a_c": a, "ch1_um": 3 * (a - a[0])})
+    out = tmp_path / "o" / "all.json"
+    assert main([str(tmp_path / "runs"), "--model", "agp", "--json", str(out), "--no-progress"]) == 0
+    f = json.loads(out.read_text())
+    assert [r["name"] for r in f["runs"]] == ["day0", "day1"] and f["pooled"]["ch1"]["runs"] == 2
+    one = [json.loads((tmp_path / "o" / f"all.day{k}.json").read_text()) for k in range(2)]
+    assert f["pooled"]["ch1"]["rows"] == sum(o["scored_steps"] for o in one)
+    assert "pooled over 2 runs" in capsys.readouterr().out
+    assert pooled_components([], None) == {}
+    assert main([str(tmp_path / "runs"), "--model", "agp", "--json", str(out), "--no-progress"]) == 3

@@ -62,7 +62,7 @@ def _is_bag_folder(p: pathlib.Path) -> bool:
     return p.is_dir() and (p / "metadata.yaml").is_file()
 
 
-def _is_manifest(p: pathlib.Path) -> bool:
+def is_manifest(p: pathlib.Path) -> bool:
     if p.suffix.lower() in (".yaml", ".yml"):
         return True
     if p.suffix.lower() != ".csv" or not p.is_file():
@@ -148,7 +148,7 @@ def resolve_runs(sources: Iterable[str]) -> list[RunEntry]:
             runs += [RunEntry(h, pathlib.Path(h).stem) for h in hits]
         elif not p.exists():
             raise DatasetError(f"source {src!r}: no such file or folder")
-        elif p.is_file() and _is_manifest(p):
+        elif p.is_file() and is_manifest(p):
             runs += read_manifest(p)
         elif p.is_dir() and not _is_bag_folder(p):
             runs += [RunEntry(str(q), q.stem) for q in _folder(p)]

@@ -24,7 +24,9 @@ MODEL_KINDS = ("talc", "agp", "cd")
 
 def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp replay", description=__doc__.split("\n\n")[0])
-    ap.add_argument("recording", metavar="REC", help="twin CSV, bag folder or .mcap file")
+    ap.add_argument("recording", metavar="REC", nargs="+",
+                    help="twin CSV, bag folder or .mcap file; several, a folder, a glob or a manifest: every run "
+                         "alone (OUT.<run>.json) and pooled (OUT)")
     ap.add_argument("--model", required=True, choices=MODEL_KINDS, help="model kind")
     ap.add_argument("--config", metavar="YAML",
                     help="model parameters (a mapping; `preset:` for TALC); `sensors` and `components` for every "

@@ -9,6 +9,8 @@ import sys
 import time
 
 from thermal_eval.replay.baseline_beside import beside_probe_and_hold
+from thermal_eval.datasets.sources import DatasetError, is_manifest, resolve_runs
+from thermal_eval.replay.runs import run_many
 from thermal_eval.replay.config_keys import ConfigKeyError, canonical_config, replay_warnings
 from thermal_eval.replay.summary import (ReplayInputError, build_model, check_replay_recording, format_table,
                                          load_config_file, load_replay_recording, parse_overrides, probe_noise,
@@ -69,9 +71,36 @@ def _refuse_existing(args) -> str | None:
     return None
 
 
-def run(args) -> int:
+def _several(args):
+    """The runs the REC arguments name when they are more than one recording (several, a folder,
+    a glob or a manifest), else None (one recording file or bag folder: today's path)."""
+    recs = [args.recording] if isinstance(args.recording, str) else list(args.recording)
+    if len(recs) == 1:
+        p = pathlib.Path(recs[0])
+        bag = p.is_dir() and (p / "metadata.yaml").is_file()
+        missing = not p.exists() and not any(ch in recs[0] for ch in "*?[")
+        if bag or missing or (p.is_file() and not is_manifest(p)):
+            args.recording = recs[0]
+            return None
+    entries = resolve_runs(recs)
+    if len(entries) == 1:
+        args.recording = entries[0].path
+        return None
+    return entries
+
+
+def run(args, collect: list | None = None) -> int:
     """Replay as the parsed arguments say; the exit code (0 written, 2 bad input, 3 output exists:
-    the inputs are checked first, then an existing output is refused before the replay runs)."""
+    the inputs are checked first, then an existing output is refused before the replay runs).
+    Several recordings: every run alone, then the pooled figures (:mod:`thermal_eval.replay.runs`);
+    ``collect`` receives (recording, result, summary) of a run."""
+    try:
+        entries = _several(args)
+    except DatasetError as exc:
+        print(f"thermal-comp replay: {exc}", file=sys.stderr)
+        return 2
+    if entries is not None:
+        return run_many(args, entries, run)
     try:
         png_path = _writable(args.png, "--png") if args.png else None
         json_path = _writable(args.json, "--json")
@@ -120,6 +149,8 @@ def run(args) -> int:
            "prior": args.prior, **summary, "probe_and_hold": beside, "replay_s": round(wall, 3),
            "warnings": replay_warnings(summary)}
     json_path.write_text(json.dumps(_json_safe(out), indent=2) + "\n")
+    if collect is not None:
+        collect.append((str(args.recording), result, summary))
     png = png_path or json_path.with_suffix(".png")
     plot_virtual_experiment(result, png, title=f"{args.model} {pathlib.Path(args.recording).name}")
     print(format_table(summary, title=f"{args.model} on {args.recording} ({wall:.1f} s)"))
