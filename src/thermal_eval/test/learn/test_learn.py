@@ -110,13 +110,15 @@ def test_cli_writes_the_unit_twin_and_a_report_generated_from_its_json(unit_run,
                        "--no-prior", "--quiet"]) == 0
     rep = json.loads((out / "report.json").read_text())
     md = (out / "report.md").read_text()
-    assert (out / "unit_twin.yaml").is_file() and rep["probes"] == {**rep["probes"], "train": 25, "held_out": 11}
+    assert (out / "unit_twin.yaml").is_file()
+    assert (rep["probes"]["train"], rep["probes"]["validation"], rep["probes"]["held_out"]) == (19, 6, 11)
+    assert rep["adoption"]["adopt"] and f"**Adopted**: {rep['adoption']['reason']}." in md
     for name, row in rep["held_out_scores"].items():      # every RMSE in the md is the JSON's
         assert f"| {name} | " + " | ".join(f"{row[c]['rmse']:.3g}" for c in COMPS) + " |" in md
     assert learn_main([str(path), "--twin", "nmv5000", "--out", str(out), "--no-prior", "--quiet"]) == 2
     assert "exists and is not an empty folder" in capsys.readouterr().err
     assert learn_main([str(path), "--twin", "nmv5000", "--out", str(tmp_path / "o2"), "--train-h", "35.9",
-                       "--no-prior", "--quiet"]) == 2
+                       "--validate-h", "0", "--no-prior", "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("thermal-comp learn: --train-h 35.9: leaves") and "\n" not in err
 
@@ -148,3 +150,18 @@ def test_a_bag_gives_measured_plus_the_offsets_the_bridge_held(tmp_path):
             bag.write("/offsets", stamp * 10**9, store.serialize_cdr(msg, T))
     applied = _applied_at(tmp_path / "offsets", np.array([0.0, 300.0, 1200.0]), ["E_X0C", "E_A0C"], np.zeros(3))
     assert applied.tolist() == [[0.0, 0.0], [3.0, 0.0], [0.0, 0.0]]    # before any, held, compensation off
+
+
+def test_adoption_needs_better_validation_probes_and_no_component_clearly_worse():
+    from thermal_eval.learn.adoption import decide                  # this test only
+    v = {"a": np.array([0.0, 1.0, 2.0, 3.0]), "b": np.array([0.0, 0.0, 0.0, 0.0])}
+    noise = {"a": 0.25, "b": 0.25}
+    mask = np.array([False, True, True, True])
+    good = decide(v, noise, {"a": v["a"] + 1.0, "b": v["b"]}, {"a": v["a"] + 0.1, "b": v["b"] + 0.1}, mask)
+    assert good.adopt and good.probes == 3
+    worse_b = decide(v, noise, {"a": v["a"] + 1.0, "b": v["b"]}, {"a": v["a"], "b": v["b"] + 0.3}, mask)
+    assert not worse_b.adopt and "worse beyond the probe uncertainty on b 0.00 -> 0.30" in worse_b.reason
+    same = decide(v, noise, v, v, mask)
+    assert not same.adopt and "not better" in same.reason
+    few = decide(v, noise, v, v, np.array([False, False, True, True]))
+    assert not few.adopt and "only 2 validation probes" in few.reason

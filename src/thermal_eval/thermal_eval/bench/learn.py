@@ -5,8 +5,9 @@ thermo-elastic gain beyond tolerance, a biased hall sensor, a chiller that follo
 seeds 11-12, never looked at while building it) a 178 h talc-178h-dry run is simulated. TALC
 with the type's prior runs on it as a cell would and probes on its own schedule; the probes of
 the first 48 h (Table 5.4 noise, 0.25 um resolution) plus the recorded temperatures and machine
-inputs (no true hall, no ground truth) are all ``learn`` sees. A prior is built on the learned
-unit twin, and a TALC started from it takes over at 48 h: it first runs over the recorded
+inputs (no true hall, no ground truth) are all ``learn`` sees; it fits on 0-36 h and adopts the
+unit twin only if it is better on the probes of 36-48 h. A prior is built on an adopted unit
+twin, and a TALC started from it takes over at 48 h (not adopted: the type's prior runs on): it first runs over the recorded
 history (inputs and the recorded probes), then on its own. Printed per unit, over the rest of
 the run: P99_lin and its ratio to probe-and-hold at the model's own Q_prod for the type prior
 running on, the type prior switched in the same way (the control) and the unit prior; each
@@ -101,17 +102,23 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
     report = learn("nmv5000", cell_view(rec, unit.machine), probes, out, train_h, build_priors=False,
                    progress=progress)
     t_learn = time.perf_counter() - t0
-    unit_cfg = default_config(str(out / UNIT_TWIN), "talc")
-    unit_prior = build_prior(str(out / UNIT_TWIN), unit_cfg, training_scenarios("talc", "nmv5000"))
-    t_prior = time.perf_counter() - t0 - t_learn
+    adopted = report["adoption"]["adopt"]
     start = int(np.searchsorted(rec.time_s, t_train))
     rows = {"before": _window(before, t_train, noise, seed)}
-    for name, c, p in (("type switched", cfg, prior), ("after", unit_cfg, unit_prior)):
-        rows[name] = _window(_switched(rec, c, p, probes, start, noise, seed), t_train, noise, seed)
+    rows["type switched"] = _window(_switched(rec, cfg, prior, probes, start, noise, seed), t_train, noise, seed)
+    t_prior = 0.0
+    if adopted:
+        unit_cfg = default_config(str(out / UNIT_TWIN), "talc")
+        unit_prior = build_prior(str(out / UNIT_TWIN), unit_cfg, training_scenarios("talc", "nmv5000"))
+        t_prior = time.perf_counter() - t0 - t_learn
+        rows["after"] = _window(_switched(rec, unit_cfg, unit_prior, probes, start, noise, seed), t_train, noise, seed)
+    else:
+        rows["after"] = rows["before"]       # not adopted: the cell keeps running with the type's prior
     half = {c: v / 2.0 for c, v in THESIS_TABLES[SCENARIO]["p99_compensated"].items()}
     comps = rows["after"]["model"]["components"]
     moved = [p for p in report["parameters"] if p["at_bound"] or abs(p["change_pct"] or 0.0) >= 15.0]
-    return {"unit": unit.name, "kind": kind, "seed": seed, "truth": unit.truth,
+    return {"unit": unit.name, "kind": kind, "seed": seed, "truth": unit.truth, "adopted": adopted,
+            "adoption": report["adoption"]["reason"],
             "ratio_before": rows["before"]["p99_lin_ratio"], "ratio_after": rows["after"]["p99_lin_ratio"],
             "ratio_type_switched": rows["type switched"]["p99_lin_ratio"],
             "p99_lin_before_um": rows["before"]["model"]["p99_lin_um"],
@@ -140,7 +147,8 @@ def run(args: argparse.Namespace | None = None) -> dict:
         figures["units"].append(r)
         print(f"  {r['truth']}\n  ratio to probe-and-hold after {train_h:g} h: type prior running on "
               f"{r['ratio_before']:.3f}, type prior switched in {r['ratio_type_switched']:.3f}, "
-              f"unit prior switched in {r['ratio_after']:.3f} (P99_lin {r['p99_lin_before_um']:.2f} -> {r['p99_lin_after_um']:.2f} um; "
+              f"{'unit prior switched in' if r['adopted'] else 'NOT ADOPTED, type prior running on'} "
+              f"{r['ratio_after']:.3f} (P99_lin {r['p99_lin_before_um']:.2f} -> {r['p99_lin_after_um']:.2f} um; "
               f"Q_prod {r['q_prod_before_pct']:.1f} / {r['q_prod_after_pct']:.1f} %); above half Table 6.5: "
               f"{', '.join(r['components_above_half_table_6_5']) or 'none'}; learn {r['learn_wall_s']} s, "
               f"prior {r['prior_wall_s']} s; moved: {'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}",

@@ -2,7 +2,8 @@
 
 From what a cell records (temperatures, machine inputs, the probing results and the offsets
 the bridge held; never the ground-truth topic): the twin calibrated on the probes of the first
-``--train-h`` hours (``DIR/unit_twin.yaml``), a prior built on it whose soft sensors are that
+``--train-h`` hours but the last ``--validate-h`` (``DIR/unit_twin.yaml``), adopted only if it is
+better on those validation probes, a prior built on an adopted twin whose soft sensors are that
 twin (``DIR/prior.json`` with ``DIR/model_config.yaml``), and a report (``report.md``,
 ``report.json``): what moved and by how much, the held-out probes before and after, the type's
 and the unit's prior replayed over the recording's probes, beside holding the last probe, the
@@ -26,6 +27,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
     p.add_argument("--train-h", type=float, default=48.0,
                    help="learn from the probes of the first H hours; later ones are held out (default 48)")
+    p.add_argument("--validate-h", type=float, default=None,
+                   help="the last H hours of the --train-h window only decide whether the learned twin is "
+                        "adopted (not fitted on; default a quarter of --train-h)")
     p.add_argument("--max-nfev", type=int, default=20, help="at most this many optimiser iterations (default 20)")
     p.add_argument("--probe-noise-um", type=float, default=None,
                    help="the probes' standard uncertainty for linear components (default: Table 5.4, 0.25)")

@@ -46,9 +46,11 @@ def _fmt(v) -> str:
 def markdown(rep: Mapping[str, Any]) -> str:
     """report.md, every figure taken from ``rep`` (report.json)."""
     lines = [f"# Learning the unit: {rep['twin']} from {rep['recording']}", "",
-             f"Recording {rep['recording_h']:.1f} h; trained on the probes of the first {rep['train_h']:g} h "
-             f"({rep['probes']['train']} probing instants), {rep['probes']['held_out']} held out. "
+             f"Recording {rep['recording_h']:.1f} h; fitted on the probes of the first "
+             f"{rep['train_h'] - rep['validate_h']:g} h ({rep['probes']['train']} probing instants), validated on "
+             f"the next {rep['validate_h']:g} h ({rep['probes']['validation']}), {rep['probes']['held_out']} held out. "
              f"Calibration {rep['wall_s']['calibration']} s, twin {rep['twin_simulated_h_per_s']} simulated h/s.", "",
+             f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
              "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
     for p in rep["parameters"]:
         lines.append(f"| {p['name']} | {_fmt(p['start'])} {p['unit']} | {_fmt(p['value'])} | "
@@ -75,7 +77,7 @@ def run(args) -> int:
         probes.noise = _noise(args, list(probes.values))
         say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
         rep = learn(machine, rec, probes, out, args.train_h, max_nfev=args.max_nfev, progress=say,
-                    build_priors=not args.no_prior)
+                    build_priors=not args.no_prior, validate_h=args.validate_h)
     except (ValueError, OSError, MachineSpecError, BagRecordingError, ProbeDataError, CalibrationError) as exc:
         print(f"thermal-comp learn: {exc}", file=sys.stderr)
         return 2
