@@ -8,8 +8,9 @@ node list comes from ``thermal_comp.cell.launch_plan.launch_plan``. The node lis
 once ``cell_file`` is, so one ``OpaqueFunction`` reads the file at launch time; every node is a
 launch_ros ``Node``. A managed node (the CNC bridge) is a ``LifecycleNode`` driven by launch's
 events: the first start of its process emits ``ChangeState`` configure; its ``OnStateTransition``
-to inactive emits activate; a respawned one stays unconfigured (writes nothing); a failed configure or activate is one error line and ends the launch
-(``Shutdown``), as ``thermal-comp launch`` stops on it. A crashed node is respawned after a
+to inactive emits activate; a respawned one stays unconfigured (writes nothing); a failed
+configure or activate, or no active state within three ``lifecycle_timeout_s`` of the start, is
+one error line and ends the launch (``Shutdown``), as ``thermal-comp launch`` stops on it. A crashed node is respawned after a
 fixed ``backoff_s`` (the launcher doubles it per crash); a node that crashes and is not
 respawned ends the launch. A second launch of a running cell (same namespace and domain) is
 refused with a line naming the running one (``thermal_comp.cell.cell_lock``).
@@ -21,7 +22,7 @@ import tempfile
 
 from launch import LaunchDescription
 from launch.actions import (DeclareLaunchArgument, EmitEvent, LogInfo, OpaqueFunction,
-                            RegisterEventHandler, Shutdown)
+                            RegisterEventHandler, Shutdown, TimerAction)
 from launch.event_handlers import OnProcessExit, OnProcessStart
 from launch.events import matches_action
 from launch.substitutions import LaunchConfiguration
@@ -41,27 +42,42 @@ def _change_state(node, transition_id):
                                        transition_id=transition_id))
 
 
-def _lifecycle_events(node, full_name):
-    """configure at the first start of the process, activate once inactive; a failed step ends
-    the launch. A respawned managed node stays unconfigured (writes nothing): launch_ros would
-    send its configure while the graph still lists the crashed process's change_state service,
-    and waits for the answer without a deadline; a lost request was seen in the tests."""
+def _lifecycle_events(node, spec):
+    """configure at the first start of the process, activate once inactive; a failed step, or
+    no active state within three lifecycle deadlines of the start (the launcher's three: the
+    service appearing, configure, activate), ends the launch. A respawned managed node stays
+    unconfigured (writes nothing): launch_ros would send its configure while the graph still
+    lists the crashed process's change_state service, and waits for the answer without a
+    deadline; a lost request was seen in the tests."""
+    full_name, deadline_s = spec.full_name, 3 * spec.lifecycle_timeout_s
+    active = []
+
     def failed(step, start, goal):
         return RegisterEventHandler(OnStateTransition(
             target_lifecycle_node=node, start_state=start, goal_state=goal,
             entities=[LogInfo(msg=f"ERROR {full_name}: transition '{step}' failed (see the node's log); "
                                   "stopping the cell"),
                       Shutdown(reason=f"{full_name}: {step} failed")]))
+
+    def check_deadline(context):
+        if active or context.is_shutdown:
+            return None
+        return [LogInfo(msg=f"ERROR {full_name}: not active within {deadline_s:g} s of its start "
+                            "(configure and activate); stopping the cell"),
+                Shutdown(reason=f"{full_name}: not active within {deadline_s:g} s")]
+
     return [
         RegisterEventHandler(OnProcessStart(
-            target_action=node, on_start=[_change_state(node, Transition.TRANSITION_CONFIGURE)],
-            handle_once=True)),
+            target_action=node, handle_once=True,
+            on_start=[_change_state(node, Transition.TRANSITION_CONFIGURE),
+                      TimerAction(period=deadline_s, actions=[OpaqueFunction(function=check_deadline)])])),
         RegisterEventHandler(OnStateTransition(
             target_lifecycle_node=node, start_state="configuring", goal_state="inactive",
             entities=[_change_state(node, Transition.TRANSITION_ACTIVATE)])),
         RegisterEventHandler(OnStateTransition(
             target_lifecycle_node=node, start_state="activating", goal_state="active",
-            entities=[LogInfo(msg=f"{full_name}: configured and active")])),
+            entities=[LogInfo(msg=f"{full_name}: configured and active"),
+                      OpaqueFunction(function=lambda context: active.append(True))])),
         failed("configure", "configuring", "unconfigured"),
         failed("activate", "activating", "inactive"),
     ]
@@ -103,7 +119,7 @@ def _cell_actions(context):
                     respawn_delay=spec.respawn_delay_s, respawn_max_retries=spec.respawn_max_retries)
         actions.append(node)
         if spec.lifecycle:
-            actions += _lifecycle_events(node, spec.full_name)
+            actions += _lifecycle_events(node, spec)
         actions.append(_end_on_crash(node, spec))
     return actions
 

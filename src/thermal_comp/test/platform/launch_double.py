@@ -3,8 +3,8 @@
 launch/launch_ros have no wheels for this venv (docs/launch.md says what was tried), so this
 double takes their place for the tests: each class accepts only the keyword arguments of its
 Jazzy counterpart; node actions start real processes with the command line launch_ros builds;
-launch's events (ProcessStarted, ProcessExited, ChangeState, StateTransition, Shutdown) are
-dispatched to the handlers the file registers; and a LifecycleNode talks to its node over the
+launch's events (ProcessStarted, ProcessExited, ChangeState, StateTransition, Shutdown) and
+TimerActions are dispatched to the handlers the file registers; and a LifecycleNode talks to its node over the
 interfaces launch_ros uses: it turns the node's ``<node>/transition_event`` messages into
 StateTransition events and a ChangeState event into a ``<node>/change_state`` call. Respawn
 follows launch's rule (the k-th exit is respawned while k <= respawn_max_retries).
@@ -68,6 +68,7 @@ OnProcessExit = _cls("OnProcessExit", {"target_action", "on_exit", "handle_once"
 OnStateTransition = _cls("OnStateTransition", {"target_lifecycle_node", "transition", "start_state",
                                                "goal_state", "entities", "matcher", "handle_once"})
 ChangeState = _cls("ChangeState", {"lifecycle_node_matcher", "transition_id"})
+TimerAction = _cls("TimerAction", {"period", "actions", "cancel_on_shutdown"})
 
 
 class LaunchConfiguration:
@@ -94,7 +95,7 @@ def modules(share_dir: str = "/opt/share") -> dict[str, types.ModuleType]:
     mods = {n: types.ModuleType(n) for n in names}
     mods["launch"].LaunchDescription = lambda actions: list(actions)
     for n in ("DeclareLaunchArgument", "OpaqueFunction", "RegisterEventHandler", "EmitEvent", "LogInfo",
-              "Shutdown", "IncludeLaunchDescription"):
+              "Shutdown", "IncludeLaunchDescription", "TimerAction"):
         setattr(mods["launch.actions"], n, globals()[n])
     mods["launch.event_handlers"].OnProcessStart = OnProcessStart
     mods["launch.event_handlers"].OnProcessExit = OnProcessExit
@@ -132,6 +133,7 @@ class MiniLaunch:
         self.shutdown_reason: str | None = None
         self.transitions: list[tuple[str, str, str]] = []   # (node, start label, goal label)
         self._handlers: list[Action] = []
+        self._timers: list[tuple[float, list]] = []      # (due, actions) of TimerActions
         self._procs: list[_Proc] = []
         self._clients: dict[int, object] = {}
         self._ros = rclpy.create_node("launch_double", context=ros_context)
@@ -153,6 +155,8 @@ class MiniLaunch:
             self._handlers.append(action.kwargs["event_handler"])
         elif kind == "EmitEvent":
             self.events.put(("ChangeState", action.kwargs["event"]))
+        elif kind == "TimerAction":
+            self._timers.append((time.monotonic() + action.kwargs["period"], action.kwargs["actions"]))
         elif kind == "LogInfo":
             self.lines.append(f"[launch] {action.kwargs['msg']}")
         elif kind == "Shutdown":
@@ -262,6 +266,11 @@ class MiniLaunch:
                 while not self.events.empty():
                     self._handle(*self.events.get())
                 self._poll_processes()
+                due = [t for t in self._timers if t[0] <= time.monotonic()]
+                for t in due:
+                    self._timers.remove(t)
+                    for a in t[1]:
+                        self.visit(a)
         finally:
             self.stop()
 

@@ -28,6 +28,7 @@ from thermal_comp.cell import cell_lock
 from thermal_comp.cell.launch_plan import LAUNCH_ARGUMENTS, launch_arguments_text, launch_plan, resolve_cell
 
 import launch_double
+from ros_helpers import PROCS
 from thermal_comp.cell.launcher import Launcher
 
 PKG = pathlib.Path(__file__).resolve().parents[2]
@@ -275,3 +276,16 @@ def test_a_second_launch_of_a_running_cell_is_refused(tmp_path, monkeypatch):
     with pytest.raises(cell_lock.CellLockError, match=rf"cell /example on ROS_DOMAIN_ID \d+ runs already \(pid {os.getpid()}"):
         module._cell_actions(context)
     module._LOCKS.pop().release()
+
+
+@pytest.mark.ros
+@pytest.mark.slow
+def test_launch_file_ends_the_cell_when_a_managed_node_is_not_active_in_time(tmp_path, monkeypatch, ros_context):
+    """A node marked lifecycle that has no lifecycle services: nothing waits forever."""
+    doc = {"cell": "lcl_plain", "env": {"PYTHONPATH": str(PROCS)}, "nodes": [
+        {"name": "talker", "module": "temperature_talker", "lifecycle": True, "lifecycle_timeout_s": 1,
+         "parameters": {"period_s": 0.5}}]}
+    run = _run_launch_file(tmp_path, monkeypatch, ros_context, doc, lambda run: False)
+    assert run.shutdown_reason == "/lcl_plain/talker: not active within 3 s"
+    assert "[launch] ERROR /lcl_plain/talker: not active within 3 s of its start (configure and activate); " \
+           "stopping the cell" in run.lines
