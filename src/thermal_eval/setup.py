@@ -41,7 +41,7 @@ setup(
             "evaluate = thermal_eval.bench.evaluate:run",
             "faults = thermal_eval.bench.faults:run",
             "fl-thermal = thermal_eval.fl_thermal.benchmark:run",
-            "learn = thermal_eval.bench.learn:run",
+            "learn = thermal_eval.learn.bench:run",
             "model = thermal_eval.bench.model:run",
             "models = thermal_eval.bench.sweep:run",
             "probe = thermal_eval.bench.probe:run",
@@ -49,6 +49,8 @@ setup(
             "sensors = thermal_eval.bench.sensors:run",
             "twin = thermal_eval.bench.twin:run",
             "view = thermal_eval.bench.view:run",
+            "hold-fallback = thermal_eval.model_bench.hold_fallback:run",
+            "history-prior = thermal_eval.model_bench.history_prior:run",
         ],
         # twin scenarios a dataset owns: "name = module:SCENARIO" (thermal_twin.sim.scenarios.PLUGIN_GROUP)
         "thermal_twin.sim.scenarios": ["fl-thermal-programme = thermal_eval.fl_thermal.scenario:SCENARIO"],

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from thermal_comp_common.recording_csv import write_recording_csv
-from thermal_eval.bench.learn import cell_view
+from thermal_eval.learn.bench import cell_view
 from thermal_eval.learn.cli import main as learn_main
 from thermal_eval.learn.probe_score import hold_last, score_table, static_regression, training_mean
 from thermal_eval.learn.probes import ProbeDataError, ProbeSet, cell_recording
