@@ -153,3 +153,18 @@ def test_cli_on_a_folder_writes_per_run_and_pooled_figures(folder, tmp_path, cap
     assert "pooled over 5 held-out test runs" in capsys.readouterr().out
     assert main([str(folder), "--out", str(tmp_path / "o2"), "--runs-split", "by:unit", "--no-progress"]) == 2
     assert "every run has unit = ''" in capsys.readouterr().err
+
+
+def test_runs_at_rest_start_from_their_first_reading_and_are_never_scored(folder):
+    runs = load_runs(resolve_runs([str(folder)]))
+    d0 = fold_data(runs, [0, 1, 2], 4)
+    d = fold_data(runs, [0, 1, 2], 4, rest_h=1.0)
+    k = 30                                               # 1 h at the runs' 120-s step
+    assert len(d) == len(d0) + 4 * k and np.all(np.diff(d.time_s) > 0)
+    held = runs[4].data
+    assert d.split.test.stop - d.split.test.start == len(held) - 1       # the held-out run's own rows only
+    np.testing.assert_array_equal(d.displacement_um["z_um"][d.split.test], held.displacement_um["z_um"][1:])
+    first = d.split.n_train - 1 - k                      # the held-out run's rest rows repeat its first reading
+    np.testing.assert_array_equal(d.temperatures[first:d.split.n_train], np.repeat(held.temperatures[:1], k + 1, 0))
+    with pytest.raises(DatasetError, match="rest hours"):
+        fold_data(runs, [0, 1, 2], 4, rest_h=-1.0)

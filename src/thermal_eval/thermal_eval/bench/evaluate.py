@@ -187,6 +187,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                          "one per hour on average)")
     ap.add_argument("--sections", default="fl_thermal,plateau,segments,fleet",
                     help="comma-separated parts: fl_thermal, plateau, segments (FL_THERMAL cut into runs), fleet")
+    ap.add_argument("--rest-h", type=float, default=0.0, metavar="H",
+                    help="fleet: every run preceded by its first reading held H hours (evaluate --rest-h)")
     ap.add_argument("--timing-runs", type=int, default=0, metavar="N",
                     help="also time evaluate on N twin runs of 5 h (default 0: off)")
     opts = ap.parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
@@ -210,7 +212,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 print(f"{k}: test MAE (um) single recording -> cut into runs: " + ", ".join(
                     f"{ch} {c['single_recording']} -> {c['cut_into_runs']}" for ch, c in v.items()))
     if "fleet" in sections:
-        figures["fleet"] = run_fleet(engine, quick=every > 1)
+        figures["fleet"] = run_fleet(engine, quick=every > 1, rest_h=opts.rest_h)
     if opts.timing_runs:
         figures["timing"] = run_timing(opts.timing_runs, engine)
     return figures

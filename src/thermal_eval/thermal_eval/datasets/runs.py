@@ -113,20 +113,41 @@ def _end_to_end(parts: Sequence[EvaluationData], n_train: int, test: slice, sour
                           Split(n_train, slice(n, n), test, n), source, notes)
 
 
-def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int) -> EvaluationData:
+def at_rest(d: EvaluationData, hours: float) -> EvaluationData:
+    """The run with its first reading held for ``hours`` before it (at its median sample step):
+    the assumption that the machine was at rest when the run started, so that dynamic models
+    start it in equilibrium instead of carrying the previous run's state. 0: the run as it is."""
+    if not (isinstance(hours, (int, float)) and 0 <= hours < 1e4):
+        raise DatasetError(f"rest hours {hours!r}: must be a number in [0, 1e4)")
+    if hours == 0:
+        return d
+    step = _step(d.time_s)
+    k = max(1, int(round(3600.0 * hours / step)))
+    idx = np.r_[np.zeros(k, int), np.arange(len(d))]
+    t = np.r_[np.arange(k) * step, k * step + d.time_s - d.time_s[0]]
+    return EvaluationData(t, d.temperatures[idx], d.sensors, None if d.inputs is None else d.inputs[idx],
+                          d.input_names, {c: v[idx] for c, v in d.displacement_um.items()},
+                          Split(t.size, slice(t.size, t.size), slice(t.size, t.size), t.size), d.source, [])
+
+
+def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int, rest_h: float = 0.0) -> EvaluationData:
     """The training runs end to end, then the held-out run (its rows after the first are the
-    test window; its first row closes the calibration phase)."""
-    n_train = sum(len(runs[i].data) for i in train) + 1
-    if n_train - 1 < 50:
-        raise DatasetError(f"run split: {n_train - 1} training rows in {len(train)} runs; the walk-forward needs >= 50")
+    test window; its first row closes the calibration phase). ``rest_h``: every run preceded by
+    its first reading held that long (:func:`at_rest`; never scored)."""
+    parts = [at_rest(runs[i].data, rest_h) for i in list(train) + [held_out]]
+    n_fit = sum(len(p) for p in parts[:-1])
+    if n_fit < 50:
+        raise DatasetError(f"run split: {n_fit} training rows in {len(train)} runs; the walk-forward needs >= 50")
     held = runs[held_out]
-    n = n_train - 1 + len(held.data)
-    return _end_to_end([runs[i].data for i in list(train) + [held_out]], n_train, slice(n_train, n),
-                       held.data.source, [f"trained on {len(train)} runs ({n_train - 1} rows), scored on run "
-                                          f"{held.entry.name!r}"])
+    n = n_fit + len(parts[-1])
+    n_train = n - len(held.data) + 1
+    return _end_to_end(parts, n_train, slice(n_train, n), held.data.source,
+                       [f"trained on {len(train)} runs ({n_fit} rows), scored on run {held.entry.name!r}"
+                        + (f", each run after {rest_h:g} h at rest" if rest_h else "")])
 
 
-def train_data(runs: Sequence[Run], train: Sequence[int]) -> EvaluationData:
+def train_data(runs: Sequence[Run], train: Sequence[int], rest_h: float = 0.0) -> EvaluationData:
     """The training runs end to end, every row a training row (where a fold's models choose)."""
-    n = sum(len(runs[i].data) for i in train)
-    return _end_to_end([runs[i].data for i in train], n, slice(n, n), "training runs", [])
+    parts = [at_rest(runs[i].data, rest_h) for i in train]
+    n = sum(len(p) for p in parts)
+    return _end_to_end(parts, n, slice(n, n), "training runs", [])

@@ -31,6 +31,9 @@ def parser() -> argparse.ArgumentParser:
                          "loro (leave one run out), by:FIELD (leave one group out), by:FIELD=VALUE, test=NAME,...")
     ap.add_argument("--segments", type=int, metavar="K",
                     help="cut each recording into K runs of equal rows (scores one long recording across runs)")
+    ap.add_argument("--rest-h", type=float, default=0.0, metavar="H",
+                    help="several runs: each starts after its first reading held H hours (the machine at rest), "
+                         "so dynamic models do not carry the previous run's state (default 0: off)")
     ap.add_argument("--sample-period-s", type=float, metavar="S",
                     help="the CSV has no time_s column: row i is at i x S seconds")
     ap.add_argument("--out", required=True, metavar="DIR", help="output folder (refused if not empty, see --force)")
