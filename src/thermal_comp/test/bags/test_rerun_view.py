@@ -1,15 +1,10 @@
 """rerun: our messages become the documented entities; rerun's own tools load our bags and
 our .rrd files; the served web viewer shows our data in headless Chromium."""
-import base64
-import json
 import math
 import os
 import pathlib
-import shutil
-import socket
 import subprocess
 import sys
-import urllib.request
 
 import numpy as np
 import pytest
@@ -18,11 +13,11 @@ import rerun as rr
 from bags_helpers import small_recording_csv, wait_for
 from thermal_comp_common.bags import msg_definitions as md
 from thermal_comp_common.bags.csv_to_bag import csv_to_bag
+from thermal_comp.view import browser
 from thermal_comp.view.rerun_logging import (COLOURS, LayoutError, RerunLogger, load_layout,
                                         schematic_layout, split_topic)
 
 RERUN = pathlib.Path(sys.executable).parent / "rerun"
-CHROMIUM = pathlib.Path("/usr/bin/chromium")
 
 
 def _env(tmp_path) -> dict:
@@ -174,12 +169,6 @@ def test_view_rejects_bad_input(tmp_path):
     assert p.returncode == 2 and "no such bag" in p.stderr and "Traceback" not in p.stderr
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _magenta_pixels(png: bytes) -> int:
     from io import BytesIO
     from PIL import Image
@@ -190,66 +179,34 @@ def _magenta_pixels(png: bytes) -> int:
 
 @pytest.mark.slow
 def test_served_web_viewer_shows_our_entities_in_headless_chromium(tmp_path, bag):
-    if not CHROMIUM.exists():
-        pytest.skip("/usr/bin/chromium is missing: install Debian's 'chromium' package")
-    import websocket
-    web, grpc = _free_port(), _free_port()
+    if not browser.CHROMIUM.exists():
+        pytest.skip(f"{browser.CHROMIUM} is missing: install Debian's 'chromium' package")
+    web, grpc = browser.free_port(), browser.free_port()
     viewer = subprocess.Popen([sys.executable, "-m", "thermal_comp.view.cli", str(bag), "--serve-web",
                                "--web-port", str(web), "--grpc-port", str(grpc), "--no-progress"],
                               env=_env(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    profile = tmp_path / "chromium"
-    profile.mkdir()
-    browser = None
     try:
         line = viewer.stdout.readline()
         assert line.startswith("rerun web viewer: http://localhost:"), line
         url = line.split(": ", 1)[1].strip()
         wait_for(lambda: "messages logged" in viewer.stdout.readline(), 60, "the bag to be logged")
-        browser = subprocess.Popen(
-            [str(CHROMIUM), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync",
-             f"--user-data-dir={profile}", "--remote-debugging-port=0", "--window-size=1400,900",
-             "about:blank"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        port_file = profile / "DevToolsActivePort"
-        wait_for(lambda: port_file.exists() and port_file.read_text().strip(), 30, "Chromium's DevTools port")
-        port = int(port_file.read_text().split()[0])
-        pages = json.load(urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=10))
-        ws = websocket.create_connection(pages[0]["webSocketDebuggerUrl"], timeout=60)
-        ids = iter(range(1, 10**6))
-
-        def call(method, **params):
-            i = next(ids)
-            ws.send(json.dumps({"id": i, "method": method, "params": params}))
-            while True:
-                reply = json.loads(ws.recv())
-                if reply.get("id") == i:
-                    return reply
-
-        call("Page.enable")
-        call("Page.navigate", url=url)
         shots = []
+        with browser.HeadlessChromium() as chromium:
+            chromium.open(url)
 
-        def rendered():
-            reply = call("Page.captureScreenshot", format="png")
-            if "result" not in reply:      # e.g. the page is still navigating: try again
-                return False
-            png = base64.b64decode(reply["result"]["data"])
-            shots.append(png)
-            return _magenta_pixels(png) > 200
+            def rendered():
+                png = chromium.screenshot()     # None while the page is still navigating
+                shots.append(png) if png else None
+                return png is not None and _magenta_pixels(png) > 200
 
-        try:
-            wait_for(rendered, 90, "the ground-truth error lines in the web viewer", poll=1.0)
-        finally:
-            if shots:
-                (tmp_path / "web_viewer.png").write_bytes(shots[-1])
-        ws.close()
+            try:
+                wait_for(rendered, 300, "the ground-truth error lines in the web viewer", poll=1.0)
+            finally:
+                if shots:
+                    (tmp_path / "web_viewer.png").write_bytes(shots[-1])
     finally:
-        if browser is not None:
-            browser.kill()
-            browser.wait()
         viewer.terminate()
         viewer.communicate(timeout=30)
-        shutil.rmtree(profile, ignore_errors=True)
 
 
 @pytest.mark.slow
