@@ -3,6 +3,7 @@ with the drawn size reached and the scoring rules of the random bench."""
 import numpy as np
 import pytest
 
+from thermal_eval.diagnose.random_bench import markdown, parse
 from thermal_eval.diagnose.random_cases import KINDS, OOV_KINDS, draw_case
 from thermal_eval.diagnose.random_recording import case_recording
 from thermal_eval.diagnose.random_score import judge, score
@@ -66,3 +67,14 @@ def test_judge_counts_extras_exactness_and_both_effects():
     assert fig["single_exact_target_pct"] == 100.0 and fig["none_answered_pct"] == 0.0
     assert fig["two_both_found_pct"] == 100.0 and fig["cases_per_minute"] == 3.0
     assert fig["confusion"]["none"] == {"periodic_load": 1}
+
+
+def test_the_markdown_tables_are_the_figures():
+    o = _outcome("named", ["heat_source:table"], "heat_source", ["heat_source:table"])
+    fig = score([o, _outcome("none", [], "none", [])], wall_s=120.0)
+    md = markdown({"seed": 1000, "first": 0, "n": 2, "calibrate": False, "jobs": 2, "wall_s": 120.0,
+                   "load_average_1min": 3.0}, fig)
+    assert "| single_exact_target_pct | 100 |" in md and "| none_answered_pct | 100 |" in md
+    assert "| heat_source | 1 | 100 | 100 |" in md and "seed 1000, cases 0-1" in md
+    with pytest.raises(SystemExit):
+        parse(["--random", "0"])

@@ -33,7 +33,7 @@ import time
 
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.task_engine import EngineSpec
-from thermal_eval.bench import diagnose_random
+from thermal_eval.diagnose import random_bench
 from thermal_eval.diagnose import suite as diagnose_suite
 from thermal_twin.calibrate.column_mapping import parse_mapping, read_real_recording
 from thermal_twin.calibrate.fit import calibrate
@@ -50,8 +50,8 @@ HIDDEN = ("heat_source:headstock:spindle_rpm", (80.0, 1.2))
 
 def run(args: argparse.Namespace | None = None) -> dict:
     quick = bool(getattr(args, "quick", False)) if args is not None else False
-    if "--random" in (getattr(args, "extra", None) or []):    # drawn cases: bench/diagnose_random.py
-        return diagnose_random.run(args)
+    if "--random" in (getattr(args, "extra", None) or []):    # drawn cases: diagnose/random_bench.py
+        return random_bench.run(args)
     if "--suite-only" in (getattr(args, "extra", None) or []):
         return run_suite(None, None)
     hours = 12.0 if quick else None

@@ -15,7 +15,7 @@ programme, a recording length and step, and what is concealed:
   thermo-elastic term, a sensor moved to another body;
 - ``none``: nothing concealed.
 
-The recording (:func:`case_recording`) has the generator's own noise (white, AR(1) or random
+The recording (:func:`thermal_eval.diagnose.random_recording.case_recording`) has the generator's own noise (white, AR(1) or random
 walk, level drawn), quantisation, dropped rows and a clock offset between the inputs and the
 measured channels; the true machine's own sensor noise is switched off so that the drawn
 noise is the only one.
