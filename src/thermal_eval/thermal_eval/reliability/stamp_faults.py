@@ -98,11 +98,11 @@ def _model_case(d: pathlib.Path, domain_id: int) -> dict:
 
 def _temps(t: float):
     # ROS messages only with the model row's rclpy (see _model_case)
-    from std_msgs.msg import Header
     from thermal_comp_common.runtime.node_runtime import s_to_stamp
     from thermal_comp_msgs.msg import TemperatureArray
-    return TemperatureArray(header=Header(stamp=s_to_stamp(t)), sensor_ids=["a", "b"],
-                            temperatures_degc=[20.0 + t / 1e5, 21.0], status=[0, 0])
+    msg = TemperatureArray(sensor_ids=["a", "b"], temperatures_degc=[20.0 + t / 1e5, 21.0], status=[0, 0])
+    msg.header.stamp = s_to_stamp(t)
+    return msg
 
 
 # ---------------------------------------------------------------- the bridge
