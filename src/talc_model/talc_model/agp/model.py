@@ -148,7 +148,7 @@ class AdaptiveGaussianProcess:
         self._cache_key: int = 0
         self._cache: tuple[int, dict, dict] | None = None
         #: per component: the model's prediction or its last probe (probing.hold_fallback)
-        self.hold = HoldFallback(self.component_names, cfg.hold_fallback)
+        self.hold = HoldFallback(self.component_names, cfg.hold_fallback, horizon_s=cfg.control_interval_s)
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> "AdaptiveGaussianProcess":
@@ -431,7 +431,7 @@ class AdaptiveGaussianProcess:
             model.current_x = None if state["current_x"] is None else np.asarray(state["current_x"], dtype=float)
             model.gps = {c: ArdGaussianProcess.from_state(s) for c, s in state["gps"].items()}
             model.hold = HoldFallback.from_state(state.get("hold_fallback"), model.component_names,
-                                                 model.config.hold_fallback)
+                                                 model.config.hold_fallback, model.config.control_interval_s)
         except KeyError as exc:
             raise AgpConfigError(f"model state: missing key {exc}") from None
         if set(model.gps) != set(model.config.components):

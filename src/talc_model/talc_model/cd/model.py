@@ -159,7 +159,8 @@ class CharacteristicDiagramModel:
         self._key = 0
         self._cache: tuple[int, dict, dict] | None = None
         #: per component: the model's prediction or its last probe (probing.hold_fallback)
-        self.hold = HoldFallback(self.component_names, self.config.hold_fallback)
+        self.hold = HoldFallback(self.component_names, self.config.hold_fallback,
+                                 horizon_s=self.config.update_probe_interval_s)
 
     @classmethod
     def from_config(cls, config: Mapping[str, Any]) -> "CharacteristicDiagramModel":
@@ -398,7 +399,8 @@ class CharacteristicDiagramModel:
             m.update = {c: CharacteristicDiagram.from_state(s) for c, s in state["update"].items()}
             m.errors = {c: deque(e, maxlen=m.config.uncertainty_window) for c, e in state["errors"].items()}
             m.message += restore_soft_sensors(m.soft_sensors, state)
-            m.hold = HoldFallback.from_state(state.get("hold_fallback"), m.component_names, m.config.hold_fallback)
+            m.hold = HoldFallback.from_state(state.get("hold_fallback"), m.component_names, m.config.hold_fallback,
+                                             m.config.update_probe_interval_s)
         except KeyError as exc:
             raise CdModelError(f"model state: missing key {exc}") from None
         return m

@@ -8,12 +8,24 @@ two with hysteresis:
 - at every probe, BEFORE the model learns from it, the model's prediction made just before the
   probe (the last :meth:`output` call) and the previous probe's value are compared with the new
   probe's total error;
-- the interval-average error of each predictor is estimated from its errors at the interval's
-  two ends, assumed to change linearly in between: holding starts each interval exact (0 at the
-  probe), the model starts with the error of its first prediction after the probe (an anchored
-  model such as TALC's observer or the CD prior starts near 0 too, a regression such as the GP
-  keeps its fit residual); mean square of a line from a to b = (a^2 + ab + b^2) / 3;
-- over the last ``window`` scored probes, ratio = RMS(model) / RMS(hold); a component in model
+- the interval-average absolute error of each predictor is estimated from the probe: holding
+  starts each interval exact and ends |step| off, so |step| / 2 (a linear drift, or a quantum
+  step at a random instant, give that mean); the model's error at the end of the interval stands
+  for the whole interval. That is conservative for a model that restarts from each probe (its
+  error grows from near 0 too) and right for one whose error is stationary (the GP, a TALC
+  observer with a small gain); a line from the model's first prediction after the probe to its
+  last read low on a quantised signal (the update pulls the first prediction toward the probe,
+  the model drifts away after: docs/talc.md). Mean absolute, not squared: on
+  a quantised or plateau-like signal holding is exact most of the time and one step off the rest,
+  which a mean square rates worse than a model's small errors everywhere although its mean error
+  (what the evaluation and the parts see) is lower;
+- holding's error grows with the time since the probe, the model's does not: a score taken over
+  a short interval (a prior's check phase, a no-good phase probing every few minutes) would make
+  holding look better than it is at the interval the model probes at otherwise. Each holding
+  score is therefore scaled to the model's regular probing interval (``horizon_s``) or the
+  longest interval of the window if that is longer (linear growth: a drift, or the chance of a
+  quantum step);
+- over the last ``window`` scored probes, ratio = mean |e| (model) / mean |e| (hold); a component in model
   mode holds once ratio > ``to_hold_ratio``, one in hold mode returns to the model once ratio <
   ``to_model_ratio`` (hysteresis), never before ``min_scored`` probes were scored.
 
@@ -39,7 +51,7 @@ MODE_HOLD = "hold"
 WINDOW = 8
 #: scored probes before the first switch
 MIN_SCORED = 3
-#: model mode -> hold above this interval-RMS ratio; hold -> model below the second
+#: model mode -> hold above this ratio of interval mean |e|; hold -> model below the second
 TO_HOLD_RATIO = 0.95
 TO_MODEL_RATIO = 0.8
 #: probe-to-probe steps kept for the resolution estimate
@@ -92,25 +104,25 @@ class _Component:
         self.last_total: float | None = None
         self.t_probe: float | None = None
         self.pending: tuple[float, float] | None = None   # (t, model prediction) since the last probe
-        self.start_error: float | None = None             # model error right after the last probe
-        self.scores: deque = deque(maxlen=WINDOW)         # (interval MS model, interval MS hold)
+        self.scores: deque = deque(maxlen=WINDOW)         # (model |e|, hold mean |e|, interval s)
         self.switches = 0
         self.steps: deque = deque(maxlen=STEPS_KEPT)      # probe-to-probe steps of the total error
         self.unchanged = 0
         self.n_steps = 0
 
-    def ratio(self) -> float:
+    def ratio(self, horizon_s: float = 0.0) -> float:
         if not self.scores:
             return math.nan
+        longest = max(max(s[2] for s in self.scores), horizon_s)
         m = sum(s[0] for s in self.scores)
-        h = sum(s[1] for s in self.scores)
+        h = sum(s[1] * longest / s[2] for s in self.scores)
         if h <= 0.0:
             return math.inf if m > 0.0 else 1.0
-        return math.sqrt(m / h)
+        return m / h
 
     def to_state(self) -> dict:
         return {"mode": self.mode, "last_total": self.last_total, "t_probe": self.t_probe,
-                "pending": None if self.pending is None else list(self.pending), "start_error": self.start_error,
+                "pending": None if self.pending is None else list(self.pending),
                 "scores": [list(s) for s in self.scores], "switches": self.switches, "steps": list(self.steps),
                 "unchanged": self.unchanged, "n_steps": self.n_steps}
 
@@ -119,7 +131,7 @@ class _Component:
         if state.get("mode") not in (MODE_MODEL, MODE_HOLD):
             raise ValueError(f"hold_fallback state: 'mode' {state.get('mode')!r} is not 'model' or 'hold'")
         c = cls(state["mode"])
-        c.last_total, c.t_probe, c.start_error = state["last_total"], state["t_probe"], state["start_error"]
+        c.last_total, c.t_probe = state["last_total"], state["t_probe"]
         c.pending = None if state["pending"] is None else (float(state["pending"][0]), float(state["pending"][1]))
         c.scores.extend(tuple(float(x) for x in s) for s in state["scores"])
         c.switches, c.unchanged, c.n_steps = int(state["switches"]), int(state["unchanged"]), int(state["n_steps"])
@@ -131,8 +143,13 @@ class HoldFallback:
     """Per-component choice between the model's prediction and its last probe (module docstring).
     ``enabled`` False: the model's output passes unchanged (scores and detection still run)."""
 
-    def __init__(self, components: Iterable[str], enabled: bool = True, trusted: bool = False):
+    def __init__(self, components: Iterable[str], enabled: bool = True, trusted: bool = False,
+                 horizon_s: float = 0.0):
+        if not (isinstance(horizon_s, (int, float)) and horizon_s >= 0 and not math.isnan(horizon_s)):
+            raise ValueError(f"hold fall-back: horizon_s {horizon_s!r} must be a number >= 0")
         self.enabled = bool(enabled)
+        #: the model's regular probing interval (s; 0 or inf: the window's longest interval)
+        self.horizon_s = float(horizon_s) if math.isfinite(horizon_s) else 0.0
         self.components = {c: _Component(MODE_MODEL if trusted else MODE_HOLD) for c in components}
 
     def trust(self) -> None:
@@ -153,8 +170,6 @@ class HoldFallback:
             v = values.get(c, math.nan)
             if has_prediction and math.isfinite(v):
                 comp.pending = (float(t_s), float(v))
-                if comp.start_error is None and comp.last_total is not None:
-                    comp.start_error = comp.last_total - float(v)
             if self.enabled and comp.last_total is not None and (not has_prediction or comp.mode == MODE_HOLD):
                 out[c] = comp.last_total
         return out
@@ -172,18 +187,17 @@ class HoldFallback:
                 comp.unchanged += int(abs(step) <= 1e-9 * max(1.0, abs(total)))
                 comp.steps.append(step)
                 if comp.pending is not None and comp.t_probe is not None and comp.pending[0] >= comp.t_probe:
-                    b = total - comp.pending[1]
-                    a = b if comp.start_error is None else comp.start_error
-                    comp.scores.append(((a * a + a * b + b * b) / 3.0, step * step / 3.0))
-                    self._decide(comp)
+                    dt = max(float(t_s) - comp.t_probe, 1e-9)
+                    comp.scores.append((abs(total - comp.pending[1]), abs(step) / 2.0, dt))
+                    self._decide(comp, self.horizon_s)
             comp.last_total, comp.t_probe = float(total), float(t_s)
-            comp.pending, comp.start_error = None, None
+            comp.pending = None
 
     @staticmethod
-    def _decide(comp: _Component) -> None:
+    def _decide(comp: _Component, horizon_s: float = 0.0) -> None:
         if len(comp.scores) < MIN_SCORED:
             return
-        r = comp.ratio()
+        r = comp.ratio(horizon_s)
         if comp.mode == MODE_MODEL and r > TO_HOLD_RATIO:
             comp.mode, comp.switches = MODE_HOLD, comp.switches + 1
         elif comp.mode == MODE_HOLD and r < TO_MODEL_RATIO:
@@ -208,7 +222,7 @@ class HoldFallback:
         out = {}
         for c, comp in self.components.items():
             sig = self.signal(c)
-            out[c] = {"mode": comp.mode if self.enabled else MODE_MODEL, "ratio_to_hold": comp.ratio(),
+            out[c] = {"mode": comp.mode if self.enabled else MODE_MODEL, "ratio_to_hold": comp.ratio(self.horizon_s),
                       "scored_probes": len(comp.scores), "switches": comp.switches,
                       "resolution": sig["resolution"], "unchanged_share": sig["unchanged_share"],
                       "signal": sig["words"]}
@@ -219,7 +233,7 @@ class HoldFallback:
         probes show of quantised or plateau-like signals ("" when there is nothing to say)."""
         parts = []
         if self.enabled:
-            held = [(c, comp.ratio(), len(comp.scores)) for c, comp in self.components.items()
+            held = [(c, comp.ratio(self.horizon_s), len(comp.scores)) for c, comp in self.components.items()
                     if comp.mode == MODE_HOLD]
             if held:
                 parts.append("holding the last probe on " + ", ".join(
@@ -235,13 +249,14 @@ class HoldFallback:
         return {"enabled": self.enabled, "components": {c: comp.to_state() for c, comp in self.components.items()}}
 
     @classmethod
-    def from_state(cls, state: Mapping[str, Any] | None, components: Iterable[str], enabled: bool) -> "HoldFallback":
+    def from_state(cls, state: Mapping[str, Any] | None, components: Iterable[str], enabled: bool,
+                   horizon_s: float = 0.0) -> "HoldFallback":
         """The fall-back of a saved model; a state saved without one (None) starts in model mode
         (the model was running before it existed)."""
         names = list(components)
         if state is None:
-            return cls(names, enabled, trusted=True)
-        hf = cls(names, enabled)
+            return cls(names, enabled, trusted=True, horizon_s=horizon_s)
+        hf = cls(names, enabled, horizon_s=horizon_s)
         saved = state.get("components") or {}
         for c in names:
             if c in saved:

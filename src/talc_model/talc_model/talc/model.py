@@ -76,7 +76,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         self.events: list[dict] = []               # phase transitions and updates (for reports)
         self.soft_sensors = soft_sensors_for(c)    # the machine type's twin (type_model), or None
         #: per component: the model's prediction or its last probe (probing.hold_fallback)
-        self.hold = HoldFallback(self.component_names, c.hold_fallback)
+        self.hold = HoldFallback(self.component_names, c.hold_fallback, horizon_s=c.post_cp_interval_h * 3600.0)
         if self.input_names:
             self._init_grid()
 
@@ -446,7 +446,7 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         model.message = state.get("message", "") + restore_soft_sensors(model.soft_sensors, state)
         model.events = list(state.get("events", []))
         model.hold = HoldFallback.from_state(state.get("hold_fallback"), model.component_names,
-                                             model.config.hold_fallback)
+                                             model.config.hold_fallback, model.config.post_cp_interval_h * 3600.0)
         return model
 
     @classmethod

@@ -60,7 +60,7 @@ def test_no_switch_before_min_scored_and_hysteresis_between_the_thresholds():
     assert hf.mode("c") == MODE_HOLD
     comp = hf.components["c"]
     comp.scores.clear()
-    comp.scores.extend([(0.85 ** 2, 1.0)] * 8)         # ratio 0.85: between 0.8 and 0.95
+    comp.scores.extend([(0.85, 1.0, 60.0)] * 8)       # ratio 0.85: between 0.8 and 0.95
     hf._decide(comp)
     assert hf.mode("c") == MODE_HOLD
 
@@ -120,3 +120,16 @@ def test_on_a_quantised_plateau_signal_each_model_is_within_10_percent_of_holdin
     back = type(model).from_state(json.loads(json.dumps(model.to_state())))
     assert back.hold.diagnostics()["E"]["mode"] == diag["mode"]
     assert back.hold.components["E"].last_total == model.hold.components["E"].last_total
+
+
+def test_short_intervals_are_scaled_to_the_models_probing_interval():
+    """Probes 5 min apart (a prior's check phase) must not make holding look better than it is
+    at the model's 2-h interval: holding's error is scaled to it, the model's is not."""
+    scores = [(0.2, 0.05, 300.0)] * 8               # model 0.2 um off; holding 0.05 um after 5 min
+    short, scaled = HoldFallback(["c"], trusted=True), HoldFallback(["c"], trusted=True, horizon_s=7200.0)
+    for hf in (short, scaled):
+        hf.components["c"].scores.extend(scores)
+        hf._decide(hf.components["c"], hf.horizon_s)
+    assert short.mode("c") == MODE_HOLD and scaled.mode("c") == MODE_MODEL
+    with pytest.raises(ValueError, match="horizon_s"):
+        HoldFallback(["c"], horizon_s=-1.0)
