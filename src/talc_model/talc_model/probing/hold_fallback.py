@@ -23,8 +23,8 @@ two with hysteresis:
   a short interval (a prior's check phase, a no-good phase probing every few minutes) would make
   holding look better than it is at the interval the model probes at otherwise. Each holding
   score is therefore scaled to the model's regular probing interval (``horizon_s``) or the
-  longest interval of the window if that is longer (linear growth: a drift, or the chance of a
-  quantum step);
+  longest interval of the window if that is longer, as a random walk grows (square root of
+  the time: between probe noise, which does not grow, and a steady drift, which grows linearly);
 - over the last ``window`` scored probes, ratio = mean |e| (model) / mean |e| (hold); a component in model
   mode holds once ratio > ``to_hold_ratio``, one in hold mode returns to the model once ratio <
   ``to_model_ratio`` (hysteresis), never before ``min_scored`` probes were scored.
@@ -115,7 +115,7 @@ class _Component:
             return math.nan
         longest = max(max(s[2] for s in self.scores), horizon_s)
         m = sum(s[0] for s in self.scores)
-        h = sum(s[1] * longest / s[2] for s in self.scores)
+        h = sum(s[1] * math.sqrt(longest / s[2]) for s in self.scores)
         if h <= 0.0:
             return math.inf if m > 0.0 else 1.0
         return m / h
