@@ -71,10 +71,16 @@ def test_judge_counts_extras_exactness_and_both_effects():
 
 def test_the_markdown_tables_are_the_figures():
     o = _outcome("named", ["heat_source:table"], "heat_source", ["heat_source:table"])
-    fig = score([o, _outcome("none", [], "none", [])], wall_s=120.0)
+    shifted = _outcome("none", [], "unnamed", [], unnamed=["t1_c += 0.1*d(t2_c)/dt"])
+    o["noise"] = {"colour": "white", "clock_offset_s": 0.0}
+    shifted["noise"] = {"colour": "ar1", "clock_offset_s": 300.0}
+    fig = score([o, shifted], wall_s=120.0)
+    assert fig["per_condition"]["clock offset"] == {"n": 1, "right_pct": 0.0, "unnamed_without_oov": "1/1"}
+    assert fig["per_condition"]["no clock offset"]["right_pct"] == 100.0
     md = markdown({"seed": 1000, "first": 0, "n": 2, "calibrate": False, "jobs": 2, "wall_s": 120.0,
                    "load_average_1min": 3.0}, fig)
-    assert "| single_exact_target_pct | 100 |" in md and "| none_answered_pct | 100 |" in md
+    assert "| single_exact_target_pct | 100 |" in md and "| none_answered_pct | 0 |" in md
+    assert "| clock offset | 1 | 0 | 1/1 |" in md
     assert "| heat_source | 1 | 100 | 100 |" in md and "seed 1000, cases 0-1" in md
     with pytest.raises(SystemExit):
         parse(["--random", "0"])

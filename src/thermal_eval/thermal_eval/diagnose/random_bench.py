@@ -5,7 +5,8 @@ against its unmodified preset (with ``--calibrate``: calibrate first) on a local
 processes (the project's task engine), prints one progress line per finished case (answer,
 verdict, diagnosis wall time, cases per minute so far) and writes
 ``OUT_DIR/diagnose_random_s{S}_n{N}[_cal].json`` (every outcome and the figures) and ``.md``
-(the tables of docs/diagnose.md, generated from the JSON by :func:`markdown`).
+(the tables of docs/diagnose.md, generated from the JSON by :func:`markdown`; :func:`rescore`
+renders a finished run's JSON again).
 """
 from __future__ import annotations
 
@@ -73,6 +74,17 @@ def run(args: argparse.Namespace) -> dict:
     return flat
 
 
+def rescore(path: str | pathlib.Path) -> str:
+    """The markdown of a finished run's JSON, scored again (the outcomes are the data; a new
+    breakdown of the score needs no new diagnosis). Writes it beside the JSON and returns it."""
+    p = pathlib.Path(path)
+    data = json.loads(p.read_text())
+    fig = score(data["outcomes"], wall_s=data["meta"]["wall_s"])
+    md = markdown(data["meta"], fig)
+    p.with_suffix(".md").write_text(md)
+    return md
+
+
 def _cell(v) -> str:
     return "-" if v is None else (f"{v:g}" if isinstance(v, float) else str(v))
 
@@ -90,6 +102,11 @@ def markdown(meta: dict, fig: dict) -> str:
     lines += ["", "| measured size (effect RMS / noise RMS) | n | true effect first % | exact target % |",
               "| --- | --- | --- | --- |"]
     lines += [f"| {b} | {d['n']} | {_cell(d['first_pct'])} | {_cell(d['exact_pct'])} |" for b, d in fig["per_size"].items()]
+    if "per_condition" in fig:
+        lines += ["", "| recording condition | n | right answer % | `unnamed` on cases without out-of-vocabulary physics |",
+                  "| --- | --- | --- | --- |"]
+        lines += [f"| {c} | {d['n']} | {_cell(d['right_pct'])} | {d['unnamed_without_oov']} |"
+                  for c, d in fig["per_condition"].items()]
     answers = sorted({a for row in fig["confusion"].values() for a in row})
     lines += ["", "Confusion (rows: concealed, first effect of a two-effect case; columns: answer)", "",
               "| concealed | " + " | ".join(answers) + " |", "| --- " * (len(answers) + 1) + "|"]

@@ -142,6 +142,7 @@ def score(outcomes: list[dict], wall_s: float | None = None) -> dict:
         fig["cases_per_minute"] = round(60.0 * len(outcomes) / wall_s, 2)
     fig["per_type"] = _per_type(single)
     fig["per_size"] = _per_size(single)
+    fig["per_condition"] = _per_condition(js)
     fig["confusion"] = _confusion(outcomes)
     return fig
 
@@ -161,6 +162,29 @@ def _per_size(single: list) -> dict:
         sub = [j for o, j in single if lo <= o["size_measured"] < hi]
         out[f"{lo:g}-{hi:g}"] = {"n": len(sub), "first_pct": _pct(sum(j["first"] for j in sub), len(sub)),
                                  "exact_pct": _pct(sum(j["exact"] for j in sub), len(sub))}
+    return out
+
+
+CONDITIONS = {
+    "clock offset": lambda o: bool(o["noise"].get("clock_offset_s")),
+    "no clock offset": lambda o: not o["noise"].get("clock_offset_s"),
+    "onset part-way": lambda o: o.get("onset_h", 0.0) > 0,
+    "white noise": lambda o: o["noise"].get("colour") == "white",
+    "AR(1) noise": lambda o: o["noise"].get("colour") == "ar1",
+    "random-walk noise": lambda o: o["noise"].get("colour") == "random_walk",
+    "dropped rows": lambda o: o["noise"].get("drop_fraction", 0.0) > 0,
+}
+
+
+def _per_condition(js: list) -> dict:
+    """Right answers (true type first on effect cases, ``none``/``unnamed`` on the others) and
+    ``unnamed`` answers on cases without out-of-vocabulary physics, per recording condition."""
+    out: dict = {}
+    for name, has in CONDITIONS.items():
+        sub = [(o, j) for o, j in js if "noise" in o and has(o)]
+        vocab = [o for o, _ in sub if o["kind"] != "unnamed"]
+        out[name] = {"n": len(sub), "right_pct": _pct(sum(bool(j["right"]) for _, j in sub), len(sub)),
+                     "unnamed_without_oov": f"{sum(o['answer'] == 'unnamed' for o in vocab)}/{len(vocab)}"}
     return out
 
 
