@@ -41,8 +41,11 @@ def prior_identity(prior: Mapping[str, Any]) -> dict[str, Any]:
         type_model, inputs = (prior.get("cd_config") or {}).get("type_model") or "", prior.get("candidate_names")
     else:
         type_model, inputs = "", prior.get("input_names")
-    return {"format_version": PRIOR_VERSION, "machine": prior.get("machine", ""), "model_kind": kind,
-            "type_model": str(type_model), "input_names": [str(n) for n in (inputs or [])]}
+    ident = {"format_version": PRIOR_VERSION, "machine": prior.get("machine", ""), "model_kind": kind,
+             "type_model": str(type_model), "input_names": [str(n) for n in (inputs or [])]}
+    if prior.get("prior_source"):      # not the type's twin: e.g. "history" (talc_model.prior.history)
+        ident["prior_source"] = str(prior["prior_source"])
+    return ident
 
 
 def stamped(prior: Mapping[str, Any]) -> dict[str, Any]:

@@ -7,6 +7,7 @@ docs/prior.md.
 """
 from __future__ import annotations
 
+import glob
 import hashlib
 import importlib
 import json
@@ -22,10 +23,12 @@ from talc_model.model_persistence import FORMAT as STATE_FORMAT, ModelStateError
 from talc_model.prior.agp import agp_prior_from_state, build_agp_prior
 from talc_model.prior.cd import build_cd_prior, cd_prior_from_state
 from talc_model.prior.common import PriorError
+from talc_model.prior.history import build_history_prior
 from talc_model.prior.integrity import check_prior
 from talc_model.prior.talc import build_talc_prior, load_prior, prior_from_state, save_prior, training_labels
 from thermal_comp.demo.cell import MACHINES
 from thermal_comp.prior.programmes import SEED_BASE, TRAINING_SCENARIOS
+from thermal_comp_common.bags.recording import load_recording
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.machine.spec import MachineSpecError
 from thermal_twin.sim.scenarios import make_timeline
@@ -181,6 +184,54 @@ def _from_state(a) -> dict:
     return prior_from_state(state, machine=a.machine)
 
 
+#: the machine type of a twin prior when --machine is not given
+DEFAULT_MACHINE = "nmv5000"
+
+
+def recording_paths(runs: str) -> list[pathlib.Path]:
+    """The recordings ``runs`` names (comma-separated files, bag folders, folders of recordings,
+    globs), in the order given (a folder's and a glob's matches sorted by name)."""
+    out: list[pathlib.Path] = []
+    for item in (x.strip() for x in runs.split(",")):
+        if not item:
+            continue
+        p = pathlib.Path(item)
+        if any(ch in item for ch in "*?["):
+            found = [pathlib.Path(m) for m in sorted(glob.glob(item))]
+            if not found:
+                raise PriorError(f"--from-recordings: {item!r} matches no file")
+            out += found
+        elif p.is_dir() and not (p / "metadata.yaml").is_file():     # a folder of recordings, not a bag
+            found = sorted(q for q in p.iterdir() if q.suffix.lower() in (".csv", ".mcap")
+                           or (q / "metadata.yaml").is_file())
+            if not found:
+                raise PriorError(f"--from-recordings: folder {item!r} holds no .csv, .mcap or bag folder")
+            out += found
+        elif p.exists():
+            out.append(p)
+        else:
+            raise PriorError(f"--from-recordings: {item!r}: no such file or folder")
+    if not out:
+        raise PriorError(f"--from-recordings: {runs!r} names no recording")
+    return out
+
+
+def _from_recordings(a) -> dict:
+    """The history prior of ``a.model`` (default TALC) from the runs ``a.from_recordings`` names."""
+    paths = recording_paths(a.from_recordings)
+    recs = []
+    for p in paths:
+        try:
+            recs.append(load_recording(p))
+        except (OSError, ValueError) as exc:
+            raise PriorError(f"--from-recordings: {exc}") from None
+        print(f"read {p} ({len(recs[-1])} rows)", file=sys.stderr)
+    overrides = (yaml.safe_load(pathlib.Path(a.config).read_text()) or {}) if a.config else {}
+    fit = {"na_max": a.na_max, "nb_max": a.nb_max} if (a.model or "talc") == "talc" else {}
+    return build_history_prior(a.model or "talc", recs, overrides, machine=a.machine or "",
+                               sources=[str(p) for p in paths], **fit)
+
+
 def _describe(prior: dict) -> list[str]:
     """What ``thermal-comp prior`` prints about the prior it wrote."""
     kind = prior.get("model_kind", "talc")
@@ -199,9 +250,13 @@ def run(a) -> int:
     2 bad arguments or input)."""
     t0 = time.perf_counter()
     try:
-        if a.from_state:
+        if a.from_recordings:
+            prior = _from_recordings(a)
+        elif a.from_state:
+            a.machine = a.machine or DEFAULT_MACHINE
             prior = _from_state(a)
         else:
+            a.machine = a.machine or DEFAULT_MACHINE
             kind = a.model or default_model_kind(a.machine)
             config = ((yaml.safe_load(pathlib.Path(a.config).read_text()) or {}) if a.config
                       else default_config(a.machine, kind))
@@ -221,6 +276,7 @@ def run(a) -> int:
         return 2
     path = save_prior(a.out, prior)
     print(f"wrote {path} ({time.perf_counter() - t0:.1f} s): {prior.get('model_kind', 'talc').upper()} prior of "
-          f"{prior['machine']} from {', '.join(prior['sources'])}")
+          f"{prior['machine']} from {', '.join(prior['sources'])}"
+          + (f" (history; held out: {prior['held_out'][0]})" if prior.get("prior_source") else ""))
     print("\n".join(_describe(prior)))
     return 0
