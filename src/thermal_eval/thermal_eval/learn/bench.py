@@ -2,7 +2,7 @@
 
 For every structural unit (thermal_eval.learn.units: an extra source, changed hall links, a
 thermo-elastic gain beyond tolerance, a biased hall sensor, a chiller that follows the hall;
-seeds 11-12, never looked at while building it) a 178 h talc-178h-dry run is simulated. TALC
+seeds 12-13; seed 11 was used to set the adoption margin) a 178 h talc-178h-dry run is simulated. TALC
 with the type's prior runs on it as a cell would and probes on its own schedule; the probes of
 the first 48 h (Table 5.4 noise, 0.25 um resolution) plus the recorded temperatures and machine
 inputs (no true hall, no ground truth) are all ``learn`` sees; it fits on 0-36 h and adopts the
@@ -16,22 +16,24 @@ component against half of Table 6.5; the learning's wall time.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import pathlib
 import tempfile
 import time
 
 import numpy as np
+import yaml
 
 from talc_model.prior.dispatch import model_from_prior
 from talc_model.prior.talc import load_prior
 from thermal_comp.demo.summary import THESIS_TABLES
-from thermal_comp.prior.build import build_prior, cached_prior, default_config, training_scenarios
+from thermal_comp.prior.build import cached_prior, default_config, training_scenarios
 from thermal_comp_common.recording_csv import Recording
 from thermal_twin.sim.scenarios import make_timeline
 from thermal_twin.sim.simulate import simulate
 
-from thermal_eval.learn.command import UNIT_TWIN, learn
+from thermal_eval.learn.command import UNIT_CONFIG, UNIT_PRIOR, learn
 from thermal_eval.learn.probe_score import prequential_model
 from thermal_eval.learn.probes import ProbeSet, strip_errors
 from thermal_eval.learn.units import KINDS, structural_unit
@@ -40,8 +42,9 @@ from thermal_eval.replay.summary import PROBE_RESOLUTION_UM, probe_noise
 from thermal_eval.replay.virtual_experiment import run_virtual_experiment
 
 SCENARIO, HOURS, TRAIN_H = "talc-178h-dry", 178.0, 48.0
-SEEDS = (11, 12)
-QUICK = {"kinds": ("extra_source", "links"), "seeds": (11,), "hours": 96.0, "train_h": 36.0}
+#: reported seeds; seed 11 was looked at while setting the adoption margin (learn.adoption)
+SEEDS = (12, 13)
+QUICK = {"kinds": ("extra_source", "links"), "seeds": (12,), "hours": 96.0, "train_h": 36.0}
 
 
 def cell_view(rec: Recording, machine) -> Recording:
@@ -99,19 +102,16 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
     t_train = float(rec.time_s[0]) + train_h * 3600.0
     probes = recorded_probes(before, rec, noise, seed)
     t0 = time.perf_counter()
-    report = learn("nmv5000", cell_view(rec, unit.machine), probes, out, train_h, build_priors=False,
-                   progress=progress)
+    report = learn("nmv5000", cell_view(rec, unit.machine), probes, out, train_h, progress=progress)
     t_learn = time.perf_counter() - t0
     adopted = report["adoption"]["adopt"]
     start = int(np.searchsorted(rec.time_s, t_train))
     rows = {"before": _window(before, t_train, noise, seed)}
     rows["type switched"] = _window(_switched(rec, cfg, prior, probes, start, noise, seed), t_train, noise, seed)
-    t_prior = 0.0
     if adopted:
-        unit_cfg = default_config(str(out / UNIT_TWIN), "talc")
-        unit_prior = build_prior(str(out / UNIT_TWIN), unit_cfg, training_scenarios("talc", "nmv5000"))
-        t_prior = time.perf_counter() - t0 - t_learn
-        rows["after"] = _window(_switched(rec, unit_cfg, unit_prior, probes, start, noise, seed), t_train, noise, seed)
+        unit_cfg = yaml.safe_load((out / UNIT_CONFIG).read_text())
+        rows["after"] = _window(_switched(rec, unit_cfg, load_prior(out / UNIT_PRIOR), probes, start, noise, seed),
+                                t_train, noise, seed)
     else:
         rows["after"] = rows["before"]       # not adopted: the cell keeps running with the type's prior
     half = {c: v / 2.0 for c, v in THESIS_TABLES[SCENARIO]["p99_compensated"].items()}
@@ -130,7 +130,7 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
                               for p in moved if p["change_pct"] is not None],
             "held_out_probe_rmse": {k: {c: round(v[c]["rmse"], 3) if v[c]["rmse"] == v[c]["rmse"] else None
                                         for c in v} for k, v in report["held_out_scores"].items()},
-            "learn_wall_s": round(t_learn, 1), "prior_wall_s": round(t_prior, 1),
+            "learn_wall_s": round(t_learn, 1), "calibration_wall_s": report["wall_s"]["calibration"],
             "twin_simulated_h_per_s": report["twin_simulated_h_per_s"]}
 
 
@@ -139,25 +139,31 @@ def run(args: argparse.Namespace | None = None) -> dict:
     kinds, seeds = (QUICK["kinds"], QUICK["seeds"]) if quick else (KINDS, SEEDS)
     hours, train_h = (QUICK["hours"], QUICK["train_h"]) if quick else (HOURS, TRAIN_H)
     root = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_learn_")) / "learn"
-    figures: dict = {"scenario": SCENARIO, "hours": hours, "train_h": train_h, "units": []}
+    figures: dict = {"learn.scenario": SCENARIO, "learn.hours": hours, "learn.train_h": train_h}
+    units = []
     cases = [(k, s) for s in seeds for k in kinds]
     for i, (kind, seed) in enumerate(cases, 1):
         print(f"[{i}/{len(cases)}] unit #{seed} ({kind}) ...", flush=True)
         r = unit_case(kind, seed, hours, train_h, root / f"{kind}_{seed}", progress=lambda m: None)
-        figures["units"].append(r)
+        units.append(r)
+        for key in ("ratio_before", "ratio_type_switched", "ratio_after", "learn_wall_s"):
+            figures[f"learn.{kind}_{seed}.{key}"] = round(r[key], 3)
+        figures[f"learn.{kind}_{seed}.adopted"] = r["adopted"]
         print(f"  {r['truth']}\n  ratio to probe-and-hold after {train_h:g} h: type prior running on "
               f"{r['ratio_before']:.3f}, type prior switched in {r['ratio_type_switched']:.3f}, "
               f"{'unit prior switched in' if r['adopted'] else 'NOT ADOPTED, type prior running on'} "
               f"{r['ratio_after']:.3f} (P99_lin {r['p99_lin_before_um']:.2f} -> {r['p99_lin_after_um']:.2f} um; "
               f"Q_prod {r['q_prod_before_pct']:.1f} / {r['q_prod_after_pct']:.1f} %); above half Table 6.5: "
-              f"{', '.join(r['components_above_half_table_6_5']) or 'none'}; learn {r['learn_wall_s']} s, "
-              f"prior {r['prior_wall_s']} s; moved: {'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}",
-              flush=True)
-    after = [u["ratio_after"] for u in figures["units"]]
-    figures["worst_ratio_after"] = max(after) if after else math.nan
-    figures["units_worse_than_type_switched"] = sum(u["ratio_after"] > u["ratio_type_switched"] for u in figures["units"])
-    figures["units_worse_than_type_running_on"] = sum(u["ratio_after"] > u["ratio_before"] for u in figures["units"])
-    print(f"learn: worst ratio after learning {figures['worst_ratio_after']:.3f}; units where the unit prior is worse "
-          f"than the type prior switched in alike: {figures['units_worse_than_type_switched']} of {len(after)}, "
-          f"than the type prior running on: {figures['units_worse_than_type_running_on']} of {len(after)}")
+              f"{', '.join(r['components_above_half_table_6_5']) or 'none'}; learn {r['learn_wall_s']} s "
+              f"(calibration {r['calibration_wall_s']} s); adoption: {r['adoption']}; moved: "
+              f"{'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}", flush=True)
+    after = [u["ratio_after"] for u in units]
+    figures["learn.worst_ratio_after"] = round(max(after), 3) if after else math.nan
+    figures["learn.units_adopted"] = sum(u["adopted"] for u in units)
+    figures["learn.units_worse_than_type_running_on"] = sum(u["ratio_after"] > u["ratio_before"] for u in units)
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "units.json").write_text(json.dumps(units, indent=1, default=str) + "\n")
+    print(f"learn: {figures['learn.units_adopted']} of {len(units)} unit twins adopted; worst ratio after "
+          f"{figures['learn.worst_ratio_after']:.3f}; units worse than the type prior running on: "
+          f"{figures['learn.units_worse_than_type_running_on']} of {len(units)}; details {root / 'units.json'}")
     return figures

@@ -26,7 +26,7 @@ from thermal_comp.prior.build import (build_prior, cached_prior, default_config,
 from thermal_comp_common.recording_csv import Recording
 from thermal_twin.machine.schema import Machine, load_machine
 
-from thermal_eval.learn.adoption import decide
+from thermal_eval.learn.adoption import ADAPTIVE_MARGIN, Adoption, decide
 from thermal_eval.learn.probe_score import (hold_last, prequential_model, score_table, static_regression,
                                             training_mean)
 from thermal_eval.learn.probes import ProbeSet
@@ -111,8 +111,8 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
     sub = ProbeSet(probes.time_s, {c: probes.values[c] for c in fit.components},
                    {c: probes.noise[c] for c in fit.components}, probes.source)
     before, after = _twin_at_probes(fit, sub)
-    adoption = decide(sub.values, sub.noise, before, after, (sub.time_s > fit_until) & (sub.time_s <= train_until))
-    progress(("adopted: " if adoption.adopt else "not adopted: ") + adoption.reason)
+    validation = (sub.time_s > fit_until) & (sub.time_s <= train_until)
+    adoption = decide(sub.values, sub.noise, before, after, validation)
     predictors = {"hold last probe": hold_last(sub), "training mean": training_mean(sub, train_until),
                   "static regression": static_regression(rec, sub, train_until),
                   "twin (type), open loop": before, "twin (unit), open loop": after}
@@ -123,8 +123,10 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
             progress(f"replaying the recording's probes with the {name}")
             model = model_from_prior(prior.get("model_kind", "talc"), cfg, prior)
             predictors[f"adaptive, {name}"] = prequential_model(model, rec, sub)
+        adoption = _adaptive_check(adoption, sub, predictors, validation, out)
         if adoption.adopt:
             files |= {"prior": str(out / UNIT_PRIOR), "model_config": str(out / UNIT_CONFIG)}
+    progress(("adopted: " if adoption.adopt else "not adopted: ") + adoption.reason)
     report = {"twin": machine.name, "recording": rec.source, "train_h": train_h, "validate_h": validate_h,
               "recording_h": float(rec.time_s[-1] - rec.time_s[0]) / 3600.0,
               "probes": {"train": fit.probes_train, "validation": adoption.probes,
@@ -138,6 +140,23 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
               "twin_simulated_h_per_s": round(fit.calibration.simulated_h / max(fit.calibration.wall_s, 1e-9), 1)}
     (out / "report.json").write_text(json.dumps(_finite(report), indent=1, allow_nan=False) + "\n")
     return report
+
+
+def _adaptive_check(open_loop: Adoption, sub: ProbeSet, predictors: dict, validation, out: pathlib.Path) -> Adoption:
+    """An open-loop adoption stands only if the adaptive model from the unit's prior also beats
+    the one from the type's prior on the validation probes (each predicted before it was seen);
+    a prior that is not adopted is not left behind."""
+    if not open_loop.adopt:
+        return open_loop
+    adaptive = decide(sub.values, sub.noise, predictors["adaptive, type prior"], predictors["adaptive, unit prior"],
+                      validation, margin=ADAPTIVE_MARGIN)
+    if adaptive.adopt:
+        return Adoption(True, f"twin open loop {open_loop.reason}; adaptive model {adaptive.reason}",
+                        open_loop.rmse, open_loop.probes)
+    for name in (UNIT_PRIOR, UNIT_CONFIG):
+        (out / name).unlink(missing_ok=True)
+    return Adoption(False, f"the twin is better open loop, but the adaptive model from its prior is "
+                           f"{adaptive.reason}", open_loop.rmse, open_loop.probes)
 
 
 def _finite(v):
