@@ -57,7 +57,7 @@ WAIT_FOR_ECHO = textwrap.dedent("""
     deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline:
         subs = node.get_subscriptions_info_by_topic("/mh/machine_state")
-        if any(s.node_name.startswith("thermal_comp_inspect_") for s in subs):
+        if any(s.node_name.startswith("_thermal_comp_") for s in subs):     # the CLI's (hidden) graph node
             sys.exit(0)
         rclpy.spin_once(node, timeout_sec=0.1)
     sys.exit(1)
