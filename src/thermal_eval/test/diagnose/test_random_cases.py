@@ -1,9 +1,11 @@
 """The drawn concealed-effect cases: reproducible one by one, covering every preset and kind,
 with the drawn size reached and the scoring rules of the random bench."""
+import json
+
 import numpy as np
 import pytest
 
-from thermal_eval.diagnose.random_bench import markdown, parse
+from thermal_eval.diagnose.random_bench import markdown, parse, rescore
 from thermal_eval.diagnose.random_cases import KINDS, OOV_KINDS, draw_case
 from thermal_eval.diagnose.random_recording import case_recording
 from thermal_eval.diagnose.random_score import judge, score
@@ -84,3 +86,16 @@ def test_the_markdown_tables_are_the_figures():
     assert "| heat_source | 1 | 100 | 100 |" in md and "seed 1000, cases 0-1" in md
     with pytest.raises(SystemExit):
         parse(["--random", "0"])
+
+
+def test_rescore_pools_runs_of_one_seed_and_refuses_mixed_ones(tmp_path):
+    o = _outcome("named", ["heat_source:table"], "heat_source", ["heat_source:table"])
+    o["noise"] = {"colour": "white", "clock_offset_s": 0.0}
+    meta = {"seed": 1000, "first": 0, "n": 1, "calibrate": False, "jobs": 2, "wall_s": 30.0, "load_average_1min": 2.0}
+    for first in (0, 1):
+        (tmp_path / f"r{first}.json").write_text(json.dumps({"meta": {**meta, "first": first}, "outcomes": [o]}))
+    md = rescore([tmp_path / "r0.json", tmp_path / "r1.json"], tmp_path / "pool.md")
+    assert "seed 1000, cases 0-1 (2 cases" in md and (tmp_path / "pool.md").read_text() == md
+    (tmp_path / "r2.json").write_text(json.dumps({"meta": {**meta, "seed": 7}, "outcomes": [o]}))
+    with pytest.raises(ValueError, match="mix seeds"):
+        rescore([tmp_path / "r0.json", tmp_path / "r2.json"])

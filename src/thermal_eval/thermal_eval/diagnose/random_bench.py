@@ -74,14 +74,21 @@ def run(args: argparse.Namespace) -> dict:
     return flat
 
 
-def rescore(path: str | pathlib.Path) -> str:
-    """The markdown of a finished run's JSON, scored again (the outcomes are the data; a new
-    breakdown of the score needs no new diagnosis). Writes it beside the JSON and returns it."""
-    p = pathlib.Path(path)
-    data = json.loads(p.read_text())
-    fig = score(data["outcomes"], wall_s=data["meta"]["wall_s"])
-    md = markdown(data["meta"], fig)
-    p.with_suffix(".md").write_text(md)
+def rescore(paths: list, out: str | pathlib.Path | None = None) -> str:
+    """The markdown of finished runs' JSON (runs of one seed and mode over contiguous case
+    ranges are pooled), scored again: the outcomes are the data, so a new breakdown needs no new
+    diagnosis. Written to ``out`` (default: beside the single JSON) and returned."""
+    runs = [json.loads(pathlib.Path(p).read_text()) for p in paths]
+    metas = [r["meta"] for r in runs]
+    if len({(m["seed"], m["calibrate"]) for m in metas}) != 1:
+        raise ValueError(f"paths: {paths!r} mix seeds or modes; pool runs of one seed and mode only")
+    outcomes = [o for r in runs for o in r["outcomes"]]
+    wall = sum(m["wall_s"] for m in metas)
+    meta = {**metas[0], "first": min(m["first"] for m in metas), "n": len(outcomes), "wall_s": round(wall, 1),
+            "load_average_1min": max(m["load_average_1min"] for m in metas)}
+    md = markdown(meta, score(outcomes, wall_s=wall))
+    target = pathlib.Path(out) if out else pathlib.Path(paths[0]).with_suffix(".md")
+    target.write_text(md)
     return md
 
 
