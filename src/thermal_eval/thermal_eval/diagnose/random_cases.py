@@ -144,7 +144,8 @@ def _channels(spec: dict) -> list[str]:
     return [m.sensors[s].column for s in m.sensors] + list(m.errors)
 
 
-def _by_type(spec: dict, tl: InputsTimeline) -> dict[str, list]:
+def candidates_by_type(spec: dict, tl: InputsTimeline) -> dict[str, list]:
+    """The finder's candidates for this machine and programme, grouped by effect type."""
     drivers = {k: classify_driver(k, np.asarray(v, dtype=float)) for k, v in tl.values.items()}
     groups: dict[str, list] = {}
     for c in candidates(spec, drivers, _channels(spec)):
@@ -207,7 +208,7 @@ def draw_case(seed: int, index: int) -> RandomCase:
         return dataclasses.replace(base, size=0.0)
     if kind == "unnamed":
         return dataclasses.replace(base, oov=(_draw_oov(spec, rng),))
-    groups = _by_type(spec, case_timeline(base))
+    groups = candidates_by_type(spec, case_timeline(base))
     types = sorted(groups)
     picked = rng.choice(types, size=min(2 if kind == "two" else 1, len(types)), replace=False)
     hidden = []

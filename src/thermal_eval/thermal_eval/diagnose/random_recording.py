@@ -17,7 +17,7 @@ import numpy as np
 
 from thermal_comp_common.recording_csv import Recording
 from thermal_eval.diagnose.concealed import HiddenEffect
-from thermal_eval.diagnose.random_cases import RandomCase, _by_type, case_timeline, twin_spec
+from thermal_eval.diagnose.random_cases import RandomCase, candidates_by_type, case_timeline, twin_spec
 from thermal_twin.sim.simulate import simulate
 
 ONSET_TAU_S = 3600.0
@@ -98,7 +98,7 @@ def _true_outputs(case: RandomCase, spec: dict, tl, base: dict, sig: dict) -> tu
     hidden = []
     true = spec
     if case.hidden:
-        groups = _by_type(spec, tl)
+        groups = candidates_by_type(spec, tl)
         for h in case.hidden:
             c = _find(groups, h)
             v = _scaled_effect(spec, tl, c, h.values, case.size, base, sig)
