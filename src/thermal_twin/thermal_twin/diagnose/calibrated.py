@@ -98,9 +98,11 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
         sse[label] = float(np.sum(r ** 2))
     bound = at_bound(res)
     structured = structured_channels(problem, problem.outputs(spec0), problem.outputs(res.spec))
-    # a parameter at its bound means the calibration stood in for physics it cannot reach:
-    # the search then starts from the twin as given, where that physics is still visible
-    used = sse["calibrated"] <= sse["given"] and not bound
+    # a parameter at its bound means the calibration stood in for physics it cannot reach, a
+    # residual that stays structured that it did not explain it: either way the search starts
+    # from the twin as given, where that physics is still visible (the joint test still
+    # compares with the calibration alone)
+    used = sse["calibrated"] <= sse["given"] and not bound and not structured
     unid = [e.param.name for e in res.estimates if any(f.startswith("not identified") for f in e.flags)]
     section_out = {
         "used_as_base": used,
@@ -120,6 +122,9 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
                  f"{len(bound)} parameter(s) pushed to the builder's tolerance bound, evidence of missing "
                  "or changed physics; the search starts from the twin as given and an effect is kept only "
                  "if it beats the calibration alone" if bound else
+                 f"the calibrated residual stays structured on {len(structured)} channel(s); the search "
+                 "starts from the twin as given and an effect is kept only if it beats the calibration "
+                 "alone" if structured else
                  "the calibrated twin fits the held-out window worse than the twin as given "
                  "(over-fitted on the training window); the search starts from the twin as given"),
     }
