@@ -66,6 +66,7 @@ from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 from std_msgs.msg import Header
 
+from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, TOPIC_ERRORS_PREDICTED,
                                        TOPIC_MACHINE_STATE, TOPIC_OFFSETS, TOPIC_SIM_SYNC,
@@ -442,7 +443,7 @@ class CncBridgeNode(LifecycleNode):
 
     @staticmethod
     def _offsets_msg(update: BridgeUpdate, stamp) -> AxisOffsets:
-        msg = AxisOffsets(header=Header(stamp=stamp), compensation_enabled=update.compensation_enabled)
+        msg = AxisOffsets(header=Header(stamp=stamp, frame_id=MACHINE_BASE_FRAME), compensation_enabled=update.compensation_enabled)
         for a in update.axes:
             msg.axis_names.append(a.axis)
             msg.commanded_offsets_um.append(a.commanded_um)

@@ -25,6 +25,7 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.node import Node
 
+from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, Param, declare_parameters,
                                        run_node, s_to_stamp)
@@ -204,6 +205,7 @@ class ProbeCycleNode(Node):
         out.repeatability_check_um = float(result.repeatability_check_um)
         e = ThermalErrors()
         e.source = ThermalErrors.SOURCE_MEASURED
+        e.header.frame_id = MACHINE_BASE_FRAME
         e.model_kind = "probe_sphere" if spec.artefact == ARTEFACT_SPHERE else "probe_guide_bush"
         e.header.stamp = (s_to_stamp(result.stamp_s) if math.isfinite(result.stamp_s)
                           else self.get_clock().now().to_msg())

@@ -44,6 +44,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Header
 
+from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.machine_inputs import machine_state_inputs
 from thermal_comp_common.sensor_readings import model_temperatures
@@ -326,7 +327,7 @@ class TalcModelNode(Node):
     def _errors_msg(self, t: float, source: int, values: dict, stds: dict) -> ThermalErrors:
         names = list(self.model.component_names)
         return ThermalErrors(
-            header=Header(stamp=s_to_stamp(t)), source=source, model_kind=self.kind,
+            header=Header(stamp=s_to_stamp(t), frame_id=MACHINE_BASE_FRAME), source=source, model_kind=self.kind,
             component_names=names, values=[float(values.get(c, math.nan)) for c in names],
             units=[ThermalErrors.UNIT_UM_PER_M if c in self.angular else ThermalErrors.UNIT_UM for c in names],
             uncertainties=[float(stds.get(c, math.nan)) for c in names])
@@ -340,7 +341,7 @@ class TalcModelNode(Node):
         due = st.next_probing_due_s
         excluded = sorted(set(st.excluded_sensor_ids) | set(self.excluded))
         self.status_pub.publish(ModelStatus(
-            header=Header(stamp=s_to_stamp(t)), model_kind=self.kind, phase=PHASES[st.phase],
+            header=Header(stamp=s_to_stamp(t), frame_id=MACHINE_BASE_FRAME), model_kind=self.kind, phase=PHASES[st.phase],
             probing_cycles=st.probing_cycles, failed_probing_cycles=st.failed_probing_cycles,
             no_good_phases=st.no_good_phases, parameter_updates=st.parameter_updates,
             training_samples=st.training_samples, q_prod_pct=float(st.q_prod_pct),
@@ -405,7 +406,7 @@ class TalcModelNode(Node):
         outcome = self.loop.probe_result(t, dict(zip(e.component_names, e.values)))
         if outcome is not None and outcome.success:
             self.meas_pub.publish(ThermalErrors(
-                header=Header(stamp=s_to_stamp(t)), source=ThermalErrors.SOURCE_MEASURED,
+                header=Header(stamp=s_to_stamp(t), frame_id=MACHINE_BASE_FRAME), source=ThermalErrors.SOURCE_MEASURED,
                 model_kind=e.model_kind or "probe", component_names=list(e.component_names),
                 values=list(e.values), units=list(e.units), uncertainties=list(e.uncertainties)))
         self._finish(outcome, res.message)

@@ -36,6 +36,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Header
 
+from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
 from thermal_comp_common.runtime.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
@@ -148,7 +149,7 @@ class TemperaturePublisher(Node):
     # -- publishing -----------------------------------------------------------------------
     def _publish(self, t_s: float) -> TemperatureFrame:
         frame = self.builder.build(self.source.sample(t_s))
-        msg = TemperatureArray(header=Header(stamp=s_to_stamp(t_s)),
+        msg = TemperatureArray(header=Header(stamp=s_to_stamp(t_s), frame_id=MACHINE_BASE_FRAME),
                                sensor_ids=list(frame.sensor_ids),
                                temperatures_degc=[float(v) for v in frame.temperatures_degc],
                                status=[int(s) for s in frame.status])

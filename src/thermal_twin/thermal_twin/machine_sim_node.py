@@ -35,6 +35,7 @@ from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 
+from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.diagnostics import ERROR, DiagnosticsPublisher
 from thermal_comp_common.runtime.node_runtime import (EVENT_QOS, SENSOR_QOS, SERVICE_TOUCH_PROBE, TOPIC_ERRORS_TRUE,
@@ -183,18 +184,18 @@ class MachineSimNode(Node):
         # are out, the sensors -> model -> bridge path runs, and this process only publishes
         fields = machine_state_fields(r.inputs())
         state = MachineState(machine_busy_probing=r.busy_probing, **fields)
-        state.header.stamp = stamp
+        state.header.stamp, state.header.frame_id = stamp, MACHINE_BASE_FRAME
         readings = r.sensor_readings()
         temps = TemperatureArray(sensor_ids=list(readings), temperatures_degc=list(readings.values()),
                                  status=[TemperatureArray.STATUS_OK] * len(readings))
-        temps.header.stamp = stamp
+        temps.header.stamp, temps.header.frame_id = stamp, MACHINE_BASE_FRAME
         truth = None
         if self.publish_truth:
             names, values, codes = error_components(r.errors(), self.units)
             truth = ThermalErrors(source=ThermalErrors.SOURCE_GROUND_TRUTH, model_kind="twin",
                                   component_names=names, values=values, units=codes,
                                   uncertainties=[0.0] * len(values))
-            truth.header.stamp = stamp
+            truth.header.stamp, truth.header.frame_id = stamp, MACHINE_BASE_FRAME
         self.pub_clock.publish(Clock(clock=stamp))
         self.pub_state.publish(state)
         self.pub_sensors.publish(temps)

@@ -123,7 +123,12 @@ def test_probe_and_echo_commands(running_cell, capsys):
     assert probe_main(["--namespace", "/api_cli_none", "--wait", "1"]) == 2
     assert "no '/api_cli_none/probe_cycle' action server" in capsys.readouterr().err
     assert echo_main(["/api_cli/model_status", "--once", "--reliable", "--wait", "20"]) == 0
-    assert "model_kind: talc" in capsys.readouterr().out
+    status = capsys.readouterr().out
+    assert "model_kind: talc" in status and "frame_id: machine_base" in status
+    # every header names its frame (REP 105), the root of the tree on /tf_static
+    for topic in ("temperatures", "machine_state", "errors/predicted", "offsets"):
+        assert echo_main([f"/api_cli/{topic}", "--once", "--wait", "20"]) == 0
+        assert "frame_id: machine_base" in capsys.readouterr().out, topic
     # latched: the static frames published once at start-up arrive to a late echo
     assert echo_main(["/tf_static", "--once", "--wait", "20"]) == 0
     tf = capsys.readouterr().out

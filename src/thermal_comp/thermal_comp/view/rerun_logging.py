@@ -55,6 +55,8 @@ import numpy as np
 import rerun as rr
 import yaml
 
+from thermal_comp_common.frames import FrameError, frame_tree, positions_in_root, sensor_frame
+
 TIMELINE = "sim_time"
 WALL_TIMELINE = "wall_time"
 #: stamps at or after this many seconds since the epoch (2001-09-09) are wall-clock dates
@@ -107,18 +109,11 @@ def load_layout(path: str | os.PathLike) -> SensorLayout:
     sensors = data.get("sensors") if isinstance(data, dict) else None
     if not isinstance(sensors, dict):
         raise LayoutError(f"{path}: key 'sensors' missing or not a mapping")
-    pos: dict[str, tuple[float, float, float]] = {}
-    for sid, spec in sensors.items():
-        p = spec.get("position_mm") if isinstance(spec, dict) else None
-        if p is None:
-            continue
-        try:
-            xyz = tuple(float(v) / 1000.0 for v in p)
-        except (TypeError, ValueError):
-            xyz = ()
-        if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz):
-            raise LayoutError(f"{path}: sensors.{sid}.position_mm: {p!r} is not [x, y, z] in mm")
-        pos[str(sid)] = xyz  # type: ignore[assignment]
+    try:   # the frames static_frames publishes on /tf_static, so TF and the 3D view agree
+        origins = positions_in_root(frame_tree({"nodes": data.get("nodes") or {}, "sensors": sensors}))
+    except FrameError as exc:
+        raise LayoutError(f"{path}: {exc}") from None
+    pos = {str(sid): origins[sensor_frame(str(sid))] for sid in sensors if sensor_frame(str(sid)) in origins}
     if not pos:
         raise LayoutError(f"{path}: no sensor has a 'position_mm'")
     return SensorLayout(pos, schematic=False, source=str(path))
