@@ -33,7 +33,9 @@ needs a second copy of every stream and a replay protocol, where lock-step reuse
 handshake every other node already speaks.) A write error (a full disk) stops the recorder with
 exit code 1 and one error line: the bag is closed at what was on disk, marked incomplete
 (:mod:`thermal_comp_common.bags.writer`), and nothing more is acknowledged. Its health (messages written, last instant
-acknowledged) is on ``/diagnostics``. Run: ``python -m thermal_comp.bags.recorder_node --ros-args
+acknowledged) is on ``/diagnostics``. A message stamped more than ``max_stamp_ahead_s`` ahead of the
+node's clock (a forged or broken publisher) is neither recorded nor acknowledged: counted on
+``/diagnostics`` (status ``stamps``) and logged once per burst. Run: ``python -m thermal_comp.bags.recorder_node --ros-args
 -p output:=BAG`` or ``thermal-comp record BAG``.
 """
 from __future__ import annotations
@@ -51,6 +53,7 @@ from thermal_comp_common.runtime import node_runtime as rt
 from thermal_comp_common.bags.writer import BagIOError, BagWriter, TopicInfo, qos_dict, stamp_from_cdr
 from thermal_comp_common.runtime.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS, DiagnosticsPublisher
 from thermal_comp_common.bags.msg_definitions import first_field_type, normalize_type
+from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
 from thermal_comp_msgs.msg import SimSync
 
 #: The topics recorded when none are given: relative name -> (type, QoS the publisher offers).
@@ -175,6 +178,9 @@ PARAMS = [
              "(with the default topics; the demo's recorder does)"),
     rt.Param("keep_resends", False, "write every copy of a re-sent message (same topic, same "
              "stamp, same bytes as the last one written on the topic); default: write it once"),
+    rt.Param("max_stamp_ahead_s", 0.0, "a message stamped more than this ahead of the node's clock, s, is "
+             "neither recorded nor acknowledged (counted, logged once per burst); 0 = 60 s on wall "
+             "time, 3600 s with use_sim_time", lo=0.0, hi=86400.0),
     rt.Param("ack_fsync", False, "lock-step: fsync the bag before each acknowledgement (survives a "
              "power loss, a few ms per instant); without, the written chunk is handed to the OS "
              "first, which survives a crash or kill of this process"),
@@ -194,6 +200,9 @@ class BagRecorderNode(Node):
         self._ack_fsync = bool(p["ack_fsync"])
         self._last_written: dict[str, bytes] = {}     # topic -> the last stamped message written
         self.resends_skipped = 0
+        self._stamp_bound = default_max_ahead_s(p["max_stamp_ahead_s"],
+                                                bool(self.get_parameter("use_sim_time").value))
+        self.stamps: dict[str, StampGuard] = {}       # topic -> its guard (stamped topics, made on first use)
         infos = self._subscribe(topic_specs(p["topics"], p["health"]))
         self._ack_topics: set[str] = set()
         self._follow_topics: set[str] = set()
@@ -279,6 +288,8 @@ class BagRecorderNode(Node):
         _, topic, stamped = self._subs[index]
         now = self.get_clock().now().nanoseconds
         stamp = stamp_from_cdr(data) if stamped else None
+        if stamp is not None and not self._stamp_ok(topic, stamp, now):
+            return                         # a stamp off the graph's clock: not recorded, never acknowledged
         if stamp is not None and not self._keep_resends and self._last_written.get(topic) == data:
             self.resends_skipped += 1      # a re-sent instant: written once, acknowledged again
         else:
@@ -288,6 +299,20 @@ class BagRecorderNode(Node):
                 self._last_written[topic] = bytes(data)
         if stamp is not None and (topic in self._ack_topics or topic in self._follow_topics):
             self._written(topic, stamp)
+
+    def _stamp_ok(self, topic: str, stamp_ns: int, now_ns: int) -> bool:
+        """The stamp is not ahead of this node's clock by more than the bound (behind is fine: a
+        recorder records what was late); else refused, counted, logged once per burst."""
+        guard = self.stamps.setdefault(topic, StampGuard(topic, self._stamp_bound, forward_only=False))
+        check = guard.check(stamp_ns / 1e9, graph_clock_s(now_ns))
+        if check.log:
+            self.get_logger().warning(f"{check.text}; not recorded, not acknowledged")
+        if not check.accepted or check.burst_over:
+            burst = any(g.in_burst for g in self.stamps.values())
+            self.diag.set("stamps", "WARN" if burst else "OK",
+                          "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
+                          max_ahead_s=self._stamp_bound, **stamp_values(self.stamps.values()))
+        return check.accepted
 
     def _stop_on_write_error(self, exc: BagIOError) -> None:
         """A write failed (disk full...): the writer closed the bag at what was on disk, marked
