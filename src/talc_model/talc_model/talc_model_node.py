@@ -48,7 +48,7 @@ from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
 from thermal_comp_common.machine_inputs import machine_state_inputs
 from thermal_comp_common.sensor_readings import model_temperatures
-from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
+from thermal_comp_common.stamp_guard import StampGuard, admit, default_max_ahead_s, graph_clock_s, stamp_status
 from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
                                               TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
                                               TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
@@ -193,19 +193,16 @@ class TalcModelNode(Node):
     # ------------------------------------------------------------------ inputs
     def _stamp_ok(self, topic: str, t: float) -> bool:
         """The stamp ``t`` of a message on ``topic`` is on the graph's clock (else refused, counted)."""
-        check = self.stamps[topic].check(t, graph_clock_s(self.get_clock().now().nanoseconds))
-        if check.log:
-            self.get_logger().warning(check.text)
-        if not check.accepted or check.burst_over:
+        ok, refresh = admit(self.stamps[topic], t, graph_clock_s(self.get_clock().now().nanoseconds),
+                            self.get_logger().warning)
+        if refresh:
             self._stamp_status()
-        return check.accepted
+        return ok
 
     def _stamp_status(self) -> None:
-        burst = any(g.in_burst for g in self.stamps.values())
-        self.diag.set("stamps", "WARN" if burst else "OK",
-                      "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
-                      max_ahead_s=self.stamps[TOPIC_TEMPERATURES].max_ahead_s,
-                      **stamp_values(self.stamps.values()))
+        level, text, values = stamp_status(self.stamps.values(),
+                                           max_ahead_s=self.stamps[TOPIC_TEMPERATURES].max_ahead_s)
+        self.diag.set("stamps", level, text, **values)
 
     def _on_machine_state(self, msg: MachineState) -> None:
         if not self._stamp_ok(TOPIC_MACHINE_STATE, stamp_to_s(msg.header.stamp)):

@@ -25,7 +25,7 @@ import enum
 import itertools
 import math
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Callable, Iterable
 
 #: default bound on wall time: clock skew between the hosts of a cell, s
 WALL_MAX_AHEAD_S = 60.0
@@ -128,3 +128,22 @@ def stamp_values(guards: Iterable[StampGuard]) -> dict[str, object]:
     newest = max(guards, key=lambda g: g.last_refusal_no, default=None)
     values["last_stamp_refused"] = newest.last_refusal if newest is not None and newest.last_refusal else "none"
     return values
+
+
+def admit(guard: StampGuard, stamp_s: float, clock_now_s: float | None,
+          warn: Callable[[str], None], note: str = "") -> tuple[bool, bool]:
+    """Check one stamp with ``guard``: (accepted, the node's ``stamps`` status is to be refreshed);
+    the first refusal of a burst is said through ``warn`` (``note`` appended)."""
+    check = guard.check(stamp_s, clock_now_s)
+    if check.log:
+        warn(check.text + note)
+    return check.accepted, (not check.accepted or check.burst_over)
+
+
+def stamp_status(guards: Iterable[StampGuard], **extra: object) -> tuple[str, str, dict[str, object]]:
+    """A node's ``/diagnostics`` status ``stamps``: (level, message, values)."""
+    guards = list(guards)
+    burst = any(g.in_burst for g in guards)
+    return ("WARN" if burst else "OK",
+            "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
+            {**extra, **stamp_values(guards)})

@@ -38,7 +38,7 @@ from std_msgs.msg import Header
 
 from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
-from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
+from thermal_comp_common.stamp_guard import StampGuard, admit, default_max_ahead_s, graph_clock_s, stamp_status
 from thermal_comp_common.runtime.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                        TOPIC_TWIN_SENSORS, Param, declare_parameters, run_node,
                                        s_to_stamp, stamp_to_s)
@@ -190,20 +190,15 @@ class TemperaturePublisher(Node):
     # -- stamps ---------------------------------------------------------------------------
     def _stamp_ok(self, stream: str, t: float, clock_s: float | None) -> bool:
         """``t`` on ``stream`` is on the graph's clock ``clock_s`` (else refused, counted, said once)."""
-        check = self.stamps[stream].check(t, clock_s)
-        if check.log:
-            self.get_logger().warning(check.text)
-        if not check.accepted or check.burst_over:
+        ok, refresh = admit(self.stamps[stream], t, clock_s, self.get_logger().warning)
+        if refresh:
             self._stamp_status()
-        return check.accepted
+        return ok
 
     def _stamp_status(self) -> None:
-        if not self.stamps:
-            return
-        burst = any(g.in_burst for g in self.stamps.values())
-        self.diag.set("stamps", "WARN" if burst else "OK",
-                      "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
-                      **stamp_values(self.stamps.values()))
+        if self.stamps:
+            level, text, values = stamp_status(self.stamps.values())
+            self.diag.set("stamps", level, text, **values)
 
     # -- twin -----------------------------------------------------------------------------
     def _on_twin(self, msg: TemperatureArray) -> None:

@@ -46,7 +46,7 @@ from thermal_comp_msgs.srv import TouchProbe
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.machine.artefact_geometry import touch_trigger_position
 from thermal_comp_common.machine_state_fields import error_components, machine_state_fields
-from thermal_comp_common.stamp_guard import StampCheck, StampGuard, stamp_values
+from thermal_comp_common.stamp_guard import StampCheck, StampGuard, stamp_status
 from thermal_twin.sim.scenario_runner import ScenarioRunner
 from thermal_twin.sim.scenarios import make_timeline
 from thermal_twin.sim.checkpoint import TwinCheckpoint, shared_objects
@@ -374,12 +374,10 @@ class MachineSimNode(Node):
         self._stamp_status()
 
     def _stamp_status(self) -> None:
-        guards = (self.roster.ack_guard, self.offsets_guard)
-        burst = any(g.in_burst for g in guards)
-        self.diag.set("stamps", "WARN" if burst else "OK",
-                      "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
-                      acks_refused=self.roster.ack_guard.refused, offsets_refused=self.offsets_guard.refused,
-                      **stamp_values(guards))
+        level, text, values = stamp_status((self.roster.ack_guard, self.offsets_guard),
+                                           acks_refused=self.roster.ack_guard.refused,
+                                           offsets_refused=self.offsets_guard.refused)
+        self.diag.set("stamps", level, text, **values)
 
     def _advance_lockstep(self) -> None:
         if self.diag.level("lock-step") == ERROR:    # a late participant came back (on_late = wait)

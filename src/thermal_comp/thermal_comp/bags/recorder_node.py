@@ -53,7 +53,7 @@ from thermal_comp_common.runtime import node_runtime as rt
 from thermal_comp_common.bags.writer import BagIOError, BagWriter, TopicInfo, qos_dict, stamp_from_cdr
 from thermal_comp_common.runtime.diagnostics import DIAGNOSTICS_QOS, TOPIC_DIAGNOSTICS, DiagnosticsPublisher
 from thermal_comp_common.bags.msg_definitions import first_field_type, normalize_type
-from thermal_comp_common.stamp_guard import StampGuard, default_max_ahead_s, graph_clock_s, stamp_values
+from thermal_comp_common.stamp_guard import StampGuard, admit, default_max_ahead_s, graph_clock_s, stamp_status
 from thermal_comp_msgs.msg import SimSync
 
 #: The topics recorded when none are given: relative name -> (type, QoS the publisher offers).
@@ -304,15 +304,12 @@ class BagRecorderNode(Node):
         """The stamp is not ahead of this node's clock by more than the bound (behind is fine: a
         recorder records what was late); else refused, counted, logged once per burst."""
         guard = self.stamps.setdefault(topic, StampGuard(topic, self._stamp_bound, forward_only=False))
-        check = guard.check(stamp_ns / 1e9, graph_clock_s(now_ns))
-        if check.log:
-            self.get_logger().warning(f"{check.text}; not recorded, not acknowledged")
-        if not check.accepted or check.burst_over:
-            burst = any(g.in_burst for g in self.stamps.values())
-            self.diag.set("stamps", "WARN" if burst else "OK",
-                          "refusing messages stamped off the graph's clock" if burst else "stamps on the graph's clock",
-                          max_ahead_s=self._stamp_bound, **stamp_values(self.stamps.values()))
-        return check.accepted
+        ok, refresh = admit(guard, stamp_ns / 1e9, graph_clock_s(now_ns), self.get_logger().warning,
+                            "; not recorded, not acknowledged")
+        if refresh:
+            level, text, values = stamp_status(self.stamps.values(), max_ahead_s=self._stamp_bound)
+            self.diag.set("stamps", level, text, **values)
+        return ok
 
     def _stop_on_write_error(self, exc: BagIOError) -> None:
         """A write failed (disk full...): the writer closed the bag at what was on disk, marked
