@@ -1,21 +1,15 @@
-"""Run one probing cycle on a running probe_cycle server and print the measured errors.
-
-``thermal-comp probe [--guide-bush] [--set-reference] [--points N] [--angles 0,90,180,270,360]
-[--timeout S] [--namespace NS] [--wait S]``. It shows a progress bar per point and
-prints the errors with their expanded uncertainty U (k=2). Exit code: 0 if the cycle
-succeeded, 1 if it failed or was refused, 2 on bad arguments or when no server answers.
+"""The arguments of one probing cycle as a command line offers them (the goal's fields, the
+server's namespace, the waits): ``thermal-comp probe`` (thermal_comp.cell.inspect_cli, through the
+Cell API) builds on this parser.
 """
 from __future__ import annotations
 
 import argparse
-import math
-import sys
-
-from thermal_comp_common.command_line import run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="thermal-comp probe", description=__doc__.split("\n\n")[0])
+    p = argparse.ArgumentParser(prog="thermal-comp probe", description="Run one probing cycle on a running "
+                                "probe_cycle server and print the measured errors.")
     p.add_argument("--guide-bush", action="store_true",
                    help="probe the guide bush (lathe) instead of the sphere (5-axis)")
     p.add_argument("--set-reference", action="store_true",
@@ -32,34 +26,3 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deadline", type=float, default=600.0,
                    help="wall-clock seconds to wait for the result (default 600)")
     return p
-
-
-def _angles(text: str) -> list[float]:
-    out = []
-    for item in filter(None, (t.strip() for t in text.split(","))):
-        try:
-            v = float(item)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"--angles: '{item}' is not a number") from None
-        if not math.isfinite(v):
-            raise argparse.ArgumentTypeError(f"--angles: '{item}' is not finite")
-        out.append(v)
-    return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        angles = _angles(args.angles)
-    except argparse.ArgumentTypeError as exc:
-        print(f"thermal-comp probe: {exc}", file=sys.stderr)
-        return 2
-    if args.points < 0:
-        print(f"thermal-comp probe: --points: {args.points} is negative", file=sys.stderr)
-        return 2
-    return run_parsed("probe_cycle.probe_client:run", args, angles)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -146,15 +146,3 @@ def test_bad_parameter_stops_the_server_naming_it(ros_domain_id):
                        text=True, timeout=60)
     assert p.returncode == 2
     assert "backend" in p.stderr and "serial" in p.stderr
-
-
-def test_probe_command_runs_a_cycle_and_prints_the_errors(graph, capsys):
-    from probe_cycle.probe_cli import main
-    assert main(["--wait", "60", "--namespace", NS]) == 0
-    out = capsys.readouterr().out
-    for c in ("E_X0C", "E_C0C", "U (k=2)", "um/m"):
-        assert c in out
-    assert main(["--angles", "0,90,x"]) == 2
-    assert main(["--guide-bush", "--points", "2", "--angles", "0",
-                 "--namespace", NS]) == 1                               # invalid goal
-    assert "c_angles_deg" in capsys.readouterr().out
