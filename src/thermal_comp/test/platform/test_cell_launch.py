@@ -46,6 +46,7 @@ def test_plan_of_the_nmv5000_cell():
         ("probe_cycle", "probe_cycle", "probe_cycle_server"),
         ("model", "talc_model", "talc_model"),
         ("bridge", "cnc_bridge", "cnc_bridge"),
+        ("frames", "thermal_comp", "static_frames"),
         ("recorder", "thermal_comp", "bag_recorder")]
     assert {n.namespace for n in plan} == {"/nmv5000"}
     assert all(n.env["ROS_DOMAIN_ID"] == "42" for n in plan)

@@ -115,9 +115,10 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
     out = cfg.out_dir.resolve()
     step = cfg.step_s or m["step_s"]
     participants = ["sensors", "model", "bridge", "recorder"]   # the recorder acks what it wrote
+    plant = plant_machine(cfg, out)
     nodes = [
         {"name": "machine_sim", "module": "thermal_twin.machine_sim_node",
-         "parameters": {"machine": plant_machine(cfg, out), "scenario": cfg.scenario, "seed": cfg.seed,
+         "parameters": {"machine": plant, "scenario": cfg.scenario, "seed": cfg.seed,
                         "hours": float(cfg.hours or 0.0), "step_s": float(step),
                         "lockstep_participants": participants, "shutdown_when_done": True,
                         # the first instant waits until the recorder (a participant) subscribes
@@ -130,6 +131,8 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
         {"name": "model", "module": "talc_model.talc_model_node", "parameters": _model_parameters(cfg, out)},
         {"name": "bridge", "module": "cnc_bridge.cnc_bridge_node",
          "parameters": _bridge_parameters(cfg, out, endpoint)},
+        {"name": "frames", "module": "thermal_comp.frames.static_frames_node",     # static TF (REP 105)
+         "parameters": {"machine": plant}},
         {"name": "recorder", "module": "thermal_comp.bags.recorder_node",
          "parameters": {"output": str(out / "bag"), "lockstep_participant": True, "health": True,
                         # every participant publishes from the first instant: one lost before the
