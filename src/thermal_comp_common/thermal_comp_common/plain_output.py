@@ -86,8 +86,11 @@ def progress(total: float, desc: str, unit: str, file: TextIO | None = None, **k
     return Progress(total, desc, unit, file=file, **kwargs)
 
 
-def console(file: TextIO | None = None) -> Console:
-    """rich's console on a terminal; otherwise one that writes each text line whole
-    (``soft_wrap``) and lays tables out on :data:`PLAIN_WIDTH` columns."""
+def console(file: TextIO | None = None, min_width: int | None = None) -> Console:
+    """rich's console on a terminal (at least ``min_width`` columns for wide tables); otherwise one
+    that writes each text line whole (``soft_wrap``) and lays tables out on :data:`PLAIN_WIDTH`
+    columns (or ``min_width``)."""
     c = Console(file=file)
-    return c if c.is_terminal else Console(file=file, width=PLAIN_WIDTH, soft_wrap=True)
+    if c.is_terminal:
+        return c if min_width is None else Console(file=file, width=max(min_width, c.width))
+    return Console(file=file, width=max(PLAIN_WIDTH, min_width or 0), soft_wrap=True)

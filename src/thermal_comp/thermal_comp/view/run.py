@@ -10,11 +10,11 @@ import threading
 
 import numpy as np
 import rerun as rr
-from tqdm import tqdm
 
 from thermal_comp.view.blueprint import default_blueprint
 from thermal_comp.view.rerun_logging import FOREIGN_TYPES, LayoutError, RerunLogger, resolve_layout, split_topic
 from thermal_comp.view.rerun_sinks import FLUSH_TIMEOUT_S, SinkError, new_recording, open_output
+from thermal_comp_common import plain_output
 from thermal_comp_common.bags import msg_definitions
 from thermal_comp_common.bags.reader import BagReadError, read_bag
 
@@ -77,11 +77,12 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
     logger = RerunLogger(rec, layout, columnar=True)
     msgs = contents.messages
     arrived = arrivals(msgs)
-    if progress:
-        msgs = tqdm(msgs, desc="view", unit="msg", leave=False, file=sys.stderr)
+    bar = plain_output.progress(len(msgs), "view", "msg") if progress else None
     n = 0
     undecodable: set[str] = set()
     for i, m in enumerate(msgs):
+        if bar is not None:
+            bar.advance()
         try:
             full = msg_definitions.ensure_known(m.type)
             msg = store.deserialize_cdr(m.data, full)
@@ -92,6 +93,8 @@ def log_bag(contents, rec: rr.RecordingStream, layout=None, progress: bool = Tru
             continue
         logger.log(m.topic, full, msg, m.stamp_ns, arrived.get(i))
         n += 1
+    if bar is not None:
+        bar.close()
     logger.send_columns()
     return n, contents.damage
 

@@ -57,9 +57,8 @@ def _flatten(prefix: str, value: Any, out: list[tuple[str, Any]]) -> None:
 
 
 def print_figures(name: str, figures: dict) -> None:
-    # only when suites run: --help stays fast
-    from rich.console import Console
-    from rich.table import Table
+    from rich.table import Table        # only when suites run: --help stays fast
+    from thermal_comp_common import plain_output   # rich and tqdm: only when suites run
     table = Table(title=f"bench {name}", show_lines=False)
     table.add_column("figure")
     table.add_column("value", justify="right")
@@ -67,7 +66,7 @@ def print_figures(name: str, figures: dict) -> None:
     _flatten("", figures, rows)
     for k, v in rows:
         table.add_row(k, f"{v:.4g}" if isinstance(v, float) else str(v))
-    Console().print(table)
+    plain_output.console().print(table)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -39,7 +39,6 @@ from typing import Any
 
 import numpy as np
 import psutil
-from rich.console import Console
 from rich.table import Table
 from tqdm import tqdm
 
@@ -49,6 +48,7 @@ from probe_cycle.probe_cycle_engine import GoalSpec, ProbeCycleEngine
 from thermal_comp.cell.config import parse_cell
 from thermal_comp.demo.cell import DemoConfig, build_cell
 from thermal_comp.cell.launcher import Launcher
+from thermal_comp_common import plain_output
 from thermal_comp_common.bags.reader import read_bag
 from thermal_comp_common.runtime.domain_ids import claim_domain_id
 from thermal_twin.machine.artefact_geometry import ArtefactGeometry
@@ -265,7 +265,7 @@ def print_table(rows: list[dict]) -> None:
     t.add_row("total", f"{len(rows)} faults", str(sum(r["injected"] for r in rows)),
               f"{sum(r['survived'] for r in rows)}/{len(rows)}", str(sum(r["data_lost"] for r in rows)),
               str(sum(r["unsafe_writes"] for r in rows)), "")
-    Console(width=200).print(t)
+    plain_output.console(min_width=200).print(t)
 
 
 def _rows_and_figures(area: str, name: str, make, figures: dict) -> list[dict]:

@@ -6,6 +6,7 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from thermal_comp_common import plain_output
 from thermal_eval.evaluate.baselines import BASELINES
 
 
@@ -65,7 +66,7 @@ def per_run_table(figures: dict[str, Any], models: list[str], base: str) -> Tabl
 
 
 def print_runs(figures: dict[str, Any], models: list[str] | None = None, console: Console | None = None) -> None:
-    console = console or Console(width=max(160, Console().width))
+    console = console or plain_output.console(min_width=160)
     base = figures["ratio_baseline"]
     for role, pooled in figures["pooled"].items():
         n = sum(1 for f in figures["folds"] for r in f["per_run"] if r["role"] == role)

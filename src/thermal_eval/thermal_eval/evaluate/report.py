@@ -14,11 +14,11 @@ import re
 from typing import Any
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from thermal_eval.evaluate.run import EvaluationResult
 from thermal_eval.evaluate.spec import EvaluationData
+from thermal_comp_common import plain_output
 
 
 def _fig(c: dict, window: str, prefix: str = "") -> str:
@@ -37,7 +37,7 @@ def _cell(c: dict, ratio_key: str, prefix: str = "") -> str:
 
 
 def print_table(figures: dict[str, Any], console=None) -> None:
-    console = console or Console(width=max(140, Console().width))
+    console = console or plain_output.console(min_width=140)
     chs = figures["channels"]
     rows = figures["rows"]
     base = figures.get("ratio_baseline")

@@ -18,10 +18,10 @@ import time
 from typing import Any, Mapping, Sequence
 
 import numpy as np
-from rich.console import Console
 from rich.table import Table
 
 from talc_model.open_loop.lagged_temperature_model import DEFAULT_ALPHA_GRID
+from thermal_comp_common import plain_output
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_eval.evaluate.adaptive import ProbingBudget
 from thermal_eval.evaluate.baselines import BASELINES
@@ -176,7 +176,7 @@ def print_table(figures: Mapping[str, Any]) -> None:
                               *[f"{per[ch]['hold_last_measurement_mae_um']:.3f} "
                                 f"[{per[ch]['hold_last_measurement_mae_validation_um']:.3f}]" for ch in CHANNELS],
                               "same")
-    console = Console(width=max(140, Console().width))
+    console = plain_output.console(min_width=140)
     console.print(table)
     console.print(f"green: beats {BEST_PUBLISHED} (open loop) / <= 1 um (adaptive) on the test rows. "
                   "Q_prod (in brackets: after calibration) charges 95 s per probing; the rows calibrated "

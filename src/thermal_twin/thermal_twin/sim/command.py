@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from tqdm import tqdm
-
+from thermal_comp_common import plain_output
 from thermal_twin.sim.inputs_timeline import TimelineError
 from thermal_twin.machine.schema import MachineSpecError, load_machine
 from thermal_comp_common.recording_csv import RecordingError, write_recording_csv
@@ -23,13 +22,15 @@ def run(args) -> int:
     except (MachineSpecError, ScenarioError, TimelineError) as exc:
         print(f"thermal-comp sim: {exc}", file=sys.stderr)
         return 2
-    with tqdm(total=len(timeline), unit="step", desc=f"{machine.name}/{args.scenario}",
-              disable=args.quiet, file=sys.stderr) as bar:
-        try:
-            result = simulate(machine, timeline, seed=args.seed, progress=bar.update)
-        except (TimelineError, MachineSpecError) as exc:
-            print(f"thermal-comp sim: {exc}", file=sys.stderr)
-            return 2
+    bar = None if args.quiet else plain_output.progress(len(timeline), f"{machine.name}/{args.scenario}", "step")
+    try:
+        result = simulate(machine, timeline, seed=args.seed, progress=bar.advance if bar else None)
+    except (TimelineError, MachineSpecError) as exc:
+        print(f"thermal-comp sim: {exc}", file=sys.stderr)
+        return 2
+    finally:
+        if bar is not None:
+            bar.close()
     try:
         write_recording_csv(args.csv, result.time_s, result.columns())
     except (OSError, RecordingError) as exc:
