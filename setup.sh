@@ -125,50 +125,35 @@ if ! stamp_ok cmake-paths "$(hash_of "$STAMPS/ros" "$STAMPS/python")"; then
 fi
 
 # ---------------------------------------------------------------------------------------
-STEP="build and install src/thermal_comp_msgs into the venv"
-MSG_SRC="$ROOT/src/thermal_comp_msgs"
-h=$(cd "$MSG_SRC" && find . -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' -o -name CMakeLists.txt -o -name package.xml \) | sort | xargs sha256sum | sha256sum | cut -d' ' -f1)
-h="$h-$(cat "$STAMPS/cmake-paths")"
-if ! stamp_ok msgs "$h" || ! "$PY" -c 'import thermal_comp_msgs.msg' 2>/dev/null; then
-  say "building thermal_comp_msgs (cmake, about a minute)"
-  BUILD="$ROOT/build/thermal_comp_msgs"
-  mkdir -p "$BUILD"
+# build_interfaces NAME SRC STAMP CHECK: build an interface package (.msg/.srv/.action) with cmake
+# into the venv when its sources or the cmake paths changed, then check that CHECK imports.
+build_interfaces() {
+  local name="$1" src="$2" stamp="$3" check="$4" h build log
+  STEP="build and install $name into the venv"
+  h=$(cd "$src" && find . -type f \( -name '*.msg' -o -name '*.srv' -o -name '*.action' -o -name CMakeLists.txt -o -name package.xml \) | sort | xargs sha256sum | sha256sum | cut -d' ' -f1)
+  h="$h-$(cat "$STAMPS/cmake-paths")"
+  if stamp_ok "$stamp" "$h" && "$PY" -c "import $name.msg" 2>/dev/null; then return 0; fi
+  say "building $name (cmake, under a minute)"
+  build="$ROOT/build/$name"
+  log="$ROOT/build/$name.log"
+  mkdir -p "$build"
   (
     export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
-    cd "$BUILD"
-    cmake "$MSG_SRC" -DCMAKE_PREFIX_PATH="$VENV" -DCMAKE_INSTALL_PREFIX="$VENV" \
+    cd "$build"
+    cmake "$src" -DCMAKE_PREFIX_PATH="$VENV" -DCMAKE_INSTALL_PREFIX="$VENV" \
       -DPython3_EXECUTABLE="$PY" -DPYTHON_EXECUTABLE="$PY" -DBUILD_TESTING=OFF \
-      -DCMAKE_BUILD_TYPE=Release >"$ROOT/build/thermal_comp_msgs.log" 2>&1 \
-      && make -j"$(nproc)" install >>"$ROOT/build/thermal_comp_msgs.log" 2>&1
-  ) || { tail -30 "$ROOT/build/thermal_comp_msgs.log" >&2; false; }
-  "$PY" -c 'from thermal_comp_msgs.msg import TemperatureArray; from thermal_comp_msgs.action import ProbeCycle' \
-    || { echo "setup.sh: thermal_comp_msgs built but does not import" >&2; false; }
-  stamp_set msgs "$h"
-fi
+      -DCMAKE_BUILD_TYPE=Release >"$log" 2>&1 \
+      && make -j"$(nproc)" install >>"$log" 2>&1
+  ) || { tail -30 "$log" >&2; false; }
+  "$PY" -c "$check" || { echo "setup.sh: $name built but does not import" >&2; false; }
+  stamp_set "$stamp" "$h"
+}
 
-# ---------------------------------------------------------------------------------------
+build_interfaces thermal_comp_msgs "$ROOT/src/thermal_comp_msgs" msgs \
+  'from thermal_comp_msgs.msg import TemperatureArray; from thermal_comp_msgs.action import ProbeCycle'
 # tf2_msgs/TFMessage (static frames on /tf_static): no wheel carries tf2_msgs, so its one-line
 # definition is built like thermal_comp_msgs (same type and hash on the wire as ROS's own).
-STEP="build and install interfaces/tf2_msgs into the venv"
-TF_SRC="$ROOT/interfaces/tf2_msgs"
-h=$(cd "$TF_SRC" && find . -type f | sort | xargs sha256sum | sha256sum | cut -d' ' -f1)
-h="$h-$(cat "$STAMPS/cmake-paths")"
-if ! stamp_ok tf2msgs "$h" || ! "$PY" -c 'import tf2_msgs.msg' 2>/dev/null; then
-  say "building tf2_msgs (cmake, about 30 s)"
-  BUILD="$ROOT/build/tf2_msgs"
-  mkdir -p "$BUILD"
-  (
-    export AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" PATH="$VENV/bin:$PATH"
-    cd "$BUILD"
-    cmake "$TF_SRC" -DCMAKE_PREFIX_PATH="$VENV" -DCMAKE_INSTALL_PREFIX="$VENV" \
-      -DPython3_EXECUTABLE="$PY" -DPYTHON_EXECUTABLE="$PY" -DBUILD_TESTING=OFF \
-      -DCMAKE_BUILD_TYPE=Release >"$ROOT/build/tf2_msgs.log" 2>&1 \
-      && make -j"$(nproc)" install >>"$ROOT/build/tf2_msgs.log" 2>&1
-  ) || { tail -30 "$ROOT/build/tf2_msgs.log" >&2; false; }
-  "$PY" -c 'from tf2_msgs.msg import TFMessage' \
-    || { echo "setup.sh: tf2_msgs built but does not import" >&2; false; }
-  stamp_set tf2msgs "$h"
-fi
+build_interfaces tf2_msgs "$ROOT/interfaces/tf2_msgs" tf2msgs 'from tf2_msgs.msg import TFMessage'
 
 # ---------------------------------------------------------------------------------------
 STEP="install our packages (editable)"
