@@ -12,7 +12,7 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
     ],
-    install_requires=["setuptools", "asyncua", "numpy", "rich", "scipy"],
+    install_requires=["setuptools", "asyncua", "numpy", "scipy"],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
     zip_safe=False,
     maintainer="thermal-comp developers",

@@ -18,7 +18,7 @@ setup(
         (f"share/{PACKAGE}/config/cells", sorted(glob("../../config/cells/*.yaml"))),
     ],
     install_requires=[
-        "setuptools", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich", "tqdm",
+        "setuptools", "matplotlib", "numpy", "psutil", "pyyaml", "rerun-sdk", "rich",
         "pillow", "websocket-client",   # the headless-browser check of the web viewer (view.browser)
     ],
     extras_require={"test": ["pytest"]},  # colcon test runs pytest when a package asks for it
