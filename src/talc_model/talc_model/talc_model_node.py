@@ -193,11 +193,11 @@ class TalcModelNode(Node):
     # ------------------------------------------------------------------ inputs
     def _stamp_ok(self, topic: str, t: float) -> bool:
         """The stamp ``t`` of a message on ``topic`` is on the graph's clock (else refused, counted)."""
-        ok, refresh = admit(self.stamps[topic], t, graph_clock_s(self.get_clock().now().nanoseconds),
-                            self.get_logger().warning)
+        check, refresh = admit(self.stamps[topic], t, graph_clock_s(self.get_clock().now().nanoseconds),
+                               self.get_logger().warning)
         if refresh:
             self._stamp_status()
-        return ok
+        return check.accepted
 
     def _stamp_status(self) -> None:
         level, text, values = stamp_status(self.stamps.values(),

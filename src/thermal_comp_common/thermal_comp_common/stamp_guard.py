@@ -131,13 +131,13 @@ def stamp_values(guards: Iterable[StampGuard]) -> dict[str, object]:
 
 
 def admit(guard: StampGuard, stamp_s: float, clock_now_s: float | None,
-          warn: Callable[[str], None], note: str = "") -> tuple[bool, bool]:
-    """Check one stamp with ``guard``: (accepted, the node's ``stamps`` status is to be refreshed);
-    the first refusal of a burst is said through ``warn`` (``note`` appended)."""
+          warn: Callable[[str], None], note: str = "") -> tuple[StampCheck, bool]:
+    """Check one stamp with ``guard``: (the check, the node's ``stamps`` status is to be
+    refreshed); the first refusal of a burst is said through ``warn`` (``note`` appended)."""
     check = guard.check(stamp_s, clock_now_s)
     if check.log:
         warn(check.text + note)
-    return check.accepted, (not check.accepted or check.burst_over)
+    return check, (not check.accepted or check.burst_over)
 
 
 def stamp_status(guards: Iterable[StampGuard], **extra: object) -> tuple[str, str, dict[str, object]]:

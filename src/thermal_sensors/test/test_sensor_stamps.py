@@ -1,5 +1,6 @@
 """The sensors node validates the time of what it receives: twin readings stamped far ahead of its
-clock, behind the last instant or not finite are neither published nor acknowledged (one forged
+clock or not finite are neither published nor acknowledged, one behind the last instant is
+acknowledged (the lock-step goes on) but not published (one forged
 message made every honest instant after it "old": acknowledged, never published again), and as
 the time master it ignores an acknowledgement of an instant it has not published. Each refusal is
 counted on /diagnostics and logged once per burst. In-process, on simulated time."""
@@ -71,8 +72,8 @@ def test_twin_readings_with_forged_stamps_are_neither_published_nor_acknowledged
     set_clock(900.0)
     node._on_twin(_readings(900.0))                  # the next honest instant goes out
     assert node.sent == [600, 900] and node.acks == [600, 900]
-    node._on_twin(_readings(300.0))                  # behind the last instant
-    assert node.sent == [600, 900] and node.acks == [600, 900]
+    node._on_twin(_readings(300.0))                  # behind the last instant: acknowledged, not published
+    assert node.sent == [600, 900] and node.acks == [600, 900, 300]
     values = _stamps(node)
     assert values["level"] == b"\x01" and values["stamps_refused_ahead"] == "2"
     assert values["stamps_refused_behind"] == "1"

@@ -38,7 +38,8 @@ from std_msgs.msg import Header
 
 from thermal_comp_common.frames import MACHINE_BASE_FRAME
 from thermal_comp_common.runtime.diagnostics import DiagnosticsPublisher
-from thermal_comp_common.stamp_guard import StampGuard, admit, default_max_ahead_s, graph_clock_s, stamp_status
+from thermal_comp_common.stamp_guard import (Refusal, StampCheck, StampGuard, admit, default_max_ahead_s,
+                                              graph_clock_s, stamp_status)
 from thermal_comp_common.runtime.node_runtime import (SENSOR_QOS, TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                        TOPIC_TWIN_SENSORS, Param, declare_parameters, run_node,
                                        s_to_stamp, stamp_to_s)
@@ -188,12 +189,12 @@ class TemperaturePublisher(Node):
             self.diag.update_values("sensors", frames=self.published)
 
     # -- stamps ---------------------------------------------------------------------------
-    def _stamp_ok(self, stream: str, t: float, clock_s: float | None) -> bool:
-        """``t`` on ``stream`` is on the graph's clock ``clock_s`` (else refused, counted, said once)."""
-        ok, refresh = admit(self.stamps[stream], t, clock_s, self.get_logger().warning)
+    def _stamp_check(self, stream: str, t: float, clock_s: float | None) -> StampCheck:
+        """Whether ``t`` on ``stream`` is on the graph's clock ``clock_s`` (a refusal is counted, said once)."""
+        check, refresh = admit(self.stamps[stream], t, clock_s, self.get_logger().warning)
         if refresh:
             self._stamp_status()
-        return ok
+        return check
 
     def _stamp_status(self) -> None:
         if self.stamps:
@@ -203,8 +204,11 @@ class TemperaturePublisher(Node):
     # -- twin -----------------------------------------------------------------------------
     def _on_twin(self, msg: TemperatureArray) -> None:
         t = stamp_to_s(msg.header.stamp)
-        if not self._stamp_ok("twin", t, graph_clock_s(self.get_clock().now().nanoseconds)):
-            return   # never published, never acknowledged: a forged stamp does not move this node on
+        check = self._stamp_check("twin", t, graph_clock_s(self.get_clock().now().nanoseconds))
+        if not check.accepted:
+            if check.refusal is Refusal.BEHIND:
+                self._ack(t)     # a late instant: never published, acknowledged so the lock-step goes on
+            return   # ahead or not finite: never published, never acknowledged (a forged stamp moves nothing)
         if t <= self._last_twin_t:
             # machine_sim re-sent an instant because an acknowledgement is missing: a consumer
             # may have restarted and missed it (the model after a crash), so the last frame
@@ -252,7 +256,7 @@ class TemperaturePublisher(Node):
         if msg.node_name in self.acked:
             # the last instant published; before t_0 none, so any acknowledgement of t_0 is ahead
             published = float(self.steps[self.k - 1] if self.k > 0 else self.steps[0] - 1.0)
-            if not self._stamp_ok("acks", stamp_to_s(msg.processed_until), published):
+            if not self._stamp_check("acks", stamp_to_s(msg.processed_until), published).accepted:
                 return
             self.acked[msg.node_name] = max(self.acked[msg.node_name], stamp_to_s(msg.processed_until))
             if self.rtf <= 0:

@@ -304,12 +304,12 @@ class BagRecorderNode(Node):
         """The stamp is not ahead of this node's clock by more than the bound (behind is fine: a
         recorder records what was late); else refused, counted, logged once per burst."""
         guard = self.stamps.setdefault(topic, StampGuard(topic, self._stamp_bound, forward_only=False))
-        ok, refresh = admit(guard, stamp_ns / 1e9, graph_clock_s(now_ns), self.get_logger().warning,
-                            "; not recorded, not acknowledged")
+        check, refresh = admit(guard, stamp_ns / 1e9, graph_clock_s(now_ns), self.get_logger().warning,
+                               "; not recorded, not acknowledged")
         if refresh:
             level, text, values = stamp_status(self.stamps.values(), max_ahead_s=self._stamp_bound)
             self.diag.set("stamps", level, text, **values)
-        return ok
+        return check.accepted
 
     def _stop_on_write_error(self, exc: BagIOError) -> None:
         """A write failed (disk full...): the writer closed the bag at what was on disk, marked

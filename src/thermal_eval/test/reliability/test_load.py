@@ -15,5 +15,5 @@ def test_two_cells_side_by_side_lose_no_message(tmp_path):
     assert f["instants_recorded"] >= 2 * 18          # 1.5 h on the 5-min grid, per cell
     assert f["instants_missing"] == {"temperatures": 0, "errors/predicted": 0, "offsets": 0}, f
     assert set(f["peak_rss_mb_per_node"]) == {"machine_sim", "sensors", "probe_cycle", "model", "bridge",
-                                              "recorder"}
+                                              "frames", "recorder"}
     assert all(v > 0 for v in f["cpu_s_per_node_per_cell"].values())
