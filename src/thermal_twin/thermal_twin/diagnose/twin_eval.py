@@ -33,6 +33,7 @@ from thermal_twin.physics.thermo_elastic import ErrorMap
 
 _STEP_CACHE: OrderedDict = OrderedDict()
 _STEP_CACHE_SIZE = 4096
+_SHORT_RUN_PER_NODE = 8      # runs up to 8 steps per node are stepped directly (see node_states)
 
 
 def step_maps(K: np.ndarray, capacity: np.ndarray, dt: float) -> tuple[np.ndarray, ...]:
@@ -139,8 +140,15 @@ def node_states(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.nd
             h = g[a:b] @ R.T
             z = np.empty_like(h)
             z0 = R @ x
-            for i in range(n):
-                z[:, i] = lfilter([1.0], [1.0, -lam[i]], h[:, i], zi=[lam[i] * z0[i]])[0]
+            if b - a <= _SHORT_RUN_PER_NODE * n:
+                # a short run: one vector step per sample costs less than n lfilter calls
+                zk = z0
+                for k in range(b - a):
+                    zk = lam * zk + h[k]
+                    z[k] = zk
+            else:
+                for i in range(n):
+                    z[:, i] = lfilter([1.0], [1.0, -lam[i]], h[:, i], zi=[lam[i] * z0[i]])[0]
             X[a + 1:b + 1] = z @ L.T
             x = X[b]
     return net, t, X, tb
