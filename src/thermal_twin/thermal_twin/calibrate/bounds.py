@@ -96,7 +96,7 @@ def all_parameters(spec: Mapping) -> list[tuple[str, str, tuple[str, ...], float
     for sid, d in spec.get("sensors", {}).items():
         out.append((f"sensors.{sid}.bias", "bias", ("sensors", sid, "bias"), float(d.get("bias", 0.0))))
     for b, d in spec.get("boundaries", {}).items():
-        if not isinstance(d.get("temperature"), str):
+        if "temperature" in d and not isinstance(d["temperature"], str):   # not a following boundary
             out.append((f"boundaries.{b}.temperature", "boundary", ("boundaries", b, "temperature"),
                         float(d["temperature"])))
     return out

@@ -15,13 +15,13 @@ from typing import Any, Mapping
 import yaml
 
 from thermal_twin.machine.spec import (ERROR_UNITS, INPUT_KINDS, SCHEMA_VERSION, UNITS, BoundarySpec,
-                                       ErrorSpec, InputSpec, LinkSpec, Machine, MachineSpecError,
+                                       ErrorSpec, FollowSpec, InputSpec, LinkSpec, Machine, MachineSpecError,
                                        NodeSpec, SensorSpec, SourceSpec)
 from thermal_twin.machine.validation import validate_machine
 from thermal_twin.machine.presets import preset_path
 
 __all__ = ["SCHEMA_VERSION", "UNITS", "ERROR_UNITS", "INPUT_KINDS", "MachineSpecError", "Machine",
-           "InputSpec", "BoundarySpec", "NodeSpec", "LinkSpec", "SourceSpec", "SensorSpec", "ErrorSpec",
+           "InputSpec", "BoundarySpec", "FollowSpec", "NodeSpec", "LinkSpec", "SourceSpec", "SensorSpec", "ErrorSpec",
            "load_machine", "save_machine", "dump_machine", "SECTIONS"]
 
 SECTIONS = ("inputs", "boundaries", "nodes", "links", "sources", "sensors", "errors")

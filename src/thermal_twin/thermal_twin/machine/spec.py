@@ -13,6 +13,8 @@ UNITS = {"temperature": "degC", "time": "s", "capacity": "J/K", "conductance": "
          "power": "W", "error_linear": "um", "error_angular": "um/m"}
 ERROR_UNITS = ("um", "um/m")
 INPUT_KINDS = ("machine", "environment")
+#: the input a following boundary is lowered to: ``<boundary>_follows`` (physics.boundary_follow)
+FOLLOW_SUFFIX = "_follows"
 
 
 class MachineSpecError(ValueError):
@@ -31,9 +33,23 @@ class InputSpec:
 
 
 @dataclass(frozen=True)
+class FollowSpec:
+    """A boundary that follows another temperature instead of holding its own (a chiller
+    tracking the hall): ``T = offset + gain * lag(T_followed)``, a first-order lag of time
+    constant ``tau_s`` (0: none). ``temperature`` names an input or a boundary that does not
+    itself follow."""
+
+    temperature: str
+    gain: float
+    offset: float
+    tau_s: float
+
+
+@dataclass(frozen=True)
 class BoundarySpec:
     name: str
-    temperature: float | str          # constant degC or an input name
+    temperature: float | str | None   # constant degC or an input name; None when it follows
+    follows: FollowSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -74,6 +90,7 @@ class SensorSpec:
     bias: float
     gain: float
     position_mm: tuple[float, float, float] | None = None
+    drift_k_per_h: float = 0.0               # slow linear drift of the reading since t = 0 of the clock
 
     @property
     def column(self) -> str:

@@ -13,12 +13,14 @@ import re
 from typing import Any, Iterator, Mapping
 
 from thermal_twin.calibrate.bounds import check_section
-from thermal_twin.machine.spec import (ERROR_UNITS, INPUT_KINDS, SCHEMA_VERSION, UNITS, BoundarySpec,
-                                       ErrorSpec, InputSpec, LinkSpec, Machine, MachineSpecError,
-                                       NodeSpec, SensorSpec, SourceSpec)
+from thermal_twin.machine.spec import (ERROR_UNITS, FOLLOW_SUFFIX, INPUT_KINDS, SCHEMA_VERSION, UNITS,
+                                       BoundarySpec, ErrorSpec, FollowSpec, InputSpec, LinkSpec, Machine,
+                                       MachineSpecError, NodeSpec, SensorSpec, SourceSpec)
 
 TOP_KEYS = {"schema_version", "name", "description", "units", "inputs", "boundaries",
             "initial_state", "nodes", "links", "sources", "sensors", "errors", "calibration", "contacts"}
+#: a sensor drifting faster than this is broken, not drifting
+MAX_DRIFT_K_PER_H = 1.0
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 
 
@@ -181,7 +183,13 @@ def _inputs(section: dict) -> tuple[dict[str, InputSpec], dict]:
 def _boundaries(section: dict, inputs: dict) -> tuple[dict[str, BoundarySpec], dict]:
     boundaries: dict[str, BoundarySpec] = {}
     spec: dict = {}
-    for bname, p, d in _items(section, "boundaries", {"temperature"}):
+    for bname, p, d in _items(section, "boundaries", {"temperature", "follows", "note"}):
+        if ("temperature" in d) == ("follows" in d):
+            raise _fail(p, dict(d), "needs exactly one of 'temperature' (a constant or an input) and 'follows'")
+        if "follows" in d:
+            fol, spec[bname] = _follows(d["follows"], f"{p}.follows", bname, inputs, section)
+            boundaries[bname] = BoundarySpec(bname, None, fol)
+            continue
         t = d.get("temperature")
         if isinstance(t, str):
             _declared_input(t, inputs, f"{p}.temperature")
@@ -193,6 +201,30 @@ def _boundaries(section: dict, inputs: dict) -> tuple[dict[str, BoundarySpec], d
     if not boundaries:
         raise _fail("boundaries", {}, "must name at least one boundary (e.g. ambient)")
     return boundaries, spec
+
+
+def _follows(raw: Any, path: str, bname: str, inputs: dict, section: dict) -> tuple[FollowSpec, dict]:
+    """``follows: {temperature: NAME, gain: 1, offset: 0, tau_s: 0}``: NAME an input or a
+    boundary that holds its own temperature; the twin lowers it to an input
+    (physics.boundary_follow), which must not clash with a declared one."""
+    d = _mapping(raw, path)
+    _check_keys(d, {"temperature", "gain", "offset", "tau_s"}, path)
+    src = d.get("temperature")
+    other = section.get(src) if isinstance(src, str) else None
+    if src == bname:
+        raise _fail(f"{path}.temperature", src, "is the boundary itself")
+    if isinstance(other, Mapping) and "follows" in other:
+        raise _fail(f"{path}.temperature", src, "follows another temperature itself (follow its source instead)")
+    if not isinstance(src, str) or (src not in inputs and other is None):
+        raise _fail(f"{path}.temperature", src, f"is neither a declared input ({', '.join(inputs)}) "
+                    f"nor a boundary ({', '.join(section)})")
+    if f"{bname}{FOLLOW_SUFFIX}" in inputs:
+        raise _fail(path, f"{bname}{FOLLOW_SUFFIX}", "is a declared input; a following boundary needs that name")
+    gain = _number(d, "gain", path, default=1.0, lo=-10.0, hi=10.0)
+    offset = _number(d, "offset", path, default=0.0, lo=-200.0, hi=200.0)
+    tau = _number(d, "tau_s", path, default=0.0, lo=0.0, hi=30 * 86400.0)
+    return FollowSpec(src, gain, offset, tau), {"follows": {"temperature": src, "gain": gain, "offset": offset,
+                                                            "tau_s": tau}}
 
 
 def _nodes(section: dict, boundaries: dict) -> tuple[dict[str, NodeSpec], dict]:
@@ -292,7 +324,8 @@ def _sensors(section: dict, places: set) -> tuple[dict[str, SensorSpec], dict]:
     sensors: dict[str, SensorSpec] = {}
     spec: dict = {}
     for sid, p, d in _items(section, "sensors",
-                            {"of", "noise_std", "resolution", "lag_s", "bias", "gain", "position_mm", "note"}):
+                            {"of", "noise_std", "resolution", "lag_s", "bias", "gain", "drift_k_per_h",
+                             "position_mm", "note"}):
         pos = _position(d.get("position_mm"), f"{p}.position_mm")
         of = d.get("of")
         if isinstance(of, str):
@@ -308,7 +341,11 @@ def _sensors(section: dict, places: set) -> tuple[dict[str, SensorSpec], dict]:
                                   _number(d, "resolution", p, default=0.0, lo=0.0),
                                   _number(d, "lag_s", p, default=0.0, lo=0.0),
                                   _number(d, "bias", p, default=0.0),
-                                  _number(d, "gain", p, default=1.0), pos)
+                                  _number(d, "gain", p, default=1.0), pos,
+                                  _number(d, "drift_k_per_h", p, default=0.0, lo=-MAX_DRIFT_K_PER_H,
+                                          hi=MAX_DRIFT_K_PER_H))
+        if sensors[sid].gain == 0.0:
+            raise _fail(f"{p}.gain", 0.0, "must not be 0 (a reading is read backwards through it)")
         spec[sid] = dict(d)
     return sensors, spec
 

@@ -52,6 +52,10 @@ class ThermalNetwork:
         self.machine = machine
         self.node_names = list(machine.nodes)
         self.boundary_names = list(machine.boundaries)
+        follows = [b for b, s in machine.boundaries.items() if s.temperature is None]
+        if follows:
+            raise MachineSpecError(f"boundaries.{follows[0]}: follows another temperature; the network takes the "
+                                   "machine lowered (thermal_twin.physics.boundary_follow.lowered), as simulate does")
         self.n = len(self.node_names)
         self._ni = {n: i for i, n in enumerate(self.node_names)}
         self._bi = {b: i for i, b in enumerate(self.boundary_names)}

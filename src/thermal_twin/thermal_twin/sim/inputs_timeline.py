@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from thermal_twin.machine.schema import Machine
+from thermal_twin.physics.sensor_model import read_backwards
 from thermal_comp_common.machine_state_fields import message_input_name
 from thermal_comp_common.recording_csv import Recording
 
@@ -77,8 +78,9 @@ def timeline_from_recording(machine: Machine, rec: Recording) -> InputsTimeline:
     Input columns the machine declares are taken as they are, under the twin's name or the
     name a cell's bag gives it (MachineState: ``C_axis_rpm`` for ``c_speed_rpm``,
     ``machine_state_fields.message_input_name``); a missing input with ``from_sensor`` is filled
-    from that sensor's column (real recordings have no true ambient, only an ambient sensor);
-    others take their default. Unknown input columns of the recording are ignored.
+    from that sensor's column (real recordings have no true ambient, only an ambient sensor),
+    read backwards through the twin's sensor model (its bias, gain and drift:
+    ``sensor_model.read_backwards``); others take their default. Unknown input columns of the recording are ignored.
     """
     vals: dict[str, np.ndarray] = {}
     for name, spec in machine.inputs.items():
@@ -93,5 +95,5 @@ def timeline_from_recording(machine: Machine, rec: Recording) -> InputsTimeline:
                 if not np.any(good):
                     raise TimelineError(f"input '{name}': sensor column '{spec.from_sensor}_c' has no valid value")
                 col = np.interp(rec.time_s, rec.time_s[good], col[good])
-            vals[name] = col
+            vals[name] = read_backwards(machine.sensors.get(spec.from_sensor), col, rec.time_s)
     return InputsTimeline(rec.time_s, vals, name=rec.source)

@@ -14,6 +14,7 @@ import numpy as np
 from thermal_twin.sim.inputs_timeline import InputsTimeline
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_comp_common.recording_csv import Recording
+from thermal_twin.physics.boundary_follow import Followers, follow_series, lowered
 from thermal_twin.physics.sensor_model import SensorBank
 from thermal_twin.physics.thermal_network import ThermalNetwork
 from thermal_twin.physics.thermo_elastic import ErrorMap
@@ -28,6 +29,7 @@ def environment_input_names(machine: Machine) -> set[str]:
     temperatures of boundaries (hall, coolant tank, oil)."""
     keep = {n for n, s in machine.inputs.items() if s.kind == "environment"}
     keep |= {b.temperature for b in machine.boundaries.values() if isinstance(b.temperature, str)}
+    keep |= {b.follows.temperature for b in machine.boundaries.values() if b.follows is not None}
     return keep
 
 
@@ -57,19 +59,22 @@ class TwinStepper:
     ``set_inputs(u)`` sets the inputs that hold from now on (they also set the boundary
     temperatures seen now), ``advance(dt)`` integrates ``dt`` seconds with them (exact);
     ``sensor_readings()`` and ``errors()`` describe the current instant. Sampling
-    set_inputs(u_k) then reading at every t_k reproduces :func:`simulate`.
+    set_inputs(u_k) then reading at every t_k reproduces :func:`simulate`. Following boundaries
+    run on the lowered machine, their inputs advanced by :class:`Followers`.
     """
 
     def __init__(self, machine: Machine | str | Mapping, initial_inputs: Mapping[str, float],
                  seed: int = 0):
         self.machine = _as_machine(machine)
-        self.net = ThermalNetwork(self.machine)
+        self.followers = Followers(self.machine)
+        self.net = ThermalNetwork(lowered(self.machine))
         self.sensors = SensorBank(self.machine, self.net.node_names, self.net.boundary_names)
         self.error_map = ErrorMap(self.machine, self.net.node_names)
         self.rng = np.random.default_rng(seed)
         self.inputs = dict(initial_inputs)
         self.t_s = 0.0
-        self.x = initial_temperatures(self.net, self.inputs)
+        self.followers.update(self.t_s, self.inputs)
+        self.x = initial_temperatures(self.net, self.net_inputs())
         self.x_ref = self.x.copy()
         self._last_read_t: float | None = None
 
@@ -78,24 +83,29 @@ class TwinStepper:
         if unknown:
             raise ValueError(f"input '{unknown[0]}' is not declared by machine '{self.machine.name}'")
         self.inputs = {**self.inputs, **{k: float(v) for k, v in inputs.items()}}
+        self.followers.update(self.t_s, self.inputs)
+
+    def net_inputs(self) -> dict[str, float]:
+        """The inputs with the following boundaries' lowered inputs."""
+        return {**self.inputs, **self.followers.values()} if self.followers.specs else self.inputs
 
     def advance(self, dt: float) -> None:
         """Integrate ``dt`` seconds with the current inputs held constant (exact)."""
         if not dt >= 0:
             raise ValueError(f"dt: {dt!r} must be >= 0")
         if dt > 0:
-            self.x = self.net.step(self.x, self.inputs, self.t_s, dt)
+            self.x = self.net.step(self.x, self.net_inputs(), self.t_s, dt)
             self.t_s += dt
 
     def boundary_temperatures(self) -> np.ndarray:
-        return self.net.boundary_temperatures(self.inputs)
+        return self.net.boundary_temperatures(self.net_inputs())
 
     def sensor_readings(self) -> dict[str, float]:
         """Readings now. Each call is one sample: it advances the sensors' lag filters and
         draws noise, so call it once per published instant (as :func:`simulate` does)."""
         dt = 0.0 if self._last_read_t is None else self.t_s - self._last_read_t
         self._last_read_t = self.t_s
-        r = self.sensors.read(self.x, self.boundary_temperatures(), dt, self.rng)
+        r = self.sensors.read(self.x, self.boundary_temperatures(), dt, self.rng, self.t_s)
         return dict(zip(self.sensors.ids, r.tolist()))
 
     def errors(self) -> dict[str, float]:
@@ -145,12 +155,13 @@ def simulate(machine: Machine | str | Mapping, timeline: InputsTimeline, seed: i
     vals = timeline.resolved(m)
     t = timeline.time_s
     n_t = len(t)
-    net = ThermalNetwork(m)
+    net = ThermalNetwork(lowered(m))
     sensors = SensorBank(m, net.node_names, net.boundary_names)
     emap = ErrorMap(m, net.node_names)
     rng = np.random.default_rng(seed)
-    names = list(vals)
-    cols = [vals[k] for k in names]
+    net_vals = {**vals, **follow_series(m, t, vals)}
+    names = list(net_vals)
+    cols = [net_vals[k] for k in names]
 
     def inputs_at(k: int) -> dict[str, float]:
         return {name: float(c[k]) for name, c in zip(names, cols)}
@@ -166,7 +177,7 @@ def simulate(machine: Machine | str | Mapping, timeline: InputsTimeline, seed: i
         u = inputs_at(k)
         X[k] = x
         TB[k] = net.boundary_temperatures(u)
-        R[k] = sensors.read(x, TB[k], 0.0 if k == 0 else t[k] - t[k - 1], rng)
+        R[k] = sensors.read(x, TB[k], 0.0 if k == 0 else t[k] - t[k - 1], rng, float(t[k]))
         if k + 1 < n_t:
             x = net.step(x, u, t[k], t[k + 1] - t[k])
         if progress is not None and (k + 1) % 1000 == 0:

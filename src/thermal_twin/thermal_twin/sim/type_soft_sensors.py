@@ -15,8 +15,9 @@ under its own name (a replayed recording) or its MachineState name
 input with ``from_sensor`` comes from that temperature sensor. The inputs of an instant hold
 until the next one (zero-order hold, as :func:`thermal_twin.sim.simulate.simulate`); the twin
 starts at its ``initial_state`` for the first instant's inputs. A missing or NaN input holds
-its last value (its default before any), counted. A sensor the twin gives a bias or gain is
-read backwards through them (a unit twin's diagnosed hall-sensor bias). No rclpy here.
+its last value (its default before any), counted. A sensor the twin gives a bias, gain or
+drift is read backwards through them (a unit twin's diagnosed hall-sensor bias and drift; the
+drift at the instant's clock time). No rclpy here.
 """
 from __future__ import annotations
 
@@ -27,6 +28,7 @@ import numpy as np
 from thermal_comp_common.machine_state_fields import message_input_name
 
 from thermal_twin.machine.schema import Machine, load_machine
+from thermal_twin.physics.sensor_model import read_backwards
 from thermal_twin.sim.simulate import TwinStepper
 
 #: prefix of every soft-sensor name
@@ -77,7 +79,8 @@ class TypeSoftSensors:
         e = s.error_map.errors(s.x, s.x_ref)
         return dict(zip(self.names, np.concatenate([s.x, np.atleast_1d(e)]).tolist()))
 
-    def _inputs(self, temperatures: Mapping[str, float], machine_state: Mapping[str, float]) -> dict[str, float]:
+    def _inputs(self, temperatures: Mapping[str, float], machine_state: Mapping[str, float],
+                t_s: float = 0.0) -> dict[str, float]:
         out, held = {}, []
         for name in self.input_names:
             where, keys = self._sources[name]
@@ -92,7 +95,7 @@ class TypeSoftSensors:
                                               f"{signals[key]!r} is not a number") from None
                     break
             if where == "temperatures" and math.isfinite(v):
-                v = self._true_temperature(keys[0], v)
+                v = self._true_temperature(keys[0], v, t_s)
             if math.isfinite(v):
                 self.last_inputs[name] = v
             else:
@@ -103,14 +106,11 @@ class TypeSoftSensors:
         self.held_now = held
         return out
 
-    def _true_temperature(self, sensor: str, reading: float) -> float:
-        """The temperature a reading of ``sensor`` stands for: the twin's sensor model read
-        backwards (reading = gain x T + bias), so a unit twin's diagnosed bias of the hall
-        sensor reaches the boundary it drives."""
-        spec = self.machine.sensors.get(sensor)
-        if spec is None or (spec.bias == 0.0 and spec.gain == 1.0):
-            return reading
-        return (reading - spec.bias) / spec.gain
+    def _true_temperature(self, sensor: str, reading: float, t_s: float) -> float:
+        """The temperature a reading of ``sensor`` at clock time ``t_s`` stands for: the twin's
+        sensor model read backwards (reading = gain x T + bias + drift x t), so a unit twin's
+        diagnosed bias and drift of the hall sensor reach the boundary it drives."""
+        return float(read_backwards(self.machine.sensors.get(sensor), reading, t_s))
 
     def update(self, t_s: float, temperatures: Mapping[str, float],
                machine_state: Mapping[str, float]) -> dict[str, float]:
@@ -121,7 +121,7 @@ class TypeSoftSensors:
             raise SoftSensorError(f"soft sensors of {self.machine.name}: t_s {t_s!r} is not finite")
         if self.t_s is not None and t_s < self.t_s:
             raise SoftSensorError(f"soft sensors of {self.machine.name}: time {t_s} goes back (last {self.t_s})")
-        u = self._inputs(temperatures, machine_state)
+        u = self._inputs(temperatures, machine_state, t_s)
         if self.stepper is None:
             self.stepper = TwinStepper(self.machine, u)
         else:
@@ -136,6 +136,7 @@ class TypeSoftSensors:
         return {"version": STATE_VERSION, "machine": self.machine.name, "t_s": self.t_s,
                 "twin_t_s": s.t_s if s else None, "x": s.x.tolist() if s else None,
                 "x_ref": s.x_ref.tolist() if s else None, "inputs": dict(s.inputs) if s else {},
+                "followers": s.followers.to_state() if s else None,
                 "last_inputs": dict(self.last_inputs), "held_counts": dict(self.held_counts)}
 
     def restore(self, state: Mapping[str, Any]) -> None:
@@ -159,4 +160,6 @@ class TypeSoftSensors:
                                       f"{self.machine.name} has {n} nodes")
         s.x, s.x_ref = np.asarray(state["x"], float), np.asarray(state["x_ref"], float)
         s.t_s = float(state["twin_t_s"])
+        if state.get("followers") is not None:       # states of twins without following boundaries lack it
+            s.followers.restore(state["followers"])
         self.stepper = s
