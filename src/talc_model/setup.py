@@ -25,6 +25,7 @@ setup(
     entry_points={
         "console_scripts": [
             "talc_model = talc_model.talc_model_node:main",
+            "learner = talc_model.learner_node:main",
         ],
     },
 )
