@@ -22,6 +22,10 @@ refused with one error naming the file and both times, moved aside (``*.refused-
 nothing deleted), and the node starts fresh (``pretrained_path`` or a new model, calibration phase)
 so the lock-step goes on; it never retries the refused state.
 
+Online learning: the ``adopt_prior`` service (AdoptPrior) takes a prior learned by the online learner;
+:mod:`talc_model.online.prior_swap` checks it, warms a model from it over the run's history and
+swaps it in between two instants (audited in ``audit_path``). docs/learn.md, "Online learning".
+
 Stamps: a message on ``temperatures``, ``machine_state`` or ``offsets`` stamped more than
 ``max_stamp_ahead_s`` ahead of the node's clock, or not finite, or (temperatures, machine state)
 behind the last accepted one, is refused (:mod:`thermal_comp_common.stamp_guard`): never
@@ -57,6 +61,7 @@ from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import (AxisOffsets, MachineState, ModelStatus, SimSync,
                                    TemperatureArray, ThermalErrors)
+from thermal_comp_msgs.srv import AdoptPrior
 
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
 from talc_model.loop.applied_compensation import MODES, BridgeCompensation
@@ -64,6 +69,9 @@ from talc_model.loop.closed_loop import ClosedLoop, ResumedState, ResumedStateMi
 from talc_model.loop.instant_inputs import InputsReady, InstantInputs
 from talc_model.loop.reading_check import ReadingCheck
 from talc_model.model_persistence import load_model, load_pretrained, save_model
+from talc_model.online.history import RunHistory
+from talc_model.online.learner import SERVICE_ADOPT_PRIOR
+from talc_model.online.prior_swap import PriorSwap
 from talc_model.probing.cycle_state import Action, ProbeOutcome, ProbeState, ProbingStateMachine
 from talc_model.save_schedule import SaveNow, SaveSchedule
 from talc_model.state_files import move_aside, resolve_state_path, run_identity, saved_time_s
@@ -97,6 +105,11 @@ PARAMS = [
     Param("max_stamp_ahead_s", 0.0, "refuse messages stamped more than this ahead of the node's clock, s; "
           "0 = 60 s on wall time, 3600 s with use_sim_time (data may precede its /clock by a step)",
           0.0, 86400.0),
+    Param("audit_path", "", "online learning: audit file (JSON lines) of adopted or refused priors; empty = log only"),
+    Param("warm_events_per_instant", 200, "online learning: history events a new prior's model is warmed over "
+          "per modelled instant (bounds the pause of one instant)", 1, 10**7),
+    Param("history_max_instants", 100000, "online learning: instants of the run kept to warm a new prior's model",
+          0, 10**8),
 ]
 
 
@@ -122,7 +135,8 @@ class TalcModelNode(Node):
         self.config = _load_yaml(p["model_config"]) if p["model_config"] else {}
         self.state_path = resolve_state_path(p["state_path"])
         resumed = None
-        if self.state_path is not None and self.state_path.is_file():
+        from_state = self.state_path is not None and self.state_path.is_file()
+        if from_state:
             # a state of another machine type, twin or inputs is refused in one line
             model = load_model(self.state_path, expected_kind=self.kind,
                                expected=run_identity(self.config, self._fresh_model()[0]))
@@ -151,6 +165,11 @@ class TalcModelNode(Node):
                                        publish=self._publish_prediction)
         self.loop = ClosedLoop(model, self.sink, live=True, resumed=resumed,
                                probing=ProbingStateMachine(p["offsets_wait_s"], p["probe_result_wait_s"]))
+        # online learning: a learned prior is checked, warmed over the run's history and swapped in
+        self.online = PriorSwap(self.kind, self.config, p["prior_path"],
+                                RunHistory(p["history_max_instants"], complete=not from_state),
+                                p["warm_events_per_instant"], p["audit_path"])
+        self.create_service(AdoptPrior, SERVICE_ADOPT_PRIOR, self._on_adopt_prior)
         self.machine_state: dict[str, float] = {}
         self.instant_inputs = InstantInputs(p["machine_state_wait_s"])
         self.pending: tuple[float, dict[str, float]] | None = None   # temperatures waiting for their state
@@ -291,6 +310,7 @@ class TalcModelNode(Node):
             if step.action is Action.SEND_GOAL:
                 self._send_goal()
             self._publish_status(t)
+            self._online_step(t, temps)
             if self.saves.on_instant(t, self._wall_s(), self.sink.offsets_seen, self.sink.stamp_s,
                                      self.loop.probing.busy) is SaveNow.NOW:
                 self._save(t)
@@ -315,6 +335,7 @@ class TalcModelNode(Node):
             if pathlib.Path(exc.state_path).is_file() else None
         model, how = self._fresh_model()
         self.loop.replace_model(model)
+        self.online.history.restart()
         what = f"{exc}; moved aside to {aside}; starting with a {how}"
         self.get_logger().error(what)
         self.diag.set("state", "WARN", what, state_path=exc.state_path, saved_time_s=exc.saved_time_s,
@@ -413,6 +434,7 @@ class TalcModelNode(Node):
         if outcome is None:
             return
         t = outcome.t_s
+        self.online.history.probe(t, outcome.success, outcome.measured, outcome.applied, outcome.reason)
         if outcome.success:
             self.diag.set("probing", "OK", f"probing at {t:.0f} s: {message}")
         else:
@@ -449,6 +471,24 @@ class TalcModelNode(Node):
 
     def _wall_s(self) -> float:
         return self.wall.now().nanoseconds * 1e-9
+
+    # ------------------------------------------------------------------ online learning (talc_model.online)
+    def _online_step(self, t: float, temps: dict[str, float]) -> None:
+        self.online.history.instant(t, temps, self.machine_state)
+        swapped = self.online.step(t, self.loop.probing.busy)
+        if swapped is not None:          # between two instants: the next one is the new model's
+            self.loop.replace_model(swapped.model)
+            self.config = swapped.config
+            self.get_logger().info(f"online learning: {swapped.audit['reason']}")
+            self.diag.set("prior", "OK", swapped.audit["reason"], sha256=self.online.current_sha256)
+
+    def _on_adopt_prior(self, req, resp):
+        old = self.online.current_sha256
+        ok, msg, new = self.online.request(req.prior_path, req.model_config_path, req.report_path,
+                                           self.model.component_names, self.loop.t_last)
+        resp.accepted, resp.message, resp.old_prior_sha256, resp.new_prior_sha256 = ok, msg, old, new
+        (self.get_logger().info if ok else self.get_logger().warning)(f"adopt_prior: {msg}")
+        return resp
 
     # ------------------------------------------------------------------ persistence
     def _deferred_save(self) -> None:
