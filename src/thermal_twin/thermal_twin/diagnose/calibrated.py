@@ -23,7 +23,7 @@ import numpy as np
 from thermal_comp_common.runtime.task_engine import EngineSpec
 from thermal_twin.calibrate.fit import CalibrationResult, calibrate
 from thermal_twin.machine.schema import Machine
-from thermal_twin.diagnose.fit import FitProblem
+from thermal_twin.diagnose.fit import FitProblem, worse_channels
 
 
 def moved(res: CalibrationResult) -> list[dict]:
@@ -97,12 +97,14 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
         r = problem.weighted_residual(problem.outputs(spec), nt)
         sse[label] = float(np.sum(r ** 2))
     bound = at_bound(res)
-    structured = structured_channels(problem, problem.outputs(spec0), problem.outputs(res.spec))
+    y_given, y_cal = problem.outputs(spec0), problem.outputs(res.spec)
+    structured = structured_channels(problem, y_given, y_cal)
     # a parameter at its bound means the calibration stood in for physics it cannot reach, a
     # residual that stays structured that it did not explain it: either way the search starts
     # from the twin as given, where that physics is still visible (the joint test still
     # compares with the calibration alone)
-    used = sse["calibrated"] <= sse["given"] and not bound and not structured
+    worse = worse_channels(problem, y_given, y_cal)
+    used = sse["calibrated"] <= sse["given"] and not bound and not structured and not worse
     unid = [e.param.name for e in res.estimates if any(f.startswith("not identified") for f in e.flags)]
     section_out = {
         "used_as_base": used,
@@ -111,6 +113,7 @@ def calibrated_base(machine: Machine, problem: FitProblem, holdout_fraction: flo
         "correlated_pairs": len(res.correlated),
         "mis_calibrated": moved(res),
         "at_bound": bound,
+        "worse_channels": worse,
         "residual_structured": structured,
         "holdout_improvement_pct": 100.0 * (1.0 - sse["calibrated"] / max(sse["given"], 1e-300)),
         "cost_before": res.cost_before, "cost_after": res.cost_after,

@@ -15,13 +15,13 @@ from typing import Mapping
 
 import numpy as np
 
-from thermal_twin.diagnose import residuals
+from thermal_twin.diagnose import clock, joint, residuals
 from thermal_twin.diagnose import unnamed as unnamed_mod
 from thermal_twin.diagnose.calibrated import (calibrated_base, joint_adoption_test,
                                                unnamed_beats_free_calibration)
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.effects import EFFECTS, classify_driver
-from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, Hypothesis
+from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, Hypothesis, worse_channels
 from thermal_twin.diagnose.report import DiagnosisSeries
 from thermal_twin.diagnose.search_round import RoundInputs, run_round
 from thermal_twin.diagnose.significance import PROCEDURE
@@ -53,7 +53,7 @@ class Diagnosis:
 
 def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, channels: list[str],
             effects: tuple[str, ...], max_effects: int, shortlist: int, min_improvement_pct: float,
-            progress: bool, engine: EngineSpec | None = None
+            progress: bool, engine: EngineSpec | None = None, notes: list | None = None
             ) -> tuple[list[Hypothesis], list[Hypothesis], dict, np.ndarray, list[int]]:
     """Greedy rounds of screening, fitting and testing (each round's candidates on the task
     engine); returns (adopted, all hypotheses, final description, its outputs, candidates
@@ -61,6 +61,7 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
     adopted: list[Hypothesis] = []
     all_hyps: list[Hypothesis] = []
     tried: list[int] = []
+    spec_first, y_first = base, y_base
     bar = None
     if progress:
         from tqdm import tqdm  # optional: only for the progress bar
@@ -80,6 +81,12 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
         y_base = problem.outputs(base)
     if bar is not None:
         bar.close()
+    if adopted:
+        # refitted together, each paying for itself, no channel worse (thermal_twin.diagnose.joint)
+        adopted, dropped = joint.prune(problem, spec_first, y_first, adopted, min_improvement_pct)
+        (notes if notes is not None else []).extend(f"{d['effect']} dropped: {d['reason']}" for d in dropped)
+        base = adopted[-1].spec if adopted else spec_first
+        y_base = problem.outputs(base) if adopted else y_first
     return adopted, all_hyps, base, y_base, tried
 
 
@@ -100,6 +107,15 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
     y_u = y_start.copy()
     for d in found:
         y_u[channels.index(d.channel)] += d.prediction
+    # the terms as printed (without their offset) must not leave their channel worse
+    worse = set(worse_channels(problem, y_start, y_u))
+    if worse:
+        found = [d for d in found if d.channel not in worse]
+        if not found:
+            return [], None
+        y_u = y_start.copy()
+        for d in found:
+            y_u[channels.index(d.channel)] += d.prediction
     sse_u = float(np.sum(problem.weighted_residual(y_u, nt) ** 2))
     sse_n = float(np.sum(problem.weighted_residual(y_named, nt) ** 2))
     if named and not sse_u < 0.5 * sse_n:
@@ -173,6 +189,7 @@ class _Comparison:
     base0: dict                  # the search's base: the twin as given, or calibrated
     y0: np.ndarray               # outputs of base0
     cal_section: dict | None
+    clock_offset: "clock.ClockOffset | None" = None
 
     @property
     def n_train(self) -> int:
@@ -202,17 +219,20 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
               max_effects: int = 2, min_improvement_pct: float = 5.0, start_hour: float = 0.0,
               effects: tuple[str, ...] = EFFECTS, shortlist: int = 10, max_lag_s: float = 6 * 3600.0,
               progress: bool = False, calibrate: bool = False, calibration_section: Mapping | None = None,
-              calibration_nfev: int = 20, unnamed: bool = True, engine: EngineSpec | None = None) -> Diagnosis:
+              calibration_nfev: int = 20, unnamed: bool = True, clock_offset: bool = True,
+              engine: EngineSpec | None = None) -> Diagnosis:
     """Diagnose ``twin`` against ``recording``; see the module docstring. ``calibrate``:
     fit the twin's existing parameters first (:mod:`thermal_twin.diagnose.calibrated`);
-    ``unnamed``: try a sparse out-of-vocabulary discrepancy (:mod:`thermal_twin.diagnose.unnamed`).
+    ``unnamed``: try a sparse out-of-vocabulary discrepancy (:mod:`thermal_twin.diagnose.unnamed`);
+    ``clock_offset``: look for a common time shift of the measured channels first.
     Three steps: residual analysis, search rounds, report assembly."""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise DiagnosisError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
     unknown = [e for e in effects if e not in EFFECTS]
     if unknown:
         raise DiagnosisError(f"effects: {unknown[0]!r} is not in the vocabulary {list(EFFECTS)}")
-    cmp = _compare(twin, recording, holdout_fraction, calibrate, calibration_section, calibration_nfev, engine)
+    cmp = _compare(twin, recording, holdout_fraction, calibrate, calibration_section, calibration_nfev, engine,
+                   clock_offset)
     ccf_inputs = residuals.driver_inputs(cmp.rec, cmp.machine)
     analysis = residuals.analyse(cmp.rec, cmp.channels, cmp.measured(), cmp.y0, cmp.units(), ccf_inputs,
                                  max_lag_s, start_hour, engine)
@@ -230,8 +250,9 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
 
 def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: bool,
              calibration_section: Mapping | None, calibration_nfev: int,
-             engine: EngineSpec | None = None) -> _Comparison:
-    """Check the inputs, simulate the twin as given and (with ``calibrate``) calibrate it."""
+             engine: EngineSpec | None = None, clock_offset: bool = True) -> _Comparison:
+    """Check the inputs, simulate the twin as given, remove a clock offset of the measured
+    channels (:mod:`thermal_twin.diagnose.clock`) and (with ``calibrate``) calibrate the twin."""
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
     rec = _clean_inputs(recording, machine)
     if len(rec) < MIN_RECORDING_ROWS:
@@ -249,12 +270,20 @@ def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: boo
     resolution = {machine.sensors[sid].column: machine.sensors[sid].resolution for sid in machine.sensors}
     problem = FitProblem(rec, channels, n_train, resolution=resolution)
     y_given = problem.outputs(spec0)
+    offset = None
+    if clock_offset:
+        offset = clock.estimate(rec.time_s, problem._meas, problem._valid, y_given, n_train)
+        if offset.applied:
+            # the noise of the re-sampled readings is smoothed: keep the weights of the raw ones
+            rec = clock.realign(rec, offset.shift_s)
+            problem = FitProblem(rec, channels, n_train, sigma=problem.sigma, resolution=resolution)
+            y_given = problem.outputs(spec0)
     base0, y0, cal_section = spec0, y_given, None
     if calibrate:
         base0, cal_section = calibrated_base(machine, problem, holdout_fraction, calibration_section,
                                              calibration_nfev, engine)
         y0 = problem.outputs(base0)
-    return _Comparison(machine, rec, channels, problem, holdout_fraction, y_given, base0, y0, cal_section)
+    return _Comparison(machine, rec, channels, problem, holdout_fraction, y_given, base0, y0, cal_section, offset)
 
 
 @dataclass
@@ -267,6 +296,7 @@ class _Found:
     y_base: np.ndarray            # its outputs (with an unnamed discrepancy added)
     tried: list[int]              # candidates screened per round
     unnamed: list
+    notes: list                   # what the search dropped and why
 
 
 def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int, shortlist: int,
@@ -275,16 +305,21 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
     """Search rounds, the joint adoption test (calibrate-first), the out-of-vocabulary step."""
     rec, problem, cal_section = cmp.rec, cmp.problem, cmp.cal_section
     drivers = {name: classify_driver(name, v) for name, v in rec.inputs.items()}
+    notes: list[str] = []
     adopted, all_hyps, base, y_base, tried = _search(problem, cmp.base0, cmp.y0, drivers, cmp.channels, effects,
                                                      max_effects, shortlist, min_improvement_pct, progress,
-                                                     engine)
+                                                     engine, notes)
     if calibrate and adopted:
         test = joint_adoption_test(cmp.machine, problem, cmp.holdout_fraction, adopted, cmp.base0, cal_section,
                                    calibration_section, min_improvement_pct, engine=engine)
         joint_spec = test.pop("spec")
         cal_section["adoption_test"] = test
+        y_joint = problem.outputs(joint_spec)
+        # the kept twin must not leave any channel worse than the twin as given
+        test["worse_channels"] = worse_channels(problem, cmp.y_given, y_joint)
+        test["passed"] = bool(test["passed"] and not test["worse_channels"])
         if test["passed"]:
-            base, y_base = joint_spec, problem.outputs(joint_spec)
+            base, y_base = joint_spec, y_joint
         else:
             adopted, base, y_base = [], cmp.base0, cmp.y0
     found_unnamed = []
@@ -302,7 +337,7 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
     if cal_section is not None:
         cal_section.pop("_estimates", None)
         cal_section.pop("_spec", None)
-    return _Found(adopted, all_hyps, base, y_base, tried, found_unnamed)
+    return _Found(adopted, all_hyps, base, y_base, tried, found_unnamed, notes)
 
 
 REPORT_CHANNEL_KEYS = ("unit", "rmse_before", "rmse_after", "holdout_rmse_before", "holdout_rmse_calibrated",
@@ -335,7 +370,7 @@ def _report(cmp: _Comparison, analysis: "residuals.ResidualAnalysis", found: _Fo
     notes = [f"Day/night regimes assume time_s = 0 at {start_hour:g} h clock time (--start-hour)."]
     if any(h.indistinguishable_from for h in found.all_hyps if h.plausible):
         notes.append(CORRELATED_NOTE)
-    notes += cmp.rec.warnings
+    notes += found.notes + cmp.rec.warnings
     ranked = sorted(found.all_hyps, key=lambda h: (h.round, h.rank_key(min_improvement_pct)))
     units = cmp.units()
     return {
@@ -351,6 +386,7 @@ def _report(cmp: _Comparison, analysis: "residuals.ResidualAnalysis", found: _Fo
         "unnamed": [d.as_dict(units[d.channel]) for d in found.unnamed],
         "answer": _answer(found.unnamed, found.adopted, cmp.cal_section, min_improvement_pct),
         "calibration": cmp.cal_section,
+        "clock_offset": cmp.clock_offset.as_dict() if cmp.clock_offset else None,
         "augmented_twin": None,
         "criteria": {"min_holdout_improvement_pct": min_improvement_pct, "max_delta_bic": BIC_THRESHOLD,
                      "max_effects": max_effects, "multiple_testing": PROCEDURE,

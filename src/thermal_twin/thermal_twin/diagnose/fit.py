@@ -44,6 +44,34 @@ from thermal_twin.diagnose.twin_eval import expected_outputs, node_states
 from thermal_comp_common.recording_csv import Recording
 
 BIC_THRESHOLD = -2.0
+#: a channel is measurably worse on held-out data when its held-out RMSE rises by more than
+#: this share and by more than this many noise sigmas (both: a tiny channel's share, a noisy
+#: channel's sigma alone would flag noise), and the rise is significant (WORSE_ALPHA)
+WORSE_REL = 0.02
+WORSE_SIGMA = 0.25
+WORSE_ALPHA = 0.05
+
+
+def worse_channels(problem: "FitProblem", y_before: np.ndarray, y_after: np.ndarray) -> list[str]:
+    """Channels whose held-out RMSE (the window no fit saw) is measurably worse with
+    ``y_after`` than with ``y_before``: by :data:`WORSE_REL` and :data:`WORSE_SIGMA`, and
+    significantly, by the held-out F test of ``y_before`` against ``y_after`` on that channel
+    with its effective sample size (coloured noise with a long memory moves a channel's
+    held-out RMSE by more than its second-difference sigma, whatever the twin does). An
+    adopted mechanism must not buy its improvement on some channels with a loss on another."""
+    nt = problem.n_train
+    n = np.maximum(problem._valid[:, nt:].sum(axis=1), 1)
+    r0 = problem.weighted_residual(y_before, nt)
+    r1 = problem.weighted_residual(y_after, nt)
+    s0, s1 = np.sum(r0 ** 2, axis=1), np.sum(r1 ** 2, axis=1)
+    b, a = np.sqrt(s0 / n), np.sqrt(s1 / n)
+    out = []
+    for i, c in enumerate(problem.channels):
+        if a[i] > b[i] * (1.0 + WORSE_REL) and a[i] - b[i] > WORSE_SIGMA:
+            n_eff = effective_samples(r1[i][problem._valid[i, nt:]][None, :])
+            if holdout_p_value(float(s1[i]), float(s0[i]), 1, n_eff) < WORSE_ALPHA:
+                out.append(c)
+    return out
 
 
 def noise_free(spec: dict) -> dict:
@@ -142,6 +170,7 @@ class Hypothesis:
     round: int = 1
     n_eff_holdout: float = 0.0          # effective held-out samples of the residual after
     holm_pass: bool = True              # survives the round's Holm correction (mismatch_testing)
+    worse: list[str] = field(default_factory=list)   # channels measurably worse on held-out data
 
     @property
     def p_value(self) -> float:
@@ -177,7 +206,7 @@ class Hypothesis:
                 "holdout_improvement_pct": self.holdout_improvement_pct,
                 "train_improvement_pct": self.train_improvement_pct,
                 "delta_bic": self.delta_bic, "screening_err": self.err_screen,
-                "p_value": self.p_value, "holm_pass": self.holm_pass,
+                "p_value": self.p_value, "holm_pass": self.holm_pass, "worse_channels": list(self.worse),
                 "plausible": self.plausible, "reason": self.reason or "",
                 "indistinguishable_from": list(self.indistinguishable_from), "round": self.round}
 
@@ -384,5 +413,5 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
                       sse_train_before=float(np.sum(r0t ** 2)), sse_train_after=float(np.sum(r1t ** 2)),
                       sse_holdout_before=float(np.sum(r0h ** 2)), sse_holdout_after=float(np.sum(r1h ** 2)),
                       delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v),
-                      n_eff_holdout=effective_samples(r1h),
+                      n_eff_holdout=effective_samples(r1h), worse=worse_channels(problem, y0_full, y1),
                       change=problem.weighted(y1[:, :nt:problem.stride] - y0_full[:, :nt:problem.stride]).ravel())
