@@ -1,0 +1,87 @@
+"""Nuisances before the search and the rules after it, on the mini_mill twin.
+
+- A common clock offset of the measured channels is estimated and removed, and the answer is
+  ``none`` (it was ``unnamed`` with rate terms); a lag of one sensor is not taken for one.
+- A channel is "worse" only when its held-out RMSE rises measurably and significantly.
+- Adopted effects are refitted together and an extra that does not pay for itself on
+  held-out data is dropped.
+"""
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+
+from thermal_comp_common.recording_csv import Recording, column_kind
+from thermal_eval.diagnose.concealed import HiddenEffect as H, concealed_recording, find_candidate, operating_programme
+from thermal_twin.diagnose import clock, joint
+from thermal_twin.diagnose.diagnosis import diagnose, shared_channels
+from thermal_twin.diagnose.fit import FitProblem, fit_candidate, worse_channels
+from thermal_twin.machine.schema import load_machine
+
+SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
+
+
+def _shifted(rec: Recording, shift_s: float) -> Recording:
+    """measured(t) = true(t + shift_s), as a recorder on another clock writes it."""
+    t = rec.time_s
+    cols = {k: (np.interp(t + shift_s, t, v) if column_kind(k) in ("sensor", "error") else v)
+            for k, v in rec.columns.items()}
+    return Recording(t, cols, source="shifted")
+
+
+def _problem(rec: Recording) -> tuple[FitProblem, np.ndarray]:
+    m = load_machine(SPEC)
+    p = FitProblem(rec, shared_channels(m, rec), int(round(len(rec) * 2 / 3)))
+    return p, p.outputs(SPEC)
+
+
+def test_a_common_clock_offset_is_estimated_and_removed_before_the_search():
+    rec, _ = concealed_recording(SPEC, (), hours=48.0, step_s=300.0, seed=2)
+    shifted = _shifted(rec, 450.0)
+    p, y = _problem(shifted)
+    est = clock.estimate(shifted.time_s, p._meas, p._valid, y, p.n_train)
+    assert est.applied and abs(est.shift_s - 450.0) < 75.0, est
+    rep = diagnose(SPEC, shifted).report
+    assert rep["clock_offset"]["applied"] and rep["answer"] == "none", (rep["answer"], rep["unnamed"])
+    # without the step the same recording is not answered none: the offset is what it removes
+    bare = diagnose(SPEC, shifted, clock_offset=False).report
+    assert bare["answer"] != "none" or bare["unnamed"], bare["answer"]
+
+
+def test_a_lag_of_one_sensor_is_not_taken_for_a_clock_offset():
+    rec, _ = concealed_recording(SPEC, [H("time_lag", "table", None, (1800.0,))], hours=48.0, step_s=300.0,
+                                 seed=1)
+    p, y = _problem(rec)
+    est = clock.estimate(rec.time_s, p._meas, p._valid, y, p.n_train)
+    assert not est.applied and est.shift_s == 0.0, est
+
+
+def test_worse_means_measurably_and_significantly_worse():
+    rng = np.random.default_rng(0)
+    t = np.arange(600) * 300.0
+    truth = 20.0 + np.sin(t / 20000.0)
+    cols = {"spindle_c": truth + 0.02 * rng.standard_normal(t.size),
+            "head_c": truth + 0.02 * rng.standard_normal(t.size)}
+    p = FitProblem(Recording(t, cols), ["spindle_c", "head_c"], 400)
+    y0 = np.stack([truth, truth])
+    slightly = y0 + np.array([[0.002], [0.0]])          # a tenth of the noise: not measurable
+    stepped = y0 + np.array([[0.0], [0.03]])           # 1.5 noise sigmas on head_c
+    assert worse_channels(p, y0, slightly) == []
+    assert worse_channels(p, y0, stepped) == ["head_c"]
+    assert worse_channels(p, stepped, y0) == []          # better is never worse
+
+
+def test_an_extra_adoption_that_does_not_pay_for_itself_is_dropped():
+    hidden = [H("heat_source", "table", "spindle_rpm", (40.0, 1.0))]
+    rec, _ = concealed_recording(SPEC, hidden, hours=48.0, step_s=300.0, seed=1)
+    p, y0 = _problem(rec)
+    tl = operating_programme(SPEC, 48.0, 300.0, 1)
+    true_c = find_candidate(SPEC, tl, "heat_source:table:spindle_rpm")
+    h1 = fit_candidate(p, SPEC, true_c, y0)
+    extra_c = find_candidate(SPEC, tl, "sensor_bias:column:-")
+    h2 = fit_candidate(p, h1.spec, extra_c, p.outputs(h1.spec))
+    kept, dropped = joint.prune(p, SPEC, y0, [h1, h2], 5.0)
+    assert [h.candidate.key for h in kept] == ["heat_source:table:spindle_rpm"], dropped
+    assert dropped[0]["effect"] == "sensor_bias:column:-" and dropped[0]["holdout_gain_pct"] < 5.0
+    assert abs(kept[0].values[0] - 40.0) < 6.0
