@@ -62,6 +62,10 @@ class DemoConfig:
     prior: str | None = None
     #: at most this many simulated s per wall s (machine_sim's lock-step ceiling); 0 = as fast as possible
     real_time_factor: float = 0.0
+    #: the plant from a machine YAML file of the type (replaces ``unit``); None = ``unit``
+    plant: str | None = None
+    #: the online learner in the graph: learn from the recording every this many simulated hours; 0 = none
+    learn_every_h: float = 0.0
 
 
 def scenario_hours(machine: str, scenario: str, hours: float | None) -> float:
@@ -70,14 +74,18 @@ def scenario_hours(machine: str, scenario: str, hours: float | None) -> float:
 
 
 def plant_machine(cfg: DemoConfig, out: pathlib.Path) -> str:
-    """The machine the twin simulates: the preset, or unit ``cfg.unit`` of it written to ``out``."""
+    """The machine the twin simulates: ``cfg.plant``, the preset, or unit ``cfg.unit`` of it written to ``out``."""
+    if cfg.plant:
+        return str(pathlib.Path(cfg.plant).resolve())
     if cfg.unit is None:
         return cfg.machine
     return str(write_instance(out / f"machine_unit{cfg.unit}.yaml", cfg.machine, cfg.unit))
 
 
 def plant_label(cfg: DemoConfig) -> str:
-    """Which machine the demo ran: ``nmv5000 unit #1`` or ``nmv5000 (nominal)``."""
+    """Which machine the demo ran: ``nmv5000 unit #1``, ``nmv5000 (nominal)`` or the plant file's name."""
+    if cfg.plant:
+        return f"{cfg.machine} plant {pathlib.Path(cfg.plant).name}"
     return instance_label(cfg.machine, cfg.unit) if cfg.unit is not None else f"{cfg.machine} (nominal)"
 
 
@@ -107,6 +115,27 @@ def _bridge_parameters(cfg: DemoConfig, out: pathlib.Path, endpoint: str | None)
     if endpoint:
         bridge["endpoint"] = endpoint
     return bridge
+
+
+AUDIT = "learn_audit.jsonl"
+LEARN_DIR = "learn"
+#: the demo's lock-step ceiling with a learner when none is given (simulated s per wall s): the
+#: graph otherwise runs 15000-20000 x real time and a learning of 10-40 s wall would span 50-200
+#: simulated hours; at 1200 x it spans a few hours, as minutes of learning do in a real cell
+LEARNING_REAL_TIME_FACTOR = 1200.0
+#: wall-clock limit of one learn subprocess in the demo
+LEARN_TIMEOUT_S = 600.0
+
+
+def learner_node(cfg: DemoConfig, out: pathlib.Path) -> dict[str, Any]:
+    """The learner node of the demo cell: learns from the recorder's bag on the type's twin. It
+    reaches ``thermal-comp learn`` (package thermal_eval, above this one) only as a command."""
+    params = {"recording": str(out / "bag"), "twin": cfg.machine, "work_dir": str(out / LEARN_DIR),
+              "learn_every_h": float(cfg.learn_every_h), "learn_timeout_s": LEARN_TIMEOUT_S,
+              "audit_path": str(out / AUDIT)}
+    if cfg.prior:
+        params["prior_path"] = str(pathlib.Path(cfg.prior).resolve())
+    return {"name": "learner", "module": "talc_model.learner_node", "parameters": params}
 
 
 def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view: bool) -> dict:
@@ -140,6 +169,9 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
                         "expect_from_start": ["temperatures", "errors/predicted", "offsets",
                                               "errors/ground_truth"]}},
     ]
+    if cfg.learn_every_h > 0:
+        nodes.append(learner_node(cfg, out))
+        next(n for n in nodes if n["name"] == "model")["parameters"]["audit_path"] = str(out / AUDIT)
     if live_view:
         nodes.append({"name": "viewer", "module": "thermal_comp.view.rerun_view_node", "parameters": {}})
     cell = {"cell": "demo", "domain_id": domain_id, "use_sim_time": True, "nodes": nodes}

@@ -44,6 +44,13 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--unit", type=_unit, default=1,
                     help="the plant: unit N of the machine type (its parameters perturbed within the "
                          "tolerances of thermal_twin.machine.instance, seed N) or 'nominal' (default 1)")
+    ap.add_argument("--plant", metavar="FILE",
+                    help="the plant from a machine YAML file of the --machine type (e.g. a unit that differs "
+                         "structurally: config/plants/); replaces --unit")
+    ap.add_argument("--learn-every-h", type=_positive_or_zero, default=0.0, metavar="H",
+                    help="run the online learner in the graph: `thermal-comp learn` on the cell's recording "
+                         "every H simulated hours, its prior adopted only if learn's held-out test says so "
+                         "(docs/learn.md, \"Online learning\"); 0 = no learner (default)")
     prior = ap.add_mutually_exclusive_group()
     prior.add_argument("--prior", nargs="?", const=BUILD_PRIOR, default=DEFAULT_PRIOR, metavar="PRIOR",
                        help="start the model (TALC on nmv5000, AGP on swiss-lathe) from a prior of the machine "
@@ -78,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = DemoConfig(machine=a.machine, scenario=a.scenario, hours=a.hours, seed=a.seed, step_s=a.step_s,
                      out_dir=pathlib.Path(a.out), view=a.view, cnc=a.cnc, progress=not a.no_progress,
                      wall_timeout_s=a.wall_timeout, unit=a.unit, prior=a.prior,
-                     real_time_factor=a.real_time_factor)
+                     real_time_factor=a.real_time_factor, plant=a.plant, learn_every_h=a.learn_every_h)
     if a.compare_no_prior and a.prior is None:
         print("thermal-comp demo: --compare-no-prior compares against the prior; it cannot go with --no-prior",
               file=sys.stderr)

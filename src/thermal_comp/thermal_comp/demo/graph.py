@@ -23,7 +23,7 @@ import psutil
 
 from cnc_bridge.update_profile import read_profile
 from thermal_comp.cell.config import parse_cell
-from thermal_comp.demo.cell import MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
+from thermal_comp.demo.cell import AUDIT, LEARN_DIR, MACHINES, DemoConfig, DemoError, build_cell, scenario_hours
 from thermal_comp.demo.monitor import DemoMonitor
 from thermal_comp.demo.graph_profile import ack_breakdown, instant_events, latency_breakdown, stage_breakdown
 from thermal_comp.cell.cell_lock import CellLockError
@@ -105,10 +105,11 @@ def _usage_tree(pid: int, children: dict[int, list[int]] | None = None) -> tuple
 def _fresh_out_dir(cfg: DemoConfig) -> pathlib.Path:
     """The output folder without the files of a previous run."""
     out = cfg.out_dir.resolve()
-    if (out / "bag").exists():
-        shutil.rmtree(out / "bag")
+    for folder in ("bag", LEARN_DIR):
+        if (out / folder).exists():
+            shutil.rmtree(out / folder)
     for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl", BRIDGE_PROFILE,
-                  PUBLICATION_TIMES):
+                  PUBLICATION_TIMES, AUDIT):
         (out / stale).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     return out

@@ -11,11 +11,14 @@ import shutil
 import sys
 from typing import Any
 
-from thermal_comp.demo.cell import BUILD_PRIOR, DEFAULT_PRIOR, MACHINES, DemoConfig, DemoError
+from thermal_comp.demo.cell import (BUILD_PRIOR, DEFAULT_PRIOR, LEARNING_REAL_TIME_FACTOR, MACHINES, DemoConfig,
+                                    DemoError)
 from thermal_comp.demo.graph import run_graph
+from thermal_comp.demo.learning import learning_summary, print_learning
 from thermal_comp.demo.plot import plot, write_rrd
 from thermal_comp.demo.series import read_series
-from thermal_comp.demo.summary import print_prior_gain, print_table, summarise
+from thermal_comp.demo.summary import compensation_in_effect, print_prior_gain, print_table, summarise
+from thermal_twin.machine.schema import MachineSpecError, load_machine
 from thermal_comp.prior.build import cached_prior, default_config, training_scenarios
 from thermal_comp.prior.programmes import TRAINING_SCENARIOS
 
@@ -27,6 +30,12 @@ def run_demo(cfg: DemoConfig, compare_no_prior: bool = False) -> dict[str, Any]:
     if cfg.machine not in MACHINES:
         raise DemoError(f"--machine: {cfg.machine!r} is not one of {sorted(MACHINES)}")
     cfg.scenario = cfg.scenario or MACHINES[cfg.machine]["scenario"]
+    check_plant(cfg)
+    if cfg.learn_every_h > 0 and not cfg.real_time_factor:
+        cfg.real_time_factor = LEARNING_REAL_TIME_FACTOR
+        print(f"online learning every {cfg.learn_every_h:g} h: the graph runs at most {cfg.real_time_factor:g} x "
+              "real time (--real-time-factor), so that a learning of seconds of wall time spans hours, not days, "
+              "of simulated time", flush=True)
     note = resolve_prior(cfg)
     summary = _run_and_summarise(cfg)
     if note:
@@ -46,10 +55,26 @@ def _run_and_summarise(cfg: DemoConfig) -> dict[str, Any]:
     out = cfg.out_dir.resolve()
     series = read_series(out / "bag")
     summary = summarise(series, cfg, record)
+    if cfg.learn_every_h > 0:
+        summary["learning"] = learning_summary(series, compensation_in_effect(series), summary["q_prod_pct"],
+                                               out, cfg.seed)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     plot(series, summary, out / "compensation.png")
     write_rrd(out / "bag", out / "demo.rrd")
     return summary
+
+
+def check_plant(cfg: DemoConfig) -> None:
+    """A plant file must be a valid machine of the demo's type (its scenarios are keyed by it)."""
+    if not cfg.plant:
+        return
+    try:
+        plant = load_machine(cfg.plant)
+    except (MachineSpecError, OSError, ValueError) as exc:
+        raise DemoError(f"--plant {cfg.plant}: {exc}") from None
+    if plant.name != cfg.machine:
+        raise DemoError(f"--plant {cfg.plant}: a machine of type {plant.name!r}, the demo runs {cfg.machine!r} "
+                        "(--machine)")
 
 
 def resolve_prior(cfg: DemoConfig) -> str | None:
@@ -109,6 +134,7 @@ def run(cfg: DemoConfig, compare_no_prior: bool) -> int:
         print(f"thermal-comp demo: {exc}", file=sys.stderr)
         return 1
     print_table(summary)
+    print_learning(summary)
     if summary.get("no_prior"):
         print_table(summary["no_prior"])
         print_prior_gain(summary, summary["no_prior"])
