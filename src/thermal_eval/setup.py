@@ -48,6 +48,7 @@ setup(
             "scale = thermal_eval.bench.scale:run",
             "sensors = thermal_eval.bench.sensors:run",
             "twin = thermal_eval.bench.twin:run",
+            "twin-init = thermal_eval.twin_init.bench:run",
             "view = thermal_eval.bench.view:run",
             "hold-fallback = thermal_eval.model_bench.hold_fallback:run",
             "history-prior = thermal_eval.model_bench.history_prior:run",

@@ -32,6 +32,7 @@ setup(
             "calibrate = thermal_twin.calibrate.cli:main",
             "diagnose = thermal_twin.diagnose.cli:main",
             "sim = thermal_twin.sim.cli:main",
+            "twin = thermal_twin.identify.cli:main",
         ],
         "console_scripts": [
             "machine_sim = thermal_twin.machine_sim_node:main",
