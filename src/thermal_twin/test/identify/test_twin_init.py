@@ -1,0 +1,122 @@
+"""`thermal-comp twin init`: a description is validated with errors naming field and value; a
+twin identified from a recording of a machine with an unsensed slow body gets a hidden body,
+beats the training mean and a static regression on held-out data, and is written in the
+project's machine format (load_machine reads it back)."""
+from __future__ import annotations
+
+import copy
+import pathlib
+
+import numpy as np
+import pytest
+
+from thermal_comp_common.recording_csv import Recording, write_recording_csv
+from thermal_twin.identify import DescriptionError, identify, init_twin, parse_description
+from thermal_twin.identify.cli import main
+from thermal_twin.identify.structure import starting_spec
+from thermal_twin.machine.schema import load_machine
+from thermal_twin.sim.inputs_timeline import InputsTimeline
+from thermal_twin.sim.simulate import simulate
+
+DESCRIPTION = {
+    "name": "rig", "hall": "hall",
+    "sensors": {"hall": None, "s_motor": "motor", "s_head": "head"},
+    "inputs": {"speed": {"heats": ["motor"]}},
+    "displacements": {"z_um": "z"},
+    "hidden": 1,
+}
+
+# the truth: the displacement comes mostly from a slow frame no sensor sits on
+TRUTH = {
+    "schema_version": 1, "name": "truth", "initial_state": "steady",
+    "inputs": {"speed": {"kind": "machine", "default": 0, "min": 0, "max": 6000},
+               "ambient_degc": {"kind": "environment", "default": 20.0, "from_sensor": "hall"}},
+    "boundaries": {"ambient": {"temperature": "ambient_degc"}},
+    "nodes": {"motor": {"capacity": 4.0e4}, "head": {"capacity": 2.0e5}, "frame": {"capacity": 2.0e6}},
+    "links": {"m_h": {"between": ["motor", "head"], "conductance": 12.0},
+              "m_a": {"between": ["motor", "ambient"], "conductance": 4.0},
+              "h_a": {"between": ["head", "ambient"], "conductance": 8.0},
+              "h_f": {"between": ["head", "frame"], "conductance": 20.0},
+              "f_a": {"between": ["frame", "ambient"], "conductance": 25.0}},
+    "sources": {"losses": {"node": "motor", "input": "speed", "coefficient": 0.05, "exponent": 1.0}},
+    "sensors": {"hall": {"of": "ambient"}, "s_motor": {"of": "motor", "noise_std": 0.02},
+                "s_head": {"of": "head", "noise_std": 0.02}},
+    "errors": {"z_um": {"unit": "um", "terms": {"head": 1.5, "frame": 6.0}}},
+}
+
+
+def _recording(hours: float = 36.0, seed: int = 1) -> Recording:
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, hours * 3600.0 + 1, 120.0)
+    blocks = rng.uniform(0, 6000, int(hours) + 1)
+    speed = blocks[(t // 3600).astype(int)] * (rng.random(int(hours) + 1) > 0.3)[(t // 3600).astype(int)]
+    hall = 20.0 + 2.0 * np.sin(2 * np.pi * t / 86400.0) + 0.5 * np.sin(2 * np.pi * t / 23000.0)
+    res = simulate(TRUTH, InputsTimeline(t, {"speed": speed, "ambient_degc": hall}), seed=seed)
+    rec = res.to_recording()
+    cols = {k: v for k, v in rec.columns.items() if k != "ambient_degc"}
+    cols["z_um"] = cols["z_um"] + rng.normal(0.0, 0.1, t.size)
+    return Recording(rec.time_s, cols, source="truth")
+
+
+@pytest.fixture(scope="module")
+def rec() -> Recording:
+    return _recording()
+
+
+@pytest.mark.parametrize("change, names", [
+    (lambda d: d.pop("hall"), "hall: missing"),
+    (lambda d: d.update(hall="nowhere"), "'nowhere'"),
+    (lambda d: d["sensors"].update(s_head={"body": "head", "minus": "chiller"}), "sensors.s_head.minus: 'chiller'"),
+    (lambda d: d["inputs"]["speed"].update(heats=["spindle"]), "inputs.speed.heats[0]: 'spindle'"),
+    (lambda d: d["inputs"]["speed"].update(exponent=9), "inputs.speed.exponent: 9"),
+    (lambda d: d["displacements"].update(z_um="up"), "displacements.z_um.direction: 'up'"),
+    (lambda d: d.update(hidden=7), "hidden: 7"),
+    (lambda d: d.update(contacts=[["motor", "motor"]]), "contacts[0]"),
+    (lambda d: d.update(colour="red"), "colour: 'red'"),
+])
+def test_a_bad_description_is_refused_naming_field_and_value(change, names):
+    d = copy.deepcopy(DESCRIPTION)
+    change(d)
+    with pytest.raises(DescriptionError, match=names.replace("[", r"\[").replace("]", r"\]")):
+        parse_description(d)
+
+
+def test_the_starting_structure_is_a_valid_machine_with_sensor_bodies_and_hidden_ones(rec):
+    spec = starting_spec(parse_description(DESCRIPTION), rec, hidden=1)
+    m = load_machine(spec)
+    assert m.node_names == ["motor", "head", "hidden_1"]
+    assert m.inputs["ambient_degc"].from_sensor == "hall"
+    assert {n for n, _ in m.errors["z_um"].terms} == {"motor", "head", "hidden_1"}
+    missing = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "s_head_c"})
+    with pytest.raises(DescriptionError, match="sensors.s_head: column 's_head_c'"):
+        starting_spec(parse_description(DESCRIPTION), missing)
+
+
+def test_an_unsensed_slow_body_becomes_a_hidden_node_that_beats_the_baselines(rec, tmp_path):
+    ident = identify(parse_description(DESCRIPTION), rec, holdout=0.25, max_nfev=15)
+    assert [c.hidden for c in ident.candidates] == [0, 1]
+    assert ident.chosen.hidden == 1, ident.notes
+    rep = init_twin(parse_description(DESCRIPTION), rec, tmp_path)
+    row = rep["held_out_rmse"]["z_um"]
+    assert row["twin"] < 0.5 * row["static regression"], row
+    assert row["twin"] < 0.5 * row["training mean"], row
+    m = load_machine(str(tmp_path / "twin.yaml"))
+    assert "hidden_1" in m.node_names and (tmp_path / "report.md").read_text().count("z_um") == 1
+
+
+def test_cli_writes_the_twin_and_refuses_bad_input_in_one_line(rec, tmp_path, capsys):
+    csv = tmp_path / "rec.csv"
+    write_recording_csv(csv, rec.time_s, rec.columns)
+    desc = tmp_path / "d.yaml"
+    desc.write_text("name: rig\nhall: hall\nsensors: {hall: null, s_motor: motor, s_head: head}\n"
+                    "inputs: {speed: {heats: [motor]}}\ndisplacements: {z_um: z}\nhidden: 0\n")
+    out = tmp_path / "out"
+    assert main(["init", "--recording", str(csv), "--description", str(desc), "--out", str(out),
+                 "--hours", "24", "--quiet", "--max-nfev", "8"]) == 0
+    assert load_machine(str(out / "twin.yaml")).name == "rig"
+    assert main(["init", "--recording", str(csv), "--description", str(desc), "--out", str(out), "--quiet"]) == 2
+    assert "--out" in capsys.readouterr().err
+    desc.write_text(desc.read_text().replace("heats: [motor]", "heats: [spindle]"))
+    assert main(["init", "--recording", str(csv), "--description", str(desc), "--out", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "inputs.speed.heats[0]: 'spindle'" in err[0]

@@ -1,0 +1,176 @@
+"""Identify a lumped twin from a description and a recording (``thermal-comp twin init``).
+
+The structure comes from :mod:`structure`; its conductances, capacities (all but the first
+body's, which sets the scale: temperatures depend on ratios), source coefficients, switched
+convection, thermo-elastic gains, sensor biases and constant boundary temperatures are fitted
+with ``thermal-comp calibrate``'s machinery (:func:`thermal_twin.calibrate.fit.calibrate`, plain
+bounded least squares on the simulated twin, no prior: a twin made from a description has no
+nominal values to be pulled toward) within wide ranges (a factor 30, gains within 30 x the
+channel's span per K). Two passes: the second weights every channel by the residual the first
+left on it (maximum likelihood with one unknown variance per channel); temperature channels
+are further down-weighted so that all of them together weigh as much as the sparse probes.
+
+Hidden bodies are added one at a time while the held-out fit (the last ``holdout`` of the
+recording, never fitted) improves by more than ``HIDDEN_MARGIN``; the chosen structure is then
+refitted on the whole recording (but its last 5 %). No rclpy.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from thermal_comp_common.metrics import rmse
+from thermal_comp_common.probe_and_hold import table_5_4_noise
+from thermal_comp_common.recording_csv import Recording
+
+from thermal_twin.calibrate.fit import CalibrationResult, calibrate
+from thermal_twin.diagnose.fit import channel_sigma
+from thermal_twin.identify.description import Description
+from thermal_twin.identify.structure import starting_spec
+
+WIDE = 30.0                      # every positive parameter within a factor 30 of its start
+HIDDEN_MARGIN = 0.03             # a hidden body must lower the held-out score by 3 %
+SPARSE_FRACTION = 0.5            # a channel with fewer finite rows than this is sparse (probes)
+PRIOR = True
+FINAL_HOLDOUT = 0.05             # the final refit keeps only this much out (calibrate's minimum)
+
+
+@dataclass
+class Candidate:
+    hidden: int
+    spec: dict
+    calibration: CalibrationResult
+    holdout: dict[str, float]            # channel -> held-out RMSE
+    score: float                         # mean held-out RMSE / training spread over the channels
+
+
+@dataclass
+class Identification:
+    description: Description
+    spec: dict                           # the identified twin (refitted on the whole recording)
+    chosen: Candidate
+    candidates: list[Candidate]
+    channels: list[str]
+    n_train: int
+    notes: list[str] = field(default_factory=list)
+
+
+def error_offsets(d: Description, rec: Recording) -> dict[str, float]:
+    """Each continuous displacement channel's first value within the first hour (the twin's
+    errors are offset + deltas from the start); 0 for sparse probes (a cell's probes are errors
+    since the start: one noisy probe is no offset) and when the first hour has none."""
+    t = rec.time_s
+    out = {}
+    for ch in d.displacements:
+        x = np.asarray(rec.columns[ch], float)
+        first = np.flatnonzero(np.isfinite(x) & (t - t[0] <= 3600.0))
+        sparse = np.isfinite(x).mean() < SPARSE_FRACTION
+        out[ch] = float(x[first[0]]) if first.size and not sparse else 0.0
+    return out
+
+
+def channel_noise(d: Description, rec: Recording) -> dict[str, float]:
+    """Measurement noise per displacement channel: sparse probes Table 5.4 (TALC thesis), a
+    continuous channel from its second differences."""
+    out = {}
+    table = table_5_4_noise(list(d.displacements))
+    for ch in d.displacements:
+        x = np.asarray(rec.columns[ch], float)
+        sparse = np.isfinite(x).mean() < SPARSE_FRACTION
+        out[ch] = table[ch] if sparse else max(channel_sigma(x), 0.05)
+    return out
+
+
+def section(d: Description, spec: dict, rec: Recording) -> dict:
+    """What the identification may move, and how far (module docstring)."""
+    first = d.bodies[0]
+    # a sensor that feeds a boundary (the hall, a coolant return) is the boundary: no bias of its own
+    params: dict = {f"nodes.{first}.capacity": "fixed"}
+    params |= {f"sensors.{sid}.bias": "fixed" for sid, p in d.sensors.items() if not p.body}
+    for ch, e in spec["errors"].items():
+        x = np.asarray(rec.columns[ch], float)
+        x = x[np.isfinite(x)]
+        span = float(np.ptp(x)) if x.size else 1.0
+        for node in e["terms"]:
+            params[f"errors.{ch}.terms.{node}"] = {"bounds": [-WIDE * max(span, 0.1), WIDE * max(span, 0.1)]}
+    kinds = {k: {"factor": WIDE} for k in ("capacity", "conductance", "convection", "source")}
+    kinds |= {"bias": {"absolute": 2.0}, "boundary": {"absolute": 5.0}}
+    return {"kinds": kinds, "parameters": params}
+
+
+def _spread(rec: Recording, c: str, n_train: int) -> float:
+    x = np.asarray(rec.columns[c], float)[:n_train]
+    x = x[np.isfinite(x)]
+    return max(float(np.std(x)) if x.size > 1 else 1.0, 1e-3)
+
+
+def _sigmas(cal: CalibrationResult | None, d: Description, rec: Recording, noise: dict[str, float]) -> dict:
+    """Channel weights: first pass the measurement noise (temperatures at least 0.1 K), second
+    pass the residual the first left (module docstring)."""
+    temps = [c for c in (cal.channels if cal else []) if c not in d.displacements]
+    if cal is None:
+        return dict(noise)
+    k = cal.n_train
+    out = {c: max(rmse(cal.measured[c][:k], cal.after[c][:k]), noise.get(c, 0.0), 1e-3) for c in cal.channels}
+    n_err = sum(int(np.isfinite(cal.measured[c][:k]).sum()) for c in d.displacements if c in cal.measured)
+    n_tmp = sum(int(np.isfinite(cal.measured[c][:k]).sum()) for c in temps)
+    if n_err and n_tmp > n_err:
+        balance = math.sqrt(n_tmp / n_err)
+        for c in temps:
+            out[c] *= balance
+    return out
+
+
+def scored_channels(d: Description, channels: list[str]) -> list[str]:
+    """The channels a structure is judged on: not the sensors that feed a boundary (the hall)."""
+    feeding = {f"{sid}_c" for sid, p in d.sensors.items() if not p.body}
+    return [c for c in channels if c not in feeding]
+
+
+def fit_structure(d: Description, rec: Recording, hidden: int, holdout: float, max_nfev: int,
+                  progress: Callable[[str], None], start: dict | None = None) -> Candidate:
+    """Fit the structure with ``hidden`` hidden bodies on the first ``1 - holdout`` of ``rec``."""
+    spec = starting_spec(d, rec, hidden)
+    for ch, off in error_offsets(d, rec).items():
+        spec["errors"][ch]["offset"] = off
+    sec = section(d, spec, rec)
+    noise = channel_noise(d, rec)
+    cal = None
+    values = dict(start or {})
+    for k in range(2):
+        cal = calibrate(spec, rec, holdout_fraction=holdout, section=sec, max_nfev=max_nfev, prior=PRIOR,
+                        start=values, sigma=_sigmas(cal, d, rec, noise))
+        values = {e.param.name: e.value for e in cal.estimates}
+        progress(f"  {hidden} hidden: pass {k + 1} cost {cal.cost_before:.4g} -> {cal.cost_after:.4g} "
+                 f"({cal.n_evals} twin runs, {cal.wall_s:.1f} s)")
+    table = cal.channel_table()
+    ho = {c: table[c]["holdout_rmse_after"] for c in scored_channels(d, cal.channels)}
+    norm = [v / _spread(rec, c, cal.n_train) for c, v in ho.items() if math.isfinite(v)]
+    score = float(np.mean(norm)) if norm else math.inf
+    return Candidate(hidden, cal.spec, cal, ho, score)
+
+
+def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: int = 20,
+             progress: Callable[[str], None] = lambda m: None) -> Identification:
+    """Identify the twin (module docstring): choose the hidden bodies on held-out data, refit."""
+    cands = []
+    best = None
+    for hidden in range(d.hidden + 1):
+        progress(f"fitting the structure with {hidden} hidden bod{'y' if hidden == 1 else 'ies'}")
+        c = fit_structure(d, rec, hidden, holdout, max_nfev, progress)
+        cands.append(c)
+        progress(f"  held-out score {c.score:.4g}")
+        if best is None or c.score < best.score * (1.0 - HIDDEN_MARGIN):
+            best = c
+        else:
+            break
+    start = {e.param.name: e.value for e in best.calibration.estimates}
+    progress(f"refitting {best.hidden} hidden on the whole recording")
+    final = fit_structure(d, rec, best.hidden, FINAL_HOLDOUT, max_nfev, progress, start=start)
+    notes = [f"hidden bodies tried: {[c.hidden for c in cands]}, held-out scores "
+             f"{[round(c.score, 4) for c in cands]}; kept {best.hidden} (a hidden body must lower the score by "
+             f"{100 * HIDDEN_MARGIN:g} %)"]
+    return Identification(d, final.spec, best, cands, best.calibration.channels, best.calibration.n_train, notes)
