@@ -24,6 +24,7 @@ class LearnDecision:
     reason: str
     prior_path: str = ""
     config_path: str = ""
+    unit_twin: str = ""          # the learned twin the prior was built on
     figures: dict[str, Any] = field(default_factory=dict)
 
 
@@ -75,4 +76,6 @@ def read_decision(out: pathlib.Path) -> LearnDecision:
     for name, value in (("files.prior", prior), ("files.model_config", config)):
         if not isinstance(value, str) or not pathlib.Path(value).is_file():
             raise ReportError(f"report.json: adoption says adopt but field {name!r} is {value!r}, not a file")
-    return LearnDecision(True, reason, prior, config, figures)
+    twin = files.get("unit_twin")
+    return LearnDecision(True, reason, prior, config, twin if isinstance(twin, str) and pathlib.Path(twin).is_file()
+                         else "", figures)

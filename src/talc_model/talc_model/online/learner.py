@@ -1,5 +1,7 @@
 """The online learner's core (the learner node only wires it): on the schedule or on demand it
-snapshots the cell's bag and starts ``thermal-comp learn`` on it in a process of its own
+snapshots the cell's bag and starts ``thermal-comp learn`` on it in a process of its own, from
+the twin in use (the type's, after an adoption the adopted unit's, so learn's open-loop test is
+against the twin the running prior was built on)
 (talc_model.online.learn_job), polls it without ever waiting, and when it ends reads learn's own
 adoption decision (talc_model.online.learn_report). A prior learn adopted is offered to the model
 node (the ``AdoptPrior`` service), which checks, warms and swaps it (talc_model.online.prior_swap);
@@ -54,6 +56,7 @@ class Offer:
     report_path: str
     sha256: str
     figures: dict
+    unit_twin: str = ""
 
 
 class OnlineLearner:
@@ -69,6 +72,8 @@ class OnlineLearner:
         self.t_s = math.nan
         self.current_sha256 = prior_digest(cfg.prior_path) if cfg.prior_path else ""
         self.last = "idle"
+        #: the twin learn starts from and tests against open loop: the type's, then the adopted unit's
+        self.twin = cfg.twin
 
     @property
     def busy(self) -> bool:
@@ -111,7 +116,7 @@ class OnlineLearner:
         except (ValueError, OSError) as exc:
             self._audit("learn failed", f"snapshot of the recording: {exc}", work=str(work))
             return
-        argv = learn_argv(self.cfg.command, snap, self.cfg.twin, work / "out", self.cfg.train_fraction * hours)
+        argv = learn_argv(self.cfg.command, snap, self.twin, work / "out", self.cfg.train_fraction * hours)
         started = start_job(argv, work, self.cfg.timeout_s, now_s)
         if isinstance(started, JobEnd):
             self._audit("learn failed", started.reason, work=str(work))
@@ -137,7 +142,7 @@ class OnlineLearner:
             self._audit("not adopted", decision.reason, decision.figures, work=work, wall_s=round(end.wall_s, 1))
             return None
         self.offer = Offer(decision.prior_path, decision.config_path, str(out / "report.json"),
-                           prior_digest(decision.prior_path), decision.figures)
+                           prior_digest(decision.prior_path), decision.figures, decision.unit_twin)
         self.last = f"offering {decision.prior_path} to the model node"
         return self.offer
 
@@ -151,6 +156,7 @@ class OnlineLearner:
                     offer.figures, new_sha=new_sha256 or offer.sha256, report=offer.report_path)
         if accepted:
             self.current_sha256 = new_sha256 or offer.sha256
+            self.twin = offer.unit_twin or self.twin
 
     def stop(self) -> None:
         """Kill a running learning (the node shuts down)."""

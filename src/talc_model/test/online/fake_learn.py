@@ -35,6 +35,7 @@ report = {"twin": a.twin, "train_h": a.train_h, "recording_h": a.train_h / 0.8, 
                        "validation_rmse": rmse},
           "files": {"unit_twin": str(out / "unit_twin.yaml")}}
 if a.mode == "adopt":
+    (out / "unit_twin.yaml").write_text(f"# learned from {a.twin}\n")
     report["files"] |= {"prior": str(shutil.copy(a.prior, out / "prior.json")),
                         "model_config": str(shutil.copy(a.config, out / "model_config.yaml"))}
 (out / "report.json").write_text("{not json" if a.mode == "bad-report" else json.dumps(report))

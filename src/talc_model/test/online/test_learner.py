@@ -49,6 +49,12 @@ def test_an_adopted_prior_is_offered_and_the_answer_audited(tmp_path, priors):
         ("adoption sent", "adopt", old, offer.sha256)
     assert line["figures"]["train_h"] == pytest.approx(0.8 * 24) and line["model_time_s"] == 24 * H
     assert learner.current_sha256 == offer.sha256 and not learner.busy
+    # the next learning starts from, and is tested open loop against, the adopted unit's twin
+    assert learner.twin == offer.unit_twin == str(tmp_path / "learn" / "learn_001_24.0h" / "out" / "unit_twin.yaml")
+    learner.observe(48 * H)
+    learner.poll(20.0)
+    assert learner.job.argv[learner.job.argv.index("--twin") + 1] == offer.unit_twin
+    learner.job.proc.wait(timeout=60)
 
 
 def test_learn_saying_no_keeps_the_model_and_is_audited(tmp_path, priors):
