@@ -134,9 +134,22 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
             "twin_simulated_h_per_s": report["twin_simulated_h_per_s"]}
 
 
+def parse(extra: list[str]) -> argparse.Namespace:
+    """The suite's own options (after the bench's): which seeds and kinds of unit to run."""
+    ap = argparse.ArgumentParser(prog="thermal-comp bench learn")
+    ap.add_argument("--seeds", type=int, nargs="+", default=None, help=f"unit seeds (default {list(SEEDS)})")
+    ap.add_argument("--kinds", nargs="+", choices=KINDS, default=None, help="kinds of unit (default all)")
+    a = ap.parse_args(extra)
+    if a.seeds and min(a.seeds) < 0:
+        ap.error(f"--seeds: {a.seeds} must be >= 0")
+    return a
+
+
 def run(args: argparse.Namespace | None = None) -> dict:
     quick = bool(getattr(args, "quick", False)) if args is not None else False
+    own = parse(list(getattr(args, "extra", None) or []))
     kinds, seeds = (QUICK["kinds"], QUICK["seeds"]) if quick else (KINDS, SEEDS)
+    kinds, seeds = tuple(own.kinds or kinds), tuple(own.seeds or seeds)
     hours, train_h = (QUICK["hours"], QUICK["train_h"]) if quick else (HOURS, TRAIN_H)
     root = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_learn_")) / "learn"
     figures: dict = {"learn.scenario": SCENARIO, "learn.hours": hours, "learn.train_h": train_h}

@@ -3,7 +3,9 @@ report of what changed, scored on probes the fit never saw.
 
 Steps: read the recording (temperatures, machine inputs, probing results + applied offsets;
 never the ground-truth topic), calibrate the twin on the probes of the fit window (unit_fit),
-write ``unit_twin.yaml``, decide on the validation probes whether it replaces the type's twin
+try words for what the calibration cannot say and keep those better on the validation probes
+(structure: a parameter beyond its tolerance, a boundary that follows the hall, an added
+source, a sensor bias and drift), write ``unit_twin.yaml``, decide on the validation probes whether it replaces the type's twin
 (adoption), build the model's prior on an adopted twin (its soft sensors are the unit's twin:
 ``type_model`` = the file), and score the priors, the twins open loop and the baselines on the
 held-out probes (probe_score). No rclpy.
@@ -30,6 +32,7 @@ from thermal_eval.learn.adoption import ADAPTIVE_MARGIN, Adoption, decide
 from thermal_eval.learn.probe_score import (hold_last, prequential_model, score_table, static_regression,
                                             training_mean)
 from thermal_eval.learn.probes import ProbeSet
+from thermal_eval.learn.structure import Structure, recalibrate, released_names, search, twin_outputs
 from thermal_eval.learn.unit_fit import UnitFit, learn_unit_twin
 
 UNIT_TWIN = "unit_twin.yaml"
@@ -37,31 +40,75 @@ UNIT_PRIOR = "prior.json"
 UNIT_CONFIG = "model_config.yaml"
 
 
-def _twin_at_probes(fit: UnitFit, probes: ProbeSet) -> tuple[dict, dict]:
-    """The twin's open-loop error (deltas from the start) at the probe instants, before and after."""
+def _twin_at_probes(fit: UnitFit, probes: ProbeSet, unit_spec: dict | None = None) -> tuple[dict, dict]:
+    """The twin's open-loop error (deltas from the start) at the probe instants, before and after
+    (after: of ``unit_spec`` when the structural stage gave one)."""
     cal = fit.calibration
     idx = np.searchsorted(cal.time_s, probes.time_s)
     before = {c: np.asarray(cal.before[c], float)[idx] for c in fit.components}
-    after = {c: np.asarray(cal.after[c], float)[idx] for c in fit.components}
+    after_all = cal.after if unit_spec is None else twin_outputs(unit_spec, fit.fit_rec)
+    after = {c: np.asarray(after_all[c], float)[idx] for c in fit.components}
     return before, after
 
 
-def moved_parameters(fit: UnitFit) -> list[dict[str, Any]]:
+def _at_bound(d: dict) -> bool:
+    lo, hi = d["bounds"]
+    span = hi - lo
+    return bool(span > 0 and min(abs(d["value"] - lo), abs(hi - d["value"])) < 0.01 * span)
+
+
+def moved_parameters(calibration) -> list[dict[str, Any]]:
     """Every fitted parameter, its start, value, change and whether it ended at its tolerance bound
     (evidence of physics beyond the builder's tolerance, not an answer)."""
     out = []
-    for e in fit.calibration.estimates:
+    for e in calibration.estimates:
         d = e.as_dict()
-        lo, hi = d["bounds"]
-        span = hi - lo
-        d["at_bound"] = bool(span > 0 and min(abs(d["value"] - lo), abs(hi - d["value"])) < 0.01 * span)
+        d["at_bound"] = _at_bound(d)
         out.append(d)
     return out
 
 
-def write_unit_twin(fit: UnitFit, out: pathlib.Path, source: str) -> pathlib.Path:
-    """The calibrated twin as a machine YAML (validated on the way back in)."""
-    spec = dict(fit.spec)
+def _strained(e, machine: Machine) -> bool:
+    """A parameter that may hide physics beyond the builder's tolerance: at its bound, moved by
+    more than half its tolerance, or the conductance of a link to a boundary (the hall, a
+    coolant: the convection coefficients scatter most)."""
+    p, d = e.param, e.as_dict()
+    if _at_bound(d) or abs(e.value - p.value0) > 0.5 * (p.hi - p.lo) / 2.0:
+        return True
+    link = machine.links.get(p.path[1]) if p.kind == "conductance" else None
+    return link is not None and (link.a in machine.boundaries or link.b in machine.boundaries)
+
+
+def _structure(fit: UnitFit, probes: ProbeSet, fit_until: float, train_until: float, max_nfev: int,
+               progress) -> tuple[Structure, dict | None, Any]:
+    """The structural stage (learn.structure) on the calibrated twin; (search, the unit's
+    description with its words or None, the calibration its parameters come from or None). The
+    final calibration with the words stands unless the validation probes find it worse than the
+    words fitted without it (then the first calibration, or none for words on the type's twin)."""
+    cal = fit.calibration
+    strained = [(e.param, e.value) for e in cal.estimates if _strained(e, fit.machine)]
+    rec = fit.fit_rec
+    upto = rec.slice(0, int(np.searchsorted(rec.time_s, train_until, side="right")))
+    noise = {c: probes.noise[c] for c in fit.components}
+    st = search(fit.machine, cal.spec, strained, upto, fit.components, noise, fit_until, progress)
+    if not st.words:
+        return st, None, None
+    spec, cal2 = recalibrate(fit.machine, st, cal, rec, fit.holdout, noise, max_nfev, released_names(strained),
+                             progress)
+    val = (upto.time_s > fit_until) & np.any([np.isfinite(upto.columns[c]) for c in fit.components], axis=0)
+    a, b = twin_outputs(st.spec, upto), twin_outputs(spec, upto)
+    check = decide({c: upto.columns[c][val] for c in fit.components}, noise, {c: a[c][val] for c in fit.components},
+                   {c: b[c][val] for c in fit.components}, np.ones(int(val.sum()), bool), margin=1.0 + 1e-9)
+    st.recalibration = check.reason
+    if check.adopt or not check.reason.startswith("worse"):
+        return st, spec, cal2
+    return st, st.spec, (cal if all(t.base == "calibrated" for t in st.words) else None)   # set back: not that calibration
+
+
+def write_unit_twin(fit: UnitFit, out: pathlib.Path, source: str, spec: dict | None = None) -> pathlib.Path:
+    """The calibrated twin (with its words when given ``spec``) as a machine YAML (validated on
+    the way back in)."""
+    spec = dict(fit.spec if spec is None else spec)
     spec["description"] = (f"{fit.machine.description} -- learned from {source} "
                            f"(probes up to {fit.train_until_s / 3600.0:.1f} h)").strip()
     path = out / UNIT_TWIN
@@ -106,11 +153,14 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
     fit_until, train_until = start + (train_h - validate_h) * 3600.0, start + train_h * 3600.0
     fit = learn_unit_twin(machine, rec, probes, fit_until, max_nfev=max_nfev, progress=progress)
     t_fit = time.perf_counter() - t0
+    st, unit_spec, final_cal = _structure(fit, probes, fit_until, train_until, max_nfev, progress)
+    final_cal = fit.calibration if not st.words else final_cal
+    t_struct = time.perf_counter() - t0 - t_fit
     out.mkdir(parents=True, exist_ok=True)
-    unit_path = write_unit_twin(fit, out, rec.source or "a recording")
+    unit_path = write_unit_twin(fit, out, rec.source or "a recording", unit_spec)
     sub = ProbeSet(probes.time_s, {c: probes.values[c] for c in fit.components},
                    {c: probes.noise[c] for c in fit.components}, probes.source)
-    before, after = _twin_at_probes(fit, sub)
+    before, after = _twin_at_probes(fit, sub, unit_spec)
     validation = (sub.time_s > fit_until) & (sub.time_s <= train_until)
     adoption = decide(sub.values, sub.noise, before, after, validation)
     predictors = {"hold last probe": hold_last(sub), "training mean": training_mean(sub, train_until),
@@ -133,10 +183,16 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
                          "held_out": int((sub.time_s > train_until).sum()),
                          "noise": {c: sub.noise[c] for c in fit.components}, "notes": probes.notes},
               "adoption": adoption.as_dict(),
-              "parameters": moved_parameters(fit), "fixed": fit.calibration.fixed,
+              "parameters": moved_parameters(final_cal) if final_cal else [],
+              "fixed": final_cal.fixed if final_cal else [],
+              "structure": {"words": [t.as_dict() for t in st.words], "tried": [t.as_dict() for t in st.tried],
+                            "first_calibration": moved_parameters(fit.calibration) if st.words else None,
+                            "recalibration": st.recalibration,
+                            "wall_s": round(st.wall_s, 1), "twin_runs": st.evals},
               "held_out_scores": score_table(sub, predictors, sub.time_s > train_until),
               "files": files,
-              "wall_s": {"calibration": round(t_fit, 1), "priors_and_scores": round(time.perf_counter() - t1, 1)},
+              "wall_s": {"calibration": round(t_fit, 1), "structure": round(t_struct, 1),
+                         "priors_and_scores": round(time.perf_counter() - t1, 1)},
               "twin_simulated_h_per_s": round(fit.calibration.simulated_h / max(fit.calibration.wall_s, 1e-9), 1)}
     (out / "report.json").write_text(json.dumps(_finite(report), indent=1, allow_nan=False) + "\n")
     return report

@@ -51,7 +51,16 @@ def markdown(rep: Mapping[str, Any]) -> str:
              f"the next {rep['validate_h']:g} h ({rep['probes']['validation']}), {rep['probes']['held_out']} held out. "
              f"Calibration {rep['wall_s']['calibration']} s, twin {rep['twin_simulated_h_per_s']} simulated h/s.", "",
              f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
-             "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
+             "## What was added", ""]
+    st = rep.get("structure") or {}
+    lines += [f"- {w['what']} (fit cost {w['fit_cost']:.3g} of the calibrated twin's; validation: "
+              f"{w['validation']['reason']})" for w in st.get("words", [])] or [
+        "Nothing: no word was better on the validation probes than the calibrated twin."]
+    rejected = sorted((t for t in st.get("tried", []) if not t["chosen"]), key=lambda t: t["fit_cost"])[:5]
+    if rejected:
+        lines += ["", f"Tried and not taken ({len(st['tried'])} fits in {st['wall_s']} s; the five that fitted best):", ""]
+        lines += [f"- {t['what']}: fit cost {t['fit_cost']:.3g}; {t['validation'].get('reason', '')}" for t in rejected]
+    lines += ["", "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
     for p in rep["parameters"]:
         lines.append(f"| {p['name']} | {_fmt(p['start'])} {p['unit']} | {_fmt(p['value'])} | "
                      f"{_fmt(p['change_pct'])} % | {'yes: beyond the builder tolerance?' if p['at_bound'] else ''} |")

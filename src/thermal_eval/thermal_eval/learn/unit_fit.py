@@ -35,6 +35,8 @@ class UnitFit:
     train_until_s: float
     probes_train: int
     probes_held_out: int
+    fit_rec: Recording | None = None  # the rows fitted and scored, probes in the error columns
+    holdout: float = 0.0              # the fraction of ``fit_rec`` after the fit window
 
     @property
     def spec(self) -> dict:
@@ -95,4 +97,4 @@ def learn_unit_twin(twin, rec: Recording, probes: ProbeSet, train_until_s: float
     cal = calibrate(machine, fit_rec, holdout_fraction=holdout, max_nfev=max_nfev, progress=progress,
                     sigma={c: probes.noise[c] for c in components})
     return UnitFit(machine, cal, components, float(train_until_s), int(train.time_s.size),
-                   int(probes.window(t0=train_until_s + 1e-6).time_s.size))
+                   int(probes.window(t0=train_until_s + 1e-6).time_s.size), fit_rec, holdout)

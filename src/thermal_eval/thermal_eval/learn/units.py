@@ -7,6 +7,7 @@ the test bed of ``thermal-comp bench learn``. Each unit is the type's unit-to-un
 - ``gain``: one thermo-elastic term x1.4-1.7 (beyond +-10 %)
 - ``hall_bias``: the hall sensor reads 0.4-0.8 K off (the twin's boundary follows it)
 - ``chiller``: a cooling circuit that follows the hall instead of holding its set-point
+- ``hall_drift``: the hall sensor is 0.1-0.4 K off and drifts 0.1-0.3 K a day
 
 Only the nmv5000 type is covered (its structure names are used). No rclpy.
 """
@@ -20,7 +21,7 @@ import numpy as np
 from thermal_twin.machine.instance import machine_instance
 from thermal_twin.machine.schema import Machine, load_machine
 
-KINDS = ("extra_source", "links", "gain", "hall_bias", "chiller")
+KINDS = ("extra_source", "links", "gain", "hall_bias", "chiller", "hall_drift")
 HALL_LINKS = ("bed_ambient", "column_ambient", "air_ambient", "cradle_air")
 STRUCTURE = ("column", "bed", "cradle")
 
@@ -71,8 +72,16 @@ def _chiller(spec: dict, rng) -> str:
     return "C-axis chiller follows the hall instead of holding 22 degC"
 
 
+def _hall_drift(spec: dict, rng) -> str:
+    b = float(rng.choice([-1, 1]) * rng.uniform(0.1, 0.4))
+    d = float(rng.choice([-1, 1]) * rng.uniform(0.1, 0.3)) / 24.0
+    spec["sensors"]["ambient"]["bias"] = b
+    spec["sensors"]["ambient"]["drift_k_per_h"] = d
+    return f"hall sensor bias {b:+.2f} K, drift {24.0 * d:+.2f} K/day"
+
+
 _MAKERS = {"extra_source": _extra_source, "links": _links, "gain": _gain, "hall_bias": _hall_bias,
-           "chiller": _chiller}
+           "chiller": _chiller, "hall_drift": _hall_drift}
 
 
 def structural_unit(kind: str, seed: int, machine: str = "nmv5000") -> Unit:

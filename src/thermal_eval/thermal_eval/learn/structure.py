@@ -1,0 +1,246 @@
+"""The structural stage of ``learn``: after the bounded calibration, try words for what the unit
+differs in (learn.words), each fitted on the fit window (training probes + temperatures), and
+keep a word only if it is better on the validation probes it was not fitted to.
+
+The fit: every channel the twin shares with the recording counts as one (its squared residual
+summed over its rows in the fit window, divided by its row count and by what the calibrated twin
+leaves there, floored at the probe noise or ``TEMP_FLOOR_K``), so a few probes weigh as much as
+a temperature sampled every minute. The choice: open loop on the validation probes, the word's
+noise-normalised SSE below ``WORD_MARGIN`` x the twin's without it and no component worse by
+more than its probe uncertainty (learn.adoption.decide); the best word is added, then the search
+runs once more on top of it (at most ``MAX_WORDS``). A final bounded calibration of the type's
+twin with the words (started from the first calibration) lets the parameters that had absorbed
+the missing physics go back; the words' own parameters move in their wide ranges. No rclpy.
+"""
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from thermal_comp_common.recording_csv import Recording
+from thermal_twin.calibrate.bounds import free_parameters, set_values
+from thermal_twin.calibrate.fit import calibrate
+from thermal_twin.diagnose.twin_eval import node_states, outputs_from_states
+from thermal_twin.machine.schema import Machine, load_machine
+from thermal_twin.physics.boundary_follow import follow_series, lowered, lower_spec
+from thermal_twin.physics.sensor_model import drift_offsets
+from thermal_twin.sim.inputs_timeline import timeline_from_recording
+
+from thermal_eval.learn.adoption import decide
+from thermal_eval.learn.words import Word, candidates
+
+#: a word must bring the validation probes' normalised SSE below this fraction of the twin's without it
+WORD_MARGIN = 0.8
+#: at most this many words are added to one unit
+MAX_WORDS = 2
+#: the smallest residual scale of a temperature channel [K] (its quantisation and lag)
+TEMP_FLOOR_K = 0.05
+#: optimiser evaluations per word fit
+WORD_NFEV = 40
+
+
+def twin_outputs(spec: dict, rec: Recording, stop: int | None = None) -> dict[str, np.ndarray]:
+    """Noise-free outputs of a description (following boundaries and drifts included) on the
+    recording's rows, its inputs from the recording (a sensor-fed input read backwards)."""
+    m = load_machine(spec)
+    vals = timeline_from_recording(m, rec).resolved(m)
+    vals.update(follow_series(m, rec.time_s, vals))
+    low = lowered(m)
+    net, t, X, tb = node_states(low, rec.time_s, vals, stop)
+    out = outputs_from_states(low, net, t, X, tb)
+    for c, d in drift_offsets(m, t).items():
+        out[c] = out[c] + d
+    return out
+
+
+@dataclass
+class Tried:
+    word: Word
+    theta: np.ndarray
+    fit_cost: float
+    validation: dict
+    base: str = "calibrated"          # fitted on the calibrated twin or on it with bounded parameters set back
+    chosen: bool = False
+
+    def as_dict(self) -> dict:
+        return {"word": self.word.label, "kind": self.word.kind, "what": self.word.describe(self.theta),
+                "fitted_on": f"the {self.base} twin",
+                "parameters": dict(zip(self.word.params, [float(v) for v in self.theta])),
+                "fit_cost": round(self.fit_cost, 4), "validation": self.validation, "chosen": self.chosen}
+
+
+class _Scorer:
+    """Residuals on the fit window and predictions at the validation probes of ``rec`` (the fit
+    rows up to the end of the validation window, probe columns NaN off the probe rows)."""
+
+    def __init__(self, rec: Recording, channels: list[str], components: list[str], noise: dict,
+                 fit_until: float, base: dict):
+        self.rec, self.channels, self.components, self.noise = rec, channels, components, noise
+        self.fit = rec.time_s <= fit_until
+        self.val = ~self.fit
+        self.meas = {c: np.asarray(rec.columns[c], float) for c in channels}
+        self.stop = len(rec)
+        self.evals = 0
+        out = self.outputs(base)
+        self.scale = {}
+        for c in channels:
+            ok = self.fit & np.isfinite(self.meas[c])
+            mse = float(np.mean((self.meas[c][ok] - out[c][ok]) ** 2)) if ok.any() else 0.0
+            floor = noise[c] if c in components else TEMP_FLOOR_K
+            self.scale[c] = math.sqrt(max(ok.sum(), 1) * max(mse, floor ** 2))
+        self.base_out = out
+
+    def outputs(self, spec: dict) -> dict[str, np.ndarray]:
+        self.evals += 1
+        return twin_outputs(spec, self.rec, self.stop)
+
+    def residual(self, out: dict) -> np.ndarray:
+        parts = []
+        for c in self.channels:
+            ok = self.fit & np.isfinite(self.meas[c])
+            parts.append((self.meas[c][ok] - out[c][ok]) / self.scale[c])
+        return np.concatenate(parts)
+
+    def validation(self, base_out: dict, out: dict, margin: float):
+        ok = self.val & np.any([np.isfinite(self.meas[c]) for c in self.components], axis=0)
+        vals = {c: self.meas[c][ok] for c in self.components}
+        return decide(vals, self.noise, {c: base_out[c][ok] for c in self.components},
+                      {c: out[c][ok] for c in self.components}, np.ones(int(ok.sum()), bool), margin=margin)
+
+
+def _fit_word(scorer: _Scorer, base: dict, word: Word) -> tuple[np.ndarray, float, dict]:
+    def fun(th):
+        return scorer.residual(scorer.outputs(word.spec(base, th)))
+    try:
+        sol = least_squares(fun, word.theta0, bounds=(word.lb, word.ub), method="trf", diff_step=1e-4,
+                            max_nfev=WORD_NFEV, x_scale=np.maximum(word.ub - word.lb, 1e-9) / 4.0)
+        theta = sol.x
+    except (ValueError, np.linalg.LinAlgError):       # a word the twin cannot run (an invalid description)
+        return word.theta0, math.inf, {}
+    out = scorer.outputs(word.spec(base, theta))
+    r = scorer.residual(out)
+    return theta, float(r @ r), out
+
+
+@dataclass
+class Structure:
+    words: list[Tried] = field(default_factory=list)      # adopted, in order
+    tried: list[Tried] = field(default_factory=list)
+    spec: dict | None = None                               # the final description (None: no word)
+    wall_s: float = 0.0
+    evals: int = 0
+    recalibration: str = ""                                # the final calibration against the words alone
+
+
+def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, components: list[str],
+           noise: dict, fit_until: float, progress: Callable[[str], None] = lambda m: None) -> Structure:
+    """Words for the unit (module docstring): ``rec`` holds the fit rows up to the end of the
+    validation window with the probes in their columns. Each word is fitted on two bases, the
+    calibrated twin and the type's (where the calibration has not absorbed the missing physics
+    into bounded parameters), and judged against the best description so far."""
+    t0 = time.perf_counter()
+    channels = [c for c in [s.column for s in machine.sensors.values()] + components if c in rec.columns]
+    tl = timeline_from_recording(machine, rec)
+    t0_inputs = {k: float(v[0]) for k, v in tl.values.items()}
+    pool = candidates(machine, cal_spec, at_bound, t0_inputs)
+    bases = {"calibrated": copy.deepcopy(cal_spec)}
+    released = released_names(at_bound)
+    if released:
+        bases["released"] = _set_back(cal_spec, machine.to_dict(), released)
+    ref, st = bases["calibrated"], Structure()
+    for round_ in range(MAX_WORDS):
+        scorer = _Scorer(rec, channels, components, noise, fit_until, ref)
+        progress(f"structure: round {round_ + 1}, {len(pool)} candidate words on the calibrated and the type's twin")
+        best = None
+        for name, base in bases.items():
+            r0 = scorer.residual(scorer.outputs(base))
+            cost0 = float(r0 @ r0)
+            for w in pool:
+                theta, cost, out = _fit_word(scorer, base, w)
+                if not out or not cost < 0.95 * cost0:     # no better on the data it was fitted to
+                    st.tried.append(Tried(w, theta, cost / cost0, {"adopt": False, "validation_rmse": {},
+                                                                    "reason": "no better on the fit window"}, base=name))
+                    continue
+                v = scorer.validation(scorer.base_out, out, WORD_MARGIN)
+                tried = Tried(w, theta, cost / cost0, v.as_dict(), base=name)
+                st.tried.append(tried)
+                if v.adopt and (best is None or _sse(v, noise) < _sse(best.validation, noise)):
+                    best = tried
+        st.evals += scorer.evals
+        if best is None:
+            break
+        best.chosen = True
+        st.words.append(best)
+        ref = best.word.spec(bases[best.base], best.theta)
+        bases = {k: best.word.spec(b, best.theta) for k, b in bases.items()}
+        pool = [w for w in pool if w.label != best.word.label]
+    if st.words:
+        st.spec = ref
+    st.wall_s = time.perf_counter() - t0
+    return st
+
+
+def released_names(at_bound: list) -> list[str]:
+    """The parameters the "released" base sets back: those that ended at their bound."""
+    out = []
+    for p, v in at_bound:
+        lo, hi = p.lo, p.hi
+        if hi > lo and min(abs(v - lo), abs(hi - v)) < 0.01 * (hi - lo):
+            out.append(p)
+    return out
+
+
+def _set_back(spec: dict, type_spec: dict, params: list) -> dict:
+    out = copy.deepcopy(spec)
+    for p in params:
+        d, t = out, type_spec
+        for k in p.path[:-1]:
+            d, t = d[k], t[k]
+        d[p.path[-1]] = t.get(p.path[-1], 0.0)
+    return out
+
+
+def _sse(v, noise: dict) -> float:
+    """The noise-normalised squared RMSE summed over components, of an Adoption or its dict."""
+    rmse = v.rmse if hasattr(v, "rmse") else v["validation_rmse"]
+    return sum(((r["unit"] or 0.0) / noise[c]) ** 2 for c, r in rmse.items() if math.isfinite(r["unit"] or 0.0))
+
+
+def recalibrate(machine: Machine, st: Structure, cal, fit_rec: Recording, holdout: float, sigma: dict,
+                max_nfev: int, released: list | None = None, progress: Callable[[str], None] = lambda m: None):
+    """The final bounded calibration of the type's twin with the adopted words (module
+    docstring): on the lowered description, the inputs given explicitly (a sensor-fed input read
+    backwards through the words' bias and drift; that sensor's own column left out), started
+    from the first calibration's values. Returns (description with the words, calibration)."""
+    word_spec = machine.to_dict()
+    for t in st.words:
+        word_spec = t.word.spec(word_spec, t.theta)
+    m = load_machine(word_spec)
+    vals = timeline_from_recording(m, fit_rec).resolved(m)
+    vals.update(follow_series(m, fit_rec.time_s, vals))
+    fed = {s.from_sensor for s in m.inputs.values() if s.from_sensor}
+    cols = {k: v for k, v in fit_rec.columns.items() if k not in {m.sensors[s].column for s in fed}}
+    cols.update(vals)
+    rec = Recording(fit_rec.time_s, cols, source=fit_rec.source)
+    low = lower_spec(word_spec)
+    section = copy.deepcopy(low.get("calibration") or {})
+    params = section.setdefault("parameters", {})
+    for t in st.words:
+        params.update(t.word.release(t.theta))
+    known = {p.name for p in free_parameters(low, section)}
+    # from the first calibration's values, but those a word was fitted without (set back) from the type's
+    back = {p.name for p in released or []} if any(t.base == "released" for t in st.words) else set()
+    start = {e.param.name: e.value for e in cal.estimates
+             if e.param.name in known and e.param.name not in params and e.param.name not in back}
+    progress(f"recalibrating the twin with {', '.join(t.word.label for t in st.words)}")
+    cal2 = calibrate(low, rec, holdout_fraction=holdout, section=section, max_nfev=max_nfev, start=start,
+                     sigma=sigma)
+    final = set_values(copy.deepcopy(word_spec), [e.param for e in cal2.estimates],
+                       [e.value for e in cal2.estimates])
+    return final, cal2
