@@ -128,6 +128,8 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
                                                       if math.isfinite(v["p99"]) and v["p99"] > half.get(c, math.inf)),
             "learned_moves": [f"{p['name']} {p['change_pct']:+.0f} %{' (at bound)' if p['at_bound'] else ''}"
                               for p in moved if p["change_pct"] is not None],
+            "learned_words": [w["what"] for w in report["structure"]["words"]],
+            "structure_wall_s": report["wall_s"]["structure"],
             "held_out_probe_rmse": {k: {c: round(v[c]["rmse"], 3) if v[c]["rmse"] == v[c]["rmse"] else None
                                         for c in v} for k, v in report["held_out_scores"].items()},
             "learn_wall_s": round(t_learn, 1), "calibration_wall_s": report["wall_s"]["calibration"],
@@ -143,6 +145,26 @@ def parse(extra: list[str]) -> argparse.Namespace:
     if a.seeds and min(a.seeds) < 0:
         ap.error(f"--seeds: {a.seeds} must be >= 0")
     return a
+
+
+def results_markdown(units: list[dict]) -> str:
+    """The results table of docs/learn.md, generated from units.json's rows."""
+    lines = ["| unit | what differs (hidden from learn) | adopted | words learned | type prior running on | "
+             "type prior switched in | after learning | above half Table 6.5 after |", "|---|---|---|---|---|---|---|---|"]
+    for u in units:
+        lines.append(f"| #{u['seed']} {u['kind']} | {u['truth']} | {'yes' if u['adopted'] else 'no'} | "
+                     f"{'; '.join(u.get('learned_words') or []) or '-'} | {u['ratio_before']:.3f} | "
+                     f"{u['ratio_type_switched']:.3f} | {u['ratio_after']:.3f} | "
+                     f"{', '.join(u['components_above_half_table_6_5']) or 'none'} |")
+    ok = [u for u in units if u["ratio_after"] <= 0.15 and not u["components_above_half_table_6_5"]]
+    lines += ["", f"{sum(u['adopted'] for u in units)} of {len(units)} unit twins adopted; "
+              f"{sum(u['ratio_after'] <= 0.15 for u in units)} of {len(units)} units at ratio <= 0.15; "
+              f"{len(ok)} of {len(units)} also with every component at most half of Table 6.5; "
+              f"{sum(u['ratio_after'] > u['ratio_before'] for u in units)} worse than the type prior running on. "
+              f"learn {min(u['learn_wall_s'] for u in units):.1f}-{max(u['learn_wall_s'] for u in units):.1f} s "
+              f"per unit, twin {min(u['twin_simulated_h_per_s'] for u in units):.0f}-"
+              f"{max(u['twin_simulated_h_per_s'] for u in units):.0f} simulated h/s in the calibration."]
+    return "\n".join(lines) + "\n"
 
 
 def run(args: argparse.Namespace | None = None) -> dict:
@@ -168,7 +190,9 @@ def run(args: argparse.Namespace | None = None) -> dict:
               f"{r['ratio_after']:.3f} (P99_lin {r['p99_lin_before_um']:.2f} -> {r['p99_lin_after_um']:.2f} um; "
               f"Q_prod {r['q_prod_before_pct']:.1f} / {r['q_prod_after_pct']:.1f} %); above half Table 6.5: "
               f"{', '.join(r['components_above_half_table_6_5']) or 'none'}; learn {r['learn_wall_s']} s "
-              f"(calibration {r['calibration_wall_s']} s); adoption: {r['adoption']}; moved: "
+              f"(calibration {r['calibration_wall_s']} s, words {r['structure_wall_s']} s, twin "
+              f"{r['twin_simulated_h_per_s']} simulated h/s); adoption: {r['adoption']}; words: "
+              f"{'; '.join(r['learned_words']) or 'none'}; moved: "
               f"{'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}", flush=True)
     after = [u["ratio_after"] for u in units]
     figures["learn.worst_ratio_after"] = round(max(after), 3) if after else math.nan
@@ -176,6 +200,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
     figures["learn.units_worse_than_type_running_on"] = sum(u["ratio_after"] > u["ratio_before"] for u in units)
     root.mkdir(parents=True, exist_ok=True)
     (root / "units.json").write_text(json.dumps(units, indent=1, default=str) + "\n")
+    (root / "units.md").write_text(results_markdown(units))
     print(f"learn: {figures['learn.units_adopted']} of {len(units)} unit twins adopted; worst ratio after "
           f"{figures['learn.worst_ratio_after']:.3f}; units worse than the type prior running on: "
           f"{figures['learn.units_worse_than_type_running_on']} of {len(units)}; details {root / 'units.json'}")

@@ -92,4 +92,6 @@ def run(args) -> int:
         return 2
     (out / "report.md").write_text(markdown(rep))
     print(f"wrote {out / 'report.md'}, {out / 'report.json'}, " + ", ".join(rep["files"].values()))
+    print(f"learned in {sum(rep['wall_s'].values()):.1f} s (twin {rep['twin_simulated_h_per_s']} simulated h/s); "
+          f"words: {'; '.join(w['what'] for w in rep['structure']['words']) or 'none'}")
     return 0
