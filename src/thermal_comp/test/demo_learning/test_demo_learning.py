@@ -70,3 +70,15 @@ def test_the_table_splits_at_the_first_swap_and_scores_both_sides(tmp_path, caps
     print_learning({"learning": res, "machine": "nmv5000", "q_prod_pct": 97.0})
     out = capsys.readouterr().out
     assert "swapped in at 24 h" in out and "ratio to probe-and-hold" in out
+
+
+def test_the_docs_table_is_generated_from_the_summary(tmp_path):
+    from thermal_comp.demo.learning import markdown
+    s = _series()
+    res = split_at(s, compensation_in_effect(s), 97.0, 24 * 3600.0, 0)
+    control = split_at(s, compensation_in_effect(s), 97.0, 24 * 3600.0, 1)
+    text = markdown({"learning": {**res, "adopted_at_h": 24.0}}, control)
+    rows = text.splitlines()
+    assert rows[0].startswith("| error | before: 0-23.92 h |") and "control after" in rows[0]
+    assert rows[2].startswith("| E_Y0C | 2.00 |")
+    assert f"**{res['after']['ratio']:.3f}**" in rows[-3] and rows[-1].startswith("Control before the same instant")

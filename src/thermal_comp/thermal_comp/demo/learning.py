@@ -6,6 +6,8 @@ node itself is in the cell document (thermal_comp.demo.cell.learner_node).
 """
 from __future__ import annotations
 
+import argparse
+import json
 import math
 import pathlib
 from typing import Any
@@ -15,7 +17,8 @@ from rich.table import Table
 
 from talc_model.online.audit import read_audit
 from thermal_comp.demo.cell import AUDIT
-from thermal_comp.demo.series import DemoSeries
+from thermal_comp.demo.series import DemoSeries, read_series
+from thermal_comp.demo.summary import compensation_in_effect
 from thermal_comp_common import metrics, plain_output
 from thermal_comp_common.probe_and_hold import TABLE_5_4_RESOLUTION_UM, probe_and_hold, table_5_4_noise
 
@@ -75,7 +78,7 @@ def print_learning(summary: dict[str, Any]) -> None:
     c = plain_output.console()
     for ln in learn["audit"]:
         t = ln.get("model_time_s")
-        c.print(f"learner audit {'' if t is None else f'{t / 3600.0:.1f} h'} [{ln['source']}] {ln['event']}: {ln['reason']}")
+        c.print(f"learner audit {'' if t is None else f'{t / 3600.0:.1f} h'} ({ln['source']}) {ln['event']}: {ln['reason']}")
     if learn.get("after") is None or learn.get("before") is None:
         c.print("no learned prior was swapped in during the run: the table above is the type's prior throughout")
         return
@@ -92,3 +95,52 @@ def print_learning(summary: dict[str, Any]) -> None:
                 f"{a['p99_lin_um']:.2f}", f"{a['probe_and_hold']['p99_lin_um']:.2f}")
     tab.add_row("ratio to probe-and-hold", f"{b['ratio']:.3f}", "", f"{a['ratio']:.3f}", "")
     c.print(tab)
+
+
+def markdown(summary: dict[str, Any], control: dict[str, Any] | None = None) -> str:
+    """docs/learn.md's table from a learning run's summary.json (and, as the control, the
+    ``learning`` split of a run of the same plant without the learner, made at the same instant)."""
+    learn = summary["learning"]
+    b, a = learn["before"], learn["after"]
+    cb, ca = (control or {}).get("before"), (control or {}).get("after")
+    head = ["error", f"before: {b['window_h'][0]:g}-{b['window_h'][1]:g} h", "probe-and-hold before",
+            f"after: {a['window_h'][0]:g}-{a['window_h'][1]:g} h", "probe-and-hold after"]
+    if ca:
+        head += ["control after (type prior running on)"]
+    rows = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    for comp in b["p99"]:
+        cells = [comp, b["p99"][comp], b["probe_and_hold"]["p99"][comp], a["p99"][comp],
+                 a["probe_and_hold"]["p99"][comp]] + ([ca["p99"][comp]] if ca else [])
+        rows.append("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in cells) + " |")
+    lin = ["P99_lin (um)", b["p99_lin_um"], b["probe_and_hold"]["p99_lin_um"], a["p99_lin_um"],
+           a["probe_and_hold"]["p99_lin_um"]] + ([ca["p99_lin_um"]] if ca else [])
+    rows.append("| " + " | ".join(f"{v:.2f}" if isinstance(v, float) else str(v) for v in lin) + " |")
+    ratio = ["**ratio to probe-and-hold**", f"**{b['ratio']:.3f}**", "", f"**{a['ratio']:.3f}**", ""]
+    rows.append("| " + " | ".join(ratio + ([f"**{ca['ratio']:.3f}**"] if ca else [])) + " |")
+    if cb:
+        rows.append("")
+        rows.append(f"Control before the same instant: ratio {cb['ratio']:.3f} (P99_lin {cb['p99_lin_um']:.2f} um).")
+    return "\n".join(rows) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m thermal_comp.demo.learning SUMMARY.json [CONTROL_OUT]``: the markdown table;
+    CONTROL_OUT is the output folder of a demo of the same plant without the learner, split at
+    the learning run's first swap."""
+    ap = argparse.ArgumentParser(prog="python -m thermal_comp.demo.learning", description=main.__doc__)
+    ap.add_argument("summary")
+    ap.add_argument("control_out", nargs="?")
+    a = ap.parse_args(argv)
+    summary = json.loads(pathlib.Path(a.summary).read_text())
+    control = None
+    if a.control_out:
+        series = read_series(pathlib.Path(a.control_out) / "bag")
+        ctrl = json.loads((pathlib.Path(a.control_out) / "summary.json").read_text())
+        control = split_at(series, compensation_in_effect(series), ctrl["q_prod_pct"],
+                           summary["learning"]["adopted_at_h"] * 3600.0, summary["seed"])
+    print(markdown(summary, control), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
