@@ -71,7 +71,7 @@ from talc_model.loop.reading_check import ReadingCheck
 from talc_model.model_persistence import load_model, load_pretrained, save_model
 from talc_model.online.history import RunHistory
 from talc_model.online.learner import SERVICE_ADOPT_PRIOR
-from talc_model.online.prior_swap import PriorSwap
+from talc_model.online.prior_swap import PriorSwap, resume_config
 from talc_model.probing.cycle_state import Action, ProbeOutcome, ProbeState, ProbingStateMachine
 from talc_model.save_schedule import SaveNow, SaveSchedule
 from talc_model.state_files import move_aside, resolve_state_path, run_identity, saved_time_s
@@ -132,8 +132,9 @@ class TalcModelNode(Node):
         p = declare_parameters(self, PARAMS)
         self.p = p
         self.kind = p["model_kind"]
-        self.config = _load_yaml(p["model_config"]) if p["model_config"] else {}
         self.state_path = resolve_state_path(p["state_path"])
+        # a state saved after an online swap resumes with the configuration adopted with it
+        self.config = resume_config(self.state_path, _load_yaml(p["model_config"]) if p["model_config"] else {})
         resumed = None
         from_state = self.state_path is not None and self.state_path.is_file()
         if from_state:
@@ -168,7 +169,7 @@ class TalcModelNode(Node):
         # online learning: a learned prior is checked, warmed over the run's history and swapped in
         self.online = PriorSwap(self.kind, self.config, p["prior_path"],
                                 RunHistory(p["history_max_instants"], complete=not from_state),
-                                p["warm_events_per_instant"], p["audit_path"])
+                                p["warm_events_per_instant"], p["audit_path"], self.state_path)
         self.create_service(AdoptPrior, SERVICE_ADOPT_PRIOR, self._on_adopt_prior)
         self.machine_state: dict[str, float] = {}
         self.instant_inputs = InstantInputs(p["machine_state_wait_s"])

@@ -14,6 +14,9 @@ warmed over the run's history, and swapped in atomically between two instants; a
   flight, ``step`` hands it over; the node replaces the loop's model before the next instant. Until
   then the running model goes on untouched; a warm-up that fails leaves it in place.
 - The bridge and its limits are not touched: the new model's predictions take the same path.
+- **Restart**: the adopted configuration is kept beside the model's state file; a node that
+  resumes that state runs with it (``resume_config``), since the state's identity names the
+  adopted soft-sensor twin and the node's ``model_config`` parameter still names the type's.
 No rclpy.
 """
 from __future__ import annotations
@@ -31,6 +34,31 @@ from talc_model.online.learn_report import figures_of
 
 #: the one configuration key an adopted prior may change: its soft-sensor twin
 SWAPPABLE = ("type_model",)
+#: beside the model's state file: the configuration of the prior adopted online, which the saved
+#: state was made with (a restarted node resumes with it, not with its model_config parameter)
+ADOPTED_SUFFIX = ".adopted.yaml"
+
+
+def adopted_config_path(state_path: pathlib.Path) -> pathlib.Path:
+    return state_path.with_name(state_path.name + ADOPTED_SUFFIX)
+
+
+def resume_config(state_path: pathlib.Path | None, config: dict) -> dict:
+    """The configuration a node resuming ``state_path`` runs with: the one adopted online when the
+    state was saved after a swap (its file beside the state), else ``config``."""
+    if state_path is None or not state_path.is_file() or not adopted_config_path(state_path).is_file():
+        return config
+    return _load_config(str(adopted_config_path(state_path)))
+
+
+def write_adopted(state_path: pathlib.Path | None, config: Mapping[str, Any]) -> None:
+    """Keep the adopted configuration beside the state file (atomically; None: no state kept)."""
+    if state_path is None:
+        return
+    path = adopted_config_path(state_path)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(yaml.safe_dump(dict(config), sort_keys=False))
+    tmp.replace(path)
 
 
 class SwapRefused(ValueError):
@@ -101,11 +129,11 @@ class PriorSwap:
     prior the running model started from ('' none); ``audit_path``: the audit file ('' none)."""
 
     def __init__(self, kind: str, config: Mapping[str, Any], prior_path: str, history: RunHistory,
-                 per_step: int = 200, audit_path: str = ""):
+                 per_step: int = 200, audit_path: str = "", state_path: pathlib.Path | None = None):
         if per_step < 1:
             raise ValueError(f"warm_events_per_instant: {per_step!r} must be >= 1")
         self.kind, self.config, self.history = kind, dict(config), history
-        self.per_step, self.audit_path = int(per_step), audit_path
+        self.per_step, self.audit_path, self.state_path = int(per_step), audit_path, state_path
         self.current_sha256 = prior_digest(prior_path) if prior_path else ""
         self.current_prior = prior_path
         self.candidate: Candidate | None = None
@@ -165,6 +193,10 @@ class PriorSwap:
                              cand.report_path, prior_path=cand.prior_path, model_config=cand.config_path,
                              type_model=str(cand.config.get("type_model", "")))
         self.current_sha256, self.current_prior, self.config = cand.sha256, cand.prior_path, cand.config
+        try:
+            write_adopted(self.state_path, cand.config)
+        except OSError as exc:
+            record["reason"] += f"; the adopted configuration could not be kept beside the state: {exc}"
         return Swapped(cand.model, cand.config, record)
 
     def _audit(self, event: str, t_s: float, new_sha: str, reason: str, report_path: str, **extra) -> dict:

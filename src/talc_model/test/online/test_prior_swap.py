@@ -9,7 +9,7 @@ import pytest
 
 from talc_model.online.audit import read_audit
 from talc_model.online.history import RunHistory, feed
-from talc_model.online.prior_swap import PriorSwap, config_change, prior_digest
+from talc_model.online.prior_swap import PriorSwap, adopted_config_path, config_change, prior_digest, resume_config
 from talc_model.prior.dispatch import model_from_prior
 from talc_model.prior.talc import load_prior
 
@@ -23,13 +23,13 @@ def _instant(rec, k):
 class Cell:
     """The node's order of work, without ROS: model the instant, record it, let the swap go on."""
 
-    def __init__(self, priors, tmp_path, per_step=10, complete=True):
+    def __init__(self, priors, tmp_path, per_step=10, complete=True, state_path=None):
         self.rec = priors["plant"]
         self.model = model_from_prior("talc", priors["run_cfg"], load_prior(priors["type_prior"]))
         self.history = RunHistory(complete=complete)
         self.audit = tmp_path / "audit.jsonl"
         self.swap = PriorSwap("talc", priors["run_cfg"], str(priors["type_prior"]), self.history, per_step,
-                              str(self.audit))
+                              str(self.audit), state_path)
         self.k = 0
         self.swapped_at = None
 
@@ -149,3 +149,17 @@ def test_a_failing_warm_up_leaves_the_running_model(priors, tmp_path):
 def test_config_change_names_the_first_key_beyond_the_soft_sensor_twin():
     assert config_change({"a": 1, "type_model": "x"}, {"a": 1, "type_model": "y"}) == ""
     assert config_change({"a": 1}, {"a": 1, "b": 2}) == "key 'b' is 2, the run's is None"
+
+
+def test_a_restarted_node_resumes_with_the_configuration_adopted_with_its_state(priors, tmp_path):
+    state = tmp_path / "model.json"
+    cell = Cell(priors, tmp_path, per_step=1000, state_path=state)
+    for _ in range(10):
+        cell.step()
+    assert cell.offer(priors)[0]
+    cell.step()
+    assert cell.swapped_at == 10 and adopted_config_path(state).is_file()
+    assert resume_config(state, priors["run_cfg"]) == priors["run_cfg"]        # no state saved: fresh start
+    state.write_text("{}")
+    assert resume_config(state, priors["run_cfg"]) == priors["unit_cfg"]
+    assert resume_config(None, priors["run_cfg"]) == priors["run_cfg"]

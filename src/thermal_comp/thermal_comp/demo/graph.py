@@ -109,7 +109,7 @@ def _fresh_out_dir(cfg: DemoConfig) -> pathlib.Path:
         if (out / folder).exists():
             shutil.rmtree(out / folder)
     for stale in ("model_state.json", "cnc_audit.log", "twin_state.pkl", BRIDGE_PROFILE,
-                  PUBLICATION_TIMES, AUDIT):
+                  PUBLICATION_TIMES, AUDIT, "model_state.json.adopted.yaml"):
         (out / stale).unlink(missing_ok=True)
     out.mkdir(parents=True, exist_ok=True)
     return out
