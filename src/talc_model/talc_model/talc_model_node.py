@@ -484,11 +484,8 @@ class TalcModelNode(Node):
             self.diag.set("prior", "OK", swapped.audit["reason"], sha256=self.online.current_sha256)
 
     def _on_adopt_prior(self, req, resp):
-        old = self.online.current_sha256
-        ok, msg, new = self.online.request(req.prior_path, req.model_config_path, req.report_path,
-                                           self.model.component_names, self.loop.t_last)
-        resp.accepted, resp.message, resp.old_prior_sha256, resp.new_prior_sha256 = ok, msg, old, new
-        (self.get_logger().info if ok else self.get_logger().warning)(f"adopt_prior: {msg}")
+        resp = self.online.answer(req, resp, self.model.component_names, self.loop.t_last)
+        (self.get_logger().info if resp.accepted else self.get_logger().warning)(f"adopt_prior: {resp.message}")
         return resp
 
     # ------------------------------------------------------------------ persistence

@@ -149,6 +149,13 @@ class PriorSwap:
         return True, (f"accepted: warming a model from {prior_path} over {len(self.history)} history events, "
                       f"{self.per_step} per instant"), cand.sha256
 
+    def answer(self, req, resp, components, t_s: float):
+        """The AdoptPrior service's answer to ``req`` (its fields as in the .srv), filled into ``resp``."""
+        old = self.current_sha256
+        ok, msg, new = self.request(req.prior_path, req.model_config_path, req.report_path, components, t_s)
+        resp.accepted, resp.message, resp.old_prior_sha256, resp.new_prior_sha256 = ok, msg, old, new
+        return resp
+
     def _check(self, prior_path: str, config_path: str, report_path: str, components: list) -> Candidate:
         if self.candidate is not None:
             raise SwapRefused(f"a swap to {self.candidate.prior_path} is still warming")
