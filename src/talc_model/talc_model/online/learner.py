@@ -107,10 +107,13 @@ class OnlineLearner:
         return self._ended(job, end)
 
     def _start(self, why: str, now_s: float) -> None:
-        self.runs += 1
         self.job_t_s = self.t_s
         hours = self.schedule.hours(self.t_s)
-        work = pathlib.Path(self.cfg.work_dir) / f"learn_{self.runs:03d}_{hours:.1f}h"
+        while True:
+            self.runs += 1
+            work = pathlib.Path(self.cfg.work_dir) / f"learn_{self.runs:03d}_{hours:.1f}h"
+            if not work.exists():         # a restarted learner never reuses a folder
+                break
         try:
             snap = snapshot_bag(pathlib.Path(self.cfg.recording), work / "recording")
         except (ValueError, OSError) as exc:

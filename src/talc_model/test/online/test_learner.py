@@ -100,6 +100,16 @@ def test_requests_on_demand(tmp_path):
     assert read_audit(tmp_path / "audit.jsonl")[-1]["reason"] == "the learner stopped while learn ran: killed"
 
 
+def test_a_restarted_learner_never_reuses_a_folder(tmp_path):
+    (tmp_path / "learn" / "learn_001_0.0h").mkdir(parents=True)
+    learner = _learner(tmp_path, "keep", every_h=0.0)
+    learner.observe(0.0)
+    learner.request()
+    learner.poll(0.0)
+    assert learner.job.work.name == "learn_002_0.0h"
+    learner.job.proc.wait(timeout=60)
+
+
 def test_a_bad_configuration_is_refused():
     with pytest.raises(ValueError, match="train_fraction"):
         LearnerConfig(recording="b", twin="t", work_dir="w", train_fraction=1.0, command=["x"])
