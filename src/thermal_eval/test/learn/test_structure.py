@@ -11,6 +11,7 @@ import pytest
 from thermal_eval.learn.bench import cell_view
 from thermal_eval.learn.command import learn
 from thermal_eval.learn.probes import ProbeSet
+from thermal_eval.learn.run import markdown
 from thermal_eval.learn.words import candidates
 from thermal_twin.machine.instance import machine_instance
 from thermal_twin.machine.schema import load_machine
@@ -41,6 +42,8 @@ def test_a_chiller_that_follows_the_hall_is_named_and_fitted(tmp_path):
     words = rep["structure"]["words"]
     assert words and words[0]["kind"] == "follows" and words[0]["word"] == "cooler follows ambient", words
     assert words[0]["parameters"]["gain"] >= 0.2         # it follows (the calibration keeps part: docs/learn.md)
+    md = markdown(rep)                                   # report.md says what was added, from the JSON
+    assert f"- {words[0]['what']} (fit cost {words[0]['fit_cost']:.3g}" in md
     unit = load_machine(str(tmp_path / "out" / "unit_twin.yaml"))
     assert unit.boundaries["cooler"].follows is not None and unit.boundaries["cooler"].follows.temperature == "ambient"
     scores = rep["held_out_scores"]

@@ -163,9 +163,10 @@ def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, com
             cost0 = float(r0 @ r0)
             for w in pool:
                 theta, cost, out = _fit_word(scorer, base, w)
-                if not out or not cost < 0.95 * cost0:     # no better on the data it was fitted to
+                why = "no better on the fit window" if not out or not cost < 0.95 * cost0 else w.refuse(theta)
+                if why:
                     st.tried.append(Tried(w, theta, cost / cost0, {"adopt": False, "validation_rmse": {},
-                                                                    "reason": "no better on the fit window"}, base=name))
+                                                                    "reason": why}, base=name))
                     continue
                 v = scorer.validation(scorer.base_out, out, WORD_MARGIN)
                 tried = Tried(w, theta, cost / cost0, v.as_dict(), base=name)

@@ -45,6 +45,8 @@ class Word:
     apply: Callable[[dict, np.ndarray], None]           # writes theta into a description, in place
     describe: Callable[[np.ndarray], str]
     release: Callable[[np.ndarray], dict] = field(default=lambda theta: {})
+    refuse: Callable[[np.ndarray], str] = field(default=lambda theta: "")   # why a fitted theta is no word
+
 
     def spec(self, base: Mapping, theta: np.ndarray) -> dict:
         out = copy.deepcopy(dict(base))
@@ -77,9 +79,12 @@ def beyond_tolerance(p: Param, value: float, type_value: float) -> Word:
         v = to_v(th[0])
         change = f"{100.0 * (v / v0 - 1.0):+.0f} %" if v0 else f"{v - v0:+.3g} {p.unit}"
         return f"beyond the builder's tolerance: {p.name} moved by {change} ({v0:.4g} -> {v:.4g} {p.unit})"
+    def refuse(th):
+        v = to_v(th[0])
+        return "within the builder's tolerance (the calibration's to say)" if p.lo <= v <= p.hi else ""
     return Word("beyond_tolerance", f"{p.name} beyond tolerance", (p.name,), np.array([start]), np.array([lo]),
                 np.array([hi]), lambda s, th: _set(s, p.path, to_v(th[0])), describe,
-                lambda th: {p.name: {"bounds": sorted([to_v(lo), to_v(hi)])}})
+                lambda th: {p.name: {"bounds": sorted([to_v(lo), to_v(hi)])}}, refuse)
 
 
 def follows(machine: Machine, boundary: str, source: str, source_input: str, source_t0: float) -> Word:
