@@ -90,24 +90,51 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
     return adopted, all_hyps, base, y_base, tried
 
 
+#: a discrepancy left after the adopted words that explains at least this share of their
+#: held-out residual on its channel shows the words only imitated out-of-vocabulary physics
+LEFTOVER_PCT = 50.0
+
+
+def _discrepancies(problem: FitProblem, lib: list, channels: list[str], errors: set, y: np.ndarray,
+                   min_improvement_pct: float, engine: EngineSpec | None, only: set | None = None) -> list:
+    resid = {c: np.where(problem._valid[i], problem._meas[i] - y[i], np.nan) for i, c in enumerate(channels)
+             if only is None or c in only}
+    return unnamed_mod.find_unnamed(resid, lib, problem.n_train, errors, min_improvement_pct, engine)
+
+
+def _leftover(problem: FitProblem, lib: list, channels: list[str], errors: set, y_start: np.ndarray,
+              y_named: np.ndarray, min_improvement_pct: float, engine: EngineSpec | None) -> list:
+    """Discrepancies of the residual the adopted words leave on the channels they change
+    (held-out RMS of the change above half a noise sigma) that explain at least
+    :data:`LEFTOVER_PCT` of it on held-out data."""
+    nt = problem.n_train
+    change = problem.weighted(y_named - y_start)[:, nt:]
+    acted = {c for i, c in enumerate(channels) if np.sqrt(np.mean(change[i] ** 2)) > 0.5}
+    if not acted:
+        return []
+    left = _discrepancies(problem, lib, channels, errors, y_named, min_improvement_pct, engine, acted)
+    return [d for d in left if d.holdout_improvement_pct >= LEFTOVER_PCT]
+
+
 def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: list[str], errors: set,
-             y_start: np.ndarray, y_named: np.ndarray, named: bool, min_improvement_pct: float,
+             y_start: np.ndarray, y_named: np.ndarray, named: str | None, min_improvement_pct: float,
              engine: EngineSpec | None = None):
     """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
-    answers when nothing of the vocabulary was adopted, or when it leaves less than half the
-    held-out weighted residual the adopted vocabulary leaves (the vocabulary then only
-    imitated it). Returns (discrepancies, outputs with them added) or ([], None)."""
+    answers when nothing of the vocabulary was adopted (``named`` None), or when the adopted
+    words leave a structured residual on the channels they act on (:func:`_leftover`): they
+    only imitated physics outside the vocabulary, and ``named`` is said as the nearest word.
+    Returns (discrepancies, outputs with them added) or ([], None)."""
     nt = problem.n_train
-    meas = problem._meas
-    resid = {c: np.where(problem._valid[i], meas[i] - y_start[i], np.nan) for i, c in enumerate(channels)}
     lib = unnamed_mod.signal_library(rec.time_s, ccf_inputs, rec.sensors)
-    found = unnamed_mod.find_unnamed(resid, lib, nt, errors, min_improvement_pct, engine)
+    if named and not _leftover(problem, lib, channels, errors, y_start, y_named, min_improvement_pct, engine):
+        return [], None
+    found = _discrepancies(problem, lib, channels, errors, y_start, min_improvement_pct, engine)
     if not found:
         return [], None
     y_u = y_start.copy()
     for d in found:
         y_u[channels.index(d.channel)] += d.prediction
-    # the terms as printed (without their offset) must not leave their channel worse
+    # the formula as printed must not leave its channel worse
     worse = set(worse_channels(problem, y_start, y_u))
     if worse:
         found = [d for d in found if d.channel not in worse]
@@ -118,8 +145,11 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
             y_u[channels.index(d.channel)] += d.prediction
     sse_u = float(np.sum(problem.weighted_residual(y_u, nt) ** 2))
     sse_n = float(np.sum(problem.weighted_residual(y_named, nt) ** 2))
-    if named and not sse_u < 0.5 * sse_n:
+    if named and not sse_u < sse_n:
         return [], None
+    if named:
+        for d in found:
+            d.nearest = named
     return found, y_u
 
 
@@ -325,7 +355,8 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
     found_unnamed = []
     if unnamed:
         found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, cmp.channels, set(cmp.machine.errors), cmp.y0,
-                                      y_base, bool(adopted), min_improvement_pct, engine)
+                                      y_base, adopted[0].candidate.effect if adopted else None,
+                                      min_improvement_pct, engine)
         if found_unnamed and calibrate:
             test = unnamed_beats_free_calibration(cmp.machine, problem, cmp.holdout_fraction, y_u, cal_section,
                                                   calibration_section, min_improvement_pct, engine=engine)

@@ -120,7 +120,7 @@ class Discrepancy:
     sse_holdout_before: float
     sse_holdout_after: float
     p_value: float
-    prediction: np.ndarray          # the terms without the offset (a bias is vocabulary), channel units
+    prediction: np.ndarray          # the formula as printed (offset and terms), channel units
     holm_pass: bool = False
 
     @property
@@ -173,8 +173,7 @@ def fit_channel(channel: str, resid: np.ndarray, lib: list[Term], n_train: int, 
     p = holdout_p_value(s0, s1, len(order), effective_samples(after[None, :]))
     lead = max(order, key=lambda j: abs(coef[1 + order.index(j)]) * sd[j])
     return Discrepancy(channel, [lib[j].name for j in order], [float(c) for c in coef[1:]], float(coef[0]),
-                       [float(freq[j]) for j in order], nearest_word(lib[lead], is_error), s0, s1, p,
-                       full - coef[0])
+                       [float(freq[j]) for j in order], nearest_word(lib[lead], is_error), s0, s1, p, full)
 
 
 def _channel_task(shared: tuple, channel: str) -> Discrepancy | None:
