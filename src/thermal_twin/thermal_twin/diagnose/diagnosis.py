@@ -120,14 +120,13 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
              y_start: np.ndarray, y_named: np.ndarray, named: str | None, min_improvement_pct: float,
              engine: EngineSpec | None = None):
     """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
-    answers when nothing of the vocabulary was adopted (``named`` None), or when the adopted
-    words leave a structured residual on the channels they act on (:func:`_leftover`): they
-    only imitated physics outside the vocabulary, and ``named`` is said as the nearest word.
+    answers when nothing of the vocabulary was adopted (``named`` None), or when it leaves less
+    than half the held-out weighted residual the adopted words leave, or less than they leave
+    while they leave a structured residual on the channels they act on (:func:`_leftover`):
+    the words only imitated physics outside the vocabulary; ``named`` is said as the nearest.
     Returns (discrepancies, outputs with them added) or ([], None)."""
     nt = problem.n_train
     lib = unnamed_mod.signal_library(rec.time_s, ccf_inputs, rec.sensors)
-    if named and not _leftover(problem, lib, channels, errors, y_start, y_named, min_improvement_pct, engine):
-        return [], None
     found = _discrepancies(problem, lib, channels, errors, y_start, min_improvement_pct, engine)
     if not found:
         return [], None
@@ -145,7 +144,8 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
             y_u[channels.index(d.channel)] += d.prediction
     sse_u = float(np.sum(problem.weighted_residual(y_u, nt) ** 2))
     sse_n = float(np.sum(problem.weighted_residual(y_named, nt) ** 2))
-    if named and not sse_u < sse_n:
+    if named and not (sse_u < 0.5 * sse_n or (sse_u < sse_n and _leftover(
+            problem, lib, channels, errors, y_start, y_named, min_improvement_pct, engine))):
         return [], None
     if named:
         for d in found:
