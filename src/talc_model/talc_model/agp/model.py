@@ -61,10 +61,9 @@ class AgpConfig:
     seed: int = 0
     offset_models: list[dict] = field(default_factory=list)   # OffsetModel.to_state() dicts
     #: per component, hold the last probe while the model's prequential score is not better than
-    #: holding it (talc_model.probing.hold_fallback). Off by default for the AGP: it probes
-    #: rarely (sigma_max-triggered), its score is then scaled far, and on the lathe's bag the
-    #: fall-back held stale probes (GB_X P99 0.94 -> 22.8 um; FL_THERMAL 0.60 -> 0.84 of holding)
-    hold_fallback: bool = False
+    #: holding it (talc_model.probing.hold_fallback; False = always the model's prediction). A
+    #: probe older than its score covers is not held (the AGP may stop probing for hours)
+    hold_fallback: bool = True
 
     @classmethod
     def from_mapping(cls, config: Mapping[str, Any]) -> "AgpConfig":

@@ -76,7 +76,8 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         self.events: list[dict] = []               # phase transitions and updates (for reports)
         self.soft_sensors = soft_sensors_for(c)    # the machine type's twin (type_model), or None
         #: per component: the model's prediction or its last probe (probing.hold_fallback)
-        self.hold = HoldFallback(self.component_names, c.hold_fallback, horizon_s=c.post_cp_interval_h * 3600.0)
+        self.hold = HoldFallback(self.component_names, c.hold_fallback, horizon_s=c.post_cp_interval_h * 3600.0,
+                                 noise_std={n: math.sqrt(self._probe_noise_var(n)) for n in self.component_names})
         if self.input_names:
             self._init_grid()
 
@@ -446,7 +447,8 @@ class TalcModel(TalcProbingSchedule, TalcIdentification):
         model.message = state.get("message", "") + restore_soft_sensors(model.soft_sensors, state)
         model.events = list(state.get("events", []))
         model.hold = HoldFallback.from_state(state.get("hold_fallback"), model.component_names,
-                                             model.config.hold_fallback, model.config.post_cp_interval_h * 3600.0)
+                                             model.config.hold_fallback, model.config.post_cp_interval_h * 3600.0,
+                                             {n: math.sqrt(model._probe_noise_var(n)) for n in model.component_names})
         return model
 
     @classmethod
