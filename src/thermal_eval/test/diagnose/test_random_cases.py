@@ -69,6 +69,11 @@ def test_judge_counts_extras_exactness_and_both_effects():
     assert fig["single_exact_target_pct"] == 100.0 and fig["none_answered_pct"] == 0.0
     assert fig["two_both_found_pct"] == 100.0 and fig["cases_per_minute"] == 3.0
     assert fig["confusion"]["none"] == {"periodic_load": 1}
+    twin_target = _outcome("named", ["ambient_coupling:column_top"], "ambient_coupling",
+                           ["ambient_coupling:spindle_body"])
+    assert not judge(twin_target)["in_set"]
+    twin_target["selected_sets"] = [["ambient_coupling:column_top"]]
+    assert judge(twin_target)["in_set"] and not judge(twin_target)["exact"]
 
 
 def test_the_markdown_tables_are_the_figures():

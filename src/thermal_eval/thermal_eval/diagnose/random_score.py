@@ -5,7 +5,8 @@ the unmodified preset and returns a plain outcome; :func:`score` turns outcomes 
 of ``thermal-comp bench diagnose --random`` and :func:`markdown` into its tables. Definitions:
 
 - *true effect first*: the answer's effect type is the concealed one (either one on a two-effect case);
-- *exact target*: the first adopted effect has the concealed effect's type and target;
+- *exact target*: the first adopted effect has the concealed effect's type and target; *or in
+  set*: or the concealed one is in the first adopted effect's indistinguishable set;
 - *extra adoptions*: adopted effects whose (type, target) is not concealed, plus an ``unnamed``
   term beside a named answer; on a none-case everything adopted or unnamed is extra;
 - *parameter error*: |fitted - true| / |true| of the amplitude parameter on exact answers;
@@ -84,6 +85,8 @@ def run_case(shared: dict, item: tuple[int, int]) -> dict:
     cal = rep.get("calibration") or {}
     out.update({"answer": rep["answer"], "selected": [_key(s) for s in sel],
                 "selected_params": [[p["value"] for p in s["params"].values()] for s in sel],
+                "selected_sets": [[":".join(w["other"].split(":")[:2]) for w in s.get("tell_apart", [])]
+                                  for s in sel],
                 "unnamed": [u.get("formula") for u in (rep.get("unnamed") or [])],
                 "holdout_cut_pct": cut, "worse_channels": worse,
                 "worse_channels_beyond_noise": worse_noise,
@@ -107,7 +110,9 @@ def judge(o: dict) -> dict:
         v_true = o["true_values"][true.index(sel[0])][0]
         v_fit = o["selected_params"][0][0]
         perr = abs(v_fit - v_true) / abs(v_true) if v_true else None
-    return {"first": first, "exact": exact, "extra": int(extra), "param_err": perr,
+    sets = o.get("selected_sets") or [[]]
+    in_set = exact or (bool(true) and bool(sel) and any(k in true for k in sets[0]))
+    return {"first": first, "exact": exact, "in_set": in_set, "extra": int(extra), "param_err": perr,
             "both": o["kind"] == "two" and set(true) <= set(sel),
             "right": {"none": o["answer"] == "none", "unnamed": o["answer"] == "unnamed"}.get(o["kind"],
                                                                                           first)}
@@ -136,6 +141,7 @@ def score(outcomes: list[dict], wall_s: float | None = None) -> dict:
         "single_cases": len(single),
         "single_true_effect_first_pct": _pct(sum(j["first"] for _, j in single), len(single)),
         "single_exact_target_pct": _pct(sum(j["exact"] for _, j in single), len(single)),
+        "single_exact_target_or_in_set_pct": _pct(sum(j["in_set"] for _, j in single), len(single)),
         "extra_adoptions_per_case": round(sum(j["extra"] for _, j in js) / max(len(js), 1), 3),
         "two_effect_cases": len(two), "two_both_found_pct": _pct(sum(j["both"] for _, j in two), len(two)),
         "two_one_first_pct": _pct(sum(j["first"] for _, j in two), len(two)),

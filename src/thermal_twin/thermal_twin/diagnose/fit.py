@@ -171,6 +171,7 @@ class Hypothesis:
     n_eff_holdout: float = 0.0          # effective held-out samples of the residual after
     holm_pass: bool = True              # survives the round's Holm correction (mismatch_testing)
     worse: list[str] = field(default_factory=list)   # channels measurably worse on held-out data
+    tell_apart: list[dict] = field(default_factory=list)   # per indistinguishable other: what would
 
     @property
     def p_value(self) -> float:
@@ -208,7 +209,8 @@ class Hypothesis:
                 "delta_bic": self.delta_bic, "screening_err": self.err_screen,
                 "p_value": self.p_value, "holm_pass": self.holm_pass, "worse_channels": list(self.worse),
                 "plausible": self.plausible, "reason": self.reason or "",
-                "indistinguishable_from": list(self.indistinguishable_from), "round": self.round}
+                "indistinguishable_from": list(self.indistinguishable_from),
+                "tell_apart": [dict(w) for w in self.tell_apart], "round": self.round}
 
 
 def effective_samples(r: np.ndarray) -> float:

@@ -105,5 +105,6 @@ def prune(problem: FitProblem, base: dict, y_base: np.ndarray, hyps: list[Hypoth
     out = []
     for i, (h, v) in enumerate(zip(kept, vals)):
         out.append(dataclasses.replace(h, values=v, spec=_spec(base, kept[:i + 1], vals[:i + 1]),
-                                       indistinguishable_from=list(h.indistinguishable_from)))
+                                       indistinguishable_from=list(h.indistinguishable_from),
+                                       tell_apart=list(h.tell_apart)))
     return out, dropped

@@ -198,12 +198,35 @@ def _verdict_lines(report: dict) -> list[str]:
             L.append(f"- **{h['effect']}** on `{h['target']}`"
                      + (f" driven by `{h['driver']}`" if h.get("driver") else "")
                      + f": {ps}; held-out improvement {h['holdout_improvement_pct']:.1f} %")
+            L += _set_lines(report, h)
         if report.get("augmented_twin"):
             L.append(f"\nAugmented twin: `{report['augmented_twin']}`")
     if report.get("criteria", {}).get("multiple_testing"):
         L.append(f"\nAdoption test: {report['criteria']['multiple_testing']}.")
     for note in report.get("notes", []):
         L.append(f"\n> {note}")
+    return L
+
+
+def _set_lines(report: dict, h: dict) -> list[str]:
+    """An adopted effect's indistinguishable set: the others with their held-out figure, and
+    what would tell each apart (the channel and regime where the fits differ most)."""
+    if not h.get("tell_apart"):
+        return []
+    held = {f"{x['effect']}:{x['target']}:{x['driver'] or '-'}": x["holdout_improvement_pct"]
+            for x in report.get("hypotheses", []) if x.get("round") == h.get("round")}
+    L = ["  - indistinguishable on this recording (reported as a set): " + ", ".join(
+        f"`{w['other']}` (held-out {held[w['other']]:.1f} %)" if w["other"] in held else f"`{w['other']}`"
+        for w in h["tell_apart"])]
+    for w in h["tell_apart"]:
+        where = (f"they differ most on `{w['channel']}` ({w['difference_rms_sigma']:.2g} noise sigmas RMS)"
+                 if w["recorded_channel_tells_apart"] else
+                 f"no recorded channel tells them apart (at most {w['difference_rms_sigma']:.2g} noise sigmas "
+                 f"RMS, on `{w['channel']}`): a sensor at one of the targets would")
+        if w.get("regime"):
+            where += (f"; the difference is largest while {w['regime']} "
+                      f"({w['regime_difference_rms_sigma']:.2g} noise sigmas RMS): a recording with more of it")
+        L.append(f"  - against `{w['other']}`: {where}")
     return L
 
 

@@ -20,6 +20,7 @@ import numpy as np
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
 from thermal_twin.diagnose.effects import EFFECTS, Candidate, DriverInfo, candidates
 from thermal_twin.diagnose.fit import FitProblem, Hypothesis, fit_candidate, screen_one
+from thermal_twin.diagnose.locate import operating_regimes
 from thermal_twin.diagnose.significance import holm_reject
 
 
@@ -123,14 +124,16 @@ def run_round(inputs: RoundInputs, shortlist: int = 10, min_improvement_pct: flo
     for h, ok in zip(hyps, holm_reject([h.p_value for h in hyps], len(cands))):
         h.holm_pass = ok
     hyps.sort(key=lambda h: h.rank_key(min_improvement_pct))
-    mark_indistinguishable(hyps)
+    mark_indistinguishable(hyps, problem=inputs.problem)
     return hyps, len(cands)
 
 
 def mark_indistinguishable(hyps: list[Hypothesis], corr_threshold: float = 0.95,
-                           margin_pct: float = 5.0) -> None:
+                           margin_pct: float = 5.0, problem: FitProblem | None = None) -> None:
     """Flag plausible hypotheses whose fitted output changes are nearly collinear and whose
-    held-out improvements are within ``margin_pct`` points: this data cannot tell them apart."""
+    held-out improvements are within ``margin_pct`` points: this data cannot tell them apart.
+    With ``problem``, each flagged pair also records what would tell them apart
+    (:func:`tell_apart`)."""
     good = [h for h in hyps if h.plausible and h.change is not None and np.any(h.change)]
     for i, a in enumerate(good):
         for b in good[i + 1:]:
@@ -142,3 +145,31 @@ def mark_indistinguishable(hyps: list[Hypothesis], corr_threshold: float = 0.95,
             if float(a.change @ b.change) / (na * nb) >= corr_threshold:
                 a.indistinguishable_from.append(b.candidate.key)
                 b.indistinguishable_from.append(a.candidate.key)
+                if problem is not None:
+                    way = tell_apart(problem, a, b)
+                    a.tell_apart.append({"other": b.candidate.key, **way})
+                    b.tell_apart.append({"other": a.candidate.key, **way})
+
+
+def tell_apart(problem: FitProblem, a: Hypothesis, b: Hypothesis) -> dict:
+    """Where two indistinguishable fits differ most: the channel with the largest RMS of the
+    difference of their fitted changes (in noise sigmas; below one sigma no recorded channel
+    tells them apart and a sensor at one of the targets would), and the operating regime in
+    which the difference on that channel is largest per sample (a recording with more of it
+    would)."""
+    n_ch = len(problem.channels)
+    d = (a.change - b.change).reshape(n_ch, -1)
+    rms = np.sqrt(np.mean(d ** 2, axis=1))
+    k = int(np.argmax(rms))
+    idx = np.arange(0, problem.n_train, problem.stride)[:d.shape[1]]
+    rec = problem.recording
+    regimes = operating_regimes(rec.time_s[idx], {n: np.asarray(v)[idx] for n, v in rec.inputs.items()})
+    per = {}
+    for name, mask in regimes.items():
+        for label, m in ((name, mask), (f"not {name}", ~mask)):
+            if 0 < m.sum() < m.size:
+                per[label] = float(np.sqrt(np.mean(d[k, m] ** 2)))
+    regime = max(per, key=per.get) if per else None
+    return {"channel": problem.channels[k], "difference_rms_sigma": float(rms[k]),
+            "regime": regime, "regime_difference_rms_sigma": per.get(regime) if regime else None,
+            "recorded_channel_tells_apart": bool(rms[k] >= 1.0)}
