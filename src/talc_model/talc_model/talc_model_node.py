@@ -56,7 +56,7 @@ from thermal_comp_common.stamp_guard import StampGuard, admit, default_max_ahead
 from thermal_comp_common.runtime.node_runtime import (ACTION_PROBE_CYCLE, EVENT_QOS, LATCHED_QOS, SENSOR_QOS,
                                               TOPIC_ERRORS_MEASURED, TOPIC_ERRORS_PREDICTED,
                                               TOPIC_MACHINE_STATE, TOPIC_MODEL_STATUS, TOPIC_OFFSETS,
-                                              TOPIC_SIM_SYNC, TOPIC_TEMPERATURES, Param,
+                                              TOPIC_SIM_SYNC, TOPIC_TEMPERATURES,
                                               declare_parameters, run_node, s_to_stamp, stamp_to_s)
 from thermal_comp_msgs.action import ProbeCycle
 from thermal_comp_msgs.msg import (AxisOffsets, MachineState, ModelStatus, SimSync,
@@ -64,10 +64,11 @@ from thermal_comp_msgs.msg import (AxisOffsets, MachineState, ModelStatus, SimSy
 from thermal_comp_msgs.srv import AdoptPrior
 
 from talc_model.adaptive_model import ANGULAR_COMPONENTS, make_model
-from talc_model.loop.applied_compensation import MODES, BridgeCompensation
+from talc_model.loop.applied_compensation import BridgeCompensation
 from talc_model.loop.closed_loop import ClosedLoop, ResumedState, ResumedStateMismatch, StepKind
 from talc_model.loop.instant_inputs import InputsReady, InstantInputs
 from talc_model.loop.reading_check import ReadingCheck
+from talc_model.model_node_params import MODEL_NODE_PARAMS
 from talc_model.model_persistence import load_model, load_pretrained, save_model
 from talc_model.online.history import RunHistory
 from talc_model.online.learner import SERVICE_ADOPT_PRIOR
@@ -80,37 +81,7 @@ SIM_SYNC_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
 PHASES = {"calibration": ModelStatus.PHASE_CALIBRATION, "compensation": ModelStatus.PHASE_COMPENSATION,
           "no_good": ModelStatus.PHASE_NO_GOOD}
 
-PARAMS = [
-    Param("model_kind", "talc", "adaptive model", choices=("talc", "agp", "cd")),
-    Param("model_config", "", "YAML file with the model's configuration (empty = defaults)"),
-    Param("state_path", "", "JSON file for the model state (resumed at start; empty = no persistence); "
-          "a relative path lives under $XDG_STATE_HOME/thermal-comp (default ~/.local/state/thermal-comp)"),
-    Param("pretrained_path", "", "state of a trained model to start from when state_path has none"),
-    Param("prior_path", "", "TALC prior (thermal-comp prior) to start from when state_path has none"),
-    Param("save_period_s", 3600.0, "save the state at least this often (model time), s", 1.0, 1e7),
-    Param("artefact", "sphere", "probing artefact", choices=("sphere", "guide_bush")),
-    Param("tool_position", "", "lathe: tool position probed (e.g. GB)"),
-    Param("points_per_indexing", 0, "touch points per C indexing; 0 = the server's default", 0, 100),
-    Param("probe_timeout_s", 0.0, "cycle timeout in simulated time sent with the goal; 0 = server default",
-          0.0, 86400.0),
-    Param("probe_result_wait_s", 600.0, "wall-clock wait for a probing result before the cycle is "
-          "cancelled and counted as failed, s", 0.1, 86400.0),
-    Param("action_server_wait_s", 10.0, "wall-clock wait for the probe_cycle action server, s", 0.0, 3600.0),
-    Param("offsets_wait_s", 2.0, "wall-clock wait for the bridge's offsets answering t_k before a "
-          "probe starts or a periodic save runs (only once offsets have been seen), s", 0.0, 600.0),
-    Param("applied_compensation", "offsets", "how the applied compensation is known", choices=MODES),
-    Param("lockstep_participant", False, "publish SimSync for t_k after the prediction for t_k"),
-    Param("machine_state_wait_s", 10.0, "lock-step: wall-clock wait for the machine state of an instant "
-          "before its temperatures are modelled with the last inputs, s", 0.0, 3600.0),
-    Param("max_stamp_ahead_s", 0.0, "refuse messages stamped more than this ahead of the node's clock, s; "
-          "0 = 60 s on wall time, 3600 s with use_sim_time (data may precede its /clock by a step)",
-          0.0, 86400.0),
-    Param("audit_path", "", "online learning: audit file (JSON lines) of adopted or refused priors; empty = log only"),
-    Param("warm_events_per_instant", 200, "online learning: history events a new prior's model is warmed over "
-          "per modelled instant (bounds the pause of one instant)", 1, 10**7),
-    Param("history_max_instants", 100000, "online learning: instants of the run kept to warm a new prior's model",
-          0, 10**8),
-]
+PARAMS = MODEL_NODE_PARAMS
 
 
 def _load_yaml(path: str) -> dict:
@@ -167,10 +138,12 @@ class TalcModelNode(Node):
         self.loop = ClosedLoop(model, self.sink, live=True, resumed=resumed,
                                probing=ProbingStateMachine(p["offsets_wait_s"], p["probe_result_wait_s"]))
         # online learning: a learned prior is checked, warmed over the run's history and swapped in
-        self.online = PriorSwap(self.kind, self.config, p["prior_path"],
-                                RunHistory(p["history_max_instants"], complete=not from_state),
-                                p["warm_events_per_instant"], p["audit_path"], self.state_path)
-        self.create_service(AdoptPrior, SERVICE_ADOPT_PRIOR, self._on_adopt_prior)
+        self.online: PriorSwap | None = None      # off unless asked for: no service to attack, no history kept
+        if p["online_learning"]:
+            self.online = PriorSwap(self.kind, self.config, p["prior_path"],
+                                    RunHistory(p["history_max_instants"], complete=not from_state),
+                                    p["warm_events_per_instant"], p["audit_path"], self.state_path)
+            self.create_service(AdoptPrior, SERVICE_ADOPT_PRIOR, self._on_adopt_prior)
         self.machine_state: dict[str, float] = {}
         self.instant_inputs = InstantInputs(p["machine_state_wait_s"])
         self.pending: tuple[float, dict[str, float]] | None = None   # temperatures waiting for their state
@@ -336,7 +309,8 @@ class TalcModelNode(Node):
             if pathlib.Path(exc.state_path).is_file() else None
         model, how = self._fresh_model()
         self.loop.replace_model(model)
-        self.online.history.restart()
+        if self.online is not None:
+            self.online.history.restart()
         what = f"{exc}; moved aside to {aside}; starting with a {how}"
         self.get_logger().error(what)
         self.diag.set("state", "WARN", what, state_path=exc.state_path, saved_time_s=exc.saved_time_s,
@@ -435,7 +409,8 @@ class TalcModelNode(Node):
         if outcome is None:
             return
         t = outcome.t_s
-        self.online.history.probe(t, outcome.success, outcome.measured, outcome.applied, outcome.reason)
+        if self.online is not None:
+            self.online.history.probe(t, outcome.success, outcome.measured, outcome.applied, outcome.reason)
         if outcome.success:
             self.diag.set("probing", "OK", f"probing at {t:.0f} s: {message}")
         else:
@@ -475,6 +450,8 @@ class TalcModelNode(Node):
 
     # ------------------------------------------------------------------ online learning (talc_model.online)
     def _online_step(self, t: float, temps: dict[str, float]) -> None:
+        if self.online is None:
+            return
         self.online.history.instant(t, temps, self.machine_state)
         swapped = self.online.step(t, self.loop.probing.busy)
         if swapped is not None:          # between two instants: the next one is the new model's

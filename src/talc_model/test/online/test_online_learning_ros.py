@@ -43,7 +43,7 @@ def test_learn_now_adopt_and_swap_in_a_running_model_node(tmp_path, priors, ros_
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx, args=[
         "--ros-args", "-p", f"model_config:={priors['run_config']}", "-p", f"prior_path:={priors['type_prior']}",
-        "-p", f"audit_path:={audit}", "-p", "warm_events_per_instant:=20", "-p", "action_server_wait_s:=0.0",
+        "-p", "online_learning:=true", "-p", f"audit_path:={audit}", "-p", "warm_events_per_instant:=20", "-p", "action_server_wait_s:=0.0",
         "-p", f"recording:={bag}", "-p", "twin:=nmv5000", "-p", f"work_dir:={tmp_path / 'learn'}",
         "-p", f"learn_command:={command}", "-p", "poll_period_s:=0.05", "-p", "learn_timeout_s:=60.0"])
     model, learner = TalcModelNode(context=ctx), LearnerNode(context=ctx)
@@ -87,4 +87,25 @@ def test_learn_now_adopt_and_swap_in_a_running_model_node(tmp_path, priors, ros_
     finally:
         for n in (model, learner, client_node):
             n.destroy_node()
+        ctx.try_shutdown()
+
+
+@pytest.mark.ros
+def test_without_online_learning_the_model_node_offers_no_adopt_prior_and_keeps_no_history(priors, ros_domain_id):
+    import rclpy
+
+    from talc_model.online.learner import SERVICE_ADOPT_PRIOR
+    from talc_model.talc_model_node import TalcModelNode
+
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx, args=["--ros-args", "-p", f"model_config:={priors['run_config']}",
+                                  "-p", f"prior_path:={priors['type_prior']}", "-p", "action_server_wait_s:=0.0"])
+    model = TalcModelNode(context=ctx)
+    try:
+        assert model.online is None
+        names = [srv.srv_name for srv in model.services]    # the node's own services, not the graph's view
+        assert not any(n.endswith(SERVICE_ADOPT_PRIOR) for n in names), names
+        assert any(n.endswith("get_parameters") for n in names), names     # the listing itself works
+    finally:
+        model.destroy_node()
         ctx.try_shutdown()

@@ -38,8 +38,10 @@ def test_the_cell_runs_the_plant_file_and_the_learner(tmp_path):
     assert learner["recording"] == str(tmp_path / "bag") and learner["twin"] == "nmv5000"
     assert learner["learn_every_h"] == 24.0 and learner["prior_path"] == str(tmp_path / "prior.json")
     assert learner["audit_path"] == nodes["model"]["parameters"]["audit_path"] == str(tmp_path / AUDIT)
-    assert "learner" not in {n["name"] for n in build_cell(DemoConfig(out_dir=tmp_path, scenario="talc-178h-dry"),
-                                                           42, None, False)["nodes"]}
+    assert nodes["model"]["parameters"]["online_learning"] is True
+    plain = {n["name"]: n for n in build_cell(DemoConfig(out_dir=tmp_path, scenario="talc-178h-dry"),
+                                              42, None, False)["nodes"]}
+    assert "learner" not in plain and not plain["model"]["parameters"].get("online_learning", False)
     assert plant_label(cfg) == "nmv5000 plant nmv5000_unit13_links.yaml"
     check_plant(cfg)
 

@@ -171,7 +171,8 @@ def build_cell(cfg: DemoConfig, domain_id: int, endpoint: str | None, live_view:
     ]
     if cfg.learn_every_h > 0:
         nodes.append(learner_node(cfg, out))
-        next(n for n in nodes if n["name"] == "model")["parameters"]["audit_path"] = str(out / AUDIT)
+        model = next(n for n in nodes if n["name"] == "model")
+        model["parameters"].update(online_learning=True, audit_path=str(out / AUDIT))
     if live_view:
         nodes.append({"name": "viewer", "module": "thermal_comp.view.rerun_view_node", "parameters": {}})
     cell = {"cell": "demo", "domain_id": domain_id, "use_sim_time": True, "nodes": nodes}
