@@ -49,11 +49,11 @@ def no_twin_config() -> dict:
 
 
 def init_twin_config(twin_path: pathlib.Path, nodes: list[str], soft: str = "nodes") -> dict:
-    """The same parameters with the init twin as the soft-sensor twin: every node of it
-    (``soft`` "nodes"), its predicted errors ("errors") or both."""
+    """The same parameters with the init twin as the soft-sensor twin: ``nodes`` (``twin:<node>``
+    names; ``soft`` "nodes"), its predicted errors ("errors") or both."""
     cfg = yaml.safe_load(SHIPPED_CONFIG.read_text())
     cfg["type_model"] = str(twin_path.resolve())
-    names = {"nodes": [f"twin:{n}" for n in nodes], "errors": [f"twin:{c}" for c in cfg["component_names"]]}
+    names = {"nodes": list(nodes), "errors": [f"twin:{c}" for c in cfg["component_names"]]}
     cfg["type_input_names"] = names["nodes"] + names["errors"] if soft == "both" else names[soft]
     return cfg
 
@@ -71,7 +71,8 @@ def _replay(rec: Recording, model, noise: dict, seed: int, start: int = 0):
 
 
 def unit_case(kind: str, seed: int, hours: float, init_h: float, out: pathlib.Path, type_prior: bool = True,
-              progress=lambda m: None, soft: str = "nodes") -> dict:
+              progress=lambda m: None, soft: str = "nodes",
+              description: pathlib.Path = DESCRIPTION) -> dict:
     unit = structural_unit(kind, seed)
     rec = simulate(unit.machine, make_timeline("nmv5000", SCENARIO, hours=hours, seed=seed), seed=seed).to_recording()
     cfg0 = no_twin_config()
@@ -82,9 +83,9 @@ def unit_case(kind: str, seed: int, hours: float, init_h: float, out: pathlib.Pa
     day = probe_recording(cell_view(rec, unit.machine), probes, list(probes.values)).slice(0, start)
     day.source = f"nmv5000 unit #{seed} ({kind}), first {init_h:g} h"
     t0 = time.perf_counter()
-    rep = init_twin(load_description(str(DESCRIPTION)), day, out, progress=progress)
+    rep = init_twin(load_description(str(description)), day, out, progress=progress)
     t_init = time.perf_counter() - t0
-    cfg = init_twin_config(pathlib.Path(rep["files"]["twin"]), rep["nodes"], soft)
+    cfg = init_twin_config(pathlib.Path(rep["files"]["twin"]), rep["soft_sensors"], soft)
     t0 = time.perf_counter()
     prior = build_prior(rep["files"]["twin"], cfg, training_scenarios("talc", "nmv5000"), kind="talc")
     t_prior = time.perf_counter() - t0

@@ -39,7 +39,7 @@ def read_recording(path: str, hours: float | None = None) -> Recording:
 
 
 def init_twin(description: Description | str, rec: Recording, out: pathlib.Path, holdout: float = 0.25,
-              max_nfev: int = 20, progress: Callable[[str], None] = lambda m: None) -> dict[str, Any]:
+              max_nfev: int = 40, progress: Callable[[str], None] = lambda m: None) -> dict[str, Any]:
     """Identify the twin and write it with its report into ``out``; the report as a dict."""
     t0 = time.perf_counter()
     d = description if isinstance(description, Description) else load_description(description)
@@ -56,7 +56,7 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
     cal = ident.chosen.calibration
     report = {"twin": machine.name, "recording": rec.source, "recording_h": float(rec.time_s[-1] - rec.time_s[0]) / 3600,
               "holdout_fraction": holdout, "hidden_bodies": ident.chosen.hidden,
-              "nodes": machine.node_names, "soft_sensors": [f"twin:{n}" for n in machine.node_names],
+              "nodes": machine.node_names, "soft_sensors": soft_sensors(machine),
               "candidates": [{"hidden": c.hidden, "held_out_score": c.score} for c in ident.candidates],
               "held_out_rmse": held_out_table(ident, rec),
               "notes": ident.notes + list(rec.warnings),
@@ -65,6 +65,13 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
     (out / "report.json").write_text(json.dumps(_finite(report), indent=1) + "\n")
     (out / "report.md").write_text(markdown(report))
     return report
+
+
+def soft_sensors(machine) -> list[str]:
+    """The twin's nodes a displacement depends on, as TALC soft-sensor names (``type_input_names``):
+    a fluid body (no thermo-elastic term) only carries heat to them."""
+    used = {n for e in machine.errors.values() for n, g in e.terms if g}
+    return [f"twin:{n}" for n in machine.node_names if n in used]
 
 
 def _fmt(v) -> str:

@@ -15,7 +15,7 @@ boundaries:                        # constant degC, an input name, or a sensor's
   fluid: fluid_temp_degc
   jacket: {sensor: coolant_return, bodies: [motor]}
 inputs:                            # machine inputs of the recording
-  spindle_rpm: {heats: [motor, head], exponent: 1.0}
+  spindle_rpm: {heats: [motor, head], exponent: 1.0, moves: true}   # moves: a speed that stirs the air
   fluid_on: {cools: [table], boundary: fluid}     # a switch that links bodies to a boundary
   fluid_temp_degc: {}
 displacements:                     # channel -> direction (x y z radial: um; a b c tilt: um/m)
@@ -60,6 +60,7 @@ class InputUse:
     cools: list[str] = field(default_factory=list)
     boundary: str = ""
     unit: str = ""
+    moves: bool = False      # a speed: the hidden bodies' exchange with the hall grows with it
 
 
 @dataclass
@@ -143,15 +144,17 @@ def _inputs(raw: Mapping) -> dict[str, InputUse]:
         where = f"inputs.{name}"
         _name(name, "inputs")
         v = _mapping(v, where)
-        bad = [k for k in v if k not in ("heats", "exponent", "cools", "boundary", "unit")]
+        bad = [k for k in v if k not in ("heats", "exponent", "cools", "boundary", "unit", "moves")]
         if bad:
             raise DescriptionError(f"{where}.{bad[0]}: {v[bad[0]]!r} is not a known key "
-                                   "(heats, exponent, cools, boundary, unit)")
+                                   "(heats, exponent, cools, boundary, unit, moves)")
+        if not isinstance(v.get("moves", False), bool):
+            raise DescriptionError(f"{where}.moves: {v['moves']!r} must be true or false")
         use = InputUse(_names(v.get("heats", []), f"{where}.heats"),
                        _number(v.get("exponent", 1.0), f"{where}.exponent", 0.25, 4.0),
                        _names(v.get("cools", []), f"{where}.cools"),
                        _name(v["boundary"], f"{where}.boundary") if "boundary" in v else "",
-                       str(v.get("unit", "")))
+                       str(v.get("unit", "")), bool(v.get("moves", False)))
         if use.cools and not use.boundary:
             raise DescriptionError(f"{where}.boundary: missing; 'cools' needs the boundary the bodies are linked to")
         out[name] = use

@@ -3,10 +3,11 @@
 The structure comes from :mod:`structure`; its conductances, capacities (all but the first
 body's, which sets the scale: temperatures depend on ratios), source coefficients, switched
 convection, thermo-elastic gains, sensor biases and constant boundary temperatures are fitted
-with ``thermal-comp calibrate``'s machinery (:func:`thermal_twin.calibrate.fit.calibrate`, plain
-bounded least squares on the simulated twin, no prior: a twin made from a description has no
-nominal values to be pulled toward) within wide ranges (a factor 30, gains within 30 x the
-channel's span per K). Two passes: the second weights every channel by the residual the first
+with ``thermal-comp calibrate``'s machinery (:func:`thermal_twin.calibrate.fit.calibrate`:
+bounded least squares on the simulated twin) within wide ranges (a factor 30, gains within 30 x
+the channel's span per K), with calibrate's Gaussian prior toward the starting structure as a
+weak regulariser (sd a quarter of those ranges; the data counted as their effective number of
+samples): on one day of data the plain fit extrapolated worse (docs/twin_init.md). Two passes: the second weights every channel by the residual the first
 left on it (maximum likelihood with one unknown variance per channel); temperature channels
 are further down-weighted so that all of them together weigh as much as the sparse probes.
 
@@ -32,9 +33,9 @@ from thermal_twin.identify.description import Description
 from thermal_twin.identify.structure import starting_spec
 
 WIDE = 30.0                      # every positive parameter within a factor 30 of its start
-HIDDEN_MARGIN = 0.03             # a hidden body must lower the held-out score by 3 %
+HIDDEN_MARGIN = 0.01             # a hidden body must lower the held-out score by 1 %
 SPARSE_FRACTION = 0.5            # a channel with fewer finite rows than this is sparse (probes)
-PRIOR = True
+PRIOR = True                     # calibrate's prior toward the start (module docstring)
 FINAL_HOLDOUT = 0.05             # the final refit keeps only this much out (calibrate's minimum)
 
 
@@ -153,7 +154,7 @@ def fit_structure(d: Description, rec: Recording, hidden: int, holdout: float, m
     return Candidate(hidden, cal.spec, cal, ho, score)
 
 
-def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: int = 20,
+def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: int = 40,
              progress: Callable[[str], None] = lambda m: None) -> Identification:
     """Identify the twin (module docstring): choose the hidden bodies on held-out data, refit."""
     cands = []

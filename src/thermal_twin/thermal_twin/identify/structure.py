@@ -1,6 +1,8 @@
 """The starting structure of a twin made from a description and a recording: every body a
 sensor sits on is a node, plus ``hidden`` hidden bodies; every node exchanges heat with the hall
-and with the bodies it touches (a hidden body with every body); every heating input has a
+and with the bodies it touches (a hidden body with the bodies an input heats: it stands for the
+unsensed structure those heat and the hall drives; with a speed that ``moves``, its exchange with the
+hall grows with the speed^0.8, as forced convection of a turning part does); every heating input has a
 source on the bodies it heats and on each hidden body; every displacement channel has a
 thermo-elastic term on every node but the fluids (a body whose sensor reads a difference against a
 boundary is a coolant circuit: it carries heat away and deforms nothing). Start values are orders of magnitude (a body of 1e5 J/K with
@@ -23,6 +25,7 @@ HALL_CONDUCTANCE = 10.0        # W/K: time constant C/G of about 3 h
 CONTACT_CONDUCTANCE = 5.0      # W/K between bodies that touch
 FLOW_CONDUCTANCE = 50.0        # W/K from a body to the boundary its delta sensor is read against
 SWITCH_CONDUCTANCE = 20.0      # W/K per unit of a switch that links bodies to a boundary
+CONVECTION_EXPONENT = 0.8      # forced convection: h grows with the speed^0.8 (turbulent flow over a body)
 HIDDEN_CAPACITY = 3.0e5        # J/K of the first hidden body; the next ones 3 x slower each
 
 
@@ -81,9 +84,10 @@ def _rise(d: Description, rec: Recording, body: str) -> float:
     return max([1.0] + spans)
 
 
-def _links(d: Description, hidden: int) -> dict:
+def _links(d: Description, hidden: int, u_max: dict[str, float]) -> dict:
     links = {}
     bodies = d.bodies
+    heated = list(dict.fromkeys(b for use in d.inputs.values() for b in use.heats))
     for b in bodies:
         links[f"{b}_hall"] = {"between": [b, HALL_BOUNDARY], "conductance": HALL_CONDUCTANCE}
     for a, b in d.pairs():
@@ -102,7 +106,11 @@ def _links(d: Description, hidden: int) -> dict:
     for i in range(hidden):
         h = hidden_name(i)
         links[f"{h}_hall"] = {"between": [h, HALL_BOUNDARY], "conductance": HALL_CONDUCTANCE}
-        for b in bodies:
+        moving = {n: {"per_unit": HALL_CONDUCTANCE / u_max[n] ** CONVECTION_EXPONENT, "exponent": CONVECTION_EXPONENT}
+                  for n, use in d.inputs.items() if use.moves}
+        if moving:
+            links[f"{h}_hall"]["varies_with"] = moving
+        for b in heated:
             links[f"{h}_{b}"] = {"between": [h, b], "conductance": CONTACT_CONDUCTANCE / 2.0}
     return links
 
@@ -160,7 +168,7 @@ def starting_spec(d: Description, rec: Recording, hidden: int = 0) -> dict:
             "units": {"temperature": "degC", "time": "s", "capacity": "J/K", "conductance": "W/K", "power": "W",
                       "error_linear": "um", "error_angular": "um/m"},
             "initial_state": "steady", "inputs": _inputs(d, rec), "boundaries": boundaries, "nodes": nodes,
-            "links": _links(d, hidden), "sources": _sources(d, rec, hidden), "sensors": sensors, "errors": errors}
+            "links": _links(d, hidden, {n: _input_max(rec, n) for n in d.inputs}), "sources": _sources(d, rec, hidden), "sensors": sensors, "errors": errors}
     if d.contacts is not None:
         spec["contacts"] = [list(p) for p in d.contacts]
     return spec
