@@ -9,6 +9,7 @@ import pathlib
 
 import numpy as np
 import pytest
+import yaml
 
 from thermal_comp_common.recording_csv import Recording, write_recording_csv
 from thermal_twin.identify import DescriptionError, identify, init_twin, parse_description
@@ -102,6 +103,9 @@ def test_an_unsensed_slow_body_becomes_a_hidden_node_that_beats_the_baselines(re
     assert row["twin"] < 0.5 * row["training mean"], row
     m = load_machine(str(tmp_path / "twin.yaml"))
     assert "hidden_1" in m.node_names and (tmp_path / "report.md").read_text().count("z_um") == 1
+    cfg = yaml.safe_load((tmp_path / "model_config.yaml").read_text())
+    assert cfg["type_model"] == str((tmp_path / "twin.yaml").resolve())
+    assert "twin:hidden_1" in cfg["type_input_names"] and cfg["component_names"] == ["z_um"]
 
 
 def test_cli_writes_the_twin_and_refuses_bad_input_in_one_line(rec, tmp_path, capsys):

@@ -12,6 +12,7 @@ import sys
 import time
 from typing import Any, Callable
 
+import yaml
 from thermal_comp_common.bags.recording import BagRecordingError, load_recording
 from thermal_comp_common.recording_csv import Recording, RecordingError
 
@@ -23,6 +24,7 @@ from thermal_twin.machine.schema import load_machine, save_machine
 from thermal_twin.machine.spec import MachineSpecError
 
 TWIN_FILE = "twin.yaml"
+MODEL_CONFIG = "model_config.yaml"
 #: a cell bag's probing results (residuals of a compensated machine are not turned into totals here)
 PROBES_TOPIC = "errors/measured"
 
@@ -62,6 +64,8 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
               "notes": ident.notes + list(rec.warnings),
               "fit": {"twin_runs": cal.n_evals, "simulated_h_per_s": round(cal.simulated_h / max(cal.wall_s, 1e-9), 1)},
               "wall_s": round(time.perf_counter() - t0, 1), "files": {"twin": str(path)}}
+    (out / MODEL_CONFIG).write_text(yaml.safe_dump(model_config(d, machine, path), sort_keys=False))
+    report["files"]["model_config"] = str(out / MODEL_CONFIG)
     (out / "report.json").write_text(json.dumps(_finite(report), indent=1) + "\n")
     (out / "report.md").write_text(markdown(report))
     return report
@@ -72,6 +76,16 @@ def soft_sensors(machine) -> list[str]:
     a fluid body (no thermo-elastic term) only carries heat to them."""
     used = {n for e in machine.errors.values() for n, g in e.terms if g}
     return [f"twin:{n}" for n in machine.node_names if n in used]
+
+
+def model_config(d: Description, machine, twin_path: pathlib.Path) -> dict:
+    """A TALC configuration for ``prior --machine twin.yaml --config`` (plain data: TALC's own
+    defaults for the rest): the displacement channels, the recording's temperature sensors, and
+    this twin as the soft-sensor twin with the nodes the errors use."""
+    return {"component_names": list(d.displacements),
+            "angular_components": [c for c in d.displacements if d.unit(c) == "um/m"],
+            "input_names": list(d.sensors),
+            "type_model": str(twin_path.resolve()), "type_input_names": soft_sensors(machine)}
 
 
 def _fmt(v) -> str:
