@@ -102,7 +102,7 @@ def _closed_loop(model, t, amb, y):
 @pytest.mark.parametrize("kind,config", [
     ("talc", {"component_names": ["E"], "angular_components": [], "input_names": ["amb"], "post_cp_interval_h": 1.0}),
     ("agp", {"components": ["E"], "sensors": ["amb"], "control_interval_s": 3600.0, "min_calibration_s": 7200.0,
-             "max_expected_error_um": 10.0, "hold_fallback": True}),      # opt-in for the AGP
+             "max_expected_error_um": 10.0}),
     ("cd", {"components": ["E"], "sensors": ["amb"], "min_calibration_s": 7200.0, "max_inputs": 1,
             "calibration_probe_interval_s": 900.0, "update_probe_interval_s": 3600.0}),
 ])
