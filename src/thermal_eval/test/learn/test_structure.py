@@ -19,7 +19,7 @@ from thermal_twin.sim.scenarios import make_timeline
 from thermal_twin.sim.simulate import simulate
 from thermal_twin.sim.type_soft_sensors import TypeSoftSensors
 
-HOURS, TRAIN_H, EVERY_H = 48.0, 36.0, 1.0
+HOURS, TRAIN_H, EVERY_H = 60.0, 48.0, 1.0
 COMPS = ["E_X0C", "E_Y0C", "E_Z0T", "E_R0T", "E_A0C", "E_B0C", "E_C0C"]
 
 
@@ -41,7 +41,7 @@ def test_a_chiller_that_follows_the_hall_is_named_and_fitted(tmp_path):
     rep = _learned(spec, tmp_path)
     words = rep["structure"]["words"]
     assert words and words[0]["kind"] == "follows" and words[0]["word"] == "cooler follows ambient", words
-    assert words[0]["parameters"]["gain"] >= 0.2         # it follows (the calibration keeps part: docs/learn.md)
+    assert words[0]["parameters"]["gain"] >= 0.4         # it follows (the calibration keeps part: docs/learn.md)
     md = markdown(rep)                                   # report.md says what was added, from the JSON
     assert f"- {words[0]['what']} (fit cost {words[0]['fit_cost']:.3g}" in md
     unit = load_machine(str(tmp_path / "out" / "unit_twin.yaml"))

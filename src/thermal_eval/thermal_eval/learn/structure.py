@@ -7,7 +7,10 @@ summed over its rows in the fit window, divided by its row count and by what the
 leaves there, floored at the probe noise or ``TEMP_FLOOR_K``), so a few probes weigh as much as
 a temperature sampled every minute. The choice: open loop on the validation probes, the word's
 noise-normalised SSE below ``WORD_MARGIN`` x the twin's without it and no component worse by
-more than its probe uncertainty (learn.adoption.decide); the best word is added, then the search
+more than its probe uncertainty (learn.adoption.decide), and its effect on some error component
+at least ``MIN_EFFECT`` probe uncertainties (RMS: a smaller one cannot be told from the probe
+noise); of the words that pass, the one that fits the fit window best (its many temperature
+rows and probes; the few validation probes only guard) is added, then the search
 runs once more on top of it (at most ``MAX_WORDS``). A final bounded calibration of the type's
 twin with the words (started from the first calibration) lets the parameters that had absorbed
 the missing physics go back; the words' own parameters move in their wide ranges. No rclpy.
@@ -41,6 +44,8 @@ WORD_MARGIN = 0.8
 MAX_WORDS = 2
 #: the smallest residual scale of a temperature channel [K] (its quantisation and lag)
 TEMP_FLOOR_K = 0.05
+#: a word must change some error component by at least this many probe uncertainties (RMS)
+MIN_EFFECT = 1.0
 #: optimiser evaluations per word fit
 WORD_NFEV = 40
 
@@ -48,6 +53,11 @@ WORD_NFEV = 40
 def twin_outputs(spec: dict, rec: Recording, stop: int | None = None) -> dict[str, np.ndarray]:
     """Noise-free outputs of a description (following boundaries and drifts included) on the
     recording's rows, its inputs from the recording (a sensor-fed input read backwards)."""
+    return _twin_run(spec, rec, stop)[0]
+
+
+def _twin_run(spec: dict, rec: Recording, stop: int | None = None):
+    """(outputs, node temperatures, node names) of :func:`twin_outputs`."""
     m = load_machine(spec)
     vals = timeline_from_recording(m, rec).resolved(m)
     vals.update(follow_series(m, rec.time_s, vals))
@@ -56,7 +66,7 @@ def twin_outputs(spec: dict, rec: Recording, stop: int | None = None) -> dict[st
     out = outputs_from_states(low, net, t, X, tb)
     for c, d in drift_offsets(m, t).items():
         out[c] = out[c] + d
-    return out
+    return out, X, net.node_names
 
 
 @dataclass
@@ -67,6 +77,7 @@ class Tried:
     validation: dict
     base: str = "calibrated"          # fitted on the calibrated twin or on it with bounded parameters set back
     chosen: bool = False
+    gains: dict = field(default_factory=dict)   # the error gains refitted with the word
 
     def as_dict(self) -> dict:
         return {"word": self.word.label, "kind": self.word.kind, "what": self.word.describe(self.theta),
@@ -80,13 +91,19 @@ class _Scorer:
     rows up to the end of the validation window, probe columns NaN off the probe rows)."""
 
     def __init__(self, rec: Recording, channels: list[str], components: list[str], noise: dict,
-                 fit_until: float, base: dict):
+                 fit_until: float, base: dict, type_spec: dict):
         self.rec, self.channels, self.components, self.noise = rec, channels, components, noise
         self.fit = rec.time_s <= fit_until
         self.val = ~self.fit
         self.meas = {c: np.asarray(rec.columns[c], float) for c in channels}
         self.stop = len(rec)
         self.evals = 0
+        self.type_gains = {c: dict(type_spec["errors"][c]["terms"]) for c in components}
+        self.sd_fit = None                 # the gains' data weight: what the calibrated twin leaves
+        self.gains: dict = {}
+        out = self.outputs(base)
+        self.sd_fit = {c: math.sqrt(max(float(np.nanmean((self.meas[c] - out[c])[self.fit] ** 2)), noise[c] ** 2))
+                       for c in components}
         out = self.outputs(base)
         self.scale = {}
         for c in channels:
@@ -97,8 +114,27 @@ class _Scorer:
         self.base_out = out
 
     def outputs(self, spec: dict) -> dict[str, np.ndarray]:
+        """The description's outputs, its error gains refitted to the fit window's probes (a
+        word changes the temperatures the gains map; the calibration tuned them to the old ones)."""
         self.evals += 1
-        return twin_outputs(spec, self.rec, self.stop)
+        out, X, names = _twin_run(spec, self.rec, self.stop)
+        if self.sd_fit is None:
+            return out
+        self.gains = {}
+        for c in self.components:
+            terms = spec["errors"][c]["terms"]
+            nodes = list(terms)
+            col = [names.index(n) for n in nodes]
+            ok = self.fit & np.isfinite(self.meas[c])
+            A = X[:, col] - X[0, col]
+            g0 = np.array([self.type_gains[c].get(n, terms[n]) for n in nodes])
+            sd = np.maximum(0.3 * np.abs(g0), 0.1) / 2.0          # the gain tolerance as a 95 % range
+            w = 1.0 / self.sd_fit[c] ** 2
+            g = np.linalg.solve(w * A[ok].T @ A[ok] + np.diag(1.0 / sd ** 2),
+                                w * A[ok].T @ self.meas[c][ok] + g0 / sd ** 2)
+            out[c] = float(spec["errors"][c].get("offset", 0.0)) + A @ g
+            self.gains[c] = dict(zip(nodes, g.tolist()))
+        return out
 
     def residual(self, out: dict) -> np.ndarray:
         parts = []
@@ -149,42 +185,58 @@ def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, com
     tl = timeline_from_recording(machine, rec)
     t0_inputs = {k: float(v[0]) for k, v in tl.values.items()}
     pool = candidates(machine, cal_spec, at_bound, t0_inputs)
+    type_spec = machine.to_dict()
     bases = {"calibrated": copy.deepcopy(cal_spec)}
     released = released_names(at_bound)
     if released:
         bases["released"] = _set_back(cal_spec, machine.to_dict(), released)
     ref, st = bases["calibrated"], Structure()
     for round_ in range(MAX_WORDS):
-        scorer = _Scorer(rec, channels, components, noise, fit_until, ref)
+        scorer = _Scorer(rec, channels, components, noise, fit_until, ref, type_spec)
         progress(f"structure: round {round_ + 1}, {len(pool)} candidate words on the calibrated and the type's twin")
         best = None
         for name, base in bases.items():
-            r0 = scorer.residual(scorer.outputs(base))
+            out0 = scorer.outputs(base)
+            r0 = scorer.residual(out0)
             cost0 = float(r0 @ r0)
             for w in pool:
                 theta, cost, out = _fit_word(scorer, base, w)
-                why = "no better on the fit window" if not out or not cost < 0.95 * cost0 else w.refuse(theta)
+                why = ("no better on the fit window" if not out or not cost < 0.95 * cost0 else
+                       w.refuse(theta) or _too_small(out0, out, components, noise))
                 if why:
                     st.tried.append(Tried(w, theta, cost / cost0, {"adopt": False, "validation_rmse": {},
                                                                     "reason": why}, base=name))
                     continue
                 v = scorer.validation(scorer.base_out, out, WORD_MARGIN)
-                tried = Tried(w, theta, cost / cost0, v.as_dict(), base=name)
+                tried = Tried(w, theta, cost / cost0, v.as_dict(), base=name, gains=copy.deepcopy(scorer.gains))
                 st.tried.append(tried)
-                if v.adopt and (best is None or _sse(v, noise) < _sse(best.validation, noise)):
+                if v.adopt and (best is None or tried.fit_cost < best.fit_cost):
                     best = tried
         st.evals += scorer.evals
         if best is None:
             break
         best.chosen = True
         st.words.append(best)
-        ref = best.word.spec(bases[best.base], best.theta)
-        bases = {k: best.word.spec(b, best.theta) for k, b in bases.items()}
+        ref = _gains_into(best.word.spec(bases[best.base], best.theta), best.gains)
+        bases = {k: _gains_into(best.word.spec(b, best.theta), best.gains) for k, b in bases.items()}
         pool = [w for w in pool if w.label != best.word.label]
     if st.words:
         st.spec = ref
     st.wall_s = time.perf_counter() - t0
     return st
+
+
+def _gains_into(spec: dict, gains: dict) -> dict:
+    for c, terms in gains.items():
+        spec["errors"][c]["terms"] = dict(terms)
+    return spec
+
+
+def _too_small(before: dict, after: dict, components: list[str], noise: dict) -> str:
+    """A word whose effect on every error component stays below that component's probe
+    uncertainty (RMS over the rows) cannot be told from noise by probes: no word."""
+    effect = max(float(np.sqrt(np.nanmean((after[c] - before[c]) ** 2))) / noise[c] for c in components)
+    return "" if effect >= MIN_EFFECT else f"its effect on the errors is {effect:.2f} x the probe uncertainty at most"
 
 
 def released_names(at_bound: list) -> list[str]:
@@ -205,12 +257,6 @@ def _set_back(spec: dict, type_spec: dict, params: list) -> dict:
             d, t = d[k], t[k]
         d[p.path[-1]] = t.get(p.path[-1], 0.0)
     return out
-
-
-def _sse(v, noise: dict) -> float:
-    """The noise-normalised squared RMSE summed over components, of an Adoption or its dict."""
-    rmse = v.rmse if hasattr(v, "rmse") else v["validation_rmse"]
-    return sum(((r["unit"] or 0.0) / noise[c]) ** 2 for c, r in rmse.items() if math.isfinite(r["unit"] or 0.0))
 
 
 def recalibrate(machine: Machine, st: Structure, cal, fit_rec: Recording, holdout: float, sigma: dict,
@@ -239,6 +285,8 @@ def recalibrate(machine: Machine, st: Structure, cal, fit_rec: Recording, holdou
     back = {p.name for p in released or []} if any(t.base == "released" for t in st.words) else set()
     start = {e.param.name: e.value for e in cal.estimates
              if e.param.name in known and e.param.name not in params and e.param.name not in back}
+    for c, terms in st.words[-1].gains.items():           # the gains refitted with the words
+        start.update({f"errors.{c}.terms.{n}": g for n, g in terms.items() if f"errors.{c}.terms.{n}" in known})
     progress(f"recalibrating the twin with {', '.join(t.word.label for t in st.words)}")
     cal2 = calibrate(low, rec, holdout_fraction=holdout, section=section, max_nfev=max_nfev, start=start,
                      sigma=sigma)
