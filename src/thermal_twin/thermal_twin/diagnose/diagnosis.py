@@ -102,14 +102,18 @@ def _discrepancies(problem: FitProblem, lib: list, channels: list[str], errors: 
     return unnamed_mod.find_unnamed(resid, lib, problem.n_train, errors, min_improvement_pct, engine)
 
 
+def _acted(problem: FitProblem, y_start: np.ndarray, y_named: np.ndarray) -> set:
+    """The channels the adopted words change: held-out RMS of the change above half a noise sigma."""
+    change = problem.weighted(y_named - y_start)[:, problem.n_train:]
+    return {c for i, c in enumerate(problem.channels) if np.sqrt(np.mean(change[i] ** 2)) > 0.5}
+
+
 def _leftover(problem: FitProblem, lib: list, channels: list[str], errors: set, y_start: np.ndarray,
               y_named: np.ndarray, min_improvement_pct: float, engine: EngineSpec | None) -> list:
     """Discrepancies of the residual the adopted words leave on the channels they change
     (held-out RMS of the change above half a noise sigma) that explain at least
     :data:`LEFTOVER_PCT` of it on held-out data."""
-    nt = problem.n_train
-    change = problem.weighted(y_named - y_start)[:, nt:]
-    acted = {c for i, c in enumerate(channels) if np.sqrt(np.mean(change[i] ** 2)) > 0.5}
+    acted = _acted(problem, y_start, y_named)
     if not acted:
         return []
     left = _discrepancies(problem, lib, channels, errors, y_named, min_improvement_pct, engine, acted)
@@ -120,9 +124,9 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
              y_start: np.ndarray, y_named: np.ndarray, named: str | None, min_improvement_pct: float,
              engine: EngineSpec | None = None):
     """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
-    answers when nothing of the vocabulary was adopted (``named`` None), or when it leaves less
-    than half the held-out weighted residual the adopted words leave, or less than they leave
-    while they leave a structured residual on the channels they act on (:func:`_leftover`):
+    answers when nothing of the vocabulary was adopted (``named`` None), or when, on the
+    channels the adopted words act on, it leaves less than half the held-out weighted residual
+    they leave, or less while they leave a structured residual there (:func:`_leftover`):
     the words only imitated physics outside the vocabulary; ``named`` is said as the nearest.
     Returns (discrepancies, outputs with them added) or ([], None)."""
     nt = problem.n_train
@@ -142,11 +146,17 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
         y_u = y_start.copy()
         for d in found:
             y_u[channels.index(d.channel)] += d.prediction
-    sse_u = float(np.sum(problem.weighted_residual(y_u, nt) ** 2))
-    sse_n = float(np.sum(problem.weighted_residual(y_named, nt) ** 2))
-    if named and not (sse_u < 0.5 * sse_n or (sse_u < sse_n and _leftover(
-            problem, lib, channels, errors, y_start, y_named, min_improvement_pct, engine))):
-        return [], None
+    if named:
+        # judged on the channels the words act on: terms elsewhere (a slow random walk of another
+        # sensor) say nothing about whether the words only imitated out-of-vocabulary physics
+        acted = np.array([c in _acted(problem, y_start, y_named) for c in channels])
+        if not any(acted[channels.index(d.channel)] for d in found):
+            return [], None
+        sse_u = float(np.sum(problem.weighted_residual(y_u, nt)[acted] ** 2))
+        sse_n = float(np.sum(problem.weighted_residual(y_named, nt)[acted] ** 2))
+        if not (sse_u < 0.5 * sse_n or (sse_u < sse_n and _leftover(
+                problem, lib, channels, errors, y_start, y_named, min_improvement_pct, engine))):
+            return [], None
     if named:
         for d in found:
             d.nearest = named

@@ -171,6 +171,7 @@ class Hypothesis:
     n_eff_holdout: float = 0.0          # effective held-out samples of the residual after
     holm_pass: bool = True              # survives the round's Holm correction (mismatch_testing)
     worse: list[str] = field(default_factory=list)   # channels measurably worse on held-out data
+    acted_improvement_pct: float | None = None        # held-out fall on the channels it acts on
     tell_apart: list[dict] = field(default_factory=list)   # per indistinguishable other: what would
 
     @property
@@ -193,11 +194,14 @@ class Hypothesis:
         return 100.0 * (1.0 - self.sse_train_after / max(self.sse_train_before, 1e-300))
 
     def supported(self, min_improvement_pct: float) -> bool:
-        return (self.plausible and self.delta_bic < BIC_THRESHOLD and self.holm_pass
-                and self.holdout_improvement_pct >= min_improvement_pct)
+        gain = self.holdout_improvement_pct if self.acted_improvement_pct is None else self.acted_improvement_pct
+        return (self.plausible and self.delta_bic < BIC_THRESHOLD and self.holm_pass and self.holdout_improvement_pct > 0
+                and gain >= min_improvement_pct)
 
     def rank_key(self, min_improvement_pct: float) -> tuple:
-        return (not self.plausible, not self.supported(min_improvement_pct), -self.holdout_improvement_pct)
+        # a fit that leaves a channel significantly worse ranks after those that do not
+        return (not self.plausible, not self.supported(min_improvement_pct), bool(self.worse),
+                -self.holdout_improvement_pct)
 
     def as_dict(self) -> dict:
         c = self.candidate
@@ -206,11 +210,33 @@ class Hypothesis:
                 "score": round(self.holdout_improvement_pct, 3),
                 "holdout_improvement_pct": self.holdout_improvement_pct,
                 "train_improvement_pct": self.train_improvement_pct,
+                "acted_channels_improvement_pct": self.acted_improvement_pct,
                 "delta_bic": self.delta_bic, "screening_err": self.err_screen,
                 "p_value": self.p_value, "holm_pass": self.holm_pass, "worse_channels": list(self.worse),
                 "plausible": self.plausible, "reason": self.reason or "",
                 "indistinguishable_from": list(self.indistinguishable_from),
                 "tell_apart": [dict(w) for w in self.tell_apart], "round": self.round}
+
+
+#: a channel whose held-out change is below this share of the largest channel's is not acted on
+ACT_SHARE = 0.1
+
+
+def acted_channels(change: np.ndarray) -> np.ndarray:
+    """Mask of the channels an effect acts on: the RMS of its weighted held-out output change
+    ``change`` (channels x samples) at least :data:`ACT_SHARE` of the largest channel's."""
+    rms = np.sqrt(np.mean(np.asarray(change, dtype=float) ** 2, axis=1))
+    top = float(rms.max()) if rms.size else 0.0
+    return rms >= ACT_SHARE * top if top > 0 else np.ones(rms.size, dtype=bool)
+
+
+def acted_improvement_pct(r0: np.ndarray, r1: np.ndarray) -> float:
+    """Fall of the weighted held-out sum of squares, in %, on the channels the change from
+    residual ``r0`` to ``r1`` acts on (a bias of one sensor among twenty channels is judged on
+    its channel, not diluted by the nineteen it leaves alone)."""
+    acted = acted_channels(r0 - r1)
+    s0 = float(np.sum(r0[acted] ** 2))
+    return 100.0 * (1.0 - float(np.sum(r1[acted] ** 2)) / s0) if s0 > 0 else 0.0
 
 
 def effective_samples(r: np.ndarray) -> float:
@@ -367,6 +393,17 @@ def _starts(c: Candidate) -> list[np.ndarray]:
     return starts
 
 
+def _unresolved(problem: FitProblem, c: Candidate, v: np.ndarray) -> str | None:
+    """A lag shorter than half the recording's step is not resolved by its sampling (a
+    reading re-sampled onto the inputs' clock is smoothed by about that much)."""
+    if c.effect != "time_lag":
+        return None
+    step = float(np.median(np.diff(problem.recording.time_s)))
+    if float(v[0]) < 0.5 * step:
+        return f"tau = {float(v[0]):.4g} s below half the recording step {step:g} s: not resolved by the sampling"
+    return None
+
+
 def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: np.ndarray,
                   err_screen: float = 0.0, max_nfev: int = 60) -> Hypothesis | None:
     """Fit one candidate on the training window and score it on the held-out window."""
@@ -414,6 +451,7 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
     return Hypothesis(candidate=c, values=v, spec=spec, err_screen=err_screen,
                       sse_train_before=float(np.sum(r0t ** 2)), sse_train_after=float(np.sum(r1t ** 2)),
                       sse_holdout_before=float(np.sum(r0h ** 2)), sse_holdout_after=float(np.sum(r1h ** 2)),
-                      delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v),
+                      delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v) or _unresolved(problem, c, v),
                       n_eff_holdout=effective_samples(r1h), worse=worse_channels(problem, y0_full, y1),
+                      acted_improvement_pct=acted_improvement_pct(r0h, r1h),
                       change=problem.weighted(y1[:, :nt:problem.stride] - y0_full[:, :nt:problem.stride]).ravel())

@@ -8,8 +8,9 @@ does not act on made worse). After the search:
 1. **Joint refit** (:func:`refit`): every adopted effect's parameters together, on the
    training window, from the values the rounds found (same bounds).
 2. **Each pays for itself** (:func:`prune`): an adopted effect stays only if removing it
-   from the refitted set makes the held-out weighted sum of squares rise by at least
-   ``min_improvement_pct`` (extra adoptions must earn their place on data no fit has seen).
+   from the refitted set makes the held-out weighted sum of squares of the channels it acts
+   on rise by at least ``min_improvement_pct`` (extra adoptions must earn their place on
+   data no fit has seen).
 3. **Never worse** (:func:`prune`): the kept set must leave no channel measurably worse on
    held-out data than the search's start (:func:`thermal_twin.diagnose.fit.worse_channels`);
    otherwise the last adopted effect is dropped, and so on.
@@ -21,7 +22,7 @@ import dataclasses
 import numpy as np
 from scipy.optimize import least_squares
 
-from thermal_twin.diagnose.fit import FitProblem, Hypothesis, worse_channels
+from thermal_twin.diagnose.fit import FitProblem, Hypothesis, acted_improvement_pct, worse_channels
 from thermal_twin.machine.schema import MachineSpecError
 
 
@@ -68,8 +69,10 @@ def refit(problem: FitProblem, base: dict, hyps: list[Hypothesis], max_nfev: int
     return _split(hyps, sol.x)
 
 
-def _holdout_sse(problem: FitProblem, y: np.ndarray) -> float:
-    return float(np.sum(problem.weighted_residual(y, problem.n_train) ** 2))
+def _gain(problem: FitProblem, y_with: np.ndarray, y_without: np.ndarray) -> float:
+    """Held-out gain of an effect, in %, on the channels it acts on."""
+    nt = problem.n_train
+    return acted_improvement_pct(problem.weighted_residual(y_without, nt), problem.weighted_residual(y_with, nt))
 
 
 def prune(problem: FitProblem, base: dict, y_base: np.ndarray, hyps: list[Hypothesis],
@@ -82,13 +85,12 @@ def prune(problem: FitProblem, base: dict, y_base: np.ndarray, hyps: list[Hypoth
     values = refit(problem, base, hyps) if len(hyps) > 1 else [np.asarray(hyps[0].values, dtype=float)]
     kept, vals, dropped = list(hyps), list(values), []
     while len(kept) > 1:
-        sse_all = _holdout_sse(problem, problem.outputs(_spec(base, kept, vals)))
+        y_all = problem.outputs(_spec(base, kept, vals))
         gains = []
         for j in range(len(kept)):
             rest = [h for i, h in enumerate(kept) if i != j]
             rv = [v for i, v in enumerate(vals) if i != j]
-            sse_wo = _holdout_sse(problem, problem.outputs(_spec(base, rest, rv)))
-            gains.append(100.0 * (1.0 - sse_all / max(sse_wo, 1e-300)))
+            gains.append(_gain(problem, y_all, problem.outputs(_spec(base, rest, rv))))
         j = int(np.argmin(gains))
         if gains[j] >= min_improvement_pct:
             break
