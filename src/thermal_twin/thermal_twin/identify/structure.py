@@ -1,7 +1,8 @@
 """The starting structure of a twin made from a description and a recording: every body a
 sensor sits on is a node, plus ``hidden`` hidden bodies; every node exchanges heat with the hall
-and with the bodies it touches (a hidden body with the bodies an input heats: it stands for the
-unsensed structure those heat and the hall drives; with a speed that ``moves``, its exchange with the
+and with the bodies it touches (a hidden body with the bodies an input heats and the hidden bodies
+before it: it stands for the unsensed structure those heat and the hall drives, heat that flows on
+deeper into the machine; with a speed that ``moves``, its exchange with the
 hall grows with the speed^0.8, as forced convection of a turning part does); every heating input has a
 source on the bodies it heats and on each hidden body; every displacement channel has a
 thermo-elastic term on every node but the fluids (a body whose sensor reads a difference against a
@@ -110,7 +111,7 @@ def _links(d: Description, hidden: int, u_max: dict[str, float]) -> dict:
                   for n, use in d.inputs.items() if use.moves}
         if moving:
             links[f"{h}_hall"]["varies_with"] = moving
-        for b in heated:
+        for b in heated + [hidden_name(j) for j in range(i)]:
             links[f"{h}_{b}"] = {"between": [h, b], "conductance": CONTACT_CONDUCTANCE / 2.0}
     return links
 

@@ -1,0 +1,79 @@
+"""The tables of docs/twin_init.md, generated from ``bench twin-init``'s ``twin_init.json``:
+``python -m thermal_eval.twin_init.report PATH/twin_init.json``."""
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+import sys
+
+INIT = "init-twin prior from 24 h"
+NO_PRIOR = "no prior running on"
+TYPE = "type prior running on (needs the preset)"
+LINEAR = ("E_X0C", "E_Y0C", "E_Z0T", "E_R0T")
+
+
+def _f(v, digits: int = 3) -> str:
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.{digits}f}"
+
+
+def units_table(units: list[dict]) -> list[str]:
+    lines = ["| unit | what differs (hidden from twin init) | hidden bodies | probes day 1 | no prior running on "
+             "| **init-twin prior from 24 h** | type prior (needs the preset) | init P99 " + "/".join(LINEAR) + " um |",
+             "|---|---|---|---|---|---|---|---|"]
+    for u in units:
+        r = u["ratios"]
+        comps = u["components_p99"][INIT]
+        lines.append(f"| #{u['seed']} {u['kind']} | {u['truth']} | {u['hidden_bodies']} | {u['probes_first_day']} | "
+                     f"{_f(r[NO_PRIOR])} | **{_f(r[INIT])}** | {_f(r.get(TYPE))} | "
+                     + " / ".join(_f(comps[c], 2) for c in LINEAR) + " |")
+    return lines
+
+
+def held_out_table(units: list[dict]) -> list[str]:
+    """Open-loop held-out RMSE of the twin chosen on 0-18 h, on the probes of 18-24 h."""
+    chans = list(LINEAR) + ["E_A0C", "E_B0C", "E_C0C"]
+    lines = ["| unit | predictor | " + " | ".join(chans) + " |", "|---|---|" + "---|" * len(chans)]
+    for u in units:
+        h = u["init_held_out_rmse"]
+        for name in ("twin", "training mean", "static regression"):
+            lines.append(f"| #{u['seed']} {u['kind']} | {name} | " + " | ".join(_f(h[c][name], 2) for c in chans) + " |")
+    return lines
+
+
+def fl_table(fl: dict) -> list[str]:
+    names = list(next(iter(fl["rows"].values())))
+    lines = ["| channel | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for ch, row in fl["rows"].items():
+        lines.append(f"| {ch} | " + " | ".join(f"{_f(row[n]['test_mae_um'])} [{_f(row[n]['validation_mae_um'])}]"
+                                               for n in names) + " |")
+    return lines
+
+
+def summary(units: list[dict]) -> list[str]:
+    init = [u["ratios"][INIT] for u in units]
+    none = [u["ratios"][NO_PRIOR] for u in units]
+    walls = [u["wall_s"]["twin_init"] for u in units]
+    speed = [u["twin_simulated_h_per_s"] for u in units]
+    return [f"- init-twin prior from 24 h: ratio {min(init):.3f}-{max(init):.3f} over {len(init)} units, "
+            f"{sum(r <= 0.5 for r in init)} of {len(init)} at most 0.5 (target: every unit); "
+            f"no prior running on {min(none):.3f}-{max(none):.3f}; better than no prior on "
+            f"{sum(a < b for a, b in zip(init, none))} of {len(init)}.",
+            f"- twin init wall time {min(walls):.1f}-{max(walls):.1f} s per unit (24 h at 60 s), "
+            f"twin {min(speed):.0f}-{max(speed):.0f} simulated h/s in the fit."]
+
+
+def markdown(doc: dict) -> str:
+    out = ["### nmv5000 units without the preset (ratio to probe-and-hold over 24-178 h)", ""]
+    out += units_table(doc["units"]) + [""] + summary(doc["units"]) + ["",
+            "### The init twin open loop on the held-out probes of 18-24 h (RMSE, um or um/m)", ""]
+    out += held_out_table(doc["units"])
+    if doc.get("fl_thermal"):
+        fl = doc["fl_thermal"]
+        out += ["", f"### FL_THERMAL: test [validation] MAE, um ({fl['hidden_bodies']} hidden bodies; "
+                    f"twin init {fl['wall_s']} s, {fl['twin_simulated_h_per_s']} simulated h/s)", ""] + fl_table(fl)
+    return "\n".join(out) + "\n"
+
+
+if __name__ == "__main__":
+    sys.stdout.write(markdown(json.loads(pathlib.Path(sys.argv[1]).read_text())))
