@@ -89,18 +89,18 @@ def node_states(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.nd
         # regimes change rarely: label the runs of constant key, then map runs to ids
         keys = np.column_stack(key_cols)
         starts = np.concatenate([[0], np.flatnonzero(np.any(np.diff(keys, axis=0) != 0, axis=1)) + 1])
-        ids: dict[tuple, int] = {}
-        run_id = np.array([ids.setdefault(tuple(keys[a]), len(ids)) for a in starts])
+        _, first, run_id = np.unique(keys[starts], axis=0, return_index=True, return_inverse=True)
+        run_id = np.asarray(run_id).ravel()
         lengths = np.diff(np.concatenate([starts, [n_t - 1]]))
         reg = np.repeat(run_id, lengths)
-        uniq = list(ids)
+        uniq = list(starts[first])          # per regime: the first step in it
     else:
         uniq, reg = [], np.zeros(0, dtype=int)
     names = list(vals)
     maps = []
     kbs = np.empty((len(uniq), n, len(net.boundary_names)))
     for r in range(len(uniq)):
-        k = int(np.flatnonzero(reg == r)[0])
+        k = int(uniq[r])
         u = {name: float(vals[name][k]) for name in names}
         K, kbs[r] = net.matrices(u)
         maps.append(step_maps(K, net.capacity, float(t[k + 1] - t[k])))
