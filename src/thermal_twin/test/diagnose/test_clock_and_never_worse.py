@@ -2,7 +2,8 @@
 
 - A common clock offset of the measured channels is estimated and removed, and the answer is
   ``none`` (it was ``unnamed`` with rate terms); a lag of one sensor is not taken for one.
-- A channel is "worse" only when its held-out RMSE rises measurably and significantly.
+- A channel is "worse" only when its held-out RMSE rises measurably and significantly; an
+  effect on one channel is judged on that channel.
 - Adopted effects are refitted together and an extra that does not pay for itself on
   held-out data is dropped.
 """
@@ -16,7 +17,7 @@ from thermal_comp_common.recording_csv import Recording, column_kind
 from thermal_eval.diagnose.concealed import HiddenEffect as H, concealed_recording, find_candidate, operating_programme
 from thermal_twin.diagnose import clock, joint
 from thermal_twin.diagnose.diagnosis import diagnose, shared_channels
-from thermal_twin.diagnose.fit import FitProblem, fit_candidate, worse_channels
+from thermal_twin.diagnose.fit import FitProblem, acted_improvement_pct, fit_candidate, worse_channels
 from thermal_twin.machine.schema import load_machine
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
@@ -85,3 +86,14 @@ def test_an_extra_adoption_that_does_not_pay_for_itself_is_dropped():
     assert [h.candidate.key for h in kept] == ["heat_source:table:spindle_rpm"], dropped
     assert dropped[0]["effect"] == "sensor_bias:column:-" and dropped[0]["holdout_gain_pct"] < 5.0
     assert abs(kept[0].values[0] - 40.0) < 6.0
+
+
+def test_an_effect_on_one_channel_is_judged_on_that_channel():
+    rng = np.random.default_rng(1)
+    r0 = rng.standard_normal((20, 300))
+    r0[3] += 3.0                                          # a bias of three sigmas on one channel of twenty
+    r1 = r0.copy()
+    r1[3] -= 3.0
+    total = 100.0 * (1.0 - np.sum(r1 ** 2) / np.sum(r0 ** 2))
+    assert total < 50.0 < acted_improvement_pct(r0, r1)   # diluted by nineteen untouched channels, not on its own
+    assert acted_improvement_pct(r0, r0) == 0.0
