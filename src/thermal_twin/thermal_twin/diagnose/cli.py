@@ -57,6 +57,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bounds", help="with --calibrate: YAML calibration section (kinds, parameters)")
     p.add_argument("--max-nfev", type=int, default=20, help="with --calibrate: optimiser iterations (default 20)")
     p.add_argument("--no-unnamed", action="store_true", help="do not fit an out-of-vocabulary discrepancy")
+    p.add_argument("--no-clock-offset", action="store_true",
+                   help="do not look for a common time shift of the measured channels against the inputs")
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_allow_truncated_argument(p)

@@ -58,7 +58,8 @@ def run(args) -> int:
                      min_improvement_pct=args.min_improvement, start_hour=args.start_hour,
                      effects=effects, max_lag_s=args.max_lag_h * 3600.0, progress=not args.quiet,
                      calibrate=args.calibrate, calibration_section=section, calibration_nfev=args.max_nfev,
-                     unnamed=not args.no_unnamed, engine=engine)
+                     unnamed=not args.no_unnamed, clock_offset=not args.no_clock_offset,
+                     engine=engine)
     except (MachineSpecError, MappingError, RecordingError, DiagnosisError, CalibrationSpecError,
             CalibrationError, TaskEngineError, ValueError, OSError) as exc:
         print(f"thermal-comp diagnose: {exc}", file=sys.stderr)
@@ -77,6 +78,11 @@ def run(args) -> int:
         for m in cal["mis_calibrated"][:8]:
             print(f"mis-calibrated: {m['name']} {m['start']:.4g} -> {m['value']:.4g} {m['unit']}"
                   + (f" ({m['change_pct']:+.0f} %)" if m["change_pct"] is not None else ""))
+    clk = d.report.get("clock_offset") or {}
+    if clk.get("applied"):
+        print(f"clock offset: measured channels {clk['shift_s']:+.4g} s ({clk['steps']:+.2f} steps) against the "
+              f"inputs, removed before the search ({clk['channels_improved']} of {clk['channels_responsive']} "
+              "responsive channels improved)")
     sel = d.report["selected"]
     for u in d.report.get("unnamed", []):
         c = d.report["channels"].get(u["channel"], {})
