@@ -2,13 +2,15 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from thermal_comp_common.recording_csv import write_recording_csv
-from thermal_eval.datasets import DatasetError, fold_data, load_runs, resolve_runs, run_splits, segments
-from thermal_eval.datasets.evaluate_runs import evaluate_runs
+from thermal_eval.datasets import DatasetError, RunFold, fold_data, load_runs, resolve_runs, run_splits, segments
+from thermal_eval.datasets.evaluate_runs import ChosenParams, evaluate_runs
+from thermal_eval.datasets.runs import train_data
 from thermal_eval.evaluate.cli import main
 from thermal_eval.evaluate.open_loop_models import MODELS
 from thermal_eval.evaluate.baselines import BASELINES
@@ -123,8 +125,9 @@ def test_pooled_figures_are_the_held_out_runs_rows_together(folder):
     runs = load_runs(resolve_runs([str(folder)]))
     (fold,) = run_splits([r.entry for r in runs], "0.6,0,0.4")
     f = evaluate_runs(runs, [fold], models=BASELINES + [LAGGED], progress=lambda s: None)
-    per = [evaluate(fold_data(runs, fold.train, i), models=BASELINES + [LAGGED], show_progress=False)
-           for i in fold.test]
+    td = train_data(runs, fold.train)                   # the fold's models are chosen on its training runs alone
+    chosen = [replace(m, select=ChosenParams({"z_um": m.select(td, "z_um", len(td))})) for m in BASELINES + [LAGGED]]
+    per = [evaluate(fold_data(runs, fold.train, i), models=chosen, show_progress=False) for i in fold.test]
     y = [fold_data(runs, fold.train, i) for i in fold.test]
     ol = [r.open_loop["lagged_ridge"]["z_um"] for r in per]     # scored as the change since the run's start
     res = np.concatenate([d.displacement_um["z_um"][d.split.test] - (p[d.split.test] - p[d.split.n_train - 1])
@@ -165,6 +168,18 @@ def test_runs_at_rest_start_from_their_first_reading_and_are_never_scored(folder
     assert d.split.test.stop - d.split.test.start == len(held) - 1       # the held-out run's own rows only
     np.testing.assert_array_equal(d.displacement_um["z_um"][d.split.test], held.displacement_um["z_um"][1:])
     first = d.split.n_train - 1 - k                      # the held-out run's rest rows repeat its first reading
-    np.testing.assert_array_equal(d.temperatures[first:d.split.n_train], np.repeat(held.temperatures[:1], k + 1, 0))
+    np.testing.assert_array_equal(d.temperatures[first:d.split.n_train], np.zeros((k + 1, held.temperatures.shape[1])))
+    np.testing.assert_allclose(d.temperatures[d.split.test], held.temperatures[1:] - held.temperatures[:1])
     with pytest.raises(DatasetError, match="rest hours"):
         fold_data(runs, [0, 1, 2], 4, rest_h=-1.0)
+
+
+def test_temperatures_share_the_runs_start_reference_so_a_static_map_fits_every_run(folder):
+    """Runs start at different hall temperatures and their displacements at 0: with each run's
+    temperatures relative to its first reading too, a least-squares map of the temperature
+    changes predicts a held-out run to its noise (absolute temperatures leave an offset per run)."""
+    runs = load_runs(resolve_runs([str(folder)]))
+    static = next(m for m in BASELINES if m.name == "static_ls")
+    f = evaluate_runs(runs, [RunFold("f", (0, 1, 2), (), (3, 4))], models=[static], adaptive=False,
+                      progress=lambda s: None)
+    assert f["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"] < 0.1

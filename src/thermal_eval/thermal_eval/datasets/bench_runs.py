@@ -58,13 +58,15 @@ def worst_run_ratio(figures: dict[str, Any]) -> dict[str, dict[str, float]]:
 
 
 def run_fleet(engine: EngineSpec, quick: bool = False, presets=("spindle-stand", "swiss-lathe"),
-              rest_h: float = 0.0) -> dict[str, Any]:
+              rest_h: float = 0.0, seed: int = 0) -> dict[str, Any]:
     """Per preset: 4 units x 5 runs of 5 h (quick: 3 units x 3 runs of 3 h); units 0..2 train on
     their first 3 runs (quick: 2), scored on their other runs and on every run of the last unit.
-    ``rest_h``: every run preceded by its first reading held that long (``evaluate --rest-h``)."""
+    ``rest_h``: every run preceded by its first reading held that long (``evaluate --rest-h``).
+    ``seed``: the fleet's (its units and runs: :class:`FleetPlan`)."""
     out: dict[str, Any] = {}
     for preset in presets:
-        plan = FleetPlan(preset, units=3, runs_per_unit=3, hours=3.0) if quick else FleetPlan(preset)
+        plan = FleetPlan(preset, units=3, runs_per_unit=3, hours=3.0, seed=seed) if quick else \
+            FleetPlan(preset, seed=seed)
         train_per_unit = 2 if quick else 3
         with tempfile.TemporaryDirectory() as d:
             t0 = time.perf_counter()

@@ -3,7 +3,8 @@ as one :class:`~thermal_eval.evaluate.spec.EvaluationData`.
 
 Every run is read by the one reader of real files with the same spec (columns, units,
 mapping) and must give the same temperatures, channels and inputs. Each run keeps its own
-start reference (displacements relative to its first finite value) and its own time axis.
+start reference (displacements and temperatures relative to their first finite value:
+:func:`from_start`) and its own time axis.
 For a fold the training runs are laid end to end (each after the previous one's last row
 plus one sample period), then the held-out run; its first row closes the calibration phase
 (its displacement is its start reference, 0, by definition), so the probing clock of the
@@ -113,6 +114,20 @@ def _end_to_end(parts: Sequence[EvaluationData], n_train: int, test: slice, sour
                           Split(n_train, slice(n, n), test, n), source, notes)
 
 
+def from_start(d: EvaluationData) -> EvaluationData:
+    """The run's temperatures relative to its first finite reading of each sensor: the same start
+    reference as its displacements, so that a map from temperature changes to displacement
+    changes fits every run (absolute temperatures against displacements that start at 0 leave a
+    per-run offset, f(T at the start), that no temperature explains). Inputs stay as they are."""
+    temps = np.array(d.temperatures, dtype=float, copy=True)
+    for j in range(temps.shape[1]):
+        ok = np.flatnonzero(np.isfinite(temps[:, j]))
+        if ok.size:
+            temps[:, j] -= temps[ok[0], j]
+    return EvaluationData(d.time_s, temps, d.sensors, d.inputs, d.input_names, d.displacement_um, d.split,
+                          d.source, list(d.notes))
+
+
 def at_rest(d: EvaluationData, hours: float) -> EvaluationData:
     """The run with its first reading held for ``hours`` before it (at its median sample step):
     the assumption that the machine was at rest when the run started, so that dynamic models
@@ -134,7 +149,7 @@ def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int, rest_h: 
     """The training runs end to end, then the held-out run (its rows after the first are the
     test window; its first row closes the calibration phase). ``rest_h``: every run preceded by
     its first reading held that long (:func:`at_rest`; never scored)."""
-    parts = [at_rest(runs[i].data, rest_h) for i in list(train) + [held_out]]
+    parts = [at_rest(from_start(runs[i].data), rest_h) for i in list(train) + [held_out]]
     n_fit = sum(len(p) for p in parts[:-1])
     if n_fit < 50:
         raise DatasetError(f"run split: {n_fit} training rows in {len(train)} runs; the walk-forward needs >= 50")
@@ -148,6 +163,6 @@ def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int, rest_h: 
 
 def train_data(runs: Sequence[Run], train: Sequence[int], rest_h: float = 0.0) -> EvaluationData:
     """The training runs end to end, every row a training row (where a fold's models choose)."""
-    parts = [at_rest(runs[i].data, rest_h) for i in train]
+    parts = [at_rest(from_start(runs[i].data), rest_h) for i in train]
     n = sum(len(p) for p in parts)
     return _end_to_end(parts, n, slice(n, n), "training runs", [])
