@@ -48,13 +48,13 @@ def no_twin_config() -> dict:
     return cfg
 
 
-def init_twin_config(twin_path: pathlib.Path, nodes: list[str], soft: str = "nodes") -> dict:
-    """The same parameters with the init twin as the soft-sensor twin: ``nodes`` (``twin:<node>``
-    names; ``soft`` "nodes"), its predicted errors ("errors") or both."""
+def init_twin_config(twin_path: pathlib.Path, soft_sensors: list[str]) -> dict:
+    """The same parameters with the init twin as the soft-sensor twin (``twin:<node>`` names of the
+    nodes its errors use). Its predicted errors ``twin:<error>`` as TALC's inputs were tried on the
+    tuning unit: the prior found no stable ARX on them."""
     cfg = yaml.safe_load(SHIPPED_CONFIG.read_text())
     cfg["type_model"] = str(twin_path.resolve())
-    names = {"nodes": list(nodes), "errors": [f"twin:{c}" for c in cfg["component_names"]]}
-    cfg["type_input_names"] = names["nodes"] + names["errors"] if soft == "both" else names[soft]
+    cfg["type_input_names"] = list(soft_sensors)
     return cfg
 
 
@@ -71,7 +71,7 @@ def _replay(rec: Recording, model, noise: dict, seed: int, start: int = 0):
 
 
 def unit_case(kind: str, seed: int, hours: float, init_h: float, out: pathlib.Path, type_prior: bool = True,
-              progress=lambda m: None, soft: str = "nodes",
+              progress=lambda m: None,
               description: pathlib.Path = DESCRIPTION) -> dict:
     unit = structural_unit(kind, seed)
     rec = simulate(unit.machine, make_timeline("nmv5000", SCENARIO, hours=hours, seed=seed), seed=seed).to_recording()
@@ -85,7 +85,7 @@ def unit_case(kind: str, seed: int, hours: float, init_h: float, out: pathlib.Pa
     t0 = time.perf_counter()
     rep = init_twin(load_description(str(description)), day, out, progress=progress)
     t_init = time.perf_counter() - t0
-    cfg = init_twin_config(pathlib.Path(rep["files"]["twin"]), rep["soft_sensors"], soft)
+    cfg = init_twin_config(pathlib.Path(rep["files"]["twin"]), rep["soft_sensors"])
     t0 = time.perf_counter()
     prior = build_prior(rep["files"]["twin"], cfg, training_scenarios("talc", "nmv5000"), kind="talc")
     t_prior = time.perf_counter() - t0
