@@ -168,18 +168,24 @@ def test_runs_at_rest_start_from_their_first_reading_and_are_never_scored(folder
     assert d.split.test.stop - d.split.test.start == len(held) - 1       # the held-out run's own rows only
     np.testing.assert_array_equal(d.displacement_um["z_um"][d.split.test], held.displacement_um["z_um"][1:])
     first = d.split.n_train - 1 - k                      # the held-out run's rest rows repeat its first reading
-    np.testing.assert_array_equal(d.temperatures[first:d.split.n_train], np.zeros((k + 1, held.temperatures.shape[1])))
-    np.testing.assert_allclose(d.temperatures[d.split.test], held.temperatures[1:] - held.temperatures[:1])
+    np.testing.assert_array_equal(d.temperatures[first:d.split.n_train], np.repeat(held.temperatures[:1], k + 1, 0))
     with pytest.raises(DatasetError, match="rest hours"):
         fold_data(runs, [0, 1, 2], 4, rest_h=-1.0)
 
 
-def test_temperatures_share_the_runs_start_reference_so_a_static_map_fits_every_run(folder):
+def test_temperatures_from_the_runs_start_let_a_static_map_fit_every_run(folder):
     """Runs start at different hall temperatures and their displacements at 0: with each run's
-    temperatures relative to its first reading too, a least-squares map of the temperature
-    changes predicts a held-out run to its noise (absolute temperatures leave an offset per run)."""
+    temperatures relative to its first reading too (opt-in), a least-squares map of the
+    temperature changes predicts a held-out run to its noise; absolute temperatures leave an
+    offset per run."""
     runs = load_runs(resolve_runs([str(folder)]))
     static = next(m for m in BASELINES if m.name == "static_ls")
-    f = evaluate_runs(runs, [RunFold("f", (0, 1, 2), (), (3, 4))], models=[static], adaptive=False,
-                      progress=lambda s: None)
-    assert f["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"] < 0.1
+    fold = RunFold("f", (0, 1, 2), (), (3, 4))
+    rel = evaluate_runs(runs, [fold], models=[static], adaptive=False, temperatures_from_start=True,
+                        progress=lambda s: None)
+    absolute = evaluate_runs(runs, [fold], models=[static], adaptive=False, progress=lambda s: None)
+    assert rel["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"] < 0.1
+    assert absolute["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"] > 0.5
+    d = fold_data(runs, [0, 1, 2], 4, temperatures_from_start=True)
+    held = runs[4].data
+    np.testing.assert_allclose(d.temperatures[d.split.test], held.temperatures[1:] - held.temperatures[:1])

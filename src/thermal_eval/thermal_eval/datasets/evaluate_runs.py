@@ -114,9 +114,9 @@ def _select_task(shared: tuple, name: str) -> dict:
 
 def _held_out_task(shared: tuple, item: tuple[str, int]) -> dict:
     """Task: one held-out run scored with the fold's choices; its residuals and figures."""
-    runs, train, chosen, specs, adaptive, budget, closed_loop, probe_phases, rest_h = shared
+    runs, train, chosen, specs, adaptive, budget, closed_loop, probe_phases, rest_h, from_start = shared
     role, i = item
-    data = fold_data(runs, train, i, rest_h)
+    data = fold_data(runs, train, i, rest_h, from_start)
     models = [replace(specs.get(n) or REGISTRY[n], select=ChosenParams(chosen[n])) for n in chosen]
     res = evaluate(data, models=models, adaptive=adaptive, budget=budget, closed_loop=closed_loop,
                    probe_phases=probe_phases, show_progress=False)
@@ -125,8 +125,8 @@ def _held_out_task(shared: tuple, item: tuple[str, int]) -> dict:
 
 
 def _choose(runs: Sequence[Run], fold: RunFold, models: Sequence[ModelSpec], engine: EngineSpec,
-            rest_h: float = 0.0) -> dict:
-    data = train_data(runs, fold.train, rest_h)
+            rest_h: float = 0.0, from_start: bool = False) -> dict:
+    data = train_data(runs, fold.train, rest_h, from_start)
     specs = {m.name: m for m in models if REGISTRY.get(m.name) is not m}
     chosen: dict[int, dict] = {}
     with single_thread_blas(openmp=True):
@@ -138,10 +138,12 @@ def _choose(runs: Sequence[Run], fold: RunFold, models: Sequence[ModelSpec], eng
 def evaluate_runs(runs: Sequence[Run], folds: Sequence[RunFold], *, models: Sequence[ModelSpec] | None = None,
                   adaptive: bool = True, budget: ProbingBudget | None = None, engine: EngineSpec | None = None,
                   closed_loop: Sequence[str] = (), probe_phases: int = 1, rest_h: float = 0.0,
-                  progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                  temperatures_from_start: bool = False, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Every fold, every held-out run: its figures alone; pooled per role per fold and over every
     fold (``pooled``: every held-out run of a role once per fold it is held out in). ``rest_h``:
-    every run preceded by its first reading held that long (:func:`thermal_eval.datasets.runs.at_rest`)."""
+    every run preceded by its first reading held that long (:func:`thermal_eval.datasets.runs.at_rest`);
+    ``temperatures_from_start``: each run's temperatures relative to its first reading
+    (:func:`thermal_eval.datasets.runs.from_start`)."""
     t0 = time.perf_counter()
     say = progress or (lambda s: print(s, file=sys.stderr, flush=True))
     engine = engine or EngineSpec()
@@ -149,17 +151,19 @@ def evaluate_runs(runs: Sequence[Run], folds: Sequence[RunFold], *, models: Sequ
     budget = budget or ProbingBudget()
     figures: dict[str, Any] = {"runs": [_run_info(r) for r in runs], "ratio_baseline": RATIO_BASELINE,
                                "budget": budget.__dict__, "engine": engine.describe(), "rest_h": rest_h,
+                               "temperatures_from_start": temperatures_from_start,
                                "folds": []}
     total = sum(len(f.held_out()) for f in folds)
     done = 0
     every: dict[str, list] = {"validation": [], "test": []}
     for fold in folds:
         t1 = time.perf_counter()
-        chosen = _choose(runs, fold, models, engine, rest_h)
+        chosen = _choose(runs, fold, models, engine, rest_h, temperatures_from_start)
         say(f"evaluate runs: fold {fold.name}: models chosen on {len(fold.train)} training runs "
             f"({time.perf_counter() - t1:.1f} s)")
         specs = {m.name: m for m in models if REGISTRY.get(m.name) is not m}
-        shared = (runs, tuple(fold.train), chosen, specs, adaptive, budget, tuple(closed_loop), probe_phases, rest_h)
+        shared = (runs, tuple(fold.train), chosen, specs, adaptive, budget, tuple(closed_loop), probe_phases, rest_h,
+                  temperatures_from_start)
         items = fold.held_out()
         per_run, resid = [None] * len(items), {"validation": [], "test": []}
         out: dict[int, dict] = {}

@@ -3,8 +3,8 @@ as one :class:`~thermal_eval.evaluate.spec.EvaluationData`.
 
 Every run is read by the one reader of real files with the same spec (columns, units,
 mapping) and must give the same temperatures, channels and inputs. Each run keeps its own
-start reference (displacements and temperatures relative to their first finite value:
-:func:`from_start`) and its own time axis.
+start reference (displacements relative to their first finite value; optionally the
+temperatures too: :func:`from_start`) and its own time axis.
 For a fold the training runs are laid end to end (each after the previous one's last row
 plus one sample period), then the held-out run; its first row closes the calibration phase
 (its displacement is its start reference, 0, by definition), so the probing clock of the
@@ -145,11 +145,17 @@ def at_rest(d: EvaluationData, hours: float) -> EvaluationData:
                           Split(t.size, slice(t.size, t.size), slice(t.size, t.size), t.size), d.source, [])
 
 
-def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int, rest_h: float = 0.0) -> EvaluationData:
+def _prepared(run: Run, rest_h: float, from_start_: bool) -> EvaluationData:
+    return at_rest(from_start(run.data) if from_start_ else run.data, rest_h)
+
+
+def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int, rest_h: float = 0.0,
+              temperatures_from_start: bool = False) -> EvaluationData:
     """The training runs end to end, then the held-out run (its rows after the first are the
     test window; its first row closes the calibration phase). ``rest_h``: every run preceded by
-    its first reading held that long (:func:`at_rest`; never scored)."""
-    parts = [at_rest(from_start(runs[i].data), rest_h) for i in list(train) + [held_out]]
+    its first reading held that long (:func:`at_rest`; never scored). ``temperatures_from_start``:
+    each run's temperatures relative to its first reading (:func:`from_start`)."""
+    parts = [_prepared(runs[i], rest_h, temperatures_from_start) for i in list(train) + [held_out]]
     n_fit = sum(len(p) for p in parts[:-1])
     if n_fit < 50:
         raise DatasetError(f"run split: {n_fit} training rows in {len(train)} runs; the walk-forward needs >= 50")
@@ -161,8 +167,9 @@ def fold_data(runs: Sequence[Run], train: Sequence[int], held_out: int, rest_h: 
                         + (f", each run after {rest_h:g} h at rest" if rest_h else "")])
 
 
-def train_data(runs: Sequence[Run], train: Sequence[int], rest_h: float = 0.0) -> EvaluationData:
+def train_data(runs: Sequence[Run], train: Sequence[int], rest_h: float = 0.0,
+               temperatures_from_start: bool = False) -> EvaluationData:
     """The training runs end to end, every row a training row (where a fold's models choose)."""
-    parts = [at_rest(from_start(runs[i].data), rest_h) for i in train]
+    parts = [_prepared(runs[i], rest_h, temperatures_from_start) for i in train]
     n = sum(len(p) for p in parts)
     return _end_to_end(parts, n, slice(n, n), "training runs", [])

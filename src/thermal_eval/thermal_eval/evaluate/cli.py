@@ -34,6 +34,9 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--rest-h", type=float, default=0.0, metavar="H",
                     help="several runs: each starts after its first reading held H hours (the machine at rest), "
                          "so dynamic models do not carry the previous run's state (default 0: off)")
+    ap.add_argument("--temperatures-from-start", action="store_true",
+                    help="several runs: each run's temperatures relative to its first reading, as its "
+                         "displacements are (a static map of the changes fits every run; default: absolute)")
     ap.add_argument("--sample-period-s", type=float, metavar="S",
                     help="the CSV has no time_s column: row i is at i x S seconds")
     ap.add_argument("--out", required=True, metavar="DIR", help="output folder (refused if not empty, see --force)")
