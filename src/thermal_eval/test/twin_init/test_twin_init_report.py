@@ -1,0 +1,37 @@
+"""docs/twin_init.md's tables come from the bench's JSON: every ratio and MAE printed is the
+JSON's, rounded; the nmv5000 description of the bench is a valid description."""
+from __future__ import annotations
+
+from thermal_twin.identify import load_description
+
+from thermal_eval.twin_init.fl_case import DESCRIPTION as FL_DESCRIPTION
+from thermal_eval.twin_init.report import INIT, NO_PRIOR, TYPE, markdown
+from thermal_eval.twin_init.units_case import DESCRIPTION
+
+COMPS = {"E_X0C": 1.234, "E_Y0C": 2.0, "E_Z0T": 3.0, "E_R0T": 4.0, "E_A0C": 5.0, "E_B0C": 6.0, "E_C0C": 7.0}
+HELD = {c: {"twin": 0.5, "training mean": 1.5, "static regression": 0.75} for c in COMPS}
+
+
+def _doc():
+    unit = {"seed": 22, "kind": "links", "truth": "links x2", "hidden_bodies": 2, "probes_first_day": 58,
+            "ratios": {NO_PRIOR: 2.0634, INIT: 0.4567, TYPE: 0.2841},
+            "components_p99": {INIT: COMPS}, "init_held_out_rmse": HELD,
+            "wall_s": {"twin_init": 17.7, "prior": 15.8}, "twin_simulated_h_per_s": 900.0}
+    fl = {"hidden_bodies": 1, "wall_s": 100.0, "twin_simulated_h_per_s": 570.0,
+          "rows": {"ch1": {"twin init (open loop)": {"test_mae_um": 1.9876, "validation_mae_um": 2.5},
+                           "lagged ridge": {"test_mae_um": 1.1, "validation_mae_um": 1.2}}}}
+    return {"units": [unit], "fl_thermal": fl}
+
+
+def test_the_tables_print_the_json_figures():
+    md = markdown(_doc())
+    assert "| #22 links | links x2 | 2 | 58 | 2.063 | **0.457** | 0.284 | 1.23 / 2.00 / 3.00 / 4.00 |" in md
+    assert "1.988 [2.500]" in md and "1.100 [1.200]" in md
+    assert "0 of 1 at most 0.5" not in md and "1 of 1 at most 0.5" in md
+
+
+def test_the_bench_descriptions_are_valid():
+    nmv = load_description(str(DESCRIPTION))
+    assert nmv.hall == "ambient" and nmv.inputs["c_speed_rpm"].moves
+    fl = load_description(str(FL_DESCRIPTION))
+    assert fl.boundaries["coolant"] == "sensor:t4" and fl.cooled["coolant"] == ["motor", "housing"]
