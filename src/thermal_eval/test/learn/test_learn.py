@@ -165,3 +165,26 @@ def test_adoption_needs_better_validation_probes_and_no_component_clearly_worse(
     assert not same.adopt and "not better" in same.reason
     few = decide(v, noise, v, v, np.array([False, False, True, True]))
     assert not few.adopt and "only 2 validation probes" in few.reason
+
+
+@pytest.mark.slow
+def test_a_second_learning_is_tested_against_the_adopted_prior(unit_run, tmp_path):
+    """As the online learner does after an adoption: learn again from the adopted twin with
+    --current-prior/--current-config the adopted prior; the adaptive test and the report are
+    against that prior, not the type's."""
+    path = _csv(unit_run, tmp_path)
+    first = tmp_path / "first"
+    assert learn_main([str(path), "--twin", "nmv5000", "--out", str(first), "--train-h", str(TRAIN_H), "--quiet"]) == 0
+    rep1 = json.loads((first / "report.json").read_text())
+    assert rep1["adoption"]["adopt"] and rep1["tested_against"]["source"] == "type"
+    second = tmp_path / "second"
+    assert learn_main([str(path), "--twin", rep1["files"]["unit_twin"], "--out", str(second), "--train-h", str(TRAIN_H),
+                       "--current-prior", rep1["files"]["prior"], "--current-config", rep1["files"]["model_config"],
+                       "--quiet"]) == 0
+    rep2 = json.loads((second / "report.json").read_text())
+    sha = json.loads((first / "prior.json").read_text())["sha256"]
+    assert rep2["tested_against"] == {"prior": rep1["files"]["prior"], "sha256": sha, "source": "given",
+                                      "model_config": rep1["files"]["model_config"],
+                                      "type_model": str((first / "unit_twin.yaml").resolve())}
+    assert "adaptive, current prior" in rep2["held_out_scores"] and "adaptive, type prior" not in rep2["held_out_scores"]
+    assert f"`{rep1['files']['prior']}` (sha256 {sha}" in (second / "report.md").read_text()

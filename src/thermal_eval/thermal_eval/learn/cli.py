@@ -7,7 +7,9 @@ better on those validation probes, a prior built on an adopted twin whose soft s
 twin (``DIR/prior.json`` with ``DIR/model_config.yaml``), and a report (``report.md``,
 ``report.json``): what moved and by how much, the held-out probes before and after, the type's
 and the unit's prior replayed over the recording's probes, beside holding the last probe, the
-training mean and a static regression. docs/learn.md.
+training mean and a static regression. The adaptive test is against the type's prior, or with
+``--current-prior`` against the prior running now (online learning); the report names it.
+docs/learn.md.
 """
 from __future__ import annotations
 
@@ -36,6 +38,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--probe-noise-um-per-m", type=float, default=None,
                    help="the same for angular components (default: Table 5.4, 1.2)")
     p.add_argument("--no-prior", action="store_true", help="only the unit twin and its held-out scores")
+    p.add_argument("--current-prior", metavar="PRIOR.json", default=None,
+                   help="test the learned prior's adaptive model against this prior (the one running now; its "
+                        "soft-sensor twin must be --twin) instead of the type's prior")
+    p.add_argument("--current-config", metavar="CFG.yaml", default=None,
+                   help="the model configuration --current-prior runs with (default: the shipped one for its "
+                        "soft-sensor twin)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_allow_truncated_argument(p)
     return p

@@ -29,6 +29,7 @@ from thermal_comp_common.recording_csv import Recording
 from thermal_twin.machine.schema import Machine, load_machine
 
 from thermal_eval.learn.adoption import ADAPTIVE_MARGIN, Adoption, decide
+from thermal_eval.learn.current import CurrentPrior, type_current
 from thermal_eval.learn.probe_score import (hold_last, prequential_model, score_table, static_regression,
                                             training_mean)
 from thermal_eval.learn.probes import ProbeSet
@@ -118,32 +119,42 @@ def write_unit_twin(fit: UnitFit, out: pathlib.Path, source: str, spec: dict | N
 
 
 def _prior_models(machine: Machine, unit_path: pathlib.Path, out: pathlib.Path,
-                  progress: Callable[[str], None], unit: bool = True) -> dict[str, tuple[dict, dict]]:
-    """(config, prior) of the type's prior (nominal twin, from the cache) and, with ``unit``, of
-    the unit's (built on its twin, written into ``out``)."""
+                  progress: Callable[[str], None], unit: bool = True,
+                  current: CurrentPrior | None = None) -> tuple[CurrentPrior, dict[str, tuple[dict, dict]]]:
+    """(the prior tested against, name -> (config, prior)): ``current`` (``--current-prior``) or
+    else the type's prior (nominal twin, from the cache) and, with ``unit``, the unit's (built on
+    its twin, written into ``out``)."""
     kind = default_model_kind(machine.name)
     scenarios = training_scenarios(kind, machine.name)
     if not scenarios:
         raise ValueError(f"--twin {machine.name!r}: no training programmes for a {kind} prior of this type")
-    type_cfg = default_config(machine.name, kind)
-    type_path, _ = cached_prior(machine.name, type_cfg, scenarios, kind=kind, progress=progress)
-    models = {"type prior": (type_cfg, load_prior(type_path))}
+    if current is None:
+        type_cfg = default_config(machine.name, kind)
+        type_path, _ = cached_prior(machine.name, type_cfg, scenarios, kind=kind, progress=progress)
+        current = type_current(type_path, type_cfg)
+    models = {reference_name(current): (current.config, current.prior)}
     if unit:
         unit_cfg = default_config(str(unit_path), kind)
         progress(f"building the {kind} prior on the unit's twin ({len(scenarios)} programmes)")
         save_prior(out / UNIT_PRIOR, build_prior(str(unit_path), unit_cfg, scenarios, kind=kind, progress=progress))
         (out / UNIT_CONFIG).write_text(yaml.safe_dump(unit_cfg, sort_keys=False))
         models["unit prior"] = (unit_cfg, load_prior(out / UNIT_PRIOR))
-    return models
+    return current, models
+
+
+def reference_name(current: CurrentPrior) -> str:
+    """The predictor name of the prior the learned one is tested against."""
+    return "type prior" if current.source == "type" else "current prior"
 
 
 def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: float, max_nfev: int = 20,
           progress: Callable[[str], None] = lambda m: None, build_priors: bool = True,
-          validate_h: float | None = None) -> dict[str, Any]:
+          validate_h: float | None = None, current: CurrentPrior | None = None) -> dict[str, Any]:
     """Learn the unit (module docstring) and write its files into ``out``; the report as a dict.
     The twin is fitted on the probes up to ``train_h - validate_h`` (default a quarter of
     ``train_h``) and adopted only if it is better on the probes between (learn.adoption); the
-    unit's prior is built only for an adopted twin. Probes after ``train_h`` are held out."""
+    unit's prior is built only for an adopted twin. Probes after ``train_h`` are held out. The
+    adaptive test is against ``current`` (learn.current; None: the type's prior)."""
     t0 = time.perf_counter()
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
     validate_h = train_h / 4.0 if validate_h is None else float(validate_h)
@@ -168,12 +179,16 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
                   "twin (type), open loop": before, "twin (unit), open loop": after}
     t1 = time.perf_counter()
     files = {"unit_twin": str(unit_path)}
+    tested_against = None
     if build_priors:
-        for name, (cfg, prior) in _prior_models(machine, unit_path, out, progress, adoption.adopt).items():
+        current, priors = _prior_models(machine, unit_path, out, progress, adoption.adopt, current)
+        tested_against, components = current.as_dict(), {}
+        for name, (cfg, prior) in priors.items():
             progress(f"replaying the recording's probes with the {name}")
             model = model_from_prior(prior.get("model_kind", "talc"), cfg, prior)
+            components[name] = list(model.component_names)
             predictors[f"adaptive, {name}"] = prequential_model(model, rec, sub)
-        adoption = _adaptive_check(adoption, sub, predictors, validation, out)
+        adoption = _adaptive_check(adoption, sub, predictors, validation, out, reference_name(current), components)
         if adoption.adopt:
             files |= {"prior": str(out / UNIT_PRIOR), "model_config": str(out / UNIT_CONFIG)}
     progress(("adopted: " if adoption.adopt else "not adopted: ") + adoption.reason)
@@ -182,7 +197,7 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
               "probes": {"train": fit.probes_train, "validation": adoption.probes,
                          "held_out": int((sub.time_s > train_until).sum()),
                          "noise": {c: sub.noise[c] for c in fit.components}, "notes": probes.notes},
-              "adoption": adoption.as_dict(),
+              "adoption": adoption.as_dict(), "tested_against": tested_against,
               "parameters": moved_parameters(final_cal) if final_cal else [],
               "fixed": final_cal.fixed if final_cal else [],
               "structure": {"words": [t.as_dict() for t in st.words], "tried": [t.as_dict() for t in st.tried],
@@ -198,21 +213,27 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
     return report
 
 
-def _adaptive_check(open_loop: Adoption, sub: ProbeSet, predictors: dict, validation, out: pathlib.Path) -> Adoption:
+def _adaptive_check(open_loop: Adoption, sub: ProbeSet, predictors: dict, validation, out: pathlib.Path,
+                    reference: str, components: dict[str, list[str]]) -> Adoption:
     """An open-loop adoption stands only if the adaptive model from the unit's prior also beats
-    the one from the type's prior on the validation probes (each predicted before it was seen);
-    a prior that is not adopted is not left behind."""
+    the one from the ``reference`` prior (the type's or the one running now) on the validation
+    probes (each predicted before it was seen) and has its components (else the running model
+    could not be swapped for it); a prior that is not adopted is not left behind."""
     if not open_loop.adopt:
         return open_loop
-    adaptive = decide(sub.values, sub.noise, predictors["adaptive, type prior"], predictors["adaptive, unit prior"],
-                      validation, margin=ADAPTIVE_MARGIN)
+    if components.get("unit prior") != components.get(reference):
+        adaptive = Adoption(False, f"of other components ({components.get('unit prior')}) than the {reference} "
+                                   f"({components.get(reference)})")
+    else:
+        adaptive = decide(sub.values, sub.noise, predictors[f"adaptive, {reference}"],
+                          predictors["adaptive, unit prior"], validation, margin=ADAPTIVE_MARGIN)
     if adaptive.adopt:
-        return Adoption(True, f"twin open loop {open_loop.reason}; adaptive model {adaptive.reason}",
-                        open_loop.rmse, open_loop.probes)
+        return Adoption(True, f"twin open loop {open_loop.reason}; adaptive model against the {reference} "
+                              f"{adaptive.reason}", open_loop.rmse, open_loop.probes)
     for name in (UNIT_PRIOR, UNIT_CONFIG):
         (out / name).unlink(missing_ok=True)
-    return Adoption(False, f"the twin is better open loop, but the adaptive model from its prior is "
-                           f"{adaptive.reason}", open_loop.rmse, open_loop.probes)
+    return Adoption(False, f"the twin is better open loop, but the adaptive model from its prior against the "
+                           f"{reference} is {adaptive.reason}", open_loop.rmse, open_loop.probes)
 
 
 def _finite(v):

@@ -14,6 +14,7 @@ from thermal_twin.calibrate.fit import CalibrationError
 from thermal_twin.machine.schema import MachineSpecError, load_machine
 
 from thermal_eval.learn.command import learn
+from thermal_eval.learn.current import CurrentPrior, load_current
 from thermal_eval.learn.probes import ProbeDataError, cell_recording
 
 
@@ -39,8 +40,29 @@ def _noise(args, components) -> dict[str, float]:
     return noise
 
 
+def _current(args, machine) -> CurrentPrior | None:
+    """The prior the adaptive test is against when one is given (None: the type's)."""
+    if args.current_config is not None and args.current_prior is None:
+        raise ValueError(f"--current-config {args.current_config}: needs --current-prior")
+    if args.current_prior is None:
+        return None
+    if args.no_prior:
+        raise ValueError(f"--current-prior {args.current_prior}: no adaptive test with --no-prior")
+    return load_current(args.current_prior, args.current_config, args.twin, machine)
+
+
 def _fmt(v) -> str:
     return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.3g}"
+
+
+def _tested_against(ref: Mapping[str, Any] | None) -> list[str]:
+    """The line naming the prior the adaptive test was against (none without priors)."""
+    if not ref:
+        return []
+    who = "the type's prior" if ref["source"] == "type" else "the prior running now (--current-prior)"
+    cfg = f", configuration `{ref['model_config']}`" if ref.get("model_config") else ""
+    return [f"Tested against {who}: `{ref['prior']}` (sha256 {ref['sha256']}{cfg}; soft-sensor twin "
+            f"`{ref['type_model'] or '-'}`).", ""]
 
 
 def markdown(rep: Mapping[str, Any]) -> str:
@@ -51,6 +73,7 @@ def markdown(rep: Mapping[str, Any]) -> str:
              f"the next {rep['validate_h']:g} h ({rep['probes']['validation']}), {rep['probes']['held_out']} held out. "
              f"Calibration {rep['wall_s']['calibration']} s, twin {rep['twin_simulated_h_per_s']} simulated h/s.", "",
              f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
+             *_tested_against(rep.get("tested_against")),
              "## What was added", ""]
     st = rep.get("structure") or {}
     lines += [f"- {w['what']} (fit cost {w['fit_cost']:.3g} of the calibrated twin's; validation: "
@@ -81,12 +104,13 @@ def run(args) -> int:
         if not (math.isfinite(args.train_h) and args.train_h > 0):
             raise ValueError(f"--train-h: {args.train_h!r} must be a number of hours > 0")
         machine = load_machine(args.twin)
+        current = _current(args, machine)
         out = _out_dir(args.out, args.force)
         rec, probes = cell_recording(args.recording)
         probes.noise = _noise(args, list(probes.values))
         say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
         rep = learn(machine, rec, probes, out, args.train_h, max_nfev=args.max_nfev, progress=say,
-                    build_priors=not args.no_prior, validate_h=args.validate_h)
+                    build_priors=not args.no_prior, validate_h=args.validate_h, current=current)
     except (ValueError, OSError, MachineSpecError, BagRecordingError, ProbeDataError, CalibrationError) as exc:
         print(f"thermal-comp learn: {exc}", file=sys.stderr)
         return 2
