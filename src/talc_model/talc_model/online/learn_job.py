@@ -58,10 +58,16 @@ def snapshot_bag(bag: pathlib.Path, dest: pathlib.Path) -> pathlib.Path:
 
 
 def learn_argv(command: list[str], recording: pathlib.Path, twin: str, out: pathlib.Path,
-               train_h: float) -> list[str]:
-    """The learn command line on the snapshot ``recording`` (a bag that may end early)."""
-    return [*command, str(recording), "--twin", twin, "--out", str(out), "--train-h", f"{train_h:.3f}",
-            "--allow-truncated", "--quiet"]
+               train_h: float, current_prior: str = "", current_config: str = "") -> list[str]:
+    """The learn command line on the snapshot ``recording`` (a bag that may end early); with
+    ``current_prior`` (and ``current_config``) learn's adaptive test is against that prior, the
+    one running now, instead of the type's."""
+    argv = [*command, str(recording), "--twin", twin, "--out", str(out), "--train-h", f"{train_h:.3f}"]
+    if current_prior:
+        argv += ["--current-prior", current_prior]
+        if current_config:
+            argv += ["--current-config", current_config]
+    return argv + ["--allow-truncated", "--quiet"]
 
 
 class JobState(enum.Enum):

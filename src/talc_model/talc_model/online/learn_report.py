@@ -45,14 +45,14 @@ def _round(v):
 
 def figures_of(doc: dict) -> dict[str, Any]:
     """The figures an audit line carries: the validation probes' RMSE type -> unit per component,
-    how many probes decided, learn's wall time."""
+    how many probes decided, the prior learn's adaptive test was against, learn's wall time."""
     adoption = doc.get("adoption") or {}
     rmse = adoption.get("validation_rmse") or {}
     return {"validation_probes": adoption.get("validation_probes"),
             "validation_rmse": {c: {k: _round(v) for k, v in r.items()} for c, r in rmse.items()
                                 if isinstance(r, dict)},
             "train_h": doc.get("train_h"), "recording_h": _round(doc.get("recording_h")),
-            "learn_wall_s": doc.get("wall_s")}
+            "tested_against": doc.get("tested_against"), "learn_wall_s": doc.get("wall_s")}
 
 
 def read_decision(out: pathlib.Path) -> LearnDecision:

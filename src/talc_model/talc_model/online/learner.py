@@ -1,8 +1,9 @@
 """The online learner's core (the learner node only wires it): on the schedule or on demand it
 snapshots the cell's bag and starts ``thermal-comp learn`` on it in a process of its own, from
-the twin in use (the type's, after an adoption the adopted unit's, so learn's open-loop test is
-against the twin the running prior was built on)
-(talc_model.online.learn_job), polls it without ever waiting, and when it ends reads learn's own
+the twin in use and against the prior in use (the type's twin and the node's ``prior_path``;
+after an adoption the adopted unit's twin, prior and configuration), so learn's open-loop test is
+against the twin the running prior was built on and its adaptive test against the running prior
+(``--current-prior``/``--current-config``; talc_model.online.learn_job), polls it without ever waiting, and when it ends reads learn's own
 adoption decision (talc_model.online.learn_report). A prior learn adopted is offered to the model
 node (the ``AdoptPrior`` service), which checks, warms and swaps it (talc_model.online.prior_swap);
 everything else (learn failed, timed out, not adopted, the offer refused) is one audit line and
@@ -35,7 +36,8 @@ class LearnerConfig:
     train_fraction: float = 0.8     # learn's --train-h as a fraction of the hours recorded so far
     command: list[str] = field(default_factory=list)
     audit_path: str = ""
-    prior_path: str = ""            # the prior the model starts from (for the audit's old digest)
+    prior_path: str = ""            # the prior the model starts from (the audit's old digest; learn's test)
+    config_path: str = ""           # the configuration it runs with ('' = learn's default for its twin)
 
     def __post_init__(self):
         if not (0.05 < self.train_fraction <= 0.95):
@@ -74,6 +76,8 @@ class OnlineLearner:
         self.last = "idle"
         #: the twin learn starts from and tests against open loop: the type's, then the adopted unit's
         self.twin = cfg.twin
+        #: the prior (and configuration) in use, learn's adaptive test: the node's, then the adopted one
+        self.prior_path, self.config_path = cfg.prior_path, cfg.config_path
 
     @property
     def busy(self) -> bool:
@@ -119,7 +123,8 @@ class OnlineLearner:
         except (ValueError, OSError) as exc:
             self._audit("learn failed", f"snapshot of the recording: {exc}", work=str(work))
             return
-        argv = learn_argv(self.cfg.command, snap, self.twin, work / "out", self.cfg.train_fraction * hours)
+        argv = learn_argv(self.cfg.command, snap, self.twin, work / "out", self.cfg.train_fraction * hours,
+                          self.prior_path, self.config_path if self.prior_path else "")
         started = start_job(argv, work, self.cfg.timeout_s, now_s)
         if isinstance(started, JobEnd):
             self._audit("learn failed", started.reason, work=str(work))
@@ -160,6 +165,7 @@ class OnlineLearner:
         if accepted:
             self.current_sha256 = new_sha256 or offer.sha256
             self.twin = offer.unit_twin or self.twin
+            self.prior_path, self.config_path = offer.prior_path, offer.config_path
 
     def stop(self) -> None:
         """Kill a running learning (the node shuts down)."""

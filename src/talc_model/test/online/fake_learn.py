@@ -1,5 +1,5 @@
 """A stand-in for ``thermal-comp learn`` in the online learner's tests: it parses learn's command
-line and, by ``--mode``, writes a report that adopts (copying the given prior and model
+line (the --current-prior it was given goes into the report) and, by ``--mode``, writes a report that adopts (copying the given prior and model
 configuration into --out), one that does not, exits 2 with learn's one-line refusal, or hangs."""
 import argparse
 import json
@@ -16,6 +16,8 @@ ap.add_argument("recording")
 ap.add_argument("--twin", required=True)
 ap.add_argument("--out", required=True)
 ap.add_argument("--train-h", type=float, required=True)
+ap.add_argument("--current-prior", default="")
+ap.add_argument("--current-config", default="")
 ap.add_argument("--allow-truncated", action="store_true")
 ap.add_argument("--quiet", action="store_true")
 a = ap.parse_args()
@@ -30,7 +32,7 @@ if a.mode == "hang":
     while True:              # a learn that never ends: the learner must kill it
         time.sleep(1.0)
 rmse = {"E_X0C": {"type": 2.0, "unit": 0.5}}
-report = {"twin": a.twin, "train_h": a.train_h, "recording_h": a.train_h / 0.8, "wall_s": {"calibration": 0.1},
+report = {"twin": a.twin, "tested_against": {"prior": a.current_prior, "model_config": a.current_config}, "train_h": a.train_h, "recording_h": a.train_h / 0.8, "wall_s": {"calibration": 0.1},
           "adoption": {"adopt": a.mode == "adopt", "reason": f"fake {a.mode}", "validation_probes": 4,
                        "validation_rmse": rmse},
           "files": {"unit_twin": str(out / "unit_twin.yaml")}}

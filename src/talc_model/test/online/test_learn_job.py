@@ -56,6 +56,11 @@ def test_learn_command_line():
     argv = learn_argv(["thermal-comp", "learn"], pathlib.Path("/r"), "nmv5000", pathlib.Path("/o"), 38.4)
     assert argv == ["thermal-comp", "learn", "/r", "--twin", "nmv5000", "--out", "/o", "--train-h", "38.400",
                     "--allow-truncated", "--quiet"]
+    argv = learn_argv(["thermal-comp", "learn"], pathlib.Path("/r"), "/u.yaml", pathlib.Path("/o"), 38.4,
+                      "/p.json", "/c.yaml")
+    assert argv[5:] == ["--out", "/o", "--train-h", "38.400", "--current-prior", "/p.json", "--current-config",
+                        "/c.yaml", "--allow-truncated", "--quiet"]
+    assert "--current-config" not in learn_argv(["l"], pathlib.Path("/r"), "t", pathlib.Path("/o"), 1.0, "/p.json")
     assert default_learn_command()[-1] == "learn" and default_learn_command()[0].endswith("thermal-comp")
     assert parse_command("python x.py --mode keep") == ["python", "x.py", "--mode", "keep"]
 

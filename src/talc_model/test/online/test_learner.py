@@ -2,6 +2,7 @@
 schedule or on demand it snapshots the bag and runs learn in its own process; learn's adoption
 decision alone makes an offer to the model node; a refusal, a failure, a hang (killed) and a
 report that cannot be read are each one audit line, and the learner is free again."""
+import json
 import pathlib
 import sys
 
@@ -51,10 +52,33 @@ def test_an_adopted_prior_is_offered_and_the_answer_audited(tmp_path, priors):
     assert learner.current_sha256 == offer.sha256 and not learner.busy
     # the next learning starts from, and is tested open loop against, the adopted unit's twin
     assert learner.twin == offer.unit_twin == str(tmp_path / "learn" / "learn_001_24.0h" / "out" / "unit_twin.yaml")
+    # and its adaptive test is against the prior and configuration now running, not the type's
     learner.observe(48 * H)
     learner.poll(20.0)
-    assert learner.job.argv[learner.job.argv.index("--twin") + 1] == offer.unit_twin
+    argv = learner.job.argv
+    assert argv[argv.index("--twin") + 1] == offer.unit_twin
+    assert (argv[argv.index("--current-prior") + 1], argv[argv.index("--current-config") + 1]) == \
+        (offer.prior_path, offer.config_path)
     learner.job.proc.wait(timeout=60)
+    report = json.loads((learner.job.work / "out" / "report.json").read_text())
+    assert report["tested_against"] == {"prior": offer.prior_path, "model_config": offer.config_path}
+
+
+def test_the_first_learning_is_tested_against_the_nodes_prior(tmp_path, priors):
+    learner = _learner(tmp_path, "keep", priors)
+    learner.observe(0.0)
+    learner.observe(24 * H)
+    learner.poll(0.0)
+    argv = learner.job.argv
+    assert argv[argv.index("--current-prior") + 1] == str(priors["type_prior"]) and "--current-config" not in argv
+    learner.job.proc.wait(timeout=60)
+    (tmp_path / "w").mkdir()
+    without = _learner(tmp_path / "w", "keep")          # no prior_path: learn tests against the type's prior
+    without.observe(0.0)
+    without.request()
+    without.poll(0.0)
+    assert "--current-prior" not in without.job.argv
+    without.job.proc.wait(timeout=60)
 
 
 def test_learn_saying_no_keeps_the_model_and_is_audited(tmp_path, priors):
@@ -64,6 +88,7 @@ def test_learn_saying_no_keeps_the_model_and_is_audited(tmp_path, priors):
     assert (line["event"], line["decision"], line["reason"]) == ("not adopted", "keep", "fake keep")
     assert line["old_prior_sha256"] == prior_digest(priors["type_prior"]) and line["new_prior_sha256"] == ""
     assert line["figures"]["validation_rmse"] == {"E_X0C": {"type": 2.0, "unit": 0.5}}
+    assert line["figures"]["tested_against"] == {"prior": str(priors["type_prior"]), "model_config": ""}
 
 
 @pytest.mark.parametrize("mode, event, reason", [
