@@ -3,10 +3,10 @@
 later ones. The unit twin is adopted when, open loop on those probes, its noise-normalised sum
 of squared errors is lower than the type twin's AND no component is worse by more than that
 component's probe uncertainty; its prior then must pass the same test with the adaptive model
-(each probe predicted before it is seen) by a margin: ADAPTIVE_MARGIN of the type prior's
-normalised SSE, since a few validation probes decide what runs for days (a hall-sensor-bias unit
-passed at 0.89 x and was worse over the rest of its run). Otherwise the type's twin and prior
-stay. No rclpy.
+(each probe predicted before it is seen) by a margin: ADAPTIVE_MARGIN of the normalised SSE of
+the prior it would replace (the type's, or with ``--current-prior`` the one running now), since a
+few validation probes decide what runs for days (a hall-sensor-bias unit passed at 0.89 x and was
+worse over the rest of its run). Otherwise the twin and prior in use stay. No rclpy.
 """
 from __future__ import annotations
 
