@@ -20,13 +20,17 @@ def _doc():
     fl = {"hidden_bodies": 1, "wall_s": 100.0, "twin_simulated_h_per_s": 570.0,
           "rows": {"ch1": {"twin init (open loop)": {"test_mae_um": 1.9876, "validation_mae_um": 2.5},
                            "lagged ridge": {"test_mae_um": 1.1, "validation_mae_um": 1.2}}}}
-    return {"units": [unit], "fl_thermal": fl}
+    adopt = {"seed": 23, "kind": "extra_source", "hidden_bodies": 3, "adopted": False, "reason": "worse on E_Z0T",
+             "ratios": {"no prior running on": 1.0646, "init-twin prior from 48 h, always": 1.9039,
+                        "init-twin prior from 48 h if adopted": 1.0646}}
+    return {"units": [unit], "adoption": [adopt], "fl_thermal": fl}
 
 
 def test_the_tables_print_the_json_figures():
     md = markdown(_doc())
     assert "| #22 links | links x2 | 2 | 58 | 2.063 | **0.457** | 0.284 | 1.23 / 2.00 / 3.00 / 4.00 |" in md
     assert "1.988 [2.500]" in md and "1.100 [1.200]" in md
+    assert "| #23 extra_source | 3 | no | worse on E_Z0T | 1.065 | 1.904 | 1.065 |" in md
     assert "0 of 1 at most 0.5" not in md and "1 of 1 at most 0.5" in md
 
 

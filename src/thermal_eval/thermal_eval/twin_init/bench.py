@@ -5,6 +5,8 @@ given: twin init from the first 24 h of the cell's own recording (no-prior TALC 
 TALC prior on that twin, TALC from it from 24 h on; the ratio of P99_lin to probe-and-hold over
 the rest of the run beside the no-prior TALC running on and the type's prior (which needs the
 preset). Reported seeds 22-23 (seed 21 was looked at while setting the identification).
+(a') the same units with an adoption test (adoption_case.py): the init-twin prior's TALC runs beside
+the no-prior one over 24-48 h and takes over at 48 h only if it predicted those probes better.
 (b) FL_THERMAL: the init twin's open-loop MAE on the test and validation rows beside the lagged
 ridge, the training mean and a static regression (units_case.py, fl_case.py).
 Writes ``twin_init.json`` (units and FL rows) into the output folder.
@@ -18,6 +20,7 @@ import pathlib
 import tempfile
 
 from thermal_eval.learn.units import KINDS
+from thermal_eval.twin_init.adoption_case import adopted_case
 from thermal_eval.twin_init.fl_case import fl_case
 from thermal_eval.twin_init.units_case import unit_case
 
@@ -43,6 +46,19 @@ def _units(kinds, seeds, hours, root: pathlib.Path, figures: dict) -> list[dict]
     return units
 
 
+def _adoption(kinds, seeds, hours, root: pathlib.Path, figures: dict) -> list[dict]:
+    rows = []
+    for kind, seed in [(k, s) for s in seeds for k in kinds]:
+        print(f"adoption test: unit #{seed} ({kind}) ...", flush=True)
+        r = adopted_case(kind, seed, hours, root / f"adopt_{kind}_{seed}")
+        rows.append(r)
+        for name, v in r["ratios"].items():
+            figures[f"twin_init.adoption.{kind}_{seed}.ratio.{name}"] = round(v, 3)
+        print(f"  {'adopted' if r['adopted'] else 'NOT adopted'} at 48 h ({r['reason']}); ratio from 48 h: "
+              + ", ".join(f"{k} {v:.3f}" for k, v in r["ratios"].items()), flush=True)
+    return rows
+
+
 def run(args: argparse.Namespace | None = None) -> dict:
     quick = bool(getattr(args, "quick", False)) if args is not None else False
     kinds, seeds, hours = (QUICK["kinds"], QUICK["seeds"], QUICK["hours"]) if quick else (KINDS, SEEDS, HOURS)
@@ -54,6 +70,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
     figures["twin_init.units_at_most_0_5"] = sum(r <= 0.5 for r in ratios)
     print(f"twin init: ratio from {INIT_H:g} h {min(ratios):.3f}-{max(ratios):.3f} over {len(ratios)} units "
           f"({figures['twin_init.units_at_most_0_5']} at most 0.5)", flush=True)
+    adopted = _adoption(kinds, seeds, hours, root, figures)
     fl = None
     if not getattr(args, "no_fl", False):
         print("FL_THERMAL: twin init on the training rows ...", flush=True)
@@ -64,6 +81,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
             print(f"  {ch}: test [validation] MAE um: " + ", ".join(
                 f"{n} {v['test_mae_um']:.3f} [{v['validation_mae_um']:.3f}]" for n, v in row.items()), flush=True)
     root.mkdir(parents=True, exist_ok=True)
-    (root / "twin_init.json").write_text(json.dumps({"units": units, "fl_thermal": fl}, indent=1, default=str) + "\n")
+    (root / "twin_init.json").write_text(json.dumps({"units": units, "adoption": adopted, "fl_thermal": fl},
+                                                   indent=1, default=str) + "\n")
     print(f"details {root / 'twin_init.json'}")
     return figures

@@ -41,6 +41,15 @@ def held_out_table(units: list[dict]) -> list[str]:
     return lines
 
 
+def adoption_table(rows: list[dict]) -> list[str]:
+    names = ("no prior running on", "init-twin prior from 48 h, always", "init-twin prior from 48 h if adopted")
+    lines = ["| unit | hidden bodies | adopted at 48 h | why | " + " | ".join(names) + " |", "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| #{r['seed']} {r['kind']} | {r['hidden_bodies']} | {'yes' if r['adopted'] else 'no'} | "
+                     f"{r['reason']} | " + " | ".join(_f(r['ratios'][n]) for n in names) + " |")
+    return lines
+
+
 def fl_table(fl: dict) -> list[str]:
     names = list(next(iter(fl["rows"].values())))
     lines = ["| channel | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
@@ -68,6 +77,9 @@ def markdown(doc: dict) -> str:
     out += units_table(doc["units"]) + [""] + summary(doc["units"]) + ["",
             "### The init twin open loop on the held-out probes of 18-24 h (RMSE, um or um/m)", ""]
     out += held_out_table(doc["units"])
+    if doc.get("adoption"):
+        out += ["", "### With the adoption test: the init-twin prior takes over at 48 h only if it predicted the "
+                    "probes of 24-48 h better (ratio to probe-and-hold over 48-178 h)", ""] + adoption_table(doc["adoption"])
     if doc.get("fl_thermal"):
         fl = doc["fl_thermal"]
         out += ["", f"### FL_THERMAL: test [validation] MAE, um ({fl['hidden_bodies']} hidden bodies; "
