@@ -41,7 +41,7 @@ def decide(values: dict[str, np.ndarray], noise: dict[str, float], type_pred: di
     normalised SSE must be below this fraction of the type's."""
     n = int(mask.sum())
     if n < MIN_VALIDATION_PROBES:
-        return Adoption(False, f"only {n} validation probes (need {MIN_VALIDATION_PROBES}): the type's twin stays",
+        return Adoption(False, f"only {n} validation probes (need {MIN_VALIDATION_PROBES}): the twin in use stays",
                         probes=n)
     rmse, cost_t, cost_u, worse = {}, 0.0, 0.0, []
     for c, v in values.items():
