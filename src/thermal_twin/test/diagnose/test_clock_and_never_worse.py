@@ -15,9 +15,10 @@ import numpy as np
 
 from thermal_comp_common.recording_csv import Recording, column_kind
 from thermal_eval.diagnose.concealed import HiddenEffect as H, concealed_recording, find_candidate, operating_programme
-from thermal_twin.diagnose import clock, joint
+from thermal_twin.diagnose import clock
 from thermal_twin.diagnose.diagnosis import diagnose, shared_channels
 from thermal_twin.diagnose.fit import FitProblem, acted_improvement_pct, fit_candidate, worse_channels
+from thermal_twin.diagnose.search_round import prune
 from thermal_twin.machine.schema import load_machine
 
 SPEC = load_machine(pathlib.Path(__file__).parent / "mini_mill.yaml").to_dict()
@@ -82,7 +83,7 @@ def test_an_extra_adoption_that_does_not_pay_for_itself_is_dropped():
     h1 = fit_candidate(p, SPEC, true_c, y0)
     extra_c = find_candidate(SPEC, tl, "sensor_bias:column:-")
     h2 = fit_candidate(p, h1.spec, extra_c, p.outputs(h1.spec))
-    kept, dropped = joint.prune(p, SPEC, y0, [h1, h2], 5.0)
+    kept, dropped = prune(p, SPEC, y0, [h1, h2], 5.0)
     assert [h.candidate.key for h in kept] == ["heat_source:table:spindle_rpm"], dropped
     assert dropped[0]["effect"] == "sensor_bias:column:-" and dropped[0]["holdout_gain_pct"] < 5.0
     assert abs(kept[0].values[0] - 40.0) < 6.0

@@ -15,7 +15,7 @@ from typing import Mapping
 
 import numpy as np
 
-from thermal_twin.diagnose import clock, joint, residuals
+from thermal_twin.diagnose import clock, residuals
 from thermal_twin.diagnose import unnamed as unnamed_mod
 from thermal_twin.diagnose.calibrated import (calibrated_base, joint_adoption_test,
                                                unnamed_beats_free_calibration)
@@ -23,7 +23,7 @@ from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.effects import EFFECTS, classify_driver
 from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, Hypothesis, worse_channels
 from thermal_twin.diagnose.report import DiagnosisSeries
-from thermal_twin.diagnose.search_round import RoundInputs, run_round
+from thermal_twin.diagnose.search_round import RoundInputs, prune, run_round
 from thermal_twin.diagnose.significance import PROCEDURE
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
@@ -82,8 +82,8 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
     if bar is not None:
         bar.close()
     if adopted:
-        # refitted together, each paying for itself, no channel worse (thermal_twin.diagnose.joint)
-        adopted, dropped = joint.prune(problem, spec_first, y_first, adopted, min_improvement_pct)
+        # refitted together, each paying for itself, no channel worse (search_round.prune)
+        adopted, dropped = prune(problem, spec_first, y_first, adopted, min_improvement_pct)
         (notes if notes is not None else []).extend(f"{d['effect']} dropped: {d['reason']}" for d in dropped)
         base = adopted[-1].spec if adopted else spec_first
         y_base = problem.outputs(base) if adopted else y_first
