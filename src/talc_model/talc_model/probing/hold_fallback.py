@@ -167,6 +167,7 @@ class _Component:
         self.unchanged = 0
         self.n_steps = 0
         self.sigma = float(noise)                         # noise std the score uses (updated per probe)
+        self.stale = False                                # hold mode, but the probe is older than its score covers
 
     def effective_noise(self) -> float:
         """The configured noise, capped by what the probes allow: half the mean square of the
@@ -275,9 +276,10 @@ class HoldFallback:
                 comp.pending = (float(t_s), float(v))
             if not self.enabled or comp.last_total is None:
                 continue
+            comp.stale = comp.mode == MODE_HOLD and has_prediction and self._stale(comp, t_s)
             if not has_prediction or not math.isfinite(v):
                 out[c] = comp.last_total
-            elif comp.mode == MODE_HOLD and not self._stale(comp, t_s):
+            elif comp.mode == MODE_HOLD and not comp.stale:
                 out[c] = comp.last_total
         return out
 
@@ -336,7 +338,8 @@ class HoldFallback:
         out = {}
         for c, comp in self.components.items():
             sig = self.signal(c)
-            out[c] = {"mode": comp.mode if self.enabled else MODE_MODEL, "ratio_to_hold": comp.ratio(self.horizon_s),
+            out[c] = {"mode": comp.mode if self.enabled else MODE_MODEL, "stale": comp.stale,
+                      "ratio_to_hold": comp.ratio(self.horizon_s),
                       "scored_probes": len(comp.scores), "switches": comp.switches, "noise_std": sig["noise_std"],
                       "resolution": sig["resolution"], "unchanged_share": sig["unchanged_share"],
                       "signal": sig["words"]}
@@ -348,7 +351,11 @@ class HoldFallback:
         parts = []
         if self.enabled:
             held = [(c, comp.ratio(self.horizon_s), len(comp.scores)) for c, comp in self.components.items()
-                    if comp.mode == MODE_HOLD]
+                    if comp.mode == MODE_HOLD and not comp.stale]
+            stale = [c for c, comp in self.components.items() if comp.mode == MODE_HOLD and comp.stale]
+            if stale:
+                parts.append("the model's output on " + ", ".join(stale) + " (its last probe is older than "
+                             "the score covers)")
             if held:
                 parts.append("holding the last probe on " + ", ".join(
                     f"{c} (model/hold {r:.2f} over {n} probes)" if n else f"{c} (model not scored yet)"

@@ -185,6 +185,7 @@ def test_a_probe_older_than_its_score_covers_is_not_held():
     hf.observe(0.0, {"c": 1.0})
     assert hf.output(3000.0, {"c": 5.0}, True) == {"c": 1.0}   # hold mode, within the horizon
     assert hf.output(4000.0, {"c": 5.0}, True) == {"c": 5.0}   # unscored beyond it: the model
+    assert hf.diagnostics()["c"]["stale"] and "the model's output on c" in hf.note()
     assert hf.output(4000.0, {"c": 5.0}, False) == {"c": 1.0}  # no prediction: still the probe
 
 
