@@ -16,7 +16,7 @@ from thermal_comp_common.public_api import lazy_exports
 __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     # the write path and its /diagnostics status
     "bridge_core": ["AppliedAxis", "BridgeCore", "BridgeCounters", "BridgeUpdate"],
-    "bridge_status": ["bridge_status"],
+    "status": ["bridge_status"],
     # predicted errors -> axis offsets
     "error_transform": ["HtmGeometry", "LatheToolOffsets", "ToolOffsetModel", "TransformInputError",
                         "fit_tool_offset_model", "five_axis_offsets_um", "offsets_from_errors"],

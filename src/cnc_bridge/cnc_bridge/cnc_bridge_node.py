@@ -33,7 +33,7 @@ launcher drives them, ``autostart:=true`` does it without a manager).
 * **diagnostics**: one status ``bridge`` on ``/diagnostics`` (1 Hz and on change) with the
   lifecycle state, the connection, its security and reconnections, the last confirmed write
   (stamp, host time, values), the counts of writes, clamps, rate-limited writes, refusals and
-  failed writes, and the watchdog (:mod:`cnc_bridge.bridge_status`); the counters live in
+  failed writes, and the watchdog (:mod:`cnc_bridge.status`); the counters live in
   :class:`~cnc_bridge.bridge_core.BridgeCore`.
 * **a reconnection** (a restarted CNC) is a start-up again: what the CNC holds now is adopted
   and ramped from, or, beyond the envelope with compensation on, the bridge stops writing with
@@ -78,7 +78,7 @@ from thermal_comp_msgs.msg import AxisOffsets, MachineState, SimSync, ThermalErr
 from cnc_bridge.audit_log import AuditLog
 from cnc_bridge.bridge_core import (ACTIVATION_REFUSED, NOT_CONFIRMED, POSITIONS_ASSUMED, RAMP_DONE,
                                     TRANSFORM_FAILED, WRITE_FAILED, BridgeCore, BridgeUpdate)
-from cnc_bridge.bridge_status import bridge_status
+from cnc_bridge.status import bridge_status
 from cnc_bridge.bridge_params import (PARAMS, RUNTIME, changed_envelope, envelope_config,
                                       loosening)
 from cnc_bridge.credentials import SECRET_NAMES
@@ -300,7 +300,7 @@ class CncBridgeNode(LifecycleNode):
             log.error(text)
 
     def _diagnose(self) -> None:
-        """The ``bridge`` status (:func:`~cnc_bridge.bridge_status.bridge_status`)."""
+        """The ``bridge`` status (:func:`~cnc_bridge.status.bridge_status`)."""
         level, message, values = bridge_status(
             self.core, self.backend, self._p, self._state_machine.current_state[1],
             stamp_values(self.stamps.values()), any(g.in_burst for g in self.stamps.values()),

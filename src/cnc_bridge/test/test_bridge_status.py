@@ -4,7 +4,7 @@ counts, the watchdog; a refused reconnection is an ERROR naming it."""
 from __future__ import annotations
 
 from cnc_bridge.bridge_core import BridgeCore
-from cnc_bridge.bridge_status import bridge_status
+from cnc_bridge.status import bridge_status
 from cnc_bridge.offset_backend import TwinBackend
 from cnc_bridge.safety_envelope import EnvelopeConfig, SafetyEnvelope
 

@@ -11,5 +11,5 @@ __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     "probe_backend": ["ArtefactModelBackend", "ProbeBackend", "ProbeBackendError", "TouchReply"],
     "cnc_probe_backend": ["CncProbeBackend", "CncProbeNodes"],
     "sphere_fit": ["SphereFit", "SphereFitError", "fit_sphere_centre"],
-    "location_errors": ["location_errors"],
+    "location_equations": ["location_errors"],
 })

@@ -21,7 +21,7 @@ from probe_cycle.cycle_plan import CyclePlan
 from probe_cycle.cycle_reference import SphereReference
 from probe_cycle.cycle_result import (UNIT_UM, UNIT_UM_PER_M, CycleLimits, CycleResult,
                                       MeasuredErrors, failure)
-from probe_cycle.location_errors import EQUATION_C_ANGLES_DEG, location_errors
+from probe_cycle.location_equations import EQUATION_C_ANGLES_DEG, location_errors
 from probe_cycle.probe_backend import TouchReply
 from probe_cycle.sphere_fit import SphereFit, SphereFitError, fit_sphere_centre
 

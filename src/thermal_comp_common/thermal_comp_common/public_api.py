@@ -22,6 +22,9 @@ def lazy_exports(package: str, modules: Mapping[str, Sequence[str]]
                 raise ValueError(f"{package}: public name {name!r} listed under both "
                                  f"{where[name]!r} and {module!r}")
             where[name] = module
+    shadowed = sorted(set(where) & set(modules))
+    if shadowed:     # importing that submodule binds its name on the package over the exported value
+        raise ValueError(f"{package}: public name(s) {shadowed} are also submodule names")
 
     def __getattr__(name: str) -> object:
         module = where.get(name)

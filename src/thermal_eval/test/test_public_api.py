@@ -49,3 +49,15 @@ def test_a_name_listed_twice_is_an_error():
     from thermal_comp_common.public_api import lazy_exports
     with pytest.raises(ValueError, match="'x' listed under both 'a' and 'b'"):
         lazy_exports("somepkg", {"a": ["x"], "b": ["x"]})
+
+
+def test_a_name_that_is_also_a_submodule_is_an_error():
+    from thermal_comp_common.public_api import lazy_exports
+    with pytest.raises(ValueError, match="also submodule names"):
+        lazy_exports("somepkg", {"identify": ["identify"], "b": ["y"]})
+
+
+def test_an_exported_function_is_not_shadowed_by_its_submodule_imported_first():
+    import thermal_twin.identify.command  # noqa: F401  binds the submodules on the package first
+    from thermal_twin.identify import identify
+    assert callable(identify) and not isinstance(identify, type(thermal_twin))

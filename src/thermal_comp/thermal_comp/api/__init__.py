@@ -4,7 +4,7 @@ from thermal_comp_common.public_api import lazy_exports
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     "cell": ["Cell", "CellError", "BRIDGE_LIMITS", "probe_goal", "validated_tightening"],
-    "demo_cell": ["demo_cell"],
+    "demo": ["demo_cell"],
     "graph": ["CellTimeout", "GraphSnapshot", "GraphView"],
     "results": ["Errors", "ProbeResult", "Status"],
 })

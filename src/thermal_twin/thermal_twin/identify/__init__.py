@@ -1,8 +1,12 @@
 """A starting twin for a machine without a preset (``thermal-comp twin init``): a description
-of where the sensors sit and what heats what, a recording, and a lumped twin identified on it."""
-from thermal_twin.identify.command import TWIN_FILE, init_twin, read_recording
-from thermal_twin.identify.description import Description, DescriptionError, load_description, parse_description
-from thermal_twin.identify.identify import Identification, identify
+of where the sensors sit and what heats what, a recording, and a lumped twin identified on it.
 
-__all__ = ["TWIN_FILE", "Description", "DescriptionError", "Identification", "identify", "init_twin",
-           "load_description", "parse_description", "read_recording"]
+Exported lazily: ``thermal-comp twin --help`` imports :mod:`thermal_twin.identify.cli` through this
+package and must not load scipy and the simulator behind it."""
+from thermal_comp_common.public_api import lazy_exports
+
+__all__, __getattr__, __dir__ = lazy_exports(__name__, {
+    "command": ["TWIN_FILE", "init_twin", "read_recording"],
+    "description": ["Description", "DescriptionError", "load_description", "parse_description"],
+    "identification": ["Identification", "identify"],
+})

@@ -18,7 +18,7 @@ from thermal_comp_common.recording_csv import Recording, RecordingError
 
 from thermal_twin.calibrate.fit import CalibrationError
 from thermal_twin.identify.description import Description, DescriptionError, load_description
-from thermal_twin.identify.identify import identify
+from thermal_twin.identify.identification import identify
 from thermal_twin.identify.scores import held_out_table
 from thermal_twin.machine.schema import load_machine, save_machine
 from thermal_twin.machine.spec import MachineSpecError

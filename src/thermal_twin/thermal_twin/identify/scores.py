@@ -11,7 +11,7 @@ import numpy as np
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import Recording
 
-from thermal_twin.identify.identify import Identification, scored_channels
+from thermal_twin.identify.identification import Identification, scored_channels
 
 
 def training_mean(y: np.ndarray, n_train: int) -> np.ndarray:

@@ -8,7 +8,7 @@ source on the bodies it heats and on each hidden body; every displacement channe
 thermo-elastic term on every node but the fluids (a body whose sensor reads a difference against a
 boundary is a coolant circuit: it carries heat away and deforms nothing). Start values are orders of magnitude (a body of 1e5 J/K with
 a time constant of hours, a source that warms its body by the range its sensor shows); the fit
-(:mod:`thermal_twin.identify.identify`) moves them. The result is a machine description in the
+(:mod:`thermal_twin.identify.identification`) moves them. The result is a machine description in the
 project's schema (thermal_twin.machine.schema). No rclpy.
 """
 from __future__ import annotations
