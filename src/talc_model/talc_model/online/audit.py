@@ -12,6 +12,8 @@ import os
 import pathlib
 from typing import Any, Mapping
 
+from thermal_comp_common.json_figures import finite_figures
+
 #: the events a line records
 EVENTS = ("learn failed", "learn timed out", "not adopted", "adoption sent", "adoption refused", "swapped")
 
@@ -30,7 +32,7 @@ def audit_record(event: str, model_time_s: float, old_sha256: str, new_sha256: s
 
 def append_audit(path: str | pathlib.Path | None, record: Mapping[str, Any]) -> str:
     """Append ``record`` as one line to ``path`` (None / "": nothing written); the line's text."""
-    line = json.dumps(_finite(record), sort_keys=True, default=str, allow_nan=False)
+    line = json.dumps(finite_figures(record), sort_keys=True, default=str, allow_nan=False)
     if path:
         p = pathlib.Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
@@ -41,16 +43,6 @@ def append_audit(path: str | pathlib.Path | None, record: Mapping[str, Any]) -> 
             os.close(fd)
     return line
 
-
-def _finite(v):
-    """JSON without NaN: a figure that does not exist is null."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, Mapping):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    return v
 
 
 def read_audit(path: str | pathlib.Path) -> list[dict[str, Any]]:

@@ -13,7 +13,6 @@ held-out probes (probe_score). No rclpy.
 from __future__ import annotations
 
 import json
-import math
 import pathlib
 import time
 from typing import Any, Callable
@@ -25,6 +24,7 @@ from talc_model.prior.dispatch import model_from_prior
 from talc_model.prior.talc import load_prior, save_prior
 from thermal_comp.prior.build import (build_prior, cached_prior, default_config, default_model_kind,
                                       training_scenarios)
+from thermal_comp_common.json_figures import finite_figures
 from thermal_comp_common.recording_csv import Recording
 from thermal_twin.machine.schema import Machine, load_machine
 
@@ -209,7 +209,7 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
               "wall_s": {"calibration": round(t_fit, 1), "structure": round(t_struct, 1),
                          "priors_and_scores": round(time.perf_counter() - t1, 1)},
               "twin_simulated_h_per_s": round(fit.calibration.simulated_h / max(fit.calibration.wall_s, 1e-9), 1)}
-    (out / "report.json").write_text(json.dumps(_finite(report), indent=1, allow_nan=False) + "\n")
+    (out / "report.json").write_text(json.dumps(finite_figures(report), indent=1, allow_nan=False) + "\n")
     return report
 
 
@@ -235,13 +235,3 @@ def _adaptive_check(open_loop: Adoption, sub: ProbeSet, predictors: dict, valida
     return Adoption(False, f"the twin is better open loop, but the adaptive model from its prior against the "
                            f"{reference} is {adaptive.reason}", open_loop.rmse, open_loop.probes)
 
-
-def _finite(v):
-    """JSON without NaN: a figure that does not exist is null."""
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    return v

@@ -13,6 +13,8 @@ import time
 from typing import Any, Callable
 
 import yaml
+
+from thermal_comp_common.json_figures import finite_figures
 from thermal_comp_common.bags.recording import BagRecordingError, load_recording
 from thermal_comp_common.recording_csv import Recording, RecordingError
 
@@ -66,7 +68,7 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
               "wall_s": round(time.perf_counter() - t0, 1), "files": {"twin": str(path)}}
     (out / MODEL_CONFIG).write_text(yaml.safe_dump(model_config(d, machine, path), sort_keys=False))
     report["files"]["model_config"] = str(out / MODEL_CONFIG)
-    (out / "report.json").write_text(json.dumps(_finite(report), indent=1) + "\n")
+    (out / "report.json").write_text(json.dumps(finite_figures(report), indent=1) + "\n")
     (out / "report.md").write_text(markdown(report))
     return report
 
@@ -111,15 +113,6 @@ def markdown(rep: dict) -> str:
     lines += [f"- {n}" for n in rep["notes"]]
     return "\n".join(lines) + "\n"
 
-
-def _finite(v):
-    if isinstance(v, float):
-        return v if math.isfinite(v) else None
-    if isinstance(v, dict):
-        return {k: _finite(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_finite(x) for x in v]
-    return v
 
 
 def run(args) -> int:
