@@ -18,27 +18,18 @@ from talc_model.adaptive_model import make_model
 from talc_model.prior.dispatch import model_from_prior
 from thermal_comp.prior.build import build_prior, training_scenarios
 from thermal_twin.identify import init_twin, load_description
-from thermal_twin.sim.scenarios import make_timeline
-from thermal_twin.sim.simulate import simulate
 
 from thermal_eval.learn.adoption import ADAPTIVE_MARGIN, decide
-from thermal_eval.learn.bench import cell_view, recorded_probes
+from thermal_eval.learn.bench import cell_view
 from thermal_eval.learn.probe_score import prequential_model
 from thermal_eval.learn.unit_fit import probe_recording
-from thermal_eval.learn.units import structural_unit
-from thermal_eval.replay.summary import probe_noise
-from thermal_eval.twin_init.units_case import (DESCRIPTION, SCENARIO, _replay, _window, init_twin_config,
-                                               no_twin_config)
+from thermal_eval.twin_init.units_case import (DESCRIPTION, init_twin_config, no_twin_config, replay_from, unit_run,
+                                               window_row)
 
 
 def adopted_case(kind: str, seed: int, hours: float, out: pathlib.Path, init_h: float = 24.0,
                  decide_h: float = 48.0) -> dict:
-    unit = structural_unit(kind, seed)
-    rec = simulate(unit.machine, make_timeline("nmv5000", SCENARIO, hours=hours, seed=seed), seed=seed).to_recording()
-    cfg0 = no_twin_config()
-    noise = probe_noise(list(cfg0["component_names"]))
-    before = _replay(rec, make_model("talc", cfg0), noise, seed)
-    probes = recorded_probes(before, rec, noise, seed)
+    unit, rec, noise, before, probes = unit_run(kind, seed, hours)
     t0 = float(rec.time_s[0])
     s1 = int(np.searchsorted(rec.time_s, t0 + init_h * 3600.0))
     s2 = int(np.searchsorted(rec.time_s, t0 + decide_h * 3600.0))
@@ -50,12 +41,12 @@ def adopted_case(kind: str, seed: int, hours: float, out: pathlib.Path, init_h: 
     seen = probes.window(t1=float(rec.time_s[s2]))
     shadow = model_from_prior("talc", cfg, prior)
     pred_init = prequential_model(shadow, rec.slice(0, s2), seen)
-    pred_none = prequential_model(make_model("talc", cfg0), rec.slice(0, s2), seen)
+    pred_none = prequential_model(make_model("talc", no_twin_config()), rec.slice(0, s2), seen)
     mask = seen.time_s >= float(rec.time_s[s1])
     adoption = decide(seen.values, seen.noise, pred_none, pred_init, mask, margin=ADAPTIVE_MARGIN)
     t_from = float(rec.time_s[s2])
-    rows = {"no prior running on": _window(before, t_from, noise, seed)}
-    switched = _window(_replay(rec, shadow, noise, seed, start=s2), t_from, noise, seed)
+    rows = {"no prior running on": window_row(before, t_from, noise, seed)}
+    switched = window_row(replay_from(rec, shadow, noise, seed, start=s2), t_from, noise, seed)
     rows["init-twin prior from 48 h, always"] = switched
     rows["init-twin prior from 48 h if adopted"] = switched if adoption.adopt else rows["no prior running on"]
     return {"unit": unit.name, "kind": kind, "seed": seed, "truth": unit.truth, "hidden_bodies": rep["hidden_bodies"],

@@ -58,27 +58,33 @@ def init_twin_config(twin_path: pathlib.Path, soft_sensors: list[str]) -> dict:
     return cfg
 
 
-def _window(result, t_from: float, noise: dict, seed: int) -> dict:
+def window_row(result, t_from: float, noise: dict, seed: int) -> dict:
     q = result.final_status["q_prod_pct"]
     row = beside_in_window(result, np.asarray(result.time_s) >= t_from, q, noise, PROBE_RESOLUTION_UM, seed=seed)
     row["q_prod_pct"] = q
     return row
 
 
-def _replay(rec: Recording, model, noise: dict, seed: int, start: int = 0):
+def replay_from(rec: Recording, model, noise: dict, seed: int, start: int = 0):
     return run_virtual_experiment(rec, model, probe_noise_um=noise, probe_resolution_um=PROBE_RESOLUTION_UM,
                                   seed=seed, start=start, relative_errors=False, compute_metrics=False)
+
+
+def unit_run(kind: str, seed: int, hours: float):
+    """A structural unit's run with TALC from no prior probing on its own schedule, as a cell
+    without a preset records it: (unit, recording, probe noise, that run, its recorded probes)."""
+    unit = structural_unit(kind, seed)
+    rec = simulate(unit.machine, make_timeline("nmv5000", SCENARIO, hours=hours, seed=seed), seed=seed).to_recording()
+    cfg0 = no_twin_config()
+    noise = probe_noise(list(cfg0["component_names"]))
+    before = replay_from(rec, make_model("talc", cfg0), noise, seed)
+    return unit, rec, noise, before, recorded_probes(before, rec, noise, seed)
 
 
 def unit_case(kind: str, seed: int, hours: float, init_h: float, out: pathlib.Path, type_prior: bool = True,
               progress=lambda m: None,
               description: pathlib.Path = DESCRIPTION) -> dict:
-    unit = structural_unit(kind, seed)
-    rec = simulate(unit.machine, make_timeline("nmv5000", SCENARIO, hours=hours, seed=seed), seed=seed).to_recording()
-    cfg0 = no_twin_config()
-    noise = probe_noise(list(cfg0["component_names"]))
-    before = _replay(rec, make_model("talc", cfg0), noise, seed)
-    probes = recorded_probes(before, rec, noise, seed)
+    unit, rec, noise, before, probes = unit_run(kind, seed, hours)
     start = int(np.searchsorted(rec.time_s, rec.time_s[0] + init_h * 3600.0))
     day = probe_recording(cell_view(rec, unit.machine), probes, list(probes.values)).slice(0, start)
     day.source = f"nmv5000 unit #{seed} ({kind}), first {init_h:g} h"
@@ -91,15 +97,15 @@ def unit_case(kind: str, seed: int, hours: float, init_h: float, out: pathlib.Pa
     t_prior = time.perf_counter() - t0
     model = model_from_prior("talc", cfg, prior)
     prequential_model(model, rec.slice(0, start), probes.window(t1=float(rec.time_s[start])))
-    after = _replay(rec, model, noise, seed, start=start)
+    after = replay_from(rec, model, noise, seed, start=start)
     t_from = float(rec.time_s[start])
-    rows = {"no prior running on": _window(before, t_from, noise, seed),
-            "init-twin prior from 24 h": _window(after, t_from, noise, seed)}
+    rows = {"no prior running on": window_row(before, t_from, noise, seed),
+            "init-twin prior from 24 h": window_row(after, t_from, noise, seed)}
     if type_prior:
         tcfg = default_config("nmv5000", "talc")
         path, _ = cached_prior("nmv5000", tcfg, training_scenarios("talc", "nmv5000"), kind="talc")
-        rows["type prior running on (needs the preset)"] = _window(
-            _replay(rec, model_from_prior("talc", tcfg, load_prior(path)), noise, seed), t_from, noise, seed)
+        rows["type prior running on (needs the preset)"] = window_row(
+            replay_from(rec, model_from_prior("talc", tcfg, load_prior(path)), noise, seed), t_from, noise, seed)
     return {"unit": unit.name, "kind": kind, "seed": seed, "truth": unit.truth, "init_h": init_h,
             "hidden_bodies": rep["hidden_bodies"], "nodes": rep["nodes"],
             "init_held_out_rmse": rep["held_out_rmse"],
