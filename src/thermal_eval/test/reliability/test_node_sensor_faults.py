@@ -57,9 +57,9 @@ def test_model_excludes_flagged_sensors_and_ignores_late_temperatures(tmp_path, 
     ex = SingleThreadedExecutor(context=ros_context)
     ex.add_node(node)
     statuses, preds = [], []
-    node.create_subscription(ModelStatus, TOPIC_MODEL_STATUS, statuses.append, LATCHED_QOS)
-    node.create_subscription(ThermalErrors, TOPIC_ERRORS_PREDICTED,
-                             lambda m: preds.append(stamp_to_s(m.header.stamp)), EVENT_QOS)
+    subs = [node.create_subscription(ModelStatus, TOPIC_MODEL_STATUS, statuses.append, LATCHED_QOS),
+            node.create_subscription(ThermalErrors, TOPIC_ERRORS_PREDICTED,
+                                     lambda m: preds.append(stamp_to_s(m.header.stamp)), EVENT_QOS)]
     pub = node.create_publisher(TemperatureArray, TOPIC_TEMPERATURES, SENSOR_QOS)
     ids = ["ambient", "ws_mwf", "c_coolant_delta", "c_motor_internal"]
     ok, stale, oor, failed = (TemperatureArray.STATUS_OK, TemperatureArray.STATUS_STALE,
@@ -69,8 +69,9 @@ def test_model_excludes_flagged_sensors_and_ignores_late_temperatures(tmp_path, 
               (600.0, [20.2, 95.0, 0.5, 30.0], [ok, oor, stale, ok]),
               (900.0, [20.3, 21.2, 0.6, 30.0], [ok] * 4)]
     try:
-        _spin_until(ex, lambda: pub.get_subscription_count() >= 1 and node.count_publishers(TOPIC_MODEL_STATUS) >= 1,
-                    60.0, proc, "talc_model node not discovered")
+        # matched on both of our ends (the graph alone says nothing about the node's writers)
+        _spin_until(ex, lambda: pub.get_subscription_count() >= 1
+                    and all(s.get_publisher_count() >= 1 for s in subs), 60.0, proc, "talc_model node not discovered")
         seen = {}
         for t, vals, st in frames:
             pub.publish(TemperatureArray(header=Header(stamp=s_to_stamp(t)), sensor_ids=ids,
@@ -117,19 +118,37 @@ def test_temperature_publisher_turns_out_of_order_readings_into_increasing_insta
                              SIM_SYNC_QOS)
     twin = node.create_publisher(TemperatureArray, TOPIC_TWIN_SENSORS, SENSOR_QOS)
     ids = ["ambient", "ws_mwf", "c_coolant_delta", "c_motor_internal"]
-    times = [300.0 * k for k in range(8)]
+    times = [300.0 * (k + 1) for k in range(8)]
     order = fi.reorder_late(len(times), {1: 2, 4: 2})        # instants 1 and 4 arrive two late
+
+    def frame(t, i):
+        return TemperatureArray(header=Header(stamp=s_to_stamp(t)), sensor_ids=ids,
+                                temperatures_degc=[20.0 + 0.01 * i, 21.0, 0.5, 30.0], status=[0] * 4)
     try:
         _spin_until(ex, lambda: twin.get_subscription_count() >= 1 and node.count_publishers(TOPIC_TEMPERATURES) >= 1
                     and node.count_publishers("sim_sync") >= 1, 60.0, proc, "temperature_publisher not discovered")
+        # Discovery is not symmetric: the node's writers may not know our readers yet, and a
+        # volatile ack sent before they do is lost. A warm-up instant (t=0) is re-sent until its
+        # ack and its temperatures are heard; the node re-publishes a repeated instant unchanged.
+        for _ in range(30):
+            twin.publish(frame(0.0, -1))
+            try:
+                _spin_until(ex, lambda: 0.0 in acks and 0.0 in temps, 2.0, proc, "warm-up")
+                break
+            except AssertionError:
+                if proc.poll() is not None:
+                    raise
+        else:
+            raise AssertionError(f"no ack and temperatures for the warm-up instant (process exit {proc.poll()})")
         for i in order:
-            twin.publish(TemperatureArray(header=Header(stamp=s_to_stamp(times[i])), sensor_ids=ids,
-                                          temperatures_degc=[20.0 + 0.01 * i, 21.0, 0.5, 30.0], status=[0] * 4))
+            twin.publish(frame(times[i], i))
             _spin_until(ex, lambda: times[i] in acks, 30.0, proc, f"no ack for t={times[i]}")
     finally:
         _stop(proc, f)
         ex.shutdown()
         node.destroy_node()
+    temps = [t for t in temps if t > 0.0]
+    acks = [t for t in acks if t > 0.0]
     late = {times[1], times[4]}
     assert temps == sorted(temps) and len(set(temps)) == len(temps)   # never backwards, never twice
     assert not late & set(temps)                     # a late instant is acknowledged, not published
