@@ -97,19 +97,19 @@ def test_twin_source_in_lockstep_with_a_simulated_machine(setup, ros_context, ex
     ex.add_node(node)
     events: list[tuple[str, float]] = []
     temps: list = []
-    node.create_subscription(TemperatureArray, "temperatures",
-                             lambda m: (temps.append(m), events.append(("T", stamp_to_s(m.header.stamp)))),
-                             SENSOR_QOS)
-    node.create_subscription(SimSync, "sim_sync",
-                             lambda m: events.append(("S", stamp_to_s(m.processed_until)))
-                             if m.node_name == "sensors" else None, SIM_SYNC_QOS)
+    subs = [node.create_subscription(TemperatureArray, "temperatures",
+                                     lambda m: (temps.append(m), events.append(("T", stamp_to_s(m.header.stamp)))),
+                                     SENSOR_QOS),
+            node.create_subscription(SimSync, "sim_sync",
+                                     lambda m: events.append(("S", stamp_to_s(m.processed_until)))
+                                     if m.node_name == "sensors" else None, SIM_SYNC_QOS)]
     clock_pub = node.create_publisher(Clock, "/clock", CLOCK_QOS)
     twin_pub = node.create_publisher(TemperatureArray, "twin/sensor_readings", SENSOR_QOS)
     twin_ids = ["ambient", "spindle", "stuck", "hot", "cold"]
     try:
-        assert spin_until(ex, lambda: twin_pub.get_subscription_count() >= 1
-                          and node.count_publishers("sim_sync") >= 1
-                          and node.count_publishers("temperatures") >= 1, 30.0, proc), stop_node(proc)
+        # matched on our own ends, not only present in the graph
+        assert spin_until(ex, lambda: twin_pub.get_subscription_count() >= 1 and clock_pub.get_subscription_count() >= 1
+                          and all(s.get_publisher_count() >= 1 for s in subs), 30.0, proc), stop_node(proc)
         for k, tk in enumerate(t):
             clock_pub.publish(Clock(clock=s_to_stamp(tk)))
             twin_pub.publish(TemperatureArray(
