@@ -124,7 +124,7 @@ def test_runs_with_other_columns_are_refused_naming_the_file(folder):
 def test_pooled_figures_are_the_held_out_runs_rows_together(folder):
     runs = load_runs(resolve_runs([str(folder)]))
     (fold,) = run_splits([r.entry for r in runs], "0.6,0,0.4")
-    f = evaluate_runs(runs, [fold], models=BASELINES + [LAGGED], progress=lambda s: None)
+    f = evaluate_runs(runs, [fold], models=BASELINES + [LAGGED], run_start="continued", progress=lambda s: None)
     td = train_data(runs, fold.train)                   # the fold's models are chosen on its training runs alone
     chosen = [replace(m, select=ChosenParams({"z_um": m.select(td, "z_um", len(td))})) for m in BASELINES + [LAGGED]]
     per = [evaluate(fold_data(runs, fold.train, i), models=chosen, show_progress=False) for i in fold.test]
@@ -175,15 +175,16 @@ def test_runs_at_rest_start_from_their_first_reading_and_are_never_scored(folder
 
 def test_temperatures_from_the_runs_start_let_a_static_map_fit_every_run(folder):
     """Runs start at different hall temperatures and their displacements at 0: with each run's
-    temperatures relative to its first reading too (opt-in), a least-squares map of the
+    temperatures relative to its first reading too (separate runs), a least-squares map of the
     temperature changes predicts a held-out run to its noise; absolute temperatures leave an
     offset per run."""
     runs = load_runs(resolve_runs([str(folder)]))
     static = next(m for m in BASELINES if m.name == "static_ls")
     fold = RunFold("f", (0, 1, 2), (), (3, 4))
-    rel = evaluate_runs(runs, [fold], models=[static], adaptive=False, temperatures_from_start=True,
+    rel = evaluate_runs(runs, [fold], models=[static], adaptive=False, run_start="separate", rest_h=0.0,
                         progress=lambda s: None)
-    absolute = evaluate_runs(runs, [fold], models=[static], adaptive=False, progress=lambda s: None)
+    absolute = evaluate_runs(runs, [fold], models=[static], adaptive=False, run_start="continued",
+                             progress=lambda s: None)
     assert rel["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"] < 0.1
     assert absolute["pooled"]["test"]["open_loop"]["static_ls"]["z_um"]["mae_um"] > 0.5
     d = fold_data(runs, [0, 1, 2], 4, temperatures_from_start=True)

@@ -187,10 +187,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                          "one per hour on average)")
     ap.add_argument("--sections", default="fl_thermal,plateau,segments,fleet",
                     help="comma-separated parts: fl_thermal, plateau, segments (FL_THERMAL cut into runs), fleet")
-    ap.add_argument("--rest-h", type=float, default=0.0, metavar="H",
+    ap.add_argument("--rest-h", type=float, default=None, metavar="H",
                     help="fleet: every run preceded by its first reading held H hours (evaluate --rest-h)")
-    ap.add_argument("--temperatures-from-start", action="store_true",
-                    help="fleet: evaluate --temperatures-from-start")
+    ap.add_argument("--run-start", choices=("auto", "continued", "separate"), default="auto",
+                    help="fleet: evaluate --run-start (default auto: decided from the data)")
     ap.add_argument("--fleet-seed", type=int, default=0, metavar="S", help="fleet: the fleet's seed (default 0)")
     ap.add_argument("--timing-runs", type=int, default=0, metavar="N",
                     help="also time evaluate on N twin runs of 5 h (default 0: off)")
@@ -216,7 +216,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                     f"{ch} {c['single_recording']} -> {c['cut_into_runs']}" for ch, c in v.items()))
     if "fleet" in sections:
         figures["fleet"] = run_fleet(engine, quick=every > 1, rest_h=opts.rest_h, seed=opts.fleet_seed,
-                                     temperatures_from_start=opts.temperatures_from_start)
+                                     run_start=opts.run_start)
     if opts.timing_runs:
         figures["timing"] = run_timing(opts.timing_runs, engine)
     return figures

@@ -58,12 +58,11 @@ def worst_run_ratio(figures: dict[str, Any]) -> dict[str, dict[str, float]]:
 
 
 def run_fleet(engine: EngineSpec, quick: bool = False, presets=("spindle-stand", "swiss-lathe"),
-              rest_h: float = 0.0, seed: int = 0, temperatures_from_start: bool = False) -> dict[str, Any]:
+              rest_h: float | None = None, seed: int = 0, run_start: str = "auto") -> dict[str, Any]:
     """Per preset: 4 units x 5 runs of 5 h (quick: 3 units x 3 runs of 3 h); units 0..2 train on
     their first 3 runs (quick: 2), scored on their other runs and on every run of the last unit.
-    ``rest_h``: every run preceded by its first reading held that long (``evaluate --rest-h``).
-    ``seed``: the fleet's (its units and runs: :class:`FleetPlan`); ``temperatures_from_start``:
-    ``evaluate --temperatures-from-start``."""
+    ``run_start`` / ``rest_h``: ``evaluate --run-start / --rest-h`` (default: decided from the
+    data). ``seed``: the fleet's (its units and runs: :class:`FleetPlan`)."""
     out: dict[str, Any] = {}
     for preset in presets:
         plan = FleetPlan(preset, units=3, runs_per_unit=3, hours=3.0, seed=seed) if quick else \
@@ -74,14 +73,13 @@ def run_fleet(engine: EngineSpec, quick: bool = False, presets=("spindle-stand",
             runs = load_runs(resolve_runs([str(write_fleet(plan, pathlib.Path(d) / preset))]))
             made = time.perf_counter() - t0
             fold = unseen_fold(plan, train_per_unit)
-            f = evaluate_runs(runs, [fold], budget=HOURLY, engine=engine, rest_h=rest_h,
-                              temperatures_from_start=temperatures_from_start)
+            f = evaluate_runs(runs, [fold], budget=HOURLY, engine=engine, run_start=run_start, rest_h=rest_h)
         print(f"fleet {preset}: {len(runs)} runs (units x runs {plan.units} x {plan.runs_per_unit}, {plan.hours:g} h, "
               f"probe noise {plan.probe_noise_um} um); validation = unseen runs of U0-U{plan.units - 2}, "
               f"test = every run of unseen unit U{plan.units - 1}")
         print_runs(f)
         base = f["ratio_baseline"]
-        out[preset] = {"plan": plan.__dict__, "rest_h": rest_h, "temperatures_from_start": temperatures_from_start,
+        out[preset] = {"plan": plan.__dict__, "run_start": f["run_start"],
                        "simulate_seconds": round(made, 1), "seconds": f["seconds"],
                        **{ROLE_NAMES[k]: summary(v, base) for k, v in f["pooled"].items()},
                        "worst_run_ratio_to_hold": worst_run_ratio(f), "evaluation": f}

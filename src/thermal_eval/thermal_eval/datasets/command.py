@@ -39,7 +39,7 @@ def run_dataset(args: argparse.Namespace, out: pathlib.Path, entries: list[RunEn
           f"{sum(len(f.held_out()) for f in folds)} held-out run evaluation(s)", file=sys.stderr)
     figures = evaluate_runs(runs, folds, models=models, adaptive=not args.open_loop_only, budget=budget,
                             engine=engine, closed_loop=args.closed_loop, probe_phases=args.probe_phases,
-                            rest_h=args.rest_h, temperatures_from_start=args.temperatures_from_start)
+                            run_start=args.run_start, rest_h=args.rest_h)
     path = out / "evaluation_runs.json"
     path.write_text(json.dumps(figures, indent=1, default=_default, allow_nan=True))
     print_runs(figures)

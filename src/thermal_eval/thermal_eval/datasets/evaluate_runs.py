@@ -22,6 +22,7 @@ import numpy as np
 from thermal_comp_common.metrics import mae, p99, rmse
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
+from thermal_eval.datasets.run_start import RunStart, decide_run_start
 from thermal_eval.datasets.runs import Run, fold_data, train_data
 from thermal_eval.datasets.splits import RunFold
 from thermal_eval.evaluate.adaptive import ProbingBudget
@@ -137,21 +138,24 @@ def _choose(runs: Sequence[Run], fold: RunFold, models: Sequence[ModelSpec], eng
 
 def evaluate_runs(runs: Sequence[Run], folds: Sequence[RunFold], *, models: Sequence[ModelSpec] | None = None,
                   adaptive: bool = True, budget: ProbingBudget | None = None, engine: EngineSpec | None = None,
-                  closed_loop: Sequence[str] = (), probe_phases: int = 1, rest_h: float = 0.0,
-                  temperatures_from_start: bool = False, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                  closed_loop: Sequence[str] = (), probe_phases: int = 1, run_start: str | RunStart = "auto",
+                  rest_h: float | None = None, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Every fold, every held-out run: its figures alone; pooled per role per fold and over every
-    fold (``pooled``: every held-out run of a role once per fold it is held out in). ``rest_h``:
-    every run preceded by its first reading held that long (:func:`thermal_eval.datasets.runs.at_rest`);
-    ``temperatures_from_start``: each run's temperatures relative to its first reading
-    (:func:`thermal_eval.datasets.runs.from_start`)."""
+    fold (``pooled``: every held-out run of a role once per fold it is held out in). ``run_start``
+    (auto / continued / separate, or a decided :class:`RunStart`) and ``rest_h`` say how the runs
+    are laid end to end (:func:`thermal_eval.datasets.run_start.decide_run_start`: auto decides from
+    the temperatures where one run ends and the next starts); the decision is in ``run_start``."""
     t0 = time.perf_counter()
     say = progress or (lambda s: print(s, file=sys.stderr, flush=True))
+    start = run_start if isinstance(run_start, RunStart) else decide_run_start(runs, run_start, rest_h)
+    rest_h, temperatures_from_start = start.rest_h, start.temperatures_from_start
+    say(f"evaluate runs: {start.describe()}")
     engine = engine or EngineSpec()
     models = list(models) if models is not None else available_models(runs[0].data)
     budget = budget or ProbingBudget()
     figures: dict[str, Any] = {"runs": [_run_info(r) for r in runs], "ratio_baseline": RATIO_BASELINE,
                                "budget": budget.__dict__, "engine": engine.describe(), "rest_h": rest_h,
-                               "temperatures_from_start": temperatures_from_start,
+                               "temperatures_from_start": temperatures_from_start, "run_start": start.as_dict(),
                                "folds": []}
     total = sum(len(f.held_out()) for f in folds)
     done = 0

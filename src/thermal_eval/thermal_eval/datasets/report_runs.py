@@ -68,6 +68,8 @@ def per_run_table(figures: dict[str, Any], models: list[str], base: str) -> Tabl
 def print_runs(figures: dict[str, Any], models: list[str] | None = None, console: Console | None = None) -> None:
     console = console or plain_output.console(min_width=160)
     base = figures["ratio_baseline"]
+    if figures.get("run_start"):
+        console.print(figures["run_start"]["said"])
     for role, pooled in figures["pooled"].items():
         n = sum(1 for f in figures["folds"] for r in f["per_run"] if r["role"] == role)
         console.print(pooled_table(pooled, f"pooled over {n} held-out {role} runs: MAE / RMSE / P99 (um); x: MAE "

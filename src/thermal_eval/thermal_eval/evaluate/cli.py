@@ -31,12 +31,14 @@ def parser() -> argparse.ArgumentParser:
                          "loro (leave one run out), by:FIELD (leave one group out), by:FIELD=VALUE, test=NAME,...")
     ap.add_argument("--segments", type=int, metavar="K",
                     help="cut each recording into K runs of equal rows (scores one long recording across runs)")
-    ap.add_argument("--rest-h", type=float, default=0.0, metavar="H",
-                    help="several runs: each starts after its first reading held H hours (the machine at rest), "
-                         "so dynamic models do not carry the previous run's state (default 0: off)")
-    ap.add_argument("--temperatures-from-start", action="store_true",
-                    help="several runs: each run's temperatures relative to its first reading, as its "
-                         "displacements are (a static map of the changes fits every run; default: absolute)")
+    ap.add_argument("--run-start", choices=("auto", "continued", "separate"), default="auto",
+                    help="several runs: continued (one recording cut: absolute temperatures, dynamic state carried "
+                         "from run to run) or separate (each run's temperatures relative to its first reading, "
+                         "each run after --rest-h at rest); auto (default) decides from the temperatures' jump "
+                         "between one run's end and the next one's start, and says so")
+    ap.add_argument("--rest-h", type=float, default=None, metavar="H",
+                    help="several runs: each starts after its first reading held H hours, so dynamic models start it "
+                         "at rest (default: 3 for separate runs, 0 for continued ones)")
     ap.add_argument("--sample-period-s", type=float, metavar="S",
                     help="the CSV has no time_s column: row i is at i x S seconds")
     ap.add_argument("--out", required=True, metavar="DIR", help="output folder (refused if not empty, see --force)")
