@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from thermal_comp_common.runtime.engine_options import add_jobs_argument
 from thermal_comp_common.runtime.task_engine import EngineSpec
 from thermal_eval.datasets.bench_runs import beside, run_fl_segments, run_fleet, run_timing
 from thermal_eval.evaluate.adaptive import ProbingBudget
@@ -172,11 +173,12 @@ def run_plateau(show_progress: bool, engine: EngineSpec | None = None) -> dict[s
             "seconds": f["seconds"], "evaluation": f}
 
 
-def run(args: argparse.Namespace) -> dict[str, Any]:
+def parser() -> argparse.ArgumentParser:
+    """The suite's options (after ``--``)."""
     ap = argparse.ArgumentParser(prog="thermal-comp bench evaluate")
     ap.add_argument("--csv", default=None, help="FL_THERMAL CSV (default: $THERMAL_COMP_SHARED/data/fl_thermal)")
     ap.add_argument("--no-plateau", action="store_true")
-    ap.add_argument("--jobs", type=int, default=2, help="model rows on N local processes (default 2: the 2 cores)")
+    add_jobs_argument(ap, "model rows")
     ap.add_argument("--probe-phases", type=int, default=1, metavar="K",
                     help="FL_THERMAL's adaptive rows also at K phases of the probing clock (mean and worst)")
     ap.add_argument("--load-probing", action="store_true",
@@ -194,7 +196,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     ap.add_argument("--fleet-seed", type=int, default=0, metavar="S", help="fleet: the fleet's seed (default 0)")
     ap.add_argument("--timing-runs", type=int, default=0, metavar="N",
                     help="also time evaluate on N twin runs of 5 h (default 0: off)")
-    opts = ap.parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
+    return ap
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    opts = parser().parse_args([e for e in (getattr(args, "extra", None) or []) if e != "--"])
     sections = set(opts.sections.split(","))
     every = 4 if getattr(args, "quick", False) else 1
     t0 = time.perf_counter()

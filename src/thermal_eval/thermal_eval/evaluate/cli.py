@@ -80,7 +80,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--bucket-credit", type=float, default=1.0, choices=(0.0, 1.0),
                     help="with --load-probing: probings the bucket holds when calibration ends (1: the total may "
                          "exceed max-probes-per-h x hours by one; 0: never more than the rate on average)")
-    add_engine_arguments(ap, default_jobs=1, what="model rows")
+    add_engine_arguments(ap, what="model rows")
     ap.add_argument("--no-rerun", action="store_true", help="no evaluation.rrd")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_allow_truncated_argument(ap)

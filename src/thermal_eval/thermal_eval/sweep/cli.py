@@ -16,7 +16,6 @@ from thermal_comp_common.runtime.engine_options import add_engine_arguments
 from thermal_comp_common.metrics import Q_PROD_MIN_PCT
 from thermal_comp_common.probe_and_hold import (TABLE_5_4_NOISE_ANGULAR_UM_PER_M, TABLE_5_4_NOISE_LINEAR_UM,
                                                 TABLE_5_4_RESOLUTION_UM)
-from thermal_comp_common.runtime.task_engine import default_workers
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument
 from thermal_comp_common.command_line import run_parsed
 
@@ -25,7 +24,7 @@ def parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="thermal-comp sweep", description=__doc__.split("\n\n")[0])
     ap.add_argument("recording", metavar="REC", help="twin CSV, bag folder or .mcap file (one load case)")
     ap.add_argument("--out", required=True, metavar="DIR", help="folder for results.jsonl, table, plots")
-    add_engine_arguments(ap, default_jobs=default_workers(), what="replays")
+    add_engine_arguments(ap, what="replays")
     ap.add_argument("--limit", type=int, default=None, help="only N combinations, spread evenly over the grid")
     ap.add_argument("--grid-subset", default="", metavar="SPEC",
                     help="restrict the grid, e.g. 'cp_length_h=8.5,12;post_cp_interval_h=2,10'; "

@@ -40,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
     add_allow_truncated_argument(p)
-    add_engine_arguments(p, 1, "Jacobian columns")
+    add_engine_arguments(p, what="Jacobian columns")
     return p
 
 

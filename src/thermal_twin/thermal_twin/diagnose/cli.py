@@ -19,7 +19,6 @@ import argparse
 import sys
 
 from thermal_comp_common.runtime.engine_options import add_engine_arguments
-from thermal_comp_common.runtime.task_engine import default_workers
 from thermal_twin.diagnose.effects import EFFECTS
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
 from thermal_comp_common.command_line import run_parsed
@@ -62,7 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_allow_truncated_argument(p)
-    add_engine_arguments(p, default_workers(), "channel analyses and candidate fits")
+    add_engine_arguments(p, what="channel analyses and candidate fits")
     return p
 
 
