@@ -9,4 +9,5 @@ __all__, __getattr__, __dir__ = lazy_exports(__name__, {
     "command": ["TWIN_FILE", "init_twin", "read_recording"],
     "description": ["Description", "DescriptionError", "load_description", "parse_description"],
     "identification": ["Identification", "identify"],
+    "own_config": ["MODEL_CONFIG", "own_model_config", "unit_config"],
 })

@@ -21,12 +21,12 @@ from thermal_comp_common.recording_csv import Recording, RecordingError
 from thermal_twin.calibrate.fit import CalibrationError
 from thermal_twin.identify.description import Description, DescriptionError, load_description
 from thermal_twin.identify.identification import identify
+from thermal_twin.identify.own_config import MODEL_CONFIG
 from thermal_twin.identify.scores import held_out_table
 from thermal_twin.machine.schema import load_machine, save_machine
 from thermal_twin.machine.spec import MachineSpecError
 
 TWIN_FILE = "twin.yaml"
-MODEL_CONFIG = "model_config.yaml"
 #: a cell bag's probing results (residuals of a compensated machine are not turned into totals here)
 PROBES_TOPIC = "errors/measured"
 
