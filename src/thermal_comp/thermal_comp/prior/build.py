@@ -29,6 +29,7 @@ from talc_model.prior.talc import build_talc_prior, load_prior, prior_from_state
 from thermal_comp.demo.cell import MACHINES
 from thermal_comp.prior.programmes import SEED_BASE, TRAINING_SCENARIOS
 from thermal_comp_common.bags.recording import load_recording
+from thermal_twin.identify.own_config import own_model_config
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.machine.spec import MachineSpecError
 from thermal_twin.sim.scenarios import make_timeline
@@ -63,10 +64,14 @@ def training_scenarios(kind: str, machine: str) -> list[str] | None:
 def default_config(machine: str, kind: str) -> dict:
     """The model configuration the demo runs ``machine`` with: TALC's shipped YAML; the AGP's
     and CD's defaults ({}), as the model node uses them without a ``model_config``. ``machine``
-    a twin YAML (a unit's twin): its type's configuration with that file as the soft-sensor twin
+    a twin YAML (a unit's twin): the configuration beside it that names it (``model_config.yaml``
+    of ``twin init`` or ``learn``), else its type's with that file as the soft-sensor twin
     (``type_model``), so the prior and the run read the twin they were given."""
     if kind != "talc":
         return {}
+    own = own_model_config(machine) if is_twin_file(machine) else None
+    if own is not None:      # twin init's folder: the twin's own configuration, not a namesake preset's
+        return own
     config = yaml.safe_load(default_config_path(machine).read_text()) or {}
     if is_twin_file(machine) and config.get("type_model"):
         config["type_model"] = str(pathlib.Path(machine).resolve())
@@ -129,7 +134,8 @@ def _cache_key(machine: str, config: dict, scenarios: list[str], seed_base: int,
     preset = pathlib.Path(thermal_twin.__file__).with_name("presets") / f"{machine.replace('-', '_')}.yaml"
     parts = [json.dumps({"machine": machine, "config": config, "scenarios": scenarios, "seed_base": seed_base,
                          "na_max": na_max, "nb_max": nb_max, "kind": kind}, sort_keys=True, default=str).encode(),
-             preset.read_bytes() if preset.is_file() else machine.encode()]
+             preset.read_bytes() if preset.is_file() else
+             pathlib.Path(machine).read_bytes() if is_twin_file(machine) else machine.encode()]
     parts += [pathlib.Path(importlib.import_module(m).__file__).read_bytes() for m in PRIOR_MODULES[kind]]
     type_yaml = pathlib.Path(str(config.get("type_model") or ""))    # TALC's soft sensors from a type's YAML
     parts += [type_yaml.read_bytes()] if type_yaml.suffix in (".yaml", ".yml") and type_yaml.is_file() else []
@@ -148,7 +154,8 @@ def cached_prior(machine: str, config: dict, scenarios: list[str], seed_base: in
     warning on stderr."""
     folder = pathlib.Path(cache_dir) if cache_dir is not None else prior_cache_dir()
     key = _cache_key(machine, config, scenarios, seed_base, na_max, nb_max, kind)
-    path = folder / f"{machine}-{kind}-{key}.json"
+    label = type_name(machine) if is_twin_file(machine) else machine    # a file's path is no file name
+    path = folder / f"{label}-{kind}-{key}.json"
     if path.is_file():
         try:
             cached = load_prior(path)
