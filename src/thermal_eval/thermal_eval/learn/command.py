@@ -26,6 +26,7 @@ from thermal_comp.prior.build import (build_prior, cached_prior, default_config,
                                       training_scenarios)
 from thermal_comp_common.json_figures import finite_figures
 from thermal_comp_common.recording_csv import Recording
+from thermal_twin.identify.own_config import own_model_config, unit_config
 from thermal_twin.machine.schema import Machine, load_machine
 
 from thermal_eval.learn.adoption import ADAPTIVE_MARGIN, Adoption, decide
@@ -128,13 +129,17 @@ def _prior_models(machine: Machine, unit_path: pathlib.Path, out: pathlib.Path,
     scenarios = training_scenarios(kind, machine.name)
     if not scenarios:
         raise ValueError(f"--twin {machine.name!r}: no training programmes for a {kind} prior of this type")
+    # a twin file with its own configuration beside it (twin init's folder) is its own type: its
+    # prior, never the cached prior of a preset that shares its name
+    own = own_model_config(getattr(machine, "source_path", None))
+    twin = str(machine.source_path) if own is not None else machine.name
     if current is None:
-        type_cfg = default_config(machine.name, kind)
-        type_path, _ = cached_prior(machine.name, type_cfg, scenarios, kind=kind, progress=progress)
+        type_cfg = default_config(twin, kind)
+        type_path, _ = cached_prior(twin, type_cfg, scenarios, kind=kind, progress=progress)
         current = type_current(type_path, type_cfg)
     models = {reference_name(current): (current.config, current.prior)}
     if unit:
-        unit_cfg = default_config(str(unit_path), kind)
+        unit_cfg = unit_config(own, unit_path) if own is not None else default_config(str(unit_path), kind)
         progress(f"building the {kind} prior on the unit's twin ({len(scenarios)} programmes)")
         save_prior(out / UNIT_PRIOR, build_prior(str(unit_path), unit_cfg, scenarios, kind=kind, progress=progress))
         (out / UNIT_CONFIG).write_text(yaml.safe_dump(unit_cfg, sort_keys=False))
