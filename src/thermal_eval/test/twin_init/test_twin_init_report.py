@@ -1,9 +1,15 @@
 """docs/twin_init.md's tables come from the bench's JSON: every ratio and MAE printed is the
-JSON's, rounded; the nmv5000 description of the bench is a valid description."""
+JSON's, rounded; the nmv5000 description of the bench is a valid description; the bench runs the
+sections it is given."""
 from __future__ import annotations
+
+import argparse
+
+import pytest
 
 from thermal_twin.identify import load_description
 
+from thermal_eval.twin_init.bench import options
 from thermal_eval.twin_init.fl_case import DESCRIPTION as FL_DESCRIPTION
 from thermal_eval.twin_init.report import INIT, NO_PRIOR, TYPE, markdown
 from thermal_eval.twin_init.units_case import DESCRIPTION
@@ -39,3 +45,32 @@ def test_the_bench_descriptions_are_valid():
     assert nmv.hall == "ambient" and nmv.inputs["c_speed_rpm"].moves
     fl = load_description(str(FL_DESCRIPTION))
     assert fl.boundaries["coolant"] == "sensor:t4" and fl.cooled["coolant"] == ["motor", "housing"]
+
+
+def test_the_fl_adaptive_table_prints_the_json_figures_and_a_units_free_doc_works():
+    cell = {"twin adaptive": [0.8612, 0.588], "best data-only adaptive (arx_simulation)": [1.074, 0.913],
+            "best data-only adaptive of the channel": [0.675, 0.73], "best of the channel": "lagged_ridge_inputs",
+            "holding": [2.979, 1.094], "twin open loop": [1.225, 1.88], "lagged ridge open loop": [3.697, 2.111],
+            "training mean": [6.558, 2.013], "static regression": [9.209, 6.07], "twin choice": None}
+    ad = {"best data-only row": "arx_simulation", "channels": {"ch1": cell}, "probings_per_h": {"a": 0.972},
+          "better_than_best_row": {"mean_of_windows": 1, "test": 1, "validation": 1},
+          "better_than_best_of_each_channel": {"mean_of_windows": 0, "test": 0, "validation": 1},
+          "better_than_each_row": {"arx_simulation": 1, "lagged_ridge_inputs": 0}}
+    doc = _doc()
+    doc["units"], doc["adoption"] = [], []
+    doc["fl_thermal"]["adaptive"] = ad
+    md = markdown(doc)
+    assert "nmv5000 units" not in md and "0.97 at most" in md
+    assert ("| ch1 | **0.861 [0.588]** | 1.074 [0.913] | 0.675 [0.730] `lagged_ridge_inputs` | 2.979 [1.094] | "
+            "1.225 [1.880] | 3.697 [2.111] | 6.558 [2.013] | 9.209 [6.070] |") in md
+    assert "below the best data-only adaptive row of each channel on 0 of 1 channels" in md
+    assert "`lagged_ridge_inputs` 0" in md
+
+
+def test_the_bench_takes_its_sections_and_refuses_an_unknown_one(capsys):
+    opts = options(argparse.Namespace(extra=["--sections=fl", "--csv=/x.csv"]))
+    assert opts.sections == ["fl"] and opts.csv == "/x.csv"
+    assert options(argparse.Namespace(extra=[])).sections == ["units", "adoption", "fl"]
+    with pytest.raises(SystemExit):
+        options(argparse.Namespace(extra=["--sections=fl,unit"]))
+    assert "'unit' is not one of units, adoption, fl" in capsys.readouterr().err

@@ -59,6 +59,31 @@ def fl_table(fl: dict) -> list[str]:
     return lines
 
 
+def fl_adaptive_table(ad: dict) -> list[str]:
+    """Per channel: the twin row's adaptive phase-mean MAE beside the data-only rows and baselines."""
+    best = ad["best data-only row"]
+    cols = ["twin adaptive", f"best data-only adaptive ({best})", "best data-only adaptive of the channel",
+            "holding", "twin open loop", "lagged ridge open loop", "training mean", "static regression"]
+    heads = ["**twin soft sensors, adaptive**", f"evaluate's best data-only adaptive row (`{best}`)",
+             "best data-only adaptive row of the channel", "holding the twin row's probes", "twin soft sensors, open loop",
+             "lagged ridge, open loop", "training mean", "static regression"]
+    lines = ["| channel | " + " | ".join(heads) + " |", "|---|" + "---|" * len(heads)]
+    for ch, r in ad["channels"].items():
+        cells = [f"{_f(r[c][0])} [{_f(r[c][1])}]" if r.get(c) else "n/a" for c in cols]
+        cells[0] = f"**{cells[0]}**"
+        cells[2] += f" `{r['best of the channel']}`"
+        lines.append(f"| {ch} | " + " | ".join(cells) + " |")
+    n = len(ad["channels"])
+    for ref, what in (("better_than_best_row", f"evaluate's best data-only adaptive row (`{best}`)"),
+                      ("better_than_best_of_each_channel", "the best data-only adaptive row of each channel")):
+        w = ad[ref]
+        lines += ["", f"- twin row below {what} on {w['mean_of_windows']} of {n} channels (mean of the two windows), "
+                      f"{w['test']} of {n} on the test rows, {w['validation']} of {n} on the validation rows."]
+    lines += ["", "- channels (mean of the two windows) on which the twin row is below each data-only row: "
+              + ", ".join(f"`{k}` {v}" for k, v in ad["better_than_each_row"].items()) + "."]
+    return lines
+
+
 def summary(units: list[dict]) -> list[str]:
     init = [u["ratios"][INIT] for u in units]
     none = [u["ratios"][NO_PRIOR] for u in units]
@@ -73,10 +98,12 @@ def summary(units: list[dict]) -> list[str]:
 
 
 def markdown(doc: dict) -> str:
-    out = ["### nmv5000 units without the preset (ratio to probe-and-hold over 24-178 h)", ""]
-    out += units_table(doc["units"]) + [""] + summary(doc["units"]) + ["",
-            "### The init twin open loop on the held-out probes of 18-24 h (RMSE, um or um/m)", ""]
-    out += held_out_table(doc["units"])
+    out = []
+    if doc.get("units"):
+        out += ["### nmv5000 units without the preset (ratio to probe-and-hold over 24-178 h)", ""]
+        out += units_table(doc["units"]) + [""] + summary(doc["units"]) + ["",
+                "### The init twin open loop on the held-out probes of 18-24 h (RMSE, um or um/m)", ""]
+        out += held_out_table(doc["units"])
     if doc.get("adoption"):
         out += ["", "### With the adoption test: the init-twin prior takes over at 48 h only if it predicted the "
                     "probes of 24-48 h better (ratio to probe-and-hold over 48-178 h)", ""] + adoption_table(doc["adoption"])
@@ -84,6 +111,11 @@ def markdown(doc: dict) -> str:
         fl = doc["fl_thermal"]
         out += ["", f"### FL_THERMAL: test [validation] MAE, um ({fl['hidden_bodies']} hidden bodies; "
                     f"twin init {fl['wall_s']} s, {fl['twin_simulated_h_per_s']} simulated h/s)", ""] + fl_table(fl)
+        if fl.get("adaptive"):
+            ad = fl["adaptive"]
+            out += ["", f"### FL_THERMAL adaptive, <= 1 probing per hour ({max(ad['probings_per_h'].values()):.2f} "
+                        f"at most, any row and phase): phase mean of the test [validation] MAE, um", ""]
+            out += fl_adaptive_table(ad)
     return "\n".join(out) + "\n"
 
 
