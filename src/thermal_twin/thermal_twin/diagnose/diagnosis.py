@@ -21,10 +21,11 @@ from thermal_twin.diagnose.calibrated import (calibrated_base, joint_adoption_te
                                                unnamed_beats_free_calibration)
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.effects import EFFECTS, classify_driver
-from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, Hypothesis, worse_channels
+from thermal_twin.diagnose.fit import (BIC_THRESHOLD, FitProblem, Hypothesis, effective_samples,
+                                      worse_channels)
 from thermal_twin.diagnose.report import DiagnosisSeries
 from thermal_twin.diagnose.search_round import RoundInputs, prune, run_round
-from thermal_twin.diagnose.significance import PROCEDURE
+from thermal_twin.diagnose.significance import ALPHA, PROCEDURE, holdout_p_value
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
 from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
@@ -91,7 +92,7 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
 
 
 #: a discrepancy left after the adopted words that explains at least this share of their
-#: held-out residual on its channel shows the words only imitated out-of-vocabulary physics
+#: held-out residual on its channel shows the words leave a structured residual there
 LEFTOVER_PCT = 50.0
 
 
@@ -108,56 +109,65 @@ def _acted(problem: FitProblem, y_start: np.ndarray, y_named: np.ndarray) -> set
     return {c for i, c in enumerate(problem.channels) if np.sqrt(np.mean(change[i] ** 2)) > 0.5}
 
 
-def _leftover(problem: FitProblem, lib: list, channels: list[str], errors: set, y_start: np.ndarray,
-              y_named: np.ndarray, min_improvement_pct: float, engine: EngineSpec | None) -> list:
-    """Discrepancies of the residual the adopted words leave on the channels they change
-    (held-out RMS of the change above half a noise sigma) that explain at least
-    :data:`LEFTOVER_PCT` of it on held-out data."""
-    acted = _acted(problem, y_start, y_named)
-    if not acted:
-        return []
-    left = _discrepancies(problem, lib, channels, errors, y_named, min_improvement_pct, engine, acted)
-    return [d for d in left if d.holdout_improvement_pct >= LEFTOVER_PCT]
+def _with(y: np.ndarray, found: list, channels: list[str]) -> np.ndarray:
+    """Outputs ``y`` with the discrepancies' formulas added on their channels."""
+    y = y.copy()
+    for d in found:
+        y[channels.index(d.channel)] += d.prediction
+    return y
+
+
+def _words_add(problem: FitProblem, sse_u: float, y_named: np.ndarray, left: list, acted: np.ndarray,
+               word_params: int) -> bool:
+    """Whether the adopted words explain held-out structure the discrepancy cannot (an
+    encompassing test): the words with the discrepancy of the residual they leave (``left``)
+    against the discrepancy of the twin's own residual alone (``sse_u``), on the words'
+    channels, by the held-out F test with ``word_params`` parameters and the effective
+    samples of the combined residual. On a real machine every fit leaves a structured residual
+    (the twin's own misfit), which a discrepancy of the other recorded temperatures explains
+    before and after the word alike; the word is then still needed beside it. Words that only
+    imitated out-of-vocabulary physics add nothing the discrepancy does not already explain."""
+    r = problem.weighted_residual(_with(y_named, left, problem.channels), problem.n_train)[acted]
+    sse_wu = float(np.sum(r ** 2))
+    return holdout_p_value(sse_u, sse_wu, word_params, effective_samples(r)) < ALPHA
 
 
 def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: list[str], errors: set,
              y_start: np.ndarray, y_named: np.ndarray, named: str | None, min_improvement_pct: float,
-             engine: EngineSpec | None = None):
+             engine: EngineSpec | None = None, word_params: int = 1):
     """The out-of-vocabulary step: a sparse discrepancy of the residual of ``y_start``. It
     answers when nothing of the vocabulary was adopted (``named`` None), or when, on the
     channels the adopted words act on, it leaves less than half the held-out weighted residual
-    they leave, or less while they leave a structured residual there (:func:`_leftover`):
-    the words only imitated physics outside the vocabulary; ``named`` is said as the nearest.
+    they leave, or less while they leave a structured residual there (a discrepancy of their
+    residual explaining :data:`LEFTOVER_PCT` of it), and the words (``word_params`` fitted
+    parameters) add nothing significant beside it (:func:`_words_add`): the words only
+    imitated physics outside the vocabulary; ``named`` is said as the nearest.
     Returns (discrepancies, outputs with them added) or ([], None)."""
     nt = problem.n_train
     lib = unnamed_mod.signal_library(rec.time_s, ccf_inputs, rec.sensors)
     found = _discrepancies(problem, lib, channels, errors, y_start, min_improvement_pct, engine)
+    # the formula as printed must not leave its channel worse
+    worse = set(worse_channels(problem, y_start, _with(y_start, found, channels))) if found else set()
+    found = [d for d in found if d.channel not in worse]
     if not found:
         return [], None
-    y_u = y_start.copy()
-    for d in found:
-        y_u[channels.index(d.channel)] += d.prediction
-    # the formula as printed must not leave its channel worse
-    worse = set(worse_channels(problem, y_start, y_u))
-    if worse:
-        found = [d for d in found if d.channel not in worse]
-        if not found:
-            return [], None
-        y_u = y_start.copy()
-        for d in found:
-            y_u[channels.index(d.channel)] += d.prediction
+    y_u = _with(y_start, found, channels)
     if named:
         # judged on the channels the words act on: terms elsewhere (a slow random walk of another
         # sensor) say nothing about whether the words only imitated out-of-vocabulary physics
-        acted = np.array([c in _acted(problem, y_start, y_named) for c in channels])
+        acted_set = _acted(problem, y_start, y_named)
+        acted = np.array([c in acted_set for c in channels])
         if not any(acted[channels.index(d.channel)] for d in found):
             return [], None
         sse_u = float(np.sum(problem.weighted_residual(y_u, nt)[acted] ** 2))
         sse_n = float(np.sum(problem.weighted_residual(y_named, nt)[acted] ** 2))
-        if not (sse_u < 0.5 * sse_n or (sse_u < sse_n and _leftover(
-                problem, lib, channels, errors, y_start, y_named, min_improvement_pct, engine))):
+        if not sse_u < sse_n:
             return [], None
-    if named:
+        left = _discrepancies(problem, lib, channels, errors, y_named, min_improvement_pct, engine, acted_set)
+        if not (sse_u < 0.5 * sse_n or any(d.holdout_improvement_pct >= LEFTOVER_PCT for d in left)):
+            return [], None
+        if _words_add(problem, sse_u, y_named, left, acted, word_params):
+            return [], None
         for d in found:
             d.nearest = named
     return found, y_u
@@ -366,7 +376,7 @@ def _find_missing(cmp: _Comparison, ccf_inputs: dict, effects, max_effects: int,
     if unnamed:
         found_unnamed, y_u = _unnamed(problem, rec, ccf_inputs, cmp.channels, set(cmp.machine.errors), cmp.y0,
                                       y_base, adopted[0].candidate.effect if adopted else None,
-                                      min_improvement_pct, engine)
+                                      min_improvement_pct, engine, sum(len(h.values) for h in adopted) or 1)
         if found_unnamed and calibrate:
             test = unnamed_beats_free_calibration(cmp.machine, problem, cmp.holdout_fraction, y_u, cal_section,
                                                   calibration_section, min_improvement_pct, engine=engine)
