@@ -14,8 +14,9 @@ predicts open loop from temperatures (and, for the ``*_inputs`` variants, machin
 - ``lagged_ridge_gain_update`` (opt-in): ``lagged_ridge`` whose adaptive row re-estimates the
   gain of each feature's contribution from the probes (docs/evaluate.md, "the three untried directions": it wins the
   training rows' walk-forward but not the held-out rows);
-- ``characteristic_diagram``: a smoothed-grid diagram of the medoid temperatures and their
-  1-h low-pass (grid refinement on the training rows' last 40 %);
+- ``characteristic_diagram``: a smoothed-grid diagram of 1-2 temperatures and their 1-h
+  low-pass (medoid sensors or the channel's most correlated ones; inputs and grid refinement
+  chosen on the training rows' last 40 %);
 - ``gp_static``: the AGP's ARD-RBF GP on the medoid temperatures and 0.5-h / 2-h low-pass
   copies (thinned to <= 400 training points); opt-in (:data:`.opt_in.OPT_IN`: ``--also gp_static``).
 
@@ -232,18 +233,38 @@ def _cd_features(data, names):
     return np.column_stack([d, exponential_filter(data.time_s, d, CD_TAU_S)])
 
 
+#: sensors most correlated with a channel that the diagram also tries, alone and in pairs
+CD_CORRELATED = 3
+
+
+def _cd_candidates(data, y: np.ndarray, n_fit: int) -> list[list[str]]:
+    """Input sets of the diagram: the medoid sensors of 1 and 2 k-means groups (the machine's
+    temperature fields), and the :data:`CD_CORRELATED` sensors most correlated with this channel
+    on the fit rows, alone and in pairs (a channel driven by one part of the machine, which a
+    medoid of the whole may miss)."""
+    sets = [sensor_medoids(data.temperatures[:n_fit], k, data.sensors) for k in (1, 2) if k <= len(data.sensors)]
+    t, ok = data.temperatures[:n_fit], np.isfinite(y[:n_fit])
+    with np.errstate(all="ignore"):
+        r = np.array([abs(np.corrcoef(t[ok, j], y[:n_fit][ok])[0, 1]) for j in range(t.shape[1])])
+    top = [data.sensors[j] for j in np.argsort(-np.nan_to_num(r))[:CD_CORRELATED]]
+    sets += [[a] for a in top] + [[a, b] for i, a in enumerate(top) for b in top[i + 1:]]
+    out: list[list[str]] = []
+    for c in sets:
+        if sorted(c) not in [sorted(o) for o in out]:
+            out.append(list(c))
+    return out
+
+
 def _cd_select(data, channel, n_fit):
+    """The input set and grid with the lowest validation RMSE on the last 40 % of the fit rows."""
     y = data.displacement_um[channel]
     split = int(0.6 * n_fit)
     best = None
-    for k in (1, 2):
-        if k > len(data.sensors):
-            break
-        names = sensor_medoids(data.temperatures[:n_fit], k, data.sensors)
+    ok = np.isfinite(y[:n_fit])
+    tr, va = np.flatnonzero(ok[:split]), split + np.flatnonzero(ok[split:n_fit])
+    for names in _cd_candidates(data, y, split):
         x = _cd_features(data, names)
-        ok = np.isfinite(y[:n_fit])
-        tr, va = np.flatnonzero(ok[:split]), split + np.flatnonzero(ok[split:n_fit])
-        cd, hist = fit_with_grid_refinement(x[tr], y[tr], x[va], y[va], max_intervals=8 if k == 2 else 16)
+        cd, hist = fit_with_grid_refinement(x[tr], y[tr], x[va], y[va], max_intervals=8 if len(names) == 2 else 16)
         err = min(h["val_rmse"] for h in hist)
         if best is None or err < best[0]:
             best = (err, names, int(cd.n_intervals))
