@@ -9,7 +9,9 @@ For a fold the training runs are laid end to end (each after the previous one's 
 plus one sample period), then the held-out run; its first row closes the calibration phase
 (its displacement is its start reference, 0, by definition), so the probing clock of the
 adaptive mode starts at the start of that run. Dynamic models carry their state from one run
-into the next (a machine left overnight would be at rest: a stated limitation). Pure.
+into the next unless each run is preceded by its rest (:func:`at_rest`;
+:mod:`thermal_eval.datasets.run_start` decides). ``run_id`` marks each row's run (-1: a rest row),
+so that changes are measured inside one run only. Pure.
 """
 from __future__ import annotations
 
@@ -107,11 +109,13 @@ def _end_to_end(parts: Sequence[EvaluationData], n_train: int, test: slice, sour
         times.append(p.time_s + off)
         off = times[-1][-1] + _step(p.time_s)
     n = sum(len(p) for p in parts)
+    ids = [np.zeros(len(p), int) if p.run_id is None else p.run_id for p in parts]
     return EvaluationData(np.concatenate(times), np.vstack([p.temperatures for p in parts]), parts[0].sensors,
                           None if parts[0].inputs is None else np.vstack([p.inputs for p in parts]),
                           parts[0].input_names,
                           {c: np.concatenate([p.displacement_um[c] for p in parts]) for c in parts[0].channels},
-                          Split(n_train, slice(n, n), test, n), source, notes)
+                          Split(n_train, slice(n, n), test, n), source, notes,
+                          np.concatenate([np.where(r < 0, -1, k) for k, r in enumerate(ids)]))
 
 
 def from_start(d: EvaluationData) -> EvaluationData:
@@ -125,7 +129,7 @@ def from_start(d: EvaluationData) -> EvaluationData:
         if ok.size:
             temps[:, j] -= temps[ok[0], j]
     return EvaluationData(d.time_s, temps, d.sensors, d.inputs, d.input_names, d.displacement_um, d.split,
-                          d.source, list(d.notes))
+                          d.source, list(d.notes), d.run_id)
 
 
 def at_rest(d: EvaluationData, hours: float) -> EvaluationData:
@@ -142,7 +146,8 @@ def at_rest(d: EvaluationData, hours: float) -> EvaluationData:
     t = np.r_[np.arange(k) * step, k * step + d.time_s - d.time_s[0]]
     return EvaluationData(t, d.temperatures[idx], d.sensors, None if d.inputs is None else d.inputs[idx],
                           d.input_names, {c: v[idx] for c, v in d.displacement_um.items()},
-                          Split(t.size, slice(t.size, t.size), slice(t.size, t.size), t.size), d.source, [])
+                          Split(t.size, slice(t.size, t.size), slice(t.size, t.size), t.size), d.source, [],
+                          np.r_[np.full(k, -1), np.zeros(len(d), int)])
 
 
 def _prepared(run: Run, rest_h: float, from_start_: bool) -> EvaluationData:

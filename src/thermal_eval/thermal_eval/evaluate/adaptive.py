@@ -183,11 +183,29 @@ def _since_probe_h(t: np.ndarray, measured: list[int], start: int, n: int) -> np
 DEAD_BAND_SIGMAS = 2.0 * math.sqrt(2.0)
 
 
-def reading_noise_um(y: np.ndarray, n_train: int) -> float:
+def within_runs(run_id: np.ndarray | None, stop: int, lag: int, first: int = 0) -> np.ndarray:
+    """For the pairs (i, i + lag), first <= i < stop - lag: both rows readings of one run (no
+    jump from one run's end to the next one's start, no made-up rest row); all of them for one
+    recording (``run_id`` None)."""
+    m = max(0, stop - lag - first)
+    if run_id is None:
+        return np.ones(m, bool)
+    a, b = run_id[first:first + m], run_id[first + lag:first + lag + m]
+    return (a == b) & (a >= 0)
+
+
+def _changes(y: np.ndarray, n_train: int, run_id: np.ndarray | None) -> np.ndarray:
+    """Row-to-row changes of the training rows inside one run."""
+    d = np.diff(np.asarray(y[:n_train], dtype=float))
+    return d[within_runs(run_id, n_train, 1)] if d.size else d
+
+
+def reading_noise_um(y: np.ndarray, n_train: int, run_id: np.ndarray | None = None) -> float:
     """The noise of one displacement reading, measured on the training rows: the robust spread
     (1.4826 MAD) of the row-to-row changes around their median, over sqrt(2) (a change is the
-    difference of two readings). Slow drift moves the median, not the spread."""
-    d = np.diff(np.asarray(y[:n_train], dtype=float))
+    difference of two readings; only inside one run: :func:`within_runs`). Slow drift moves the
+    median, not the spread."""
+    d = _changes(y, n_train, run_id)
     d = d[np.isfinite(d)]
     if d.size < 2:
         return 0.0
@@ -198,12 +216,12 @@ def reading_noise_um(y: np.ndarray, n_train: int) -> float:
 ON_GRID_SHARE = 0.95
 
 
-def resolution_um(y: np.ndarray, n_train: int) -> float:
+def resolution_um(y: np.ndarray, n_train: int, run_id: np.ndarray | None = None) -> float:
     """The step of a quantised displacement, measured on the training rows (0: not quantised):
     the smallest non-zero change between two readings, when at least :data:`ON_GRID_SHARE` of
     the non-zero changes are whole multiples of it (within 5 % of a step). On such a signal
     most changes are 0 and the noise measured from them is 0, so the step is the dead band."""
-    d = np.abs(np.diff(np.asarray(y[:n_train], dtype=float)))
+    d = np.abs(_changes(y, n_train, run_id))
     d = d[np.isfinite(d)]
     scale = float(np.max(d)) if d.size else 0.0
     nz = d[d > 1e-9 * max(scale, 1e-12)]
@@ -214,28 +232,42 @@ def resolution_um(y: np.ndarray, n_train: int) -> float:
     return q if float(np.mean(np.abs(k - np.round(k)) <= 0.05)) >= ON_GRID_SHARE else 0.0
 
 
-def dead_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0) -> float:
+def dead_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0,
+                 run_id: np.ndarray | None = None, prediction: np.ndarray | None = None) -> float:
     """Predicted changes smaller than this are not acted on (the compensation holds): the largest
-    of the probe's resolution, two standard deviations of the difference of two readings, and the
-    step of a quantised signal (:func:`resolution_um`)."""
-    return max(float(probe_resolution_um), DEAD_BAND_SIGMAS * reading_noise_um(y, n_train), resolution_um(y, n_train))
+    of the probe's resolution, the step of a quantised signal (:func:`resolution_um`) and two
+    standard deviations of the difference of two values of the model's prediction (its own
+    noise, from its inputs' noise: a predicted change within it may not be a change). The
+    reading noise of the displacement is not in it: the held probe carries it as much as the
+    compensation does (without ``prediction``: the readings' noise, the earlier rule)."""
+    noisy = y if prediction is None else prediction
+    return max(float(probe_resolution_um), DEAD_BAND_SIGMAS * reading_noise_um(noisy, n_train, run_id),
+               resolution_um(y, n_train, run_id))
 
 
 def shrink(dp: np.ndarray, band: float) -> np.ndarray:
-    """The predicted change beyond the dead band (soft threshold: continuous, 0 inside it)."""
-    return np.sign(dp) * np.maximum(np.abs(dp) - band, 0.0)
+    """The predicted change acted on: 0 inside the dead band, dp (1 - band^2 / dp^2) beyond it
+    (the non-negative garrote: continuous at the band like a soft threshold, but a change well
+    beyond it is followed almost whole; a soft threshold cut every change by the whole band)."""
+    dp = np.asarray(dp, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kept = np.where(np.abs(dp) > band, dp * (1.0 - band ** 2 / np.where(dp != 0, dp ** 2, 1.0)), 0.0)
+    return np.where(np.isnan(dp), np.nan, kept)
 
 
 def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, stop: int, lag_h: float,
-                  band: float = 0.0) -> float:
+                  band: float = 0.0, run_id: np.ndarray | None = None) -> float:
     """The share of the model's predicted change over ``lag_h`` that the displacement made on the
-    training rows (out-of-fold prediction): sum(dy dp) / sum(dp^2), clipped to [0, 1]."""
+    training rows (out-of-fold prediction): sum(dy dp) / sum(dp^2), clipped to [0, 1]; over pairs
+    of readings of one run (:func:`within_runs`: a run's jump back to its own start reference and
+    its made-up rest are not changes the model was asked to predict)."""
     step = float(np.median(np.diff(t[first:stop])))
     lag = max(1, int(round(lag_h * 3600.0 / step)))
     if stop - first <= lag:
         return 0.0
-    dy = y[first + lag:stop] - y[first:stop - lag]
-    dp = shrink(p_oof[first + lag:stop] - p_oof[first:stop - lag], band)
+    ok = within_runs(run_id, stop, lag, first)
+    dy = (y[first + lag:stop] - y[first:stop - lag])[ok]
+    dp = shrink(p_oof[first + lag:stop] - p_oof[first:stop - lag], band)[ok]
     return change_gain(dy, dp)
 
 
@@ -283,10 +315,10 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
     for c, p in prediction.items():
         y = data.displacement_um[c]
         p_oof, first = oof[c]
-        band = dead_band_um(y, start, budget.probe_resolution_um)
+        band = dead_band_um(y, start, budget.probe_resolution_um, data.run_id, p)
         q_y = measured_hold_rate(t, y, start)
         q_m = measured_hold_rate(t[first:start], (y - p_oof)[first:start], start - first)
-        gain0 = training_gain(t, y, p_oof, first, start, lag_h, band)
+        gain0 = training_gain(t, y, p_oof, first, start, lag_h, band, data.run_id)
         gains = online_gains(y, p, measured, gain0, band=band)
         if regain and c in regain and isinstance(regain[c], RidgeRefit):    # re-fitted at each probing
             corrected = regain[c].compensation(y, measured, start, n)
@@ -309,7 +341,7 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         weights[c] = float(np.mean(gains))
         rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),
                     "training_gain": round(gain0, 3), "dead_band_um": round(band, 4),
-                    "quantised_step_um": round(resolution_um(y, start), 4)}
+                    "quantised_step_um": round(resolution_um(y, start, data.run_id), 4)}
     return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates, load)
 
 

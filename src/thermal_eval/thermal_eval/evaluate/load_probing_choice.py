@@ -32,7 +32,8 @@ def training_rows(data: EvaluationData, first: int) -> EvaluationData:
     return EvaluationData(data.time_s[:n], data.temperatures[:n], data.sensors,
                           None if data.inputs is None else data.inputs[:n], data.input_names,
                           {c: y[:n] for c, y in data.displacement_um.items()},
-                          Split(first, slice(first, n), slice(n, n), n), data.source)
+                          Split(first, slice(first, n), slice(n, n), n), data.source,
+                          run_id=None if data.run_id is None else data.run_id[:n])
 
 
 def fitted_on_first(data: EvaluationData, model: ModelSpec, channel: str, params: dict, first: int,

@@ -105,6 +105,9 @@ class EvaluationData:
     split: Split
     source: str = ""
     notes: list[str] = field(default_factory=list)
+    #: several runs laid end to end: per row the run it belongs to, -1 for a row that is not a
+    #: reading (a run's rest before it); None: one recording. A change counts only inside one run.
+    run_id: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.time_s.size)
