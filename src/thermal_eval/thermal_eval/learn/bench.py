@@ -57,16 +57,25 @@ def cell_view(rec: Recording, machine) -> Recording:
 
 
 def recorded_probes(result, rec: Recording, noise: dict, seed: int) -> ProbeSet:
-    """The probes a cell running ``result``'s model recorded: the true error (deltas from the
-    start) at its probing instants, Gaussian noise, quantised to the probe's resolution."""
+    """The probes a cell running ``result``'s model recorded, as its bag holds them: the probe
+    measures the residual (true error since the start minus the compensation applied at that
+    instant) with Gaussian noise, quantised to the probe's resolution, and the total error is
+    that reading plus what was applied. The noise is drawn as the replay's probe drew it (same
+    seed, same order), so these are the readings the run itself learned from. Quantising the
+    total instead would make the totals look quantised to the model's hold fall-back, which then
+    takes a held probe for exact."""
     rng = np.random.default_rng(seed)
-    idx = np.searchsorted(rec.time_s, np.asarray(result.probe_times_s, float))
-    values = {}
-    for c in result.components:
-        e = np.asarray(rec.columns[c], float)
-        v = e[idx] - e[0] + rng.normal(0.0, noise[c], idx.size)
-        values[c] = np.round(v / PROBE_RESOLUTION_UM) * PROBE_RESOLUTION_UM
-    return ProbeSet(rec.time_s[idx], values, dict(noise), source="bench")
+    idx = np.searchsorted(np.asarray(result.time_s, float), np.asarray(result.probe_times_s, float))
+    values = {c: np.full(idx.size, np.nan) for c in result.components}
+    for i, k in enumerate(idx):
+        for c in result.components:
+            applied = float(result.predicted[c][k])
+            applied = applied if math.isfinite(applied) else 0.0
+            m = float(result.true[c][k]) - applied
+            if noise[c] > 0:
+                m += rng.normal(0.0, noise[c])
+            values[c][i] = round(m / PROBE_RESOLUTION_UM) * PROBE_RESOLUTION_UM + applied
+    return ProbeSet(np.asarray(result.time_s, float)[idx], values, dict(noise), source="bench")
 
 
 def _type_prior(progress):
@@ -116,7 +125,8 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
     else:
         rows["after"] = rows["before"]       # not adopted: the cell keeps running with the type's prior
     half = {c: v / 2.0 for c, v in THESIS_TABLES[SCENARIO]["p99_compensated"].items()}
-    comps = rows["after"]["model"]["components"]
+    per = {k: {c: v["p99"] for c, v in r["model"]["components"].items()} for k, r in rows.items()}
+    per["probe-and-hold after"] = {c: v["p99"] for c, v in rows["after"]["probe_and_hold"]["components"].items()}
     moved = [p for p in report["parameters"] if p["at_bound"] or abs(p["change_pct"] or 0.0) >= 15.0]
     return {"unit": unit.name, "kind": kind, "seed": seed, "truth": unit.truth, "adopted": adopted,
             "adoption": report["adoption"]["reason"],
@@ -125,8 +135,9 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
             "p99_lin_before_um": rows["before"]["model"]["p99_lin_um"],
             "p99_lin_after_um": rows["after"]["model"]["p99_lin_um"],
             "q_prod_before_pct": rows["before"]["q_prod_pct"], "q_prod_after_pct": rows["after"]["q_prod_pct"],
-            "components_above_half_table_6_5": sorted(c for c, v in comps.items()
-                                                      if math.isfinite(v["p99"]) and v["p99"] > half.get(c, math.inf)),
+            "components_above_half_table_6_5": _above(per["after"], half),
+            "components_above_half_table_6_5_before": _above(per["before"], half),
+            "component_p99": per, "half_table_6_5": half,
             "learned_moves": [f"{p['name']} {p['change_pct']:+.0f} %{' (at bound)' if p['at_bound'] else ''}"
                               for p in moved if p["change_pct"] is not None],
             "learned_words": [w["what"] for w in report["structure"]["words"]],
@@ -135,6 +146,39 @@ def unit_case(kind: str, seed: int, hours: float, train_h: float, out: pathlib.P
                                         for c in v} for k, v in report["held_out_scores"].items()},
             "learn_wall_s": round(t_learn, 1), "calibration_wall_s": report["wall_s"]["calibration"],
             "twin_simulated_h_per_s": report["twin_simulated_h_per_s"]}
+
+
+def _above(p99: dict, half: dict) -> list[str]:
+    return sorted(c for c, v in p99.items() if math.isfinite(v) and v > half.get(c, math.inf))
+
+
+def components_text(r: dict) -> str:
+    """Per component: P99 before / type switched / after / probe-and-hold, against half Table 6.5."""
+    per, half = r["component_p99"], r["half_table_6_5"]
+    rows = [f"    {'':6} {'before':>7} {'switched':>8} {'after':>7} {'p&h':>6} {'half 6.5':>8}"]
+    for c in per["after"]:
+        v = [per[k][c] for k in ("before", "type switched", "after", "probe-and-hold after")]
+        flag = "  ABOVE" if v[2] > half.get(c, math.inf) else ""
+        rows.append(f"    {c:6} {v[0]:7.2f} {v[1]:8.2f} {v[2]:7.2f} {v[3]:6.2f} {half.get(c, math.nan):8.2f}{flag}")
+    return "\n".join(rows)
+
+
+def components_markdown(units: list[dict]) -> list[str]:
+    """P99 per component over the rest of the run (before -> after learning, um and um/m), in
+    bold where above half of Table 6.5."""
+    have = [u for u in units if "component_p99" in u]
+    if not have:
+        return []
+    comps = list(have[0]["component_p99"]["after"])
+    half = have[0]["half_table_6_5"]
+    lines = ["| unit | " + " | ".join(f"{c} (half: {half[c]:g})" for c in comps) + " |",
+             "|---|" + "---|" * len(comps)]
+    for u in have:
+        per = u["component_p99"]
+        cells = [f"{per['before'][c]:.2f} -> " + (f"**{per['after'][c]:.2f}**" if per["after"][c] > half[c]
+                                                  else f"{per['after'][c]:.2f}") for c in comps]
+        lines.append(f"| #{u['seed']} {u['kind']} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def parse(extra: list[str]) -> argparse.Namespace:
@@ -157,6 +201,7 @@ def results_markdown(units: list[dict]) -> str:
                      f"{'; '.join(u.get('learned_words') or []) or '-'} | {u['ratio_before']:.3f} | "
                      f"{u['ratio_type_switched']:.3f} | {u['ratio_after']:.3f} | "
                      f"{', '.join(u['components_above_half_table_6_5']) or 'none'} |")
+    lines += ["", *components_markdown(units)]
     ok = [u for u in units if u["ratio_after"] <= 0.15 and not u["components_above_half_table_6_5"]]
     lines += ["", f"{sum(u['adopted'] for u in units)} of {len(units)} unit twins adopted; "
               f"{sum(u['ratio_after'] <= 0.15 for u in units)} of {len(units)} units at ratio <= 0.15; "
@@ -194,7 +239,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
               f"(calibration {r['calibration_wall_s']} s, words {r['structure_wall_s']} s, twin "
               f"{r['twin_simulated_h_per_s']} simulated h/s); adoption: {r['adoption']}; words: "
               f"{'; '.join(r['learned_words']) or 'none'}; moved: "
-              f"{'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}", flush=True)
+              f"{'; '.join(r['learned_moves']) or 'nothing beyond 15 %'}\n{components_text(r)}", flush=True)
     after = [u["ratio_after"] for u in units]
     figures["learn.worst_ratio_after"] = round(max(after), 3) if after else math.nan
     figures["learn.units_adopted"] = sum(u["adopted"] for u in units)

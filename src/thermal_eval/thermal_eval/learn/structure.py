@@ -8,10 +8,16 @@ leaves there, floored at the probe noise or ``TEMP_FLOOR_K``), so a few probes w
 a temperature sampled every minute. The choice: open loop on the validation probes, the word's
 noise-normalised SSE below ``WORD_MARGIN`` x the twin's without it and no component worse by
 more than its probe uncertainty (learn.adoption.decide), and its effect on some error component
-at least ``MIN_EFFECT`` probe uncertainties (RMS: a smaller one cannot be told from the probe
-noise); of the words that pass, the one that fits the fit window best (its many temperature
-rows and probes; the few validation probes only guard) is added, then the search
-runs once more on top of it (at most ``MAX_WORDS``). A final bounded calibration of the type's
+at least ``MIN_EFFECT`` probe uncertainties (RMS over the validation rows, where the prior takes
+over: a smaller one cannot be told from the probe noise); of the words that pass, the one that
+fits the fit window best (its many temperature rows and probes; the few validation probes only
+guard) is added, then the search
+runs once more on top of it (at most ``MAX_WORDS``). A boundary that follows and a sensor that
+drifts (``JOINT_KINDS``) are fitted together with the strained parameters (at their bound, moved
+by more than half their tolerance, the links to a boundary), each within its tolerance: the first
+calibration, fitted without the word, has moved them to absorb part of it (a drifting hall
+sensor into the hall couplings and the convection), and the word fitted on that twin alone comes
+out too small. A final bounded calibration of the type's
 twin with the words (started from the first calibration) lets the parameters that had absorbed
 the missing physics go back; the words' own parameters move in their wide ranges. No rclpy.
 """
@@ -35,7 +41,7 @@ from thermal_twin.physics.boundary_follow import follow_series, lowered, lower_s
 from thermal_twin.physics.sensor_model import drift_offsets
 from thermal_twin.sim.inputs_timeline import timeline_from_recording
 
-from thermal_eval.learn.adoption import decide
+from thermal_eval.learn.adoption import Adoption, decide
 from thermal_eval.learn.words import Word, candidates
 
 #: a word must bring the validation probes' normalised SSE below this fraction of the twin's without it
@@ -48,6 +54,10 @@ TEMP_FLOOR_K = 0.05
 MIN_EFFECT = 1.0
 #: optimiser evaluations per word fit
 WORD_NFEV = 40
+#: words fitted together with the strained parameters (module docstring): a boundary that
+#: follows and a sensor that drifts change what a boundary does, and the first calibration has
+#: absorbed part of that into the couplings to the boundaries without reaching their bounds
+JOINT_KINDS = ("follows", "sensor_drift")
 
 
 def twin_outputs(spec: dict, rec: Recording, stop: int | None = None) -> dict[str, np.ndarray]:
@@ -78,11 +88,17 @@ class Tried:
     base: str = "calibrated"          # fitted on the calibrated twin or on it with bounded parameters set back
     chosen: bool = False
     gains: dict = field(default_factory=dict)   # the error gains refitted with the word
+    moved: dict = field(default_factory=dict)   # strained parameters fitted with the word (name -> value)
+
+    def spec_on(self, base: dict) -> dict:
+        """``base`` with the word and the parameters fitted with it."""
+        return self.word.spec(_with_values(base, self.moved), self.theta)
 
     def as_dict(self) -> dict:
         return {"word": self.word.label, "kind": self.word.kind, "what": self.word.describe(self.theta),
                 "fitted_on": f"the {self.base} twin",
                 "parameters": dict(zip(self.word.params, [float(v) for v in self.theta])),
+                "moved_with_it": {k: float(v) for k, v in self.moved.items()},
                 "fit_cost": round(self.fit_cost, 4), "validation": self.validation, "chosen": self.chosen}
 
 
@@ -150,18 +166,52 @@ class _Scorer:
                       {c: out[c][ok] for c in self.components}, np.ones(int(ok.sum()), bool), margin=margin)
 
 
-def _fit_word(scorer: _Scorer, base: dict, word: Word) -> tuple[np.ndarray, float, dict]:
-    def fun(th):
-        return scorer.residual(scorer.outputs(word.spec(base, th)))
+def _fit_word(scorer: _Scorer, base: dict, word: Word, joint: list = ()) -> tuple[np.ndarray, float, dict, dict]:
+    """(the word's theta, fit cost, outputs, the ``joint`` parameters' values fitted with it):
+    the word alone, or together with ``joint`` (Params, each within its tolerance bounds, from
+    its value in ``base``)."""
+    k, joint = word.theta0.size, list(joint)
+    x0 = np.concatenate([word.theta0, [p.theta(float(np.clip(_get(base, p.path), p.lo, p.hi))) for p in joint]])
+    lb = np.concatenate([word.lb, [min(p.theta_bounds) for p in joint]])
+    ub = np.concatenate([word.ub, [max(p.theta_bounds) for p in joint]])
+    values = lambda x: {p.name: p.value(v) for p, v in zip(joint, x[k:])}      # noqa: E731
+    byname = {p.name: p for p in joint}
+
+    def spec(x):
+        return word.spec(_with_values(base, values(x), byname), x[:k])
+
+    def fun(x):
+        return scorer.residual(scorer.outputs(spec(x)))
     try:
-        sol = least_squares(fun, word.theta0, bounds=(word.lb, word.ub), method="trf", diff_step=1e-4,
-                            max_nfev=WORD_NFEV, x_scale=np.maximum(word.ub - word.lb, 1e-9) / 4.0)
-        theta = sol.x
+        sol = least_squares(fun, np.clip(x0, lb, ub), bounds=(lb, ub), method="trf", diff_step=1e-4,
+                            max_nfev=WORD_NFEV, x_scale=np.maximum(ub - lb, 1e-9) / 4.0)
+        x = sol.x
     except (ValueError, np.linalg.LinAlgError):       # a word the twin cannot run (an invalid description)
-        return word.theta0, math.inf, {}
-    out = scorer.outputs(word.spec(base, theta))
+        return word.theta0, math.inf, {}, {}
+    out = scorer.outputs(spec(x))
     r = scorer.residual(out)
-    return theta, float(r @ r), out
+    return x[:k], float(r @ r), out, values(x)
+
+
+def _get(spec: dict, path: tuple) -> float:
+    d = spec
+    for key in path:
+        d = d[key]
+    return float(d)
+
+
+def _with_values(spec: dict, values: dict, params: dict | None = None) -> dict:
+    """A copy of ``spec`` with parameter values by name (paths from ``params`` or the names)."""
+    if not values:
+        return spec
+    out = copy.deepcopy(spec)
+    for name, v in values.items():
+        path = params[name].path if params else tuple(name.split("."))
+        d = out
+        for key in path[:-1]:
+            d = d[key]
+        d[path[-1]] = float(v)
+    return out
 
 
 @dataclass
@@ -191,39 +241,67 @@ def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, com
     if released:
         bases["released"] = _set_back(cal_spec, machine.to_dict(), released)
     ref, st = bases["calibrated"], Structure()
+    joint = [p for p, _ in at_bound if p.kind not in ("bias", "boundary")]
     for round_ in range(MAX_WORDS):
         scorer = _Scorer(rec, channels, components, noise, fit_until, ref, type_spec)
         progress(f"structure: round {round_ + 1}, {len(pool)} candidate words on the calibrated and the type's twin")
         best = None
         for name, base in bases.items():
-            out0 = scorer.outputs(base)
-            r0 = scorer.residual(out0)
-            cost0 = float(r0 @ r0)
-            for w in pool:
-                theta, cost, out = _fit_word(scorer, base, w)
-                why = ("no better on the fit window" if not out or not cost < 0.95 * cost0 else
-                       w.refuse(theta) or _too_small(out0, out, components, noise))
-                if why:
-                    st.tried.append(Tried(w, theta, cost / cost0, {"adopt": False, "validation_rmse": {},
-                                                                    "reason": why}, base=name))
-                    continue
-                v = scorer.validation(scorer.base_out, out, WORD_MARGIN)
-                tried = Tried(w, theta, cost / cost0, v.as_dict(), base=name, gains=copy.deepcopy(scorer.gains))
+            for tried in _try_words(scorer, name, base, pool, joint, components, noise):
                 st.tried.append(tried)
-                if v.adopt and (best is None or tried.fit_cost < best.fit_cost):
+                if tried.validation.get("adopt") and (best is None or tried.fit_cost < best.fit_cost):
                     best = tried
         st.evals += scorer.evals
         if best is None:
             break
         best.chosen = True
         st.words.append(best)
-        ref = _gains_into(best.word.spec(bases[best.base], best.theta), best.gains)
-        bases = {k: _gains_into(best.word.spec(b, best.theta), best.gains) for k, b in bases.items()}
+        ref = _gains_into(best.spec_on(bases[best.base]), best.gains)
+        bases = {k: _gains_into(best.spec_on(b), best.gains) for k, b in bases.items()}
         pool = [w for w in pool if w.label != best.word.label]
     if st.words:
         st.spec = ref
     st.wall_s = time.perf_counter() - t0
     return st
+
+
+#: the reference of a word fitted jointly: the strained parameters refitted without a word
+_NO_WORD = Word("none", "no word", (), np.zeros(0), np.zeros(0), np.zeros(0), lambda s, th: None, lambda th: "no word")
+
+
+def _try_words(scorer: _Scorer, name: str, base: dict, pool: list[Word], joint: list, components: list[str],
+               noise: dict) -> list[Tried]:
+    """Every word of ``pool`` fitted on ``base`` and judged: better on the fit window, not
+    refused, an effect above the probe noise, then on the validation probes. A word fitted with
+    the strained parameters is judged against those parameters refitted without it (what it
+    adds, not what refitting them gives)."""
+    out0 = scorer.outputs(base)
+    r0 = scorer.residual(out0)
+    cost0 = float(r0 @ r0)
+    ref = {False: (cost0, out0)}
+    if joint and any(w.kind in JOINT_KINDS for w in pool):
+        _, cost_j, out_j, _ = _fit_word(scorer, base, _NO_WORD, joint)
+        ref[True] = (cost_j, out_j) if out_j else ref[False]
+    tried = []
+    for w in pool:
+        together = bool(joint) and w.kind in JOINT_KINDS
+        theta, cost, out, moved = _fit_word(scorer, base, w, joint if together else ())
+        c_ref, o_ref = ref[together]
+        why = ("no better on the fit window" if not out or not cost < 0.95 * c_ref else
+               w.refuse(theta) or _too_small(o_ref, out, components, noise, scorer.val))
+        if why:
+            tried.append(Tried(w, theta, cost / cost0, {"adopt": False, "validation_rmse": {}, "reason": why},
+                               base=name, moved=moved))
+            continue
+        v = scorer.validation(scorer.base_out, out, WORD_MARGIN)
+        if v.adopt and together:             # and better than the refit without it
+            v_j = scorer.validation(o_ref, out, WORD_MARGIN)
+            if not v_j.adopt:
+                v = Adoption(False, f"against the strained parameters refitted without it: {v_j.reason}",
+                             v_j.rmse, v_j.probes)
+        tried.append(Tried(w, theta, cost / cost0, v.as_dict(), base=name, gains=copy.deepcopy(scorer.gains),
+                           moved=moved))
+    return tried
 
 
 def _gains_into(spec: dict, gains: dict) -> dict:
@@ -232,10 +310,12 @@ def _gains_into(spec: dict, gains: dict) -> dict:
     return spec
 
 
-def _too_small(before: dict, after: dict, components: list[str], noise: dict) -> str:
+def _too_small(before: dict, after: dict, components: list[str], noise: dict, rows: np.ndarray) -> str:
     """A word whose effect on every error component stays below that component's probe
-    uncertainty (RMS over the rows) cannot be told from noise by probes: no word."""
-    effect = max(float(np.sqrt(np.nanmean((after[c] - before[c]) ** 2))) / noise[c] for c in components)
+    uncertainty (RMS over ``rows``, the latest ones: where the prior takes over; a drift's
+    effect grows with time and its mean since the start understates it) cannot be told from
+    noise by probes: no word."""
+    effect = max(float(np.sqrt(np.nanmean((after[c][rows] - before[c][rows]) ** 2))) / noise[c] for c in components)
     return "" if effect >= MIN_EFFECT else f"its effect on the errors is {effect:.2f} x the probe uncertainty at most"
 
 
@@ -285,6 +365,8 @@ def recalibrate(machine: Machine, st: Structure, cal, fit_rec: Recording, holdou
     back = {p.name for p in released or []} if any(t.base == "released" for t in st.words) else set()
     start = {e.param.name: e.value for e in cal.estimates
              if e.param.name in known and e.param.name not in params and e.param.name not in back}
+    for t in st.words:                                    # the strained parameters fitted with a word
+        start.update({n: v for n, v in t.moved.items() if n in known and n not in params})
     for c, terms in st.words[-1].gains.items():           # the gains refitted with the words
         start.update({f"errors.{c}.terms.{n}": g for n, g in terms.items() if f"errors.{c}.terms.{n}" in known})
     progress(f"recalibrating the twin with {', '.join(t.word.label for t in st.words)}")
