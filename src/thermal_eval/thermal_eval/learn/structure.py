@@ -13,8 +13,8 @@ over: a smaller one cannot be told from the probe noise); of the words that pass
 fits the fit window best (its many temperature rows and probes; the few validation probes only
 guard) is added, then the search
 runs once more on top of it (at most ``MAX_WORDS``). A boundary that follows and a sensor that
-drifts (``JOINT_KINDS``) are fitted together with the strained parameters (at their bound, moved
-by more than half their tolerance, the links to a boundary), each within its tolerance: the first
+drifts (``JOINT_KINDS``) are fitted together with the strained couplings to the boundaries (the
+conductances of links to a boundary, the speed-driven convection), each within its tolerance: the first
 calibration, fitted without the word, has moved them to absorb part of it (a drifting hall
 sensor into the hall couplings and the convection), and the word fitted on that twin alone comes
 out too small. A final bounded calibration of the type's
@@ -58,6 +58,8 @@ WORD_NFEV = 40
 #: follows and a sensor that drifts change what a boundary does, and the first calibration has
 #: absorbed part of that into the couplings to the boundaries without reaching their bounds
 JOINT_KINDS = ("follows", "sensor_drift")
+#: optimiser iterations of a joint fit (each costs one twin run per parameter for the Jacobian)
+JOINT_NFEV = 20
 
 
 def twin_outputs(spec: dict, rec: Recording, stop: int | None = None) -> dict[str, np.ndarray]:
@@ -184,7 +186,7 @@ def _fit_word(scorer: _Scorer, base: dict, word: Word, joint: list = ()) -> tupl
         return scorer.residual(scorer.outputs(spec(x)))
     try:
         sol = least_squares(fun, np.clip(x0, lb, ub), bounds=(lb, ub), method="trf", diff_step=1e-4,
-                            max_nfev=WORD_NFEV, x_scale=np.maximum(ub - lb, 1e-9) / 4.0)
+                            max_nfev=JOINT_NFEV if joint else WORD_NFEV, x_scale=np.maximum(ub - lb, 1e-9) / 4.0)
         x = sol.x
     except (ValueError, np.linalg.LinAlgError):       # a word the twin cannot run (an invalid description)
         return word.theta0, math.inf, {}, {}
@@ -241,7 +243,7 @@ def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, com
     if released:
         bases["released"] = _set_back(cal_spec, machine.to_dict(), released)
     ref, st = bases["calibrated"], Structure()
-    joint = [p for p, _ in at_bound if p.kind not in ("bias", "boundary")]
+    joint = coupling_parameters(machine, [p for p, _ in at_bound])
     for round_ in range(MAX_WORDS):
         scorer = _Scorer(rec, channels, components, noise, fit_until, ref, type_spec)
         progress(f"structure: round {round_ + 1}, {len(pool)} candidate words on the calibrated and the type's twin")
@@ -263,6 +265,19 @@ def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, com
         st.spec = ref
     st.wall_s = time.perf_counter() - t0
     return st
+
+
+def coupling_parameters(machine: Machine, params: list) -> list:
+    """Of ``params``, those that couple the machine to a boundary: the conductance of a link to
+    a boundary and the speed-driven convection (the hall couplings a drifting hall sensor or a
+    following chiller is absorbed into; the rest is the final calibration's)."""
+    out = []
+    for p in params:
+        link = machine.links.get(p.path[1]) if p.path[0] == "links" else None
+        if p.hi > p.lo and (p.kind == "convection" or (p.kind == "conductance" and link is not None and
+                                                      (link.a in machine.boundaries or link.b in machine.boundaries))):
+            out.append(p)
+    return out
 
 
 #: the reference of a word fitted jointly: the strained parameters refitted without a word
