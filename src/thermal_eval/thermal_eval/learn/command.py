@@ -31,6 +31,7 @@ from thermal_twin.machine.schema import Machine, load_machine
 
 from thermal_eval.learn.adoption import ADAPTIVE_MARGIN, Adoption, decide
 from thermal_eval.learn.current import CurrentPrior, type_current
+from thermal_eval.learn.finder import located
 from thermal_eval.learn.probe_score import (hold_last, prequential_model, score_table, static_regression,
                                             training_mean)
 from thermal_eval.learn.probes import ProbeSet
@@ -177,6 +178,9 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
     sub = ProbeSet(probes.time_s, {c: probes.values[c] for c in fit.components},
                    {c: probes.noise[c] for c in fit.components}, probes.source)
     before, after = _twin_at_probes(fit, sub, unit_spec)
+    finder = located(machine, {"the twin it started from": fit.calibration.before, "the learned twin":
+                               fit.calibration.after if unit_spec is None else twin_outputs(unit_spec, fit.fit_rec)},
+                     fit.fit_rec, fit.components, fit_until)
     validation = (sub.time_s > fit_until) & (sub.time_s <= train_until)
     adoption = decide(sub.values, sub.noise, before, after, validation)
     predictors = {"hold last probe": hold_last(sub), "training mean": training_mean(sub, train_until),
@@ -209,7 +213,7 @@ def learn(twin, rec: Recording, probes: ProbeSet, out: pathlib.Path, train_h: fl
                             "first_calibration": moved_parameters(fit.calibration) if st.words else None,
                             "recalibration": st.recalibration,
                             "wall_s": round(st.wall_s, 1), "twin_runs": st.evals},
-              "held_out_scores": score_table(sub, predictors, sub.time_s > train_until),
+              "held_out_scores": score_table(sub, predictors, sub.time_s > train_until), "finder": finder,
               "files": files,
               "wall_s": {"calibration": round(t_fit, 1), "structure": round(t_struct, 1),
                          "priors_and_scores": round(time.perf_counter() - t1, 1)},

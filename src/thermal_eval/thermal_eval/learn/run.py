@@ -15,6 +15,7 @@ from thermal_twin.machine.schema import MachineSpecError, load_machine
 
 from thermal_eval.learn.command import learn
 from thermal_eval.learn.current import CurrentPrior, load_current
+from thermal_eval.learn.finder import finder_markdown
 from thermal_eval.learn.probes import ProbeDataError, cell_recording
 
 
@@ -94,7 +95,7 @@ def markdown(rep: Mapping[str, Any]) -> str:
     for name, row in scores.items():
         lines.append(f"| {name} | " + " | ".join(_fmt(row[c]["rmse"]) for c in comps) + " |")
     lines += ["", "Units: um (E_A0C, E_B0C, E_C0C: um/m). The probe noise is part of every figure alike.",
-              "", "## Files", ""] + [f"- {k}: `{v}`" for k, v in rep["files"].items()]
+              *finder_markdown(rep.get("finder")), "", "## Files", ""] + [f"- {k}: `{v}`" for k, v in rep["files"].items()]
     return "\n".join(lines) + "\n"
 
 
