@@ -301,6 +301,8 @@ def _try_words(scorer: _Scorer, name: str, base: dict, pool: list[Word], joint: 
     for w in pool:
         together = bool(joint) and w.kind in JOINT_KINDS
         theta, cost, out, moved = _fit_word(scorer, base, w, joint if together else ())
+        if w.kind == "sensor_drift" and out:
+            theta, cost, out = _drift_told(scorer, base, w, theta, moved, out, components, noise)
         c_ref, o_ref = ref[together]
         why = ("no better on the fit window" if not out or not cost < 0.95 * c_ref else
                w.refuse(theta) or _too_small(o_ref, out, components, noise, scorer.val))
@@ -317,6 +319,27 @@ def _try_words(scorer: _Scorer, name: str, base: dict, pool: list[Word], joint: 
         tried.append(Tried(w, theta, cost / cost0, v.as_dict(), base=name, gains=copy.deepcopy(scorer.gains),
                            moved=moved))
     return tried
+
+
+def _drift_told(scorer: _Scorer, base: dict, word: Word, theta: np.ndarray, moved: dict, out: dict,
+                components: list[str], noise: dict) -> tuple[np.ndarray, float, dict]:
+    """A sensor's drift is kept only if the probes can tell it from none: its own effect on the
+    errors (the word against the same word with no drift, on the validation rows) is at least
+    ``MIN_EFFECT`` probe uncertainties; else it is written as 0. A drift extrapolates (its effect
+    grows for as long as the prior runs), and a constant bias has none on the errors' changes
+    (the twin starts in the steady state of its first reading), so the drift is the part to prove."""
+    still = np.array(theta, float)
+    still[list(word.params).index("drift_K_per_h")] = 0.0
+    out0 = scorer.outputs(word.spec(_with_values(base, moved), still))
+    if not _too_small(out0, out, components, noise, scorer.val):
+        scorer.outputs(word.spec(_with_values(base, moved), theta))      # the word's refitted gains again
+        return theta, _cost(scorer, out), out
+    return still, _cost(scorer, out0), out0
+
+
+def _cost(scorer: _Scorer, out: dict) -> float:
+    r = scorer.residual(out)
+    return float(r @ r)
 
 
 def _gains_into(spec: dict, gains: dict) -> dict:
