@@ -62,18 +62,19 @@ def test_the_dead_band_zeroes_small_changes_and_keeps_large_ones_almost_whole():
     assert shrink(np.array([0.2, -0.1]), 0.0).tolist() == [0.2, -0.1]
 
 
-def test_the_dead_band_is_the_models_noise_not_the_readings():
-    """Noisy probe readings and a smooth prediction: the held probe carries the readings' noise
-    as much as the compensation, so only the prediction's own noise (and the probe's
-    resolution) sets the band."""
+def test_the_dead_band_is_the_larger_of_the_readings_and_the_models_noise():
+    """A predicted change the probes cannot tell from their noise is not acted on, nor one within
+    the model's own noise; the probe's resolution bounds it from below."""
     rng = np.random.default_rng(3)
     n = 500
     y = np.cumsum(rng.normal(0, 0.01, n)) + rng.normal(0, 0.3, n)
     smooth = np.linspace(0.0, 3.0, n)
-    noisy = smooth + rng.normal(0, 0.2, n)
-    assert dead_band_um(y, n, 0.1, prediction=smooth) == 0.1
-    assert 0.4 < dead_band_um(y, n, 0.1, prediction=noisy) < 0.75          # 2 sqrt(2) x 0.2
-    assert dead_band_um(y, n, 0.1) > 0.7                                    # the readings' noise, without a model
+    noisier = smooth + rng.normal(0, 0.6, n)
+    readings = dead_band_um(y, n, 0.1)
+    assert 0.7 < readings < 1.0                                              # 2 sqrt(2) x 0.3
+    assert dead_band_um(y, n, 0.1, prediction=smooth) == readings
+    assert 1.4 < dead_band_um(y, n, 0.1, prediction=noisier) < 2.0          # 2 sqrt(2) x 0.6
+    assert dead_band_um(np.zeros(n), n, 0.1, prediction=smooth) == 0.1
 
 
 def test_the_diagram_finds_the_sensor_that_drives_a_channel():

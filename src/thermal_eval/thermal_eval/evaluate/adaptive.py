@@ -235,14 +235,14 @@ def resolution_um(y: np.ndarray, n_train: int, run_id: np.ndarray | None = None)
 def dead_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0,
                  run_id: np.ndarray | None = None, prediction: np.ndarray | None = None) -> float:
     """Predicted changes smaller than this are not acted on (the compensation holds): the largest
-    of the probe's resolution, the step of a quantised signal (:func:`resolution_um`) and two
-    standard deviations of the difference of two values of the model's prediction (its own
-    noise, from its inputs' noise: a predicted change within it may not be a change). The
-    reading noise of the displacement is not in it: the held probe carries it as much as the
-    compensation does (without ``prediction``: the readings' noise, the earlier rule)."""
-    noisy = y if prediction is None else prediction
-    return max(float(probe_resolution_um), DEAD_BAND_SIGMAS * reading_noise_um(noisy, n_train, run_id),
-               resolution_um(y, n_train, run_id))
+    of the probe's resolution, the step of a quantised signal (:func:`resolution_um`), two
+    standard deviations of the difference of two readings (a smaller change cannot be told from
+    the probes' noise, so the probes cannot confirm it: on a plateau those are the wrong ones) and,
+    with ``prediction``, two standard deviations of the difference of two values of the model's
+    prediction (its own noise, from its inputs')."""
+    noises = [y] + ([prediction] if prediction is not None else [])
+    return max([float(probe_resolution_um), resolution_um(y, n_train, run_id)]
+               + [DEAD_BAND_SIGMAS * reading_noise_um(v, n_train, run_id) for v in noises])
 
 
 def shrink(dp: np.ndarray, band: float) -> np.ndarray:
