@@ -12,8 +12,11 @@ left on it (maximum likelihood with one unknown variance per channel); temperatu
 are further down-weighted so that all of them together weigh as much as the sparse probes.
 
 Hidden bodies are added one at a time while the held-out fit (the last ``holdout`` of the
-recording, never fitted) improves by more than ``HIDDEN_MARGIN``; the chosen structure is then
-refitted on the whole recording (but its last 5 %). No rclpy.
+recording, never fitted) improves by more than ``HIDDEN_MARGIN`` and the fitted structure has no
+mode slower than the data it was fitted on (``MODE_LIMIT`` x that length, :mod:`modes`: such a
+mode shows in the data only as a slope, its time constant and gains are not identified, and the
+twin would extrapolate it over the following days as the fit happened to leave it); the chosen
+structure is then refitted on the whole recording (but its last 5 %). No rclpy.
 """
 from __future__ import annotations
 
@@ -30,6 +33,7 @@ from thermal_comp_common.recording_csv import Recording
 from thermal_twin.calibrate.fit import CalibrationResult, calibrate
 from thermal_twin.diagnose.fit import channel_sigma
 from thermal_twin.identify.description import Description
+from thermal_twin.identify.modes import slowest_mode_h
 from thermal_twin.identify.structure import starting_spec
 
 WIDE = 30.0                      # every positive parameter within a factor 30 of its start
@@ -37,6 +41,7 @@ HIDDEN_MARGIN = 0.01             # a hidden body must lower the held-out score b
 SPARSE_FRACTION = 0.5            # a channel with fewer finite rows than this is sparse (probes)
 PRIOR = True                     # calibrate's prior toward the start (module docstring)
 FINAL_HOLDOUT = 0.05             # the final refit keeps only this much out (calibrate's minimum)
+MODE_LIMIT = 1.0                 # a hidden body's structure may have no mode slower than this x the fitted data
 
 
 @dataclass
@@ -46,6 +51,8 @@ class Candidate:
     calibration: CalibrationResult
     holdout: dict[str, float]            # channel -> held-out RMSE
     score: float                         # mean held-out RMSE / training spread over the channels
+    slowest_h: float = math.nan          # the fitted structure's slowest time constant at rest, h
+    fitted_h: float = math.nan           # the length of data it was fitted on, h
 
 
 @dataclass
@@ -151,7 +158,13 @@ def fit_structure(d: Description, rec: Recording, hidden: int, holdout: float, m
     ho = {c: table[c]["holdout_rmse_after"] for c in scored_channels(d, cal.channels)}
     norm = [v / _spread(rec, c, cal.n_train) for c, v in ho.items() if math.isfinite(v)]
     score = float(np.mean(norm)) if norm else math.inf
-    return Candidate(hidden, cal.spec, cal, ho, score)
+    fitted_h = float(rec.time_s[min(cal.n_train, rec.time_s.size) - 1] - rec.time_s[0]) / 3600.0
+    return Candidate(hidden, cal.spec, cal, ho, score, slowest_mode_h(cal.spec), fitted_h)
+
+
+def identifiable(c: Candidate) -> bool:
+    """No mode of the fitted structure slower than the data it was fitted on (module docstring)."""
+    return c.slowest_h <= MODE_LIMIT * c.fitted_h
 
 
 def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: int = 40,
@@ -163,8 +176,10 @@ def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: in
         progress(f"fitting the structure with {hidden} hidden bod{'y' if hidden == 1 else 'ies'}")
         c = fit_structure(d, rec, hidden, holdout, max_nfev, progress)
         cands.append(c)
-        progress(f"  held-out score {c.score:.4g}")
-        if best is None or c.score < best.score * (1.0 - HIDDEN_MARGIN):
+        progress(f"  held-out score {c.score:.4g}, slowest mode {c.slowest_h:.1f} h on {c.fitted_h:.1f} h of data")
+        if best is None:
+            best = c
+        elif c.score < best.score * (1.0 - HIDDEN_MARGIN) and identifiable(c):
             best = c
         else:
             break
@@ -172,6 +187,7 @@ def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: in
     progress(f"refitting {best.hidden} hidden on the whole recording")
     final = fit_structure(d, rec, best.hidden, FINAL_HOLDOUT, max_nfev, progress, start=start)
     notes = [f"hidden bodies tried: {[c.hidden for c in cands]}, held-out scores "
-             f"{[round(c.score, 4) for c in cands]}; kept {best.hidden} (a hidden body must lower the score by "
-             f"{100 * HIDDEN_MARGIN:g} %)"]
+             f"{[round(c.score, 4) for c in cands]}, slowest modes {[round(c.slowest_h, 1) for c in cands]} h; "
+             f"kept {best.hidden} (a hidden body must lower the score by {100 * HIDDEN_MARGIN:g} % and leave "
+             f"no mode slower than {MODE_LIMIT:g} x the {best.fitted_h:.1f} h it was fitted on)"]
     return Identification(d, final.spec, best, cands, best.calibration.channels, best.calibration.n_train, notes)
