@@ -7,7 +7,8 @@ import numpy as np
 from talc_model.open_loop.sensor_selection import sensor_medoids
 from thermal_eval.datasets.runs import Run, at_rest, fold_data
 from thermal_eval.datasets.sources import RunEntry
-from thermal_eval.evaluate.adaptive import dead_band_um, reading_noise_um, shrink, training_gain, within_runs
+from thermal_eval.evaluate.adaptive import (ProbingBudget, dead_band_um, reading_noise_um, run_adaptive, shrink,
+                                            training_gain, within_runs)
 from thermal_eval.evaluate.open_loop_models import MODELS
 from thermal_eval.evaluate.spec import EvaluationData, Split
 
@@ -99,3 +100,22 @@ def test_a_run_at_rest_marks_its_rest_rows():
     d = at_rest(_run(0).data, 0.5)
     assert d.run_id.tolist() == [-1] * 30 + [0] * 200
     assert at_rest(_run(0).data, 0.0).run_id is None
+
+
+def test_on_a_noisy_plateau_small_predicted_drifts_are_not_followed():
+    """Training rows where the model is right (a 6-um warm-up), then a 12-h plateau read with
+    0.2-um probe noise on which the model predicts a slow drift of 0.4 um/h that does not
+    happen: each hour's predicted change is below what two probe readings can tell apart, so the
+    compensation holds (within 10 % of holding its probes), though the prediction itself is smooth."""
+    rng = np.random.default_rng(11)
+    t = np.arange(0.0, 30 * 3600.0, 60.0)
+    n, n_train = t.size, int(18 * 3600 / 60)
+    truth = np.where(t < 6 * 3600, 6.0 * (1 - np.exp(-t / 7200.0)), 6.0 * (1 - np.exp(-6 * 3600 / 7200.0)))
+    y = truth + rng.normal(0, 0.2, n)
+    p = truth + np.where(t > t[n_train - 1], 0.4 * (t - t[n_train - 1]) / 3600.0, 0.0)
+    test = slice(n_train, n)
+    d = EvaluationData(t, truth[:, None], ["m_c"], None, [], {"z_um": y}, Split(n_train, slice(n, n), test, n))
+    res = run_adaptive(d, {"z_um": p}, {"z_um": (p.copy(), 600)}, ProbingBudget(probe_every_h=1.0))
+    err = np.mean(np.abs(y[test] - res.compensation["z_um"][test]))
+    hold = np.mean(np.abs(y[test] - res.hold["z_um"][test]))
+    assert err <= 1.10 * hold and res.rates["z_um"]["dead_band_um"] > 0.5
