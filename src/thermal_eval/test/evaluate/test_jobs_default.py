@@ -23,8 +23,6 @@ COMMANDS = {
     "diagnose": (diagnose_parser, ["--twin", "spindle-stand", "--recording", "r.csv", "--out", "o"]),
     "bench evaluate": (bench_evaluate_parser, []),
 }
-#: --jobs defined elsewhere than engine_options, not yet moved (its folder belongs to other work)
-NOT_YET_SHARED = {"thermal_eval/thermal_eval/diagnose/random_bench.py"}
 
 
 @pytest.mark.parametrize("cores, jobs", [(1, 1), (2, 1), (8, 7)])
@@ -52,4 +50,4 @@ def test_no_other_jobs_option_is_defined_in_the_sources():
             continue
         if re.search(r"add_argument\(\s*[\"']--jobs[\"']", path.read_text(encoding="utf-8")):
             defined.add(rel)
-    assert defined == NOT_YET_SHARED
+    assert defined == set()

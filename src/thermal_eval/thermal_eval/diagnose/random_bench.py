@@ -16,6 +16,7 @@ import os
 import pathlib
 import time
 
+from thermal_comp_common.runtime.engine_options import add_jobs_argument
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
 from thermal_eval.diagnose.random_score import judge, run_case, score
 
@@ -26,7 +27,7 @@ def parse(extra: list[str]) -> argparse.Namespace:
     ap.add_argument("--seed", type=int, default=1000, help="seed S (case i of seed S is drawn alone)")
     ap.add_argument("--first", type=int, default=0, help="first case index (cases first .. first+N-1)")
     ap.add_argument("--calibrate", action="store_true", help="diagnose --calibrate (calibrate first)")
-    ap.add_argument("--jobs", type=int, default=1, help="local worker processes")
+    add_jobs_argument(ap, "drawn cases")
     a = ap.parse_args(extra)
     for name in ("random", "jobs"):
         if getattr(a, name) < 1:
