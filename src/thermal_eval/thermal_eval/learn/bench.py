@@ -2,7 +2,7 @@
 
 For every structural unit (thermal_eval.learn.units: an extra source, changed hall links, a
 thermo-elastic gain beyond tolerance, a biased hall sensor, a chiller that follows the hall, a
-drifting hall sensor; seeds 15-16 by default, ``--seeds``/``--kinds`` choose; seeds 11-12 were
+drifting hall sensor; seeds 17-18 by default (the reported ones), ``--seeds``/``--kinds`` choose; seeds 11-12 were
 looked at while setting the rules) a 178 h talc-178h-dry run is simulated. TALC
 with the type's prior runs on it as a cell would and probes on its own schedule; the probes of
 the first 48 h (Table 5.4 noise, 0.25 um resolution) plus the recorded temperatures and machine
@@ -44,7 +44,7 @@ from thermal_eval.replay.virtual_experiment import run_virtual_experiment
 
 SCENARIO, HOURS, TRAIN_H = "talc-178h-dry", 178.0, 48.0
 #: reported seeds; seeds 11 and 12 were looked at while setting the adoption rule and the words' rules
-SEEDS = (15, 16)
+SEEDS = (17, 18)
 QUICK = {"kinds": ("extra_source", "links"), "seeds": (13,), "hours": 96.0, "train_h": 36.0}
 
 
