@@ -2,8 +2,8 @@
 
 For every structural unit (thermal_eval.learn.units: an extra source, changed hall links, a
 thermo-elastic gain beyond tolerance, a biased hall sensor, a chiller that follows the hall, a
-drifting hall sensor; seeds 17-18 by default (the reported ones), ``--seeds``/``--kinds`` choose; seeds 11-12 were
-looked at while setting the rules) a 178 h talc-178h-dry run is simulated. TALC
+drifting hall sensor; seeds 17-18 by default (the reported ones), ``--seeds``/``--kinds``
+choose; seeds 11-12 were looked at while setting the rules) a 178 h talc-178h-dry run is simulated. TALC
 with the type's prior runs on it as a cell would and probes on its own schedule; the probes of
 the first 48 h (Table 5.4 noise, 0.25 um resolution) plus the recorded temperatures and machine
 inputs (no true hall, no ground truth) are all ``learn`` sees; it fits on 0-36 h and adopts the
