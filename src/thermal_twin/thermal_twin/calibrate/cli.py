@@ -5,7 +5,9 @@ Fits the twin's existing parameters (ranges from the machine's ``calibration`` s
 ``DIR/twin_calibrated.yaml``, ``DIR/report.md``, ``DIR/report.json`` and PNG plots. The
 Jacobian's finite-difference columns can run on a local process pool (``--jobs N``) or a Dask
 cluster (``--engine dask [--address tcp://HOST:8786]``); the answer is the same on every engine
-(docs/distributed.md). Default serial: a Jacobian is ~40 twin runs of a few ms, and a pool per
+(docs/distributed.md). Several recordings (files, a folder, a glob or a manifest) are runs:
+fitted together, every run from its own initial state, the held-out runs scored out of sample
+(docs/calibrate.md, "Several runs"). Default serial: a Jacobian is ~40 twin runs of a few ms, and a pool per
 Jacobian cost more CPU than it saved on FL_THERMAL (docs/diagnose.md, Speed).
 """
 from __future__ import annotations
@@ -21,13 +23,18 @@ from thermal_comp_common.command_line import run_parsed
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="thermal-comp calibrate", description=__doc__.split("\n\n")[0])
     p.add_argument("--twin", required=True, help="machine YAML file or preset name (e.g. spindle-stand)")
-    p.add_argument("--recording", required=True, help="recording CSV or rosbag2 MCAP bag")
+    p.add_argument("--recording", required=True, nargs="+", metavar="SOURCE",
+                   help="recording CSV or rosbag2 MCAP bag; several recordings, a folder, a glob or a manifest "
+                        "(YAML or CSV with a path column, as evaluate takes) are runs fitted together, split by run")
     p.add_argument("--out", required=True, help="output directory (must be new or empty unless --force)")
     p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
     p.add_argument("--bounds", help="YAML file with a calibration section (kinds, parameters); "
                                     "replaces the machine's own")
-    p.add_argument("--holdout-fraction", type=float, default=1 / 3,
-                   help="last fraction of the recording kept out of the fit (default 1/3)")
+    p.add_argument("--holdout-fraction", type=float, default=None,
+                   help="one recording: last fraction kept out of the fit (default 1/3)")
+    p.add_argument("--holdout-runs", default=None, metavar="K|NAME,NAME",
+                   help="several runs: the last K runs, or the named runs, kept out of the fit "
+                        "(default the last third, at least one)")
     p.add_argument("--max-nfev", type=int, default=20,
                    help="at most this many optimiser iterations (default 20)")
     p.add_argument("--block-min", type=float, default=30.0,

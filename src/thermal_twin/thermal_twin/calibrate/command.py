@@ -1,5 +1,6 @@
 """The work of ``thermal-comp calibrate`` (:mod:`thermal_twin.calibrate.cli` parses the arguments):
-fit the twin on the recording and write the calibrated twin, the report and its plots."""
+fit the twin on the recording (or on several runs together, split by run) and write the
+calibrated twin, the report and its plots."""
 from __future__ import annotations
 
 import pathlib
@@ -9,6 +10,7 @@ import yaml
 
 from thermal_twin.calibrate.report import plot_input_estimate, write_report
 from thermal_twin.calibrate.fit import CalibrationError, calibrate, pick_channels
+from thermal_twin.calibrate.runs import calibrate_runs, check_same_columns
 from thermal_twin.calibrate.input_estimation import InputEstimationError, fill_missing_inputs, missing_inputs
 from thermal_twin.calibrate.bounds import CalibrationSpecError
 from thermal_twin.machine.schema import MachineSpecError, load_machine, save_machine
@@ -16,6 +18,7 @@ from thermal_twin.calibrate.column_mapping import (MappingError, empty_columns, 
                                         read_real_recording)
 from thermal_comp_common.runtime.engine_options import engine_from_args
 from thermal_comp_common.recording_csv import RecordingError
+from thermal_comp_common.recording_sources import DatasetError, resolve_runs
 from thermal_comp_common.runtime.task_engine import TaskEngineError
 
 
@@ -32,37 +35,47 @@ def run(args) -> int:
         if args.bounds:
             raw = yaml.safe_load(pathlib.Path(args.bounds).read_text())
             section = (raw or {}).get("calibration", raw)
-        rec = read_real_recording(args.recording, parse_mapping(args.map_file, args.map),
-                                  args.temperatures_topic, args.errors_topic)
-        notes = list(rec.warnings) + name_mismatches(machine, rec)
-        empty = empty_columns(rec)
-        if empty:
-            notes.append(f"columns without any value (not used): {', '.join(empty)}")
+        entries = resolve_runs(args.recording)
+        if all(e.date for e in entries):
+            entries = sorted(entries, key=lambda e: e.date)     # stable: the given order within a day
+        recs, notes, estimates = _read_runs(args, machine, entries)
         say = None if args.quiet else (lambda s: print(s, file=sys.stderr))
-        estimates = []
-        if missing_inputs(machine, rec):
-            chans, _ = pick_channels(machine, rec)
-            rec, estimates, found = fill_missing_inputs(machine, rec, chans, block_s=args.block_min * 60.0)
-            notes = found + notes
-        r = calibrate(machine, rec, holdout_fraction=args.holdout_fraction, section=section,
-                      max_nfev=args.max_nfev, progress=say, engine=engine)
+        if len(recs) == 1:
+            if args.holdout_runs is not None:
+                raise CalibrationError(f"--holdout-runs {args.holdout_runs}: one recording is split in time "
+                                       "(--holdout-fraction); give several recordings to split by run")
+            frac = 1 / 3 if args.holdout_fraction is None else args.holdout_fraction
+            r, runs = calibrate(machine, recs[0], holdout_fraction=frac, section=section,
+                                max_nfev=args.max_nfev, progress=say, engine=engine), None
+        else:
+            if args.holdout_fraction is not None:
+                raise CalibrationError(f"--holdout-fraction {args.holdout_fraction}: {len(recs)} runs are split by "
+                                       "run (--holdout-runs K or NAME,NAME)")
+            rc = calibrate_runs(machine, recs, [e.name for e in entries], holdout=args.holdout_runs,
+                                section=section, max_nfev=args.max_nfev, progress=say, engine=engine)
+            r, runs = rc.result, rc.runs
     except (MachineSpecError, MappingError, CalibrationSpecError, RecordingError, CalibrationError,
-            InputEstimationError, TaskEngineError, ValueError, OSError) as exc:
+            InputEstimationError, TaskEngineError, DatasetError, ValueError, OSError) as exc:
         print(f"thermal-comp calibrate: {exc}", file=sys.stderr)
         return 1
     out.mkdir(parents=True, exist_ok=True)
     save_machine(r.spec, out / "twin_calibrated.yaml")
-    paths = write_report(r, out, machine.source_path or machine.name, rec.source, notes,
-                         input_estimates=[e.as_dict() for e in estimates])
-    for e in estimates:
-        paths[f"input_{e.input}"] = out / f"input_estimate_{e.input}.png"
-        plot_input_estimate(e, rec.time_s, paths[f"input_{e.input}"])
+    paths = write_report(r, out, machine.source_path or machine.name, ", ".join(x.source for x in recs), notes,
+                         input_estimates=[e.as_dict() for _, e, _ in estimates], runs=runs)
+    for name, e, rec in estimates:
+        key = f"input_{e.input}" + (f"_{name}" if runs else "")
+        paths[key] = out / f"input_estimate_{e.input}{f'_{name}' if runs else ''}.png"
+        plot_input_estimate(e, rec.time_s, paths[key])
     rate = r.simulated_h / max(r.wall_s, 1e-9)
     print(f"calibrated {len(r.estimates)} parameters on {len(r.channels)} channels in {r.wall_s:.1f} s "
           f"({r.n_evals} twin evaluations, {rate:.0f} simulated h/s); cost {r.cost_before:.4g} -> "
           f"{r.cost_after:.4g} ({r.status})")
+    what = "held-out runs pooled" if runs else "held-out"
     for c, v in r.channel_table().items():
-        print(f"  {c:10s} held-out RMSE {v['holdout_rmse_before']:.4g} -> {v['holdout_rmse_after']:.4g}")
+        print(f"  {c:10s} {what} RMSE {v['holdout_rmse_before']:.4g} -> {v['holdout_rmse_after']:.4g}")
+    for x in runs or []:
+        print(f"  run {x['name']} ({x['role']}): " + ", ".join(
+            f"{c} {v['rmse_before']:.3g} -> {v['rmse_after']:.3g}" for c, v in x["channels"].items()))
     unid = [e.param.name for e in r.estimates if any(f.startswith("not identified") for f in e.flags)]
     print(f"not identified by this recording: {len(unid)} of {len(r.estimates)}; "
           f"correlated pairs: {len(r.correlated)}")
@@ -70,3 +83,27 @@ def run(args) -> int:
         print(f"note: {n}")
     print("report: " + ", ".join(str(p) for p in [out / "twin_calibrated.yaml", *paths.values()]))
     return 0
+
+
+def _read_runs(args, machine, entries) -> tuple[list, list[str], list[tuple]]:
+    """Every run read with the same mapping and topics, each run's missing inputs estimated
+    from its own temperatures; (recordings, notes, [(run name, estimate, its recording)])."""
+    mapping = parse_mapping(args.map_file, args.map)
+    raw = [read_real_recording(e.path, mapping, args.temperatures_topic, args.errors_topic) for e in entries]
+    if len(raw) > 1:
+        check_same_columns(raw, [e.name for e in entries])   # before any estimate fills a column in
+    recs, notes, estimates = [], [], []
+    for entry, rec in zip(entries, raw):
+        tag = f"run {entry.name}: " if len(entries) > 1 else ""
+        found = list(rec.warnings) + name_mismatches(machine, rec)
+        empty = empty_columns(rec)
+        if empty:
+            found.append(f"columns without any value (not used): {', '.join(empty)}")
+        if missing_inputs(machine, rec):
+            chans, _ = pick_channels(machine, rec)
+            rec, est, said = fill_missing_inputs(machine, rec, chans, block_s=args.block_min * 60.0)
+            found = said + found
+            estimates += [(entry.name, e, rec) for e in est]
+        recs.append(rec)
+        notes += [tag + n for n in found]
+    return recs, notes, estimates

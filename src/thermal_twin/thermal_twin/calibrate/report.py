@@ -12,8 +12,10 @@ from thermal_twin.calibrate.fit import CalibrationResult
 
 
 def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str],
-                input_estimates: list[dict] | None = None) -> dict:
-    return {
+                input_estimates: list[dict] | None = None, runs: list[dict] | None = None) -> dict:
+    """The report's content; ``runs`` (several recordings): every run's own figures, and then
+    ``r`` holds the runs laid end to end, so its channel table is the pooled one."""
+    rep = {
         "twin": twin, "recording": recording,
         "split": {"train_end_s": float(r.time_s[r.n_train - 1]), "holdout_start_s": float(r.time_s[r.n_train]),
                   "end_s": float(r.time_s[-1])},
@@ -30,6 +32,11 @@ def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str
         "input_estimates": input_estimates or [],
         "notes": notes,
     }
+    if runs:
+        rep["runs"] = runs
+        rep["split"]["by_run"] = {"train": [x["name"] for x in runs if x["role"] == "train"],
+                                  "holdout": [x["name"] for x in runs if x["role"] == "holdout"]}
+    return rep
 
 
 def _num(v, nd=4) -> str:
@@ -42,10 +49,14 @@ def _num(v, nd=4) -> str:
 
 def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
     f = rep["fit"]
-    lines = [f"# Calibration of {rep['twin']} on {rep['recording']}", "",
+    by_run = rep["split"].get("by_run")
+    split = (f"Training runs {', '.join(by_run['train'])}; held out {', '.join(by_run['holdout'])} (every run "
+             "simulated from its own initial state; the held-out runs are not fitted, figures pooled over "
+             "each role's runs). " if by_run else
              f"Training 0 .. {rep['split']['train_end_s'] / 3600:.2f} h, held out "
-             f"{rep['split']['holdout_start_s'] / 3600:.2f} .. {rep['split']['end_s'] / 3600:.2f} h. "
-             f"Noise-weighted cost (training) {f['cost_before']:.4g} -> {f['cost_after']:.4g}; "
+             f"{rep['split']['holdout_start_s'] / 3600:.2f} .. {rep['split']['end_s'] / 3600:.2f} h. ")
+    lines = [f"# Calibration of {rep['twin']} on {rep['recording']}", "",
+             split + f"Noise-weighted cost (training) {f['cost_before']:.4g} -> {f['cost_after']:.4g}; "
              f"{f['twin_evaluations']} twin evaluations, {f['wall_s']:.1f} s wall, "
              f"{f['simulated_h_per_s']:.0f} simulated h/s; optimiser: {f['status']}", "",
              "## Held-out RMSE per channel", "",
@@ -54,6 +65,7 @@ def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
     for c, v in rep["channels"].items():
         lines.append(f"| {c} | {_num(v['train_rmse_before'])} | {_num(v['train_rmse_after'])} | "
                      f"{_num(v['holdout_rmse_before'])} | {_num(v['holdout_rmse_after'])} |")
+    lines += _runs_markdown(rep.get("runs") or [])
     lines += ["", "## Parameters", "",
               "95 % intervals from the Jacobian, inflated by the residual's autocorrelation time "
               f"({f['residual_autocorrelation_time_samples']:.0f} fitted samples).", "",
@@ -79,6 +91,20 @@ def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
     p = out / "report.md"
     p.write_text("\n".join(lines))
     return p
+
+
+def _runs_markdown(runs: list[dict]) -> list[str]:
+    """Every run's RMSE per channel, before -> after."""
+    if not runs:
+        return []
+    chans = list(runs[0]["channels"])
+    lines = ["", "## RMSE per run (before -> after)", "", "| run | role | h | " + " | ".join(chans) + " |",
+             "| --- | --- | --- |" + " --- |" * len(chans)]
+    for x in runs:
+        cells = [f"{_num(x['channels'][c]['rmse_before'], 3)} -> {_num(x['channels'][c]['rmse_after'], 3)}"
+                 for c in chans]
+        lines.append(f"| {x['name']} | {x['role']} | {x['hours']:.1f} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def plot_channels(r: CalibrationResult, path: pathlib.Path) -> None:
@@ -139,8 +165,9 @@ def plot_parameters(r: CalibrationResult, path: pathlib.Path) -> None:
 
 
 def write_report(r: CalibrationResult, out: pathlib.Path, twin: str, recording: str,
-                 notes: list[str], input_estimates: list[dict] | None = None) -> dict[str, pathlib.Path]:
-    rep = report_dict(r, twin, recording, notes, input_estimates)
+                 notes: list[str], input_estimates: list[dict] | None = None,
+                 runs: list[dict] | None = None) -> dict[str, pathlib.Path]:
+    rep = report_dict(r, twin, recording, notes, input_estimates, runs)
     paths = {"json": out / "report.json"}
     paths["json"].write_text(json.dumps(rep, indent=1, default=lambda o: float(o) if np.isscalar(o) else str(o)))
     paths["md"] = write_markdown(rep, out)
