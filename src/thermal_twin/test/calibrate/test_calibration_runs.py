@@ -113,3 +113,22 @@ def test_cli_takes_a_folder_of_runs_and_reports_per_run_and_pooled(runs, tmp_pat
     md = (out / "report.md").read_text()
     assert "## RMSE per run" in md and "| day0 | holdout |" in md
     load_machine(out / "twin_calibrated.yaml")
+
+
+def test_manifest_runs_in_date_order_and_each_runs_missing_speed_estimated(runs, tmp_path, capsys):
+    for k, rec in enumerate(runs):
+        cols = {c: v for c, v in rec.columns.items() if c != "spindle_rpm"}
+        write_recording_csv(tmp_path / f"r{k}.csv", rec.time_s, cols)
+    # listed out of date order: the last by date (r0) is the one held out
+    (tmp_path / "m.yaml").write_text("runs:\n- {path: r0.csv, date: 2026-03-03}\n"
+                                     "- {path: r1.csv, date: 2026-03-01}\n- {path: r2.csv, date: 2026-03-02}\n")
+    out = tmp_path / "cal"
+    assert main(["--twin", str(TWIN), "--recording", str(tmp_path / "m.yaml"), "--out", str(out), "--quiet",
+                 "--max-nfev", "4"]) == 0
+    capsys.readouterr()
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["split"]["by_run"] == {"train": ["r1", "r2"], "holdout": ["r0"]}
+    assert len(rep["input_estimates"]) == 3
+    for k in range(3):
+        assert (out / f"input_estimate_spindle_rpm_r{k}.png").is_file()
+        assert any(n.startswith(f"run r{k}: ") and "spindle_rpm" in n for n in rep["notes"])
