@@ -10,7 +10,7 @@ import pytest
 
 from thermal_twin.calibrate.cli import main
 from thermal_twin.calibrate.fit import CalibrationError
-from thermal_twin.calibrate.runs import calibrate_runs, holdout_indices
+from thermal_twin.calibrate.runs import calibrate_runs, holdout_indices, own_reference
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.simulate import simulate
 from thermal_eval.diagnose.concealed import operating_programme
@@ -54,6 +54,21 @@ def test_runs_together_recover_the_moved_parameters_and_the_held_out_run_improve
     y_b = rc.result.after["E_Z0T"][n_a:n_a + len(runs[1])]
     assert rmse(runs[1].columns["E_Z0T"], y_b) == pytest.approx(rc.runs[1]["channels"]["E_Z0T"]["rmse_after"])
     assert y_b[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_each_runs_displacements_are_taken_from_its_own_start(runs):
+    # a run that starts where a longer recording had drifted to: offset by 3 um, first reading lost
+    shifted = runs[1].slice(0, len(runs[1]))
+    shifted.columns["E_Z0T"] = shifted.columns["E_Z0T"] + 3.0
+    shifted.columns["E_Z0T"][0] = np.nan
+    moved = own_reference(load_machine(TWIN), shifted)
+    v = runs[1].columns["E_Z0T"]
+    assert np.isnan(moved.columns["E_Z0T"][0])
+    assert np.allclose(moved.columns["E_Z0T"][1:], v[1:] - v[1])
+    assert np.array_equal(moved.columns["head_c"], runs[1].columns["head_c"])
+    assert shifted.columns["E_Z0T"][2] == pytest.approx(v[2] + 3.0)      # the caller's run is left alone
+    rc = calibrate_runs(TWIN, [runs[0], shifted, runs[2]], ["a", "b", "c"], section=SECTION, max_nfev=30)
+    assert rc.runs[1]["channels"]["E_Z0T"]["rmse_after"] < 0.1
 
 
 def test_holdout_by_count_or_name_and_its_errors():

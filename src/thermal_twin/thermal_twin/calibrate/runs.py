@@ -126,9 +126,10 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
             raise CalibrationError(f"run {name!r} ({rec.source}): {len(rec)} rows, need at least {MIN_RECORDING_ROWS}")
     held = holdout_indices(names, holdout)
     order = [i for i in range(len(runs)) if i not in held] + held
+    machine = twin if isinstance(twin, Machine) else load_machine(twin)
+    runs = [own_reference(machine, rec) for rec in runs]
     with single_thread_blas(), held_engine(engine) as eng:
         t_start = time.perf_counter()
-        machine = twin if isinstance(twin, Machine) else load_machine(twin)
         spec0 = machine.to_dict()
         section = spec0.get("calibration") if section is None else section
         channels = _shared_channels(machine, runs, names)
@@ -163,6 +164,20 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
     table = [_run_figures(names[i], runs[i], "holdout" if i in held else "train", channels, before[i], after[i])
              for i in order]
     return RunsCalibration(result, table)
+
+
+def own_reference(machine: Machine, rec: Recording) -> Recording:
+    """The run with every displacement channel relative to its first finite value: the twin's
+    displacements start at 0 with every run, so the run's must too (a run cut from a longer
+    recording starts wherever the machine had drifted to)."""
+    out = rec.slice(0, len(rec))
+    for c in machine.errors:
+        if c in out.columns:
+            v = np.asarray(out.columns[c], dtype=float)
+            ok = np.flatnonzero(np.isfinite(v))
+            if ok.size:
+                out.columns[c] = v - v[ok[0]]
+    return out
 
 
 def _hours(rec: Recording) -> float:
