@@ -87,7 +87,7 @@ class CalibrationResult:
         return out
 
 
-class _Model:
+class TwinModel:
     """The twin as a function of theta: outputs on the shared channels and the exact
     derivatives of the linear parameters."""
 
@@ -139,7 +139,7 @@ def pick_channels(machine, rec: Recording) -> tuple[list[str], list[str]]:
     return chans, empty
 
 
-def _relevant(params: list[Param], machine, channels: list[str]) -> tuple[list[Param], list[str]]:
+def relevant_parameters(params: list[Param], machine, channels: list[str]) -> tuple[list[Param], list[str]]:
     """Drop biases of sensors and gains of channels the recording does not have."""
     keep, fixed = [], []
     for p in params:
@@ -172,7 +172,7 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
         t_start = time.perf_counter()
         jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma)
         jacobian.engine = held
-        theta, status = _fit(jacobian, max_nfev, prior, start)
+        theta, status = fit_theta(jacobian, max_nfev, prior, start)
         return _result(jacobian, recording, theta, status, prior, t_start)
 
 
@@ -189,7 +189,7 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     if not channels:
         raise CalibrationError(f"recording {recording.source}: no channel shared with twin '{machine.name}' "
                                f"with at least {MIN_CHANNEL_VALUES} values")
-    params, fixed = _relevant(free_parameters(spec0, section), machine, channels)
+    params, fixed = relevant_parameters(free_parameters(spec0, section), machine, channels)
     if not params:
         raise CalibrationError("no free parameter: the calibration section fixes everything")
     n_train = int(round(len(recording) * (1.0 - holdout_fraction)))
@@ -204,12 +204,12 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     rest = [c for c in channels if c not in given]
     fp = FitProblem(recording, channels, n_train, resolution=res,
                     sigma={**(FitProblem(recording, rest, n_train, resolution=res).sigma if rest else {}), **given})
-    jacobian = Jacobian(_Model(spec0, params, recording, channels), fp, machine, progress)
+    jacobian = Jacobian(TwinModel(spec0, params, recording, channels), fp, machine, progress)
     jacobian.fixed = fixed
     return jacobian
 
 
-def _fit(jacobian: "Jacobian", max_nfev: int, prior: bool, start: Mapping[str, float] | None
+def fit_theta(jacobian: "Jacobian", max_nfev: int, prior: bool, start: Mapping[str, float] | None
          ) -> tuple[np.ndarray, str]:
     """(theta at the optimum, optimiser status). Two passes with the prior: the data weight
     1/(s2 tau) of the first comes from the start's residual, of the second from the first
@@ -243,7 +243,7 @@ def _result(jacobian: "Jacobian", recording: Recording, theta: np.ndarray, statu
     lb, ub = jacobian.theta_bounds()
     r = jacobian.resid(theta)
     J = jacobian(theta)
-    estimates, correlated, tau = _intervals(params, theta, r, J, len(channels), lb, ub,
+    estimates, correlated, tau = posterior_intervals(params, theta, r, J, len(channels), lb, ub,
                                             (ub - lb) / 4.0 if prior else None)
     y_before, _, _ = model.run(np.zeros(len(params)))
     y_after, _, _ = model.run(theta)
@@ -293,7 +293,7 @@ class Jacobian:
     """Data residual and its Jacobian, sharing one cache of the last twin run: exact columns
     for the linear parameters (biases, gains), a forward difference of the twin otherwise."""
 
-    def __init__(self, model: _Model, fp: FitProblem, machine, progress=None):
+    def __init__(self, model: TwinModel, fp: FitProblem, machine, progress=None):
         self.model, self.fp, self.progress = model, fp, progress
         params = model.params
         channels = model.channels
@@ -372,7 +372,7 @@ def _fd_column(shared: tuple, i: int) -> tuple[np.ndarray, int, int]:
     return col, jac.model.n_evals - n0, jac.model.sim_steps - s0
 
 
-def _intervals(params, theta, r, J, n_channels, lb, ub, prior_sd=None):
+def posterior_intervals(params, theta, r, J, n_channels, lb, ub, prior_sd=None):
     """95 % intervals from the Jacobian: cov = s^2 tau (J^T J)^+ with s^2 = SSR/(m - p) and
     tau = m / n_eff the residual's integrated autocorrelation time (a thermal residual is
     far from white, so the plain formula would be tau times too confident). With a prior:

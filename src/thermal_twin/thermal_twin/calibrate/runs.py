@@ -18,8 +18,8 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from thermal_twin.calibrate.bounds import free_parameters
-from thermal_twin.calibrate.fit import (CalibrationError, CalibrationResult, Jacobian, _fit, _intervals, _Model,
-                                        _relevant, pick_channels)
+from thermal_twin.calibrate.fit import (CalibrationError, CalibrationResult, Jacobian, TwinModel, fit_theta,
+                                        pick_channels, posterior_intervals, relevant_parameters)
 from thermal_twin.diagnose.fit import FitProblem
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
@@ -133,14 +133,14 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
         spec0 = machine.to_dict()
         section = spec0.get("calibration") if section is None else section
         channels = _shared_channels(machine, runs, names)
-        params, fixed = _relevant(free_parameters(spec0, section), machine, channels)
+        params, fixed = relevant_parameters(free_parameters(spec0, section), machine, channels)
         if not params:
             raise CalibrationError("no free parameter: the calibration section fixes everything")
         res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
         train = [i for i in order if i not in held]
         sig = [FitProblem(runs[i], channels, len(runs[i]), resolution=res).sigma for i in train]
         sigma = {c: float(np.median([s[c] for s in sig])) for c in channels}
-        models = [_Model(spec0, params, rec, channels) for rec in runs]
+        models = [TwinModel(spec0, params, rec, channels) for rec in runs]
         parts = []
         for i in train:
             part = Jacobian(models[i], FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res),
@@ -148,15 +148,16 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
             part.engine = eng
             parts.append(part)
         jac = _RunsJacobian(parts, progress)
-        theta, status = _fit(jac, max_nfev, prior, None)
+        theta, status = fit_theta(jac, max_nfev, prior, None)
         r, J = jac.resid(theta), jac(theta)
         lb, ub = jac.theta_bounds()
-        estimates, correlated, tau = _intervals(params, theta, r, J, len(channels), lb, ub,
+        estimates, correlated, tau = posterior_intervals(params, theta, r, J, len(channels), lb, ub,
                                                 (ub - lb) / 4.0 if prior else None)
         before = [models[i].run(np.zeros(len(params)))[0] for i in range(len(runs))]
         after = [models[i].run(theta)[0] for i in range(len(runs))]
         result = _end_to_end(runs, order, len(train), channels, before, after)
-        result.spec, result.estimates, result.correlated, result.fixed = models[0].spec(theta), estimates, correlated, fixed
+        result.spec, result.estimates = models[0].spec(theta), estimates
+        result.correlated, result.fixed = correlated, fixed
         result.cost_before, result.cost_after = 0.5 * float(jac.r_start @ jac.r_start), 0.5 * float(r @ r)
         result.n_evals = sum(m.n_evals for m in models)
         result.simulated_h = sum(m.sim_steps / max(len(rec) - 1, 1) * _hours(rec) for m, rec in zip(models, runs))
