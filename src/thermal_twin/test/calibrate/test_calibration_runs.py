@@ -104,6 +104,11 @@ def test_a_run_whose_columns_differ_is_refused_naming_its_file(runs, tmp_path, c
     assert main(["--twin", str(TWIN), "--recording", *map(str, paths[:2]), "--out", str(out), "--quiet",
                  "--holdout-fraction", "0.3"]) == 1
     assert "--holdout-runs" in capsys.readouterr().err
+    assert main(["--twin", str(TWIN), "--recording", str(paths[0]), "--out", str(out), "--quiet",
+                 "--holdout-runs", "1"]) == 1
+    assert "one recording is split in time" in capsys.readouterr().err
+    assert main(["--twin", str(TWIN), "--recording", str(tmp_path / "nothing*.csv"), "--out", str(out)]) == 1
+    assert "matches no file" in capsys.readouterr().err
 
 
 def test_cli_takes_a_folder_of_runs_and_reports_per_run_and_pooled(runs, tmp_path, capsys):
