@@ -2,8 +2,10 @@
 
 - A common clock offset of the measured channels is estimated and removed, and the answer is
   ``none`` (it was ``unnamed`` with rate terms); a lag of one sensor is not taken for one.
-- A channel is "worse" only when its held-out RMSE rises measurably and significantly; an
-  effect on one channel is judged on that channel.
+- A channel is "worse" only when its held-out RMSE rises measurably and significantly beyond
+  chance alignment with the twin's own residual there (a slow misfit the twin already has
+  cannot refuse a change by itself; sensor noise can); an effect on one channel is judged on
+  that channel.
 - Adopted effects are refitted together and an extra that does not pay for itself on
   held-out data is dropped.
 """
@@ -12,12 +14,14 @@ from __future__ import annotations
 import pathlib
 
 import numpy as np
+import pytest
 
 from thermal_comp_common.recording_csv import Recording, column_kind
 from thermal_eval.diagnose.concealed import HiddenEffect as H, concealed_recording, find_candidate, operating_programme
 from thermal_twin.diagnose import clock
 from thermal_twin.diagnose.diagnosis import diagnose, shared_channels
-from thermal_twin.diagnose.fit import FitProblem, acted_improvement_pct, fit_candidate, worse_channels
+from thermal_twin.diagnose.fit import (FitProblem, acted_improvement_pct, chance_alignment_sd, fit_candidate,
+                                      worse_channels)
 from thermal_twin.diagnose.search_round import prune
 from thermal_twin.machine.schema import load_machine
 
@@ -72,6 +76,34 @@ def test_worse_means_measurably_and_significantly_worse():
     assert worse_channels(p, y0, slightly) == []
     assert worse_channels(p, y0, stepped) == ["head_c"]
     assert worse_channels(p, stepped, y0) == []          # better is never worse
+
+
+def test_chance_alignment_of_a_change_with_white_noise_is_the_noise_times_the_change():
+    rng = np.random.default_rng(3)
+    d = np.linspace(0.0, 2.0, 2000)
+    # its square is unbiased for sigma^2 |d|^2 (white noise of sigma 0.5)
+    var = [chance_alignment_sd(d, 0.5 * rng.standard_normal(d.size)) ** 2 for _ in range(40)]
+    assert np.mean(var) == pytest.approx(0.25 * float(d @ d), rel=0.2)
+
+
+def test_a_slow_misfit_the_twin_already_has_cannot_make_a_change_worse_but_noise_can():
+    # the same change (a slow rise of 0.3 K over the held-out window) on two channels: on one the
+    # twin already misfits by a slow 0.4 K swing that the change happens to meet against it, on
+    # the other the twin is right up to white noise of 0.02 K; only the second is worse
+    rng = np.random.default_rng(1)
+    t = np.arange(900) * 300.0
+    truth = 20.0 + np.sin(t / 30000.0)
+    misfit = -0.4 * np.sin(np.pi * t / t[-1])
+    cols = {"spindle_c": truth + misfit + 0.02 * rng.standard_normal(t.size),
+            "head_c": truth + 0.02 * rng.standard_normal(t.size)}
+    p = FitProblem(Recording(t, cols), ["spindle_c", "head_c"], 600)
+    y0 = np.stack([truth, truth])
+    change = np.where(t >= t[600], 0.3 * (t - t[600]) / (t[-1] - t[600]), 0.0)
+    y1 = y0 + change
+    r0 = cols["spindle_c"][600:] - y0[0, 600:]
+    r1 = cols["spindle_c"][600:] - y1[0, 600:]
+    assert np.sqrt(np.mean(r1 ** 2)) > 1.1 * np.sqrt(np.mean(r0 ** 2))        # measurably up on both
+    assert worse_channels(p, y0, y1) == ["head_c"]
 
 
 def test_an_extra_adoption_that_does_not_pay_for_itself_is_dropped():
