@@ -6,7 +6,7 @@ import numpy as np
 
 from talc_model.open_loop.sensor_selection import sensor_medoids
 from thermal_eval.datasets.runs import Run, at_rest, fold_data
-from thermal_eval.datasets.sources import RunEntry
+from thermal_comp_common.recording_sources import RunEntry
 from thermal_eval.evaluate.adaptive import (ProbingBudget, dead_band_um, reading_noise_um, run_adaptive, shrink,
                                             training_gain, within_runs)
 from thermal_eval.evaluate.open_loop_models import MODELS

@@ -29,7 +29,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from thermal_eval.datasets.runs import Run
-from thermal_eval.datasets.sources import DatasetError
+from thermal_comp_common.recording_sources import DatasetError
 
 #: a run continues the previous one when its temperatures' jump is below this share of their range
 CONTINUED_BELOW = 0.10

@@ -20,7 +20,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from thermal_eval.datasets.sources import DatasetError, RunEntry
+from thermal_comp_common.recording_sources import DatasetError, RunEntry
 from thermal_eval.evaluate.spec import EvaluationData, SpecError, Split, load_evaluation_data
 
 #: fewest rows of a run (a run shorter than this cannot be scored)

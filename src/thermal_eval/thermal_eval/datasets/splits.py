@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
-from thermal_eval.datasets.sources import META_FIELDS, DatasetError, RunEntry
+from thermal_comp_common.recording_sources import META_FIELDS, DatasetError, RunEntry
 
 DEFAULT_RUN_SPLIT = "0.6,0.2,0.2"
 

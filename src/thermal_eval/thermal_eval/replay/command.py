@@ -9,7 +9,7 @@ import sys
 import time
 
 from thermal_eval.replay.baseline_beside import beside_probe_and_hold
-from thermal_eval.datasets.sources import DatasetError, is_manifest, resolve_runs
+from thermal_comp_common.recording_sources import DatasetError, is_manifest, resolve_runs
 from thermal_eval.replay.runs import run_many
 from thermal_eval.replay.config_keys import ConfigKeyError, canonical_config, replay_warnings
 from thermal_eval.replay.summary import (ReplayInputError, build_model, check_replay_recording, format_table,

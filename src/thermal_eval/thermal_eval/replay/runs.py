@@ -14,7 +14,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from thermal_comp_common import metrics
-from thermal_eval.datasets.sources import RunEntry
+from thermal_comp_common.recording_sources import RunEntry
 from thermal_eval.replay.summary import scored_rows
 
 
