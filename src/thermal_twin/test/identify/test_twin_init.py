@@ -97,6 +97,9 @@ def test_an_unsensed_slow_body_becomes_a_hidden_node_that_beats_the_baselines(re
     ident = identify(parse_description(DESCRIPTION), rec, holdout=0.25, max_nfev=15)
     assert [c.hidden for c in ident.candidates] == [0, 1]
     assert ident.chosen.hidden == 1, ident.notes
+    # the truth's slow frame has a 12 h time constant, within the 27 h fitted: identified, no warning
+    assert 0 < ident.chosen.slowest_h <= ident.chosen.fitted_h and "slowest modes" in ident.notes[0]
+    assert not any("not identified" in n for n in ident.notes), ident.notes
     rep = init_twin(parse_description(DESCRIPTION), rec, tmp_path)
     row = rep["held_out_rmse"]["z_um"]
     assert row["twin"] < 0.5 * row["static regression"], row
