@@ -60,7 +60,8 @@ def _tested_against(ref: Mapping[str, Any] | None) -> list[str]:
     """The line naming the prior the adaptive test was against (none without priors)."""
     if not ref:
         return []
-    who = "the prior built on the twin given (--twin: a preset or a twin file)" if ref["source"] == "type" else "the prior running now (--current-prior)"
+    who = ("the prior built on the twin given (--twin: a preset or a twin file)" if ref["source"] == "type"
+           else "the prior running now (--current-prior)")
     cfg = f", configuration `{ref['model_config']}`" if ref.get("model_config") else ""
     return [f"Tested against {who}: `{ref['prior']}` (sha256 {ref['sha256']}{cfg}; soft-sensor twin "
             f"`{ref['type_model'] or '-'}`).", ""]
