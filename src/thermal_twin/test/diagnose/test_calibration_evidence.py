@@ -40,9 +40,10 @@ def test_the_answer_is_never_mis_calibrated_when_a_parameter_sits_at_its_bound_o
     cal = {"used_as_base": True, "mis_calibrated": [{"name": "x"}], "holdout_improvement_pct": 80.0,
            "at_bound": [{"name": "links.door.conductance"}], "residual_structured": []}
     assert _answer([], [], cal, 5.0) == "beyond-tolerance"
-    cal.update(at_bound=[], residual_structured=[{"channel": "t4_c"}])
-    assert _answer([], [], cal, 5.0) == "unexplained"
-    cal.update(residual_structured=[])
+    # structure nothing recorded predicts is no evidence of missing physics: none, not mis-calibrated
+    cal.update(at_bound=[], residual_structured=[{"channel": "t4_c"}], used_as_base=False)
+    assert _answer([], [], cal, 5.0) == "none"
+    cal.update(residual_structured=[], used_as_base=True)
     assert _answer([], [], cal, 5.0) == "mis-calibrated"
 
 

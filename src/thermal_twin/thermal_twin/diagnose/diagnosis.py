@@ -175,18 +175,17 @@ def _unnamed(problem: FitProblem, rec: Recording, ccf_inputs: dict, channels: li
 
 def _answer(found_unnamed: list, adopted: list, cal_section: dict | None, min_improvement_pct: float) -> str:
     """unnamed, the first adopted effect, ``beyond-tolerance`` (calibrate-first pushed a
-    parameter to its tolerance bound and nothing was named), ``unexplained`` (the calibrated
-    residual stays structured and nothing was named), ``mis-calibrated`` (calibrate-first moved
-    existing parameters, improved the held-out fit by at least ``min_improvement_pct`` and
-    nothing is missing) or ``none``."""
+    parameter to its tolerance bound and nothing was named), ``mis-calibrated`` (calibrate-first
+    moved existing parameters, improved the held-out fit by at least ``min_improvement_pct`` and
+    nothing is missing) or ``none``. A calibrated residual that stays structured but that neither
+    the vocabulary nor an input-driven unnamed term predicts is no evidence of missing physics
+    (coloured noise looks the same): it is reported per channel, and the answer is ``none``."""
     if found_unnamed:
         return "unnamed"
     if adopted:
         return adopted[0].candidate.effect
     if cal_section and cal_section.get("at_bound"):
         return "beyond-tolerance"
-    if cal_section and cal_section.get("residual_structured"):
-        return "unexplained"
     if (cal_section and cal_section["used_as_base"] and cal_section["mis_calibrated"]
             and cal_section["holdout_improvement_pct"] >= min_improvement_pct):
         return "mis-calibrated"

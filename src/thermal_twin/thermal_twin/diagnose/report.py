@@ -178,9 +178,10 @@ def _verdict_lines(report: dict) -> list[str]:
         if report.get("answer") == "beyond-tolerance":
             L += ["", "Answer **beyond-tolerance**: the calibration needed a parameter beyond the builder's "
                       "tolerance and no mechanism of the vocabulary explains it."]
-        if report.get("answer") == "unexplained":
-            L += ["", "Answer **unexplained**: the calibrated residual stays structured and neither the "
-                      "vocabulary nor a sparse unnamed term explains it."]
+        if report.get("answer") == "none" and cal.get("residual_structured"):
+            L += ["", "Answer **none**: the calibrated residual stays structured, but neither the vocabulary "
+                      "nor a sparse unnamed term driven by the recorded signals predicts it on held-out data "
+                      "(coloured noise, or a driver the recording does not carry)."]
         if report.get("answer") == "mis-calibrated":
             L += ["", "Answer **mis-calibrated**: the existing parameters explain the mismatch; "
                       "nothing is missing."]
