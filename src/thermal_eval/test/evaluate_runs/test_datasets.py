@@ -1,4 +1,5 @@
-"""Many recordings as one data set: sources, manifests, splits by run, folds, pooled figures."""
+"""Many recordings as one data set: sources, manifests, folds, pooled figures (the split grammar
+is tested with it, in thermal_comp_common/test/test_run_splits.py)."""
 from __future__ import annotations
 
 import json
@@ -77,27 +78,6 @@ def test_duplicate_files_and_names_are_refused(folder):
         resolve_runs([str(folder / "day0.csv"), str(folder / "day0.csv")])
     with pytest.raises(DatasetError, match="matches no file"):
         resolve_runs([str(folder / "x*.csv")])
-
-
-def test_run_splits(folder, tmp_path):
-    runs = resolve_runs([str(folder)])
-    (f,) = run_splits(runs)
-    assert (f.train, f.validation, f.test) == ((0, 1, 2), (3,), (4,))
-    assert [x.test for x in run_splits(runs, "loro")] == [(i,) for i in range(5)]
-    (f,) = run_splits(runs, "test=day1,day3;validation=day0")
-    assert (f.train, f.validation, f.test) == ((2, 4), (0,), (1, 3))
-    c = tmp_path / "m.csv"
-    c.write_text("path,unit\n" + "".join(f"runs/day{k}.csv,U{k % 2}\n" for k in range(5)))
-    units = resolve_runs([str(c)])
-    assert [(x.train, x.test) for x in run_splits(units, "by:unit")] == [((1, 3), (0, 2, 4)), ((0, 2, 4), (1, 3))]
-    (f,) = run_splits(units, "by:unit=U1")
-    assert f.test == (1, 3) and f.train == (0, 2, 4)
-    for bad, words in (("by:unit=U9", "U9"), ("by:colour", "'colour'"), ("0.5,0.5", "fractions"),
-                       ("test=nope", "'nope'"), ("1,0,0", "held-out")):
-        with pytest.raises(DatasetError, match=words):
-            run_splits(units, bad)
-    with pytest.raises(DatasetError, match="at least two"):
-        run_splits(units[:1])
 
 
 def test_each_run_keeps_its_start_reference_and_the_fold_starts_its_clock_at_the_held_out_run(folder):

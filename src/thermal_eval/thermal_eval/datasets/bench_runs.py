@@ -16,7 +16,7 @@ from thermal_eval.datasets.fleet import FleetPlan, unseen_fold, write_fleet
 from thermal_eval.datasets.report_runs import print_runs
 from thermal_eval.datasets.runs import Run, load_runs, segments
 from thermal_comp_common.recording_sources import RunEntry, resolve_runs
-from thermal_eval.datasets.splits import RunFold, run_splits
+from thermal_comp_common.run_splits import RunFold, run_splits
 from thermal_eval.evaluate.adaptive import ProbingBudget
 from thermal_eval.evaluate.spec import FL_THERMAL_SPEC, load_evaluation_data
 

@@ -12,7 +12,7 @@ from thermal_eval.datasets.evaluate_runs import evaluate_runs
 from thermal_eval.datasets.report_runs import print_runs
 from thermal_eval.datasets.runs import load_runs, segments
 from thermal_comp_common.recording_sources import RunEntry
-from thermal_eval.datasets.splits import run_splits
+from thermal_comp_common.run_splits import run_splits
 from thermal_eval.evaluate.adaptive import ProbingBudget
 from thermal_eval.evaluate.run import available_models
 

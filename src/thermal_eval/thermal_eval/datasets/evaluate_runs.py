@@ -24,7 +24,7 @@ from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
 from thermal_eval.datasets.run_start import RunStart, decide_run_start
 from thermal_eval.datasets.runs import Run, fold_data, train_data
-from thermal_eval.datasets.splits import RunFold
+from thermal_comp_common.run_splits import RunFold
 from thermal_eval.evaluate.adaptive import ProbingBudget
 from thermal_eval.evaluate.model_selection import ModelFailure, ModelSpec
 from thermal_eval.evaluate.run import RATIO_BASELINE, REGISTRY, EvaluationResult, available_models, evaluate

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from thermal_comp_common.recording_csv import column_kind, write_recording_csv
-from thermal_eval.datasets.splits import RunFold
+from thermal_comp_common.run_splits import RunFold
 from thermal_twin.machine.instance import machine_instance
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.scenarios import make_timeline, scenario_names

@@ -1,6 +1,8 @@
 """Splits of a data set by run: which runs train the models and which are held out.
 
-``how`` (the ``--runs-split`` of ``evaluate``):
+One grammar for every command that takes several recordings (``evaluate`` and ``calibrate``
+``--runs-split``); it lives here, beside the run sources, because thermal_twin cannot import
+thermal_eval. ``how``:
 
 - ``TRAIN,VAL,TEST`` fractions of the runs (default ``0.6,0.2,0.2``), in date order when every
   run has a date, else in the order given: the last runs are held out (tomorrow's run);
