@@ -7,7 +7,8 @@ Jacobian's finite-difference columns can run on a local process pool (``--jobs N
 cluster (``--engine dask [--address tcp://HOST:8786]``); the answer is the same on every engine
 (docs/distributed.md). Several recordings (files, a folder, a glob or a manifest) are runs:
 fitted together, every run from its own initial state, the held-out runs scored out of sample
-(docs/calibrate.md, "Several runs"). Default serial: a Jacobian is ~40 twin runs of a few ms, and a pool per
+(docs/calibrate.md, "Several runs"); ``--runs-split`` takes evaluate's split grammar, one fit per
+fold, the folds one after the other. Default serial: a Jacobian is ~40 twin runs of a few ms, and a pool per
 Jacobian cost more CPU than it saved on FL_THERMAL (docs/diagnose.md, Speed).
 """
 from __future__ import annotations
@@ -35,6 +36,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--holdout-runs", default=None, metavar="K|NAME,NAME",
                    help="several runs: the last K runs, or the named runs, kept out of the fit "
                         "(default the last third, at least one)")
+    p.add_argument("--runs-split", default=None, metavar="HOW",
+                   help="several runs, as evaluate's --runs-split: TRAIN,VAL,TEST fractions, loro, by:FIELD, "
+                        "by:FIELD=VALUE or test=NAME,...; one fit per fold; with several folds the twin written "
+                        "is fitted on all runs (docs/calibrate.md)")
     p.add_argument("--max-nfev", type=int, default=20,
                    help="at most this many optimiser iterations (default 20)")
     p.add_argument("--block-min", type=float, default=30.0,

@@ -8,21 +8,27 @@ import pathlib
 
 import numpy as np
 
-from thermal_twin.calibrate.fit import CalibrationResult
+from thermal_twin.calibrate.fit import CORR_LIMIT, CalibrationResult
+from thermal_twin.calibrate.runs import SPREAD_SHARE, FoldsCalibration
 
 
 def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str],
-                input_estimates: list[dict] | None = None, runs: list[dict] | None = None) -> dict:
+                input_estimates: list[dict] | None = None, runs: list[dict] | None = None,
+                folds: FoldsCalibration | None = None) -> dict:
     """The report's content; ``runs`` (several recordings): every run's own figures, and then
-    ``r`` holds the runs laid end to end, so its channel table is the pooled one."""
+    ``r`` holds the runs laid end to end, so its channel table is the pooled one. ``folds``
+    with several folds: ``r`` is the fit on all runs (written), its held-out figures are those
+    pooled over the folds, and ``folds`` carries every fold's figures and the parameters' spread."""
+    held = r.n_train < len(r.time_s)
     rep = {
         "twin": twin, "recording": recording,
-        "split": {"train_end_s": float(r.time_s[r.n_train - 1]), "holdout_start_s": float(r.time_s[r.n_train]),
-                  "end_s": float(r.time_s[-1])},
+        "split": {"train_end_s": float(r.time_s[r.n_train - 1]),
+                  "holdout_start_s": float(r.time_s[r.n_train]) if held else None, "end_s": float(r.time_s[-1])},
         "channels": r.channel_table(),
         "parameters": [e.as_dict() for e in r.estimates],
         "not_identified": [e.param.name for e in r.estimates if any(f.startswith("not identified") for f in e.flags)],
         "correlated_pairs": [{"a": a, "b": b, "corr": c} for a, b, c in r.correlated],
+        "correlated_pairs_limit": CORR_LIMIT,
         "fixed": r.fixed,
         "fit": {"cost_before": r.cost_before, "cost_after": r.cost_after, "status": r.status,
                 "twin_evaluations": r.n_evals, "wall_s": r.wall_s, "simulated_h": r.simulated_h,
@@ -36,6 +42,16 @@ def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str
         rep["runs"] = runs
         rep["split"]["by_run"] = {"train": [x["name"] for x in runs if x["role"] == "train"],
                                   "holdout": [x["name"] for x in runs if x["role"] == "holdout"]}
+        if any(x["role"] == "validation" for x in runs):
+            rep["split"]["by_run"]["validation"] = [x["name"] for x in runs if x["role"] == "validation"]
+    if folds is not None and len(folds.folds) > 1:
+        rep["folds"] = {"n_folds": len(folds.folds), "written": folds.written_from, "folds": folds.folds,
+                        "pooled_held_out": folds.pooled, "parameter_spread": folds.spread,
+                        "spread_share_limit": SPREAD_SHARE,
+                        "moving_parameters": [p["name"] for p in folds.spread if p["moves"]]}
+        for c, v in rep["channels"].items():
+            v["holdout_rmse_before"] = folds.pooled[c]["rmse_before"]
+            v["holdout_rmse_after"] = folds.pooled[c]["rmse_after"]
     return rep
 
 
@@ -50,7 +66,9 @@ def _num(v, nd=4) -> str:
 def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
     f = rep["fit"]
     by_run = rep["split"].get("by_run")
-    split = (f"Training runs {', '.join(by_run['train'])}; held out {', '.join(by_run['holdout'])} (every run "
+    split = (f"Written: the fit on all runs ({', '.join(by_run['train'])}); its held-out figures are those of "
+             f"the {rep['folds']['n_folds']} folds below, each run scored by the fit that did not see it. "
+             if "folds" in rep else f"Training runs {', '.join(by_run['train'])}; held out {', '.join(by_run['holdout'])} (every run "
              "simulated from its own initial state; the held-out runs are not fitted, figures pooled over "
              "each role's runs). " if by_run else
              f"Training 0 .. {rep['split']['train_end_s'] / 3600:.2f} h, held out "
@@ -66,6 +84,7 @@ def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
         lines.append(f"| {c} | {_num(v['train_rmse_before'])} | {_num(v['train_rmse_after'])} | "
                      f"{_num(v['holdout_rmse_before'])} | {_num(v['holdout_rmse_after'])} |")
     lines += _runs_markdown(rep.get("runs") or [])
+    lines += _folds_markdown(rep["folds"]) if "folds" in rep else []
     lines += ["", "## Parameters", "",
               "95 % intervals from the Jacobian, inflated by the residual's autocorrelation time "
               f"({f['residual_autocorrelation_time_samples']:.0f} fitted samples).", "",
@@ -79,7 +98,8 @@ def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
         lines += ["", f"**Not identified by this recording** ({len(rep['not_identified'])}): "
                   + ", ".join(rep["not_identified"])]
     if rep["correlated_pairs"]:
-        lines += ["", "**Correlated pairs** (|corr| > 0.95; only their combination is determined):", ""]
+        lines += ["", f"**Correlated pairs** (|corr| > {rep['correlated_pairs_limit']}; only their combination "
+                  "is determined):", ""]
         lines += [f"- {x['a']} / {x['b']}: {x['corr']:+.3f}" for x in rep["correlated_pairs"][:30]]
         if len(rep["correlated_pairs"]) > 30:
             lines.append(f"- ... {len(rep['correlated_pairs']) - 30} more in report.json")
@@ -107,6 +127,42 @@ def _runs_markdown(runs: list[dict]) -> list[str]:
     return lines
 
 
+def _folds_markdown(fo: dict) -> list[str]:
+    """Every fold (its runs and pooled held-out RMSE), every held-out run from the fold that held
+    it out with the pooled row, and the parameters' spread across folds."""
+    chans = list(fo["pooled_held_out"])
+    arrow = lambda v, b, a: f"{_num(v[b], 3)} -> {_num(v[a], 3)}"
+    lines = ["", f"## Folds ({fo['n_folds']}; held-out RMSE before -> after)", "",
+             "| fold | fitted on | held out | s | " + " | ".join(chans) + " |",
+             "| --- | --- | --- | --- |" + " --- |" * len(chans)]
+    for f in fo["folds"]:
+        lines.append(f"| {f['name']} | {', '.join(f['train'])} | {', '.join(f['held_out'])} | {f['wall_s']:.1f} | "
+                     + " | ".join(arrow(f["channels"][c], "holdout_rmse_before", "holdout_rmse_after") for c in chans)
+                     + " |")
+    lines += ["", "## Held-out runs (each from the fold that held it out)", "",
+              "| run | fold | " + " | ".join(chans) + " |", "| --- | --- |" + " --- |" * len(chans)]
+    for f in fo["folds"]:
+        for x in f["runs"]:
+            if x["role"] != "train":
+                lines.append(f"| {x['name']} | {f['name']} | "
+                             + " | ".join(arrow(x["channels"][c], "rmse_before", "rmse_after") for c in chans) + " |")
+    lines.append("| **pooled** | all folds | "
+                 + " | ".join(arrow(fo["pooled_held_out"][c], "rmse_before", "rmse_after") for c in chans) + " |")
+    moving = fo["moving_parameters"]
+    lines += ["", "## Parameters across folds", "",
+              f"{len(moving)} of {len(fo['parameter_spread'])} parameters move by more than "
+              f"{100 * fo['spread_share_limit']:.0f} % of their allowed range between folds: these runs do not "
+              "pin them down (the written value is one of many the data allow). 'disjoint': the folds' 95 % "
+              "intervals share no value (each fold is sure of a different one).", "",
+              "| parameter | unit | " + " | ".join(f["name"] for f in fo["folds"]) + " | written | moves (% of range) |",
+              "| --- | --- |" + " --- |" * (len(fo["folds"]) + 2)]
+    for p in fo["parameter_spread"]:
+        flag = ("**moves** " if p["moves"] else "") + ("disjoint " if p["disjoint"] else "")
+        lines.append(f"| {p['name']} | {p['unit']} | " + " | ".join(_num(v) for v in p["values"])
+                     + f" | {_num(p['written'])} | {flag}{100 * p['share_of_range']:.1f} |")
+    return lines
+
+
 def plot_channels(r: CalibrationResult, path: pathlib.Path) -> None:
     import matplotlib  # heavy: matplotlib only when plotting
     matplotlib.use("Agg")
@@ -120,7 +176,8 @@ def plot_channels(r: CalibrationResult, path: pathlib.Path) -> None:
         ax.plot(th, r.measured[c], "k", lw=0.8, label="recording")
         ax.plot(th, r.before[c], "r", lw=0.8, label="twin before")
         ax.plot(th, r.after[c], "b", lw=0.8, label="calibrated")
-        ax.axvspan(th[r.n_train], th[-1], color="0.9")
+        if r.n_train < len(th):                 # the fit on all runs has no held-out part
+            ax.axvspan(th[r.n_train], th[-1], color="0.9")
         ax.set_title(c, fontsize=9)
     for ax in axes.ravel()[n:]:
         ax.axis("off")
@@ -166,8 +223,8 @@ def plot_parameters(r: CalibrationResult, path: pathlib.Path) -> None:
 
 def write_report(r: CalibrationResult, out: pathlib.Path, twin: str, recording: str,
                  notes: list[str], input_estimates: list[dict] | None = None,
-                 runs: list[dict] | None = None) -> dict[str, pathlib.Path]:
-    rep = report_dict(r, twin, recording, notes, input_estimates, runs)
+                 runs: list[dict] | None = None, folds: FoldsCalibration | None = None) -> dict[str, pathlib.Path]:
+    rep = report_dict(r, twin, recording, notes, input_estimates, runs, folds)
     paths = {"json": out / "report.json"}
     paths["json"].write_text(json.dumps(rep, indent=1, default=lambda o: float(o) if np.isscalar(o) else str(o)))
     paths["md"] = write_markdown(rep, out)

@@ -4,13 +4,16 @@ Every run is simulated alone from its own initial state (the twin's steady state
 first inputs, its displacements relative to the run's first row: exactly what
 :func:`~thermal_twin.calibrate.fit.calibrate` does for one recording), and the residuals of all
 training runs enter one least-squares fit with the same prior, weights and intervals. The split
-is by run: the held-out runs are never fitted, so their figures are out of sample. The result
-is the runs laid end to end (training runs first) as one
-:class:`~thermal_twin.calibrate.fit.CalibrationResult`, whose train / held-out RMSE are the
-pooled figures, plus every run's own RMSE before and after.
+is by run (the folds of :mod:`thermal_comp_common.run_splits`, the grammar of ``evaluate``): the
+held-out runs are never fitted, so their figures are out of sample. A fit is the runs laid end
+to end (training runs first) as one :class:`~thermal_twin.calibrate.fit.CalibrationResult`, whose
+train / held-out RMSE are the pooled figures, plus every run's own RMSE before and after. Several
+folds (leave one run out, by unit): one fit per fold, the held-out figures pooled over the folds,
+the parameters' spread across folds, and a last fit on all runs as the twin written.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Callable, Mapping, Sequence
@@ -28,6 +31,12 @@ from thermal_comp_common.recording_csv import Recording
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
 from thermal_comp_common.runtime.task_engine import EngineSpec
+from thermal_comp_common.run_splits import RunFold
+
+
+#: a parameter whose estimates across folds span more than this share of its allowed range is
+#: not pinned down by the runs (it moves with which runs are fitted)
+SPREAD_SHARE = 0.25
 
 
 @dataclass
@@ -37,6 +46,20 @@ class RunsCalibration:
 
     result: CalibrationResult
     runs: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class FoldsCalibration:
+    """Calibrations over the folds of a split by run: per fold its runs, figures and parameters
+    (``folds``), the held-out figures pooled over the folds (``pooled``), every parameter's
+    spread across the folds (``spread``) and the fit written as the twin (``written``, from
+    ``written_from``: 'all runs' when there are several folds, else the one fold's name)."""
+
+    folds: list[dict]
+    pooled: dict[str, dict]
+    spread: list[dict]
+    written: RunsCalibration
+    written_from: str
 
 
 def check_same_columns(runs: Sequence[Recording], names: Sequence[str]) -> None:
@@ -109,14 +132,16 @@ def _shared_channels(machine: Machine, runs: Sequence[Recording], names: Sequenc
     return chans
 
 
-def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None = None,
-                   holdout: int | str | Sequence[str] | None = None, section: Mapping | None = None,
-                   max_nfev: int = 30, progress: Callable[[str], None] | None = None, prior: bool = True,
-                   engine: EngineSpec | None = None) -> RunsCalibration:
-    """Fit the free parameters of ``twin`` to the training runs of ``runs`` together (every run
-    from its own initial state) and score every run; ``holdout`` as :func:`holdout_indices`.
-    Prior, weights, bounds and intervals as :func:`~thermal_twin.calibrate.fit.calibrate`; the
-    noise sigma of a channel is the median over the training runs of each run's own."""
+def holdout_fold(names: Sequence[str], holdout: int | str | Sequence[str] | None) -> RunFold:
+    """``--holdout-runs`` as a fold of the split grammar: the runs :func:`holdout_indices` names
+    are the test runs, every other run trains."""
+    held = holdout_indices(names, holdout)
+    return RunFold("held out " + ", ".join(names[i] for i in held),
+                   tuple(i for i in range(len(names)) if i not in held), (), tuple(held))
+
+
+def _prepared(twin, runs: Sequence[Recording], names: Sequence[str] | None) -> tuple[Machine, list, list[str]]:
+    """The machine, every run relative to its own start, the run names; bad runs refused."""
     names = list(names) if names is not None else [r.source or f"run{i}" for i, r in enumerate(runs)]
     if len(runs) < 2 or len(names) != len(runs):
         raise CalibrationError(f"calibrate_runs: {len(runs)} runs and {len(names)} names; give at least 2 runs")
@@ -124,46 +149,142 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
     for rec, name in zip(runs, names):
         if len(rec) < MIN_RECORDING_ROWS:
             raise CalibrationError(f"run {name!r} ({rec.source}): {len(rec)} rows, need at least {MIN_RECORDING_ROWS}")
-    held = holdout_indices(names, holdout)
-    order = [i for i in range(len(runs)) if i not in held] + held
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
-    runs = [own_reference(machine, rec) for rec in runs]
+    return machine, [own_reference(machine, rec) for rec in runs], names
+
+
+def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None = None,
+                   holdout: int | str | Sequence[str] | None = None, section: Mapping | None = None,
+                   max_nfev: int = 30, progress: Callable[[str], None] | None = None, prior: bool = True,
+                   engine: EngineSpec | None = None, fold: RunFold | None = None) -> RunsCalibration:
+    """Fit the free parameters of ``twin`` to the training runs of ``runs`` together (every run
+    from its own initial state) and score every run; the split is ``fold`` (the grammar of
+    :mod:`thermal_comp_common.run_splits`) or else ``holdout`` as :func:`holdout_indices`.
+    Prior, weights, bounds and intervals as :func:`~thermal_twin.calibrate.fit.calibrate`; the
+    noise sigma of a channel is the median over the training runs of each run's own."""
+    machine, runs, names = _prepared(twin, runs, names)
+    fold = holdout_fold(names, holdout) if fold is None else fold
     with single_thread_blas(), held_engine(engine) as eng:
-        t_start = time.perf_counter()
-        spec0 = machine.to_dict()
-        section = spec0.get("calibration") if section is None else section
-        channels = _shared_channels(machine, runs, names)
-        params, fixed = relevant_parameters(free_parameters(spec0, section), machine, channels)
-        if not params:
-            raise CalibrationError("no free parameter: the calibration section fixes everything")
-        res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
-        train = [i for i in order if i not in held]
-        sig = [FitProblem(runs[i], channels, len(runs[i]), resolution=res).sigma for i in train]
-        sigma = {c: float(np.median([s[c] for s in sig])) for c in channels}
-        models = [TwinModel(spec0, params, rec, channels) for rec in runs]
-        parts = []
-        for i in train:
-            part = Jacobian(models[i], FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res),
-                            machine)
-            part.engine = eng
-            parts.append(part)
-        jac = _RunsJacobian(parts, progress)
-        theta, status = fit_theta(jac, max_nfev, prior, None)
-        r, J = jac.resid(theta), jac(theta)
-        lb, ub = jac.theta_bounds()
-        estimates, correlated, tau = posterior_intervals(params, theta, r, J, len(channels), lb, ub,
-                                                (ub - lb) / 4.0 if prior else None)
-        before = [models[i].run(np.zeros(len(params)))[0] for i in range(len(runs))]
-        after = [models[i].run(theta)[0] for i in range(len(runs))]
-        result = _end_to_end(runs, order, len(train), channels, before, after)
-        result.spec, result.estimates = models[0].spec(theta), estimates
-        result.correlated, result.fixed = correlated, fixed
-        result.cost_before, result.cost_after = 0.5 * float(jac.r_start @ jac.r_start), 0.5 * float(r @ r)
-        result.n_evals = sum(m.n_evals for m in models)
-        result.simulated_h = sum(m.sim_steps / max(len(rec) - 1, 1) * _hours(rec) for m, rec in zip(models, runs))
-        result.status, result.tau, result.wall_s = status, tau, time.perf_counter() - t_start
-    table = [_run_figures(names[i], runs[i], "holdout" if i in held else "train", channels, before[i], after[i])
-             for i in order]
+        return _fit_fold(machine, runs, names, fold, section, max_nfev, progress, prior, eng)
+
+
+def calibrate_folds(twin, runs: Sequence[Recording], names: Sequence[str] | None, folds: Sequence[RunFold],
+                    section: Mapping | None = None, max_nfev: int = 30, progress: Callable[[str], None] | None = None,
+                    prior: bool = True, engine: EngineSpec | None = None) -> FoldsCalibration:
+    """One calibration per fold (as :func:`calibrate_runs`), the folds one after the other (each
+    fit's Jacobian columns use ``engine``); the held-out figures pooled over the folds and the
+    parameters' spread across them. Several folds: the twin written is a last fit on all runs
+    (the folds measured how such a fit does on runs it has not seen); one fold: that fold's fit."""
+    machine, runs, names = _prepared(twin, runs, names)
+    say = progress or (lambda _s: None)
+    fits = []
+    with single_thread_blas(), held_engine(engine) as eng:
+        for k, f in enumerate(folds):
+            held = [names[i] for _, i in f.held_out()]
+            say(f"fold {k + 1}/{len(folds)} ({f.name}): fitting {', '.join(names[i] for i in f.train)}; "
+                f"scoring {', '.join(held)}")
+            fits.append(_fit_fold(machine, runs, names, f, section, max_nfev, progress, prior, eng))
+            table = fits[-1].result.channel_table()
+            say(f"fold {k + 1}/{len(folds)} done in {fits[-1].result.wall_s:.1f} s; held-out RMSE " + ", ".join(
+                f"{c} {v['holdout_rmse_before']:.3g} -> {v['holdout_rmse_after']:.3g}" for c, v in list(table.items())[:4]))
+        if len(folds) > 1:
+            say(f"all {len(runs)} runs: fitting the twin written")
+            everything = RunFold("all runs", tuple(range(len(runs))), (), ())
+            written = _fit_fold(machine, runs, names, everything, section, max_nfev, progress, prior, eng)
+        else:
+            written = fits[0]
+    return FoldsCalibration(folds=[_fold_summary(f, rc) for f, rc in zip(folds, fits)],
+                            pooled=pooled_held_out(fits), spread=parameter_spread(fits, written),
+                            written=written, written_from="all runs" if len(folds) > 1 else folds[0].name)
+
+
+def _fold_summary(fold: RunFold, rc: RunsCalibration) -> dict:
+    r = rc.result
+    return {"name": fold.name, "train": [x["name"] for x in rc.runs if x["role"] == "train"],
+            "held_out": [x["name"] for x in rc.runs if x["role"] != "train"],
+            "channels": r.channel_table(), "runs": rc.runs, "wall_s": r.wall_s, "status": r.status,
+            "cost_before": r.cost_before, "cost_after": r.cost_after,
+            "parameters": {e.param.name: {"value": e.value, "ci95": list(e.ci95)} for e in r.estimates}}
+
+
+def pooled_held_out(fits: Sequence[RunsCalibration]) -> dict[str, dict]:
+    """Per channel, the held-out RMSE before/after over every held-out run of every fold (each
+    run's figure from the fold that held it out): sqrt(sum n rmse^2 / sum n) over the runs."""
+    held = [x for rc in fits for x in rc.runs if x["role"] != "train"]
+    out = {}
+    for c in (held[0]["channels"] if held else {}):
+        n = np.array([x["channels"][c]["n"] for x in held], dtype=float)
+        row = {"n": int(n.sum()), "runs": len(held)}
+        for key in ("rmse_before", "rmse_after"):
+            v = np.array([x["channels"][c][key] for x in held], dtype=float)
+            ok = (n > 0) & np.isfinite(v)
+            row[key] = float(np.sqrt(np.sum(n[ok] * v[ok] ** 2) / n[ok].sum())) if ok.any() else float("nan")
+        out[c] = row
+    return out
+
+
+def parameter_spread(fits: Sequence[RunsCalibration], written: RunsCalibration) -> list[dict]:
+    """Every parameter's estimate per fold and how far it moves between folds, as a share of its
+    allowed range (on the fitted scale: log for factor kinds); ``moves`` when the share exceeds
+    :data:`SPREAD_SHARE` (the runs do not pin it down), ``disjoint`` when the folds' 95 %
+    intervals have no common point (each fold is sure of a different value). Largest share first."""
+    if len(fits) < 2:
+        return []
+    out = []
+    for j, e in enumerate(written.result.estimates):
+        p = e.param
+        per = [rc.result.estimates[j] for rc in fits]
+        theta = [math.log(x.value / p.value0) if p.log else x.value - p.value0 for x in per]
+        lo, hi = p.theta_bounds
+        share = (max(theta) - min(theta)) / (hi - lo) if hi > lo else 0.0
+        out.append({"name": p.name, "unit": p.unit, "values": [x.value for x in per], "written": e.value,
+                    "share_of_range": share, "moves": share > SPREAD_SHARE,
+                    "disjoint": max(x.ci95[0] for x in per) > min(x.ci95[1] for x in per)})
+    return sorted(out, key=lambda d: -d["share_of_range"])
+
+
+def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, section, max_nfev: int,
+              progress, prior: bool, eng) -> RunsCalibration:
+    """One fit over the fold's training runs (already relative to their own start); every run of
+    the fold scored. A fold without held-out runs is the fit on all its runs (in sample only)."""
+    held = [i for _, i in fold.held_out()]
+    train = list(fold.train)
+    if not train:
+        raise CalibrationError(f"runs split {fold.name!r}: no training run")
+    order = train + held
+    t_start = time.perf_counter()
+    spec0 = machine.to_dict()
+    section = spec0.get("calibration") if section is None else section
+    channels = _shared_channels(machine, runs, names)
+    params, fixed = relevant_parameters(free_parameters(spec0, section), machine, channels)
+    if not params:
+        raise CalibrationError("no free parameter: the calibration section fixes everything")
+    res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
+    sig = [FitProblem(runs[i], channels, len(runs[i]), resolution=res).sigma for i in train]
+    sigma = {c: float(np.median([s[c] for s in sig])) for c in channels}
+    models = {i: TwinModel(spec0, params, runs[i], channels) for i in order}
+    parts = []
+    for i in train:
+        part = Jacobian(models[i], FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res), machine)
+        part.engine = eng
+        parts.append(part)
+    jac = _RunsJacobian(parts, progress)
+    theta, status = fit_theta(jac, max_nfev, prior, None)
+    r, J = jac.resid(theta), jac(theta)
+    lb, ub = jac.theta_bounds()
+    estimates, correlated, tau = posterior_intervals(params, theta, r, J, len(channels), lb, ub,
+                                                     (ub - lb) / 4.0 if prior else None)
+    before = {i: models[i].run(np.zeros(len(params)))[0] for i in order}
+    after = {i: models[i].run(theta)[0] for i in order}
+    result = _end_to_end(runs, order, len(train), channels, before, after)
+    result.spec, result.estimates = models[train[0]].spec(theta), estimates
+    result.correlated, result.fixed = correlated, fixed
+    result.cost_before, result.cost_after = 0.5 * float(jac.r_start @ jac.r_start), 0.5 * float(r @ r)
+    result.n_evals = sum(m.n_evals for m in models.values())
+    result.simulated_h = sum(m.sim_steps / max(len(runs[i]) - 1, 1) * _hours(runs[i]) for i, m in models.items())
+    result.status, result.tau, result.wall_s = status, tau, time.perf_counter() - t_start
+    roles = {i: "validation" for i in fold.validation} | {i: "holdout" for i in fold.test}
+    table = [_run_figures(names[i], runs[i], roles.get(i, "train"), channels, before[i], after[i]) for i in order]
     return RunsCalibration(result, table)
 
 
@@ -203,10 +324,12 @@ def _end_to_end(runs, order, n_train_runs, channels, before, after) -> Calibrati
 
 
 def _run_figures(name: str, rec: Recording, role: str, channels, y_before, y_after) -> dict:
-    """One run's RMSE per channel before and after the calibration."""
+    """One run's RMSE per channel before and after the calibration; ``n`` the samples scored
+    (recorded and simulated finite), so runs pool as sqrt(sum n rmse^2 / sum n)."""
     chans = {}
     for j, c in enumerate(channels):
         m = np.asarray(rec.columns[c], dtype=float)
-        chans[c] = {"rmse_before": rmse(m, y_before[j]), "rmse_after": rmse(m, y_after[j])}
+        n = int(np.count_nonzero(np.isfinite(m) & np.isfinite(y_after[j])))
+        chans[c] = {"rmse_before": rmse(m, y_before[j]), "rmse_after": rmse(m, y_after[j]), "n": n}
     return {"name": name, "source": rec.source, "role": role, "rows": len(rec), "hours": _hours(rec),
             "channels": chans}
