@@ -22,6 +22,7 @@ from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import write_recording_csv
 from thermal_comp_common.recording_sources import RunEntry
 from thermal_comp_common.run_splits import run_splits
+from thermal_comp_common.runtime.task_engine import EngineSpec
 
 TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"
 HEAD = ("links", "spindle_head", "conductance")
@@ -78,8 +79,21 @@ def test_loro_on_three_runs_holds_each_run_out_once_and_pools_the_folds_residual
         assert est[path] == pytest.approx(v, rel=0.05), (path, est[path], v)
     assert len(fc.spread) == len(fc.written.result.estimates)
     assert "fold 1/3 (without a): fitting b, c; scoring a" in said
-    assert [s.split(" in ")[0] for s in said if " done in " in s] == [f"fold {k}/3 done" for k in (1, 2, 3)]
+    assert [s.split(" in ")[0] for s in said if " done in " in s] == [f"fold {k}/3 done" for k in (1, 2, 3)] + [
+        "all runs done"]
     assert any(s.startswith("all 3 runs: fitting the twin written") for s in said)
+
+
+def test_folds_on_a_pool_of_two_workers_give_the_serial_answer(runs):
+    folds = run_splits(_entries(3), "loro")
+    serial = calibrate_folds(TWIN, runs[:3], NAMES[:3], folds, section=SECTION, max_nfev=4)
+    said = []
+    pooled = calibrate_folds(TWIN, runs[:3], NAMES[:3], folds, section=SECTION, max_nfev=4, progress=said.append,
+                             engine=EngineSpec("local", None, 2))
+    assert [f["parameters"] for f in pooled.folds] == [f["parameters"] for f in serial.folds]
+    assert pooled.pooled == serial.pooled
+    assert [e.value for e in pooled.written.result.estimates] == [e.value for e in serial.written.result.estimates]
+    assert sorted(s.split(" done")[0] for s in said if " done in " in s) == ["all runs"] + [f"fold {k}/3" for k in (1, 2, 3)]
 
 
 def test_a_held_out_run_never_enters_the_fit(runs):

@@ -30,7 +30,7 @@ from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import Recording
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
-from thermal_comp_common.runtime.task_engine import EngineSpec
+from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
 from thermal_comp_common.run_splits import RunFold
 
 
@@ -171,31 +171,44 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
 def calibrate_folds(twin, runs: Sequence[Recording], names: Sequence[str] | None, folds: Sequence[RunFold],
                     section: Mapping | None = None, max_nfev: int = 30, progress: Callable[[str], None] | None = None,
                     prior: bool = True, engine: EngineSpec | None = None) -> FoldsCalibration:
-    """One calibration per fold (as :func:`calibrate_runs`), the folds one after the other (each
-    fit's Jacobian columns use ``engine``); the held-out figures pooled over the folds and the
-    parameters' spread across them. Several folds: the twin written is a last fit on all runs
-    (the folds measured how such a fit does on runs it has not seen); one fold: that fold's fit."""
+    """One calibration per fold (as :func:`calibrate_runs`); the held-out figures pooled over the
+    folds and the parameters' spread across them. Several folds: the twin written is one more fit,
+    on all runs (the folds measured how such a fit does on runs it has not seen); one fold: that
+    fold's fit. Several folds on an engine of several workers run as its tasks, each fit serial
+    inside; else the fits run one after the other, their Jacobian columns on ``engine``. The
+    answer is the same either way."""
     machine, runs, names = _prepared(twin, runs, names)
     say = progress or (lambda _s: None)
-    fits = []
+    jobs = list(folds) + ([RunFold("all runs", tuple(range(len(runs))), (), ())] if len(folds) > 1 else [])
+    for k, f in enumerate(folds):
+        say(f"fold {k + 1}/{len(folds)} ({f.name}): fitting {', '.join(names[i] for i in f.train)}; "
+            f"scoring {', '.join(names[i] for _, i in f.held_out())}")
+    if len(jobs) > 1:
+        say(f"all {len(runs)} runs: fitting the twin written")
+    fits: list[RunsCalibration | None] = [None] * len(jobs)
     with single_thread_blas(), held_engine(engine) as eng:
-        for k, f in enumerate(folds):
-            held = [names[i] for _, i in f.held_out()]
-            say(f"fold {k + 1}/{len(folds)} ({f.name}): fitting {', '.join(names[i] for i in f.train)}; "
-                f"scoring {', '.join(held)}")
-            fits.append(_fit_fold(machine, runs, names, f, section, max_nfev, progress, prior, eng))
-            table = fits[-1].result.channel_table()
-            say(f"fold {k + 1}/{len(folds)} done in {fits[-1].result.wall_s:.1f} s; held-out RMSE " + ", ".join(
-                f"{c} {v['holdout_rmse_before']:.3g} -> {v['holdout_rmse_after']:.3g}" for c, v in list(table.items())[:4]))
-        if len(folds) > 1:
-            say(f"all {len(runs)} runs: fitting the twin written")
-            everything = RunFold("all runs", tuple(range(len(runs))), (), ())
-            written = _fit_fold(machine, runs, names, everything, section, max_nfev, progress, prior, eng)
+        if len(jobs) > 1 and (eng.kind == "dask" or eng.workers > 1):
+            done = map_tasks(_fold_task, (machine, runs, names, section, max_nfev, prior), jobs, eng)
         else:
-            written = fits[0]
-    return FoldsCalibration(folds=[_fold_summary(f, rc) for f, rc in zip(folds, fits)],
-                            pooled=pooled_held_out(fits), spread=parameter_spread(fits, written),
-                            written=written, written_from="all runs" if len(folds) > 1 else folds[0].name)
+            done = ((k, _fit_fold(machine, runs, names, f, section, max_nfev, progress, prior, eng))
+                    for k, f in enumerate(jobs))
+        for k, rc in done:
+            fits[k] = rc
+            table = rc.result.channel_table()
+            what = f"fold {k + 1}/{len(folds)}" if k < len(folds) else "all runs"
+            say(f"{what} done in {rc.result.wall_s:.1f} s; " + ("held-out RMSE " + ", ".join(
+                f"{c} {v['holdout_rmse_before']:.3g} -> {v['holdout_rmse_after']:.3g}"
+                for c, v in list(table.items())[:4]) if k < len(folds) else "twin written"))
+    per_fold = fits[:len(folds)]
+    return FoldsCalibration(folds=[_fold_summary(f, rc) for f, rc in zip(folds, per_fold)],
+                            pooled=pooled_held_out(per_fold), spread=parameter_spread(per_fold, fits[-1]),
+                            written=fits[-1], written_from="all runs" if len(folds) > 1 else folds[0].name)
+
+
+def _fold_task(shared, fold: RunFold) -> RunsCalibration:
+    """One fold's fit on an engine's worker (its Jacobian serial: the folds are the parallelism)."""
+    machine, runs, names, section, max_nfev, prior = shared
+    return _fit_fold(machine, runs, names, fold, section, max_nfev, None, prior, EngineSpec())
 
 
 def _fold_summary(fold: RunFold, rc: RunsCalibration) -> dict:
