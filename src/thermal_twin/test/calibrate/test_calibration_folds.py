@@ -168,6 +168,8 @@ def test_cli_by_unit_reports_every_fold_and_the_pooled_figure_from_report_json(r
     assert {p["name"] for p in fo["parameter_spread"]} == {p["name"] for p in rep["parameters"]}
     md = (out / "report.md").read_text()
     assert "## Folds (2;" in md and "| **pooled** | all folds |" in md and "## Parameters across folds" in md
+    assert f"{fo['n_moving']} of {fo['n_parameters']} parameters move" in md
+    assert fo["n_parameters"] == len(rep["parameters"]) and fo["n_moving"] == len(fo["moving_parameters"])
     assert underived_numbers(md, rep) == []
     load_machine(out / "twin_calibrated.yaml")
 

@@ -47,8 +47,9 @@ def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str
     if folds is not None and len(folds.folds) > 1:
         rep["folds"] = {"n_folds": len(folds.folds), "written": folds.written_from, "folds": folds.folds,
                         "pooled_held_out": folds.pooled, "parameter_spread": folds.spread,
-                        "spread_share_limit": SPREAD_SHARE,
+                        "spread_share_limit": SPREAD_SHARE, "n_parameters": len(folds.spread),
                         "moving_parameters": [p["name"] for p in folds.spread if p["moves"]]}
+        rep["folds"]["n_moving"] = len(rep["folds"]["moving_parameters"])
         for c, v in rep["channels"].items():
             v["holdout_rmse_before"] = folds.pooled[c]["rmse_before"]
             v["holdout_rmse_after"] = folds.pooled[c]["rmse_after"]
@@ -148,12 +149,11 @@ def _folds_markdown(fo: dict) -> list[str]:
                              + " | ".join(arrow(x["channels"][c], "rmse_before", "rmse_after") for c in chans) + " |")
     lines.append("| **pooled** | all folds | "
                  + " | ".join(arrow(fo["pooled_held_out"][c], "rmse_before", "rmse_after") for c in chans) + " |")
-    moving = fo["moving_parameters"]
     lines += ["", "## Parameters across folds", "",
-              f"{len(moving)} of {len(fo['parameter_spread'])} parameters move by more than "
-              f"{100 * fo['spread_share_limit']:.0f} % of their allowed range between folds: these runs do not "
-              "pin them down (the written value is one of many the data allow). 'disjoint': the folds' 95 % "
-              "intervals share no value (each fold is sure of a different one).", "",
+              f"{fo['n_moving']} of {fo['n_parameters']} parameters move by more than "
+              f"{100 * fo['spread_share_limit']:.0f} % of their allowed range between folds (**moves**: not "
+              "pinned down by these runs; its written value is one of many the data allow). 'disjoint': the "
+              "folds' 95 % intervals share no value (each fold is sure of a different one).", "",
               "| parameter | unit | " + " | ".join(f["name"] for f in fo["folds"]) + " | written | moves (% of range) |",
               "| --- | --- |" + " --- |" * (len(fo["folds"]) + 2)]
     for p in fo["parameter_spread"]:
