@@ -174,6 +174,19 @@ def test_cli_by_unit_reports_every_fold_and_the_pooled_figure_from_report_json(r
     load_machine(out / "twin_calibrated.yaml")
 
 
+def test_cli_one_fold_with_a_validation_run_writes_that_folds_fit(runs, tmp_path, capsys):
+    m = _write_manifest(runs, tmp_path)
+    out = tmp_path / "cal"
+    assert main(["--twin", str(TWIN), "--recording", str(m), "--out", str(out), "--quiet",
+                 "--runs-split", "0.5,0.25,0.25", "--max-nfev", "3"]) == 0
+    assert "run c (validation)" in capsys.readouterr().out
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["split"]["fold"] == "0.5,0.25,0.25" and "folds" not in rep
+    assert rep["split"]["by_run"] == {"train": ["a", "b"], "holdout": ["d"], "validation": ["c"]}
+    assert [x["role"] for x in rep["runs"]] == ["train", "train", "validation", "holdout"]
+    assert "| c | validation |" in (out / "report.md").read_text()
+
+
 @pytest.mark.parametrize("args, words", [
     (["--runs-split", "by:unit=U1,U2"], "runs split 'by:unit=U1,U2': fold unit=U1,U2 leaves no training run"),
     (["--runs-split", "test=a,b,c,d"], "runs split 'test=a,b,c,d': need at least one training run"),

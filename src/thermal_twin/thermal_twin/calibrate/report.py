@@ -44,6 +44,8 @@ def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str
                                   "holdout": [x["name"] for x in runs if x["role"] == "holdout"]}
         if any(x["role"] == "validation" for x in runs):
             rep["split"]["by_run"]["validation"] = [x["name"] for x in runs if x["role"] == "validation"]
+    if folds is not None:
+        rep["split"]["fold"] = folds.written_from         # the split's name, or 'all runs' with several folds
     if folds is not None and len(folds.folds) > 1:
         rep["folds"] = {"n_folds": len(folds.folds), "written": folds.written_from, "folds": folds.folds,
                         "pooled_held_out": folds.pooled, "parameter_spread": folds.spread,
