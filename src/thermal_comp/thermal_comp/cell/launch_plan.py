@@ -16,6 +16,8 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from thermal_comp_common.runtime.dds_transport import PROFILES_ENV, TRANSPORTS_ENV, restart_safe_env
+
 from thermal_comp.cell.config import (MAX_DOMAIN_ID, NAME_RE, CellConfig, CellConfigError, NodeSpec,
                                       load_cell, parameters_file_text)
 
@@ -88,8 +90,12 @@ def launch_arguments_text() -> str:
 
 
 def node_env(cell: CellConfig, node: NodeSpec) -> dict[str, str]:
-    """Environment a node adds to the launching one: the cell's, the node's, the domain id."""
+    """Environment a node adds to the launching one: the cell's, the node's, the domain id, and
+    UDP as the only DDS transport unless the cell or the launching environment names one (a
+    respawned node must hear the graph: :mod:`thermal_comp_common.runtime.dds_transport`)."""
     env = {**cell.env, **node.env, "PYTHONUNBUFFERED": "1"}
+    if not any(os.environ.get(k) for k in (TRANSPORTS_ENV, PROFILES_ENV)):
+        env = restart_safe_env(env)
     if cell.domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(cell.domain_id)
     return env

@@ -38,7 +38,7 @@ from typing import Callable, TextIO
 
 from thermal_comp.cell.cell_lock import CellLock, CellLockError, acquire_cell_lock
 from thermal_comp.cell.config import CellConfig, CellConfigError, NodeSpec, load_cell, parameters_file_text
-from thermal_comp_common.runtime.dds_loopback import loopback_env
+from thermal_comp_common.runtime.dds_transport import cell_process_env
 
 _PR_SET_PDEATHSIG = 1
 
@@ -158,7 +158,7 @@ class Launcher:
                 env.setdefault("ROS_LOG_DIR", str(self.run_dir / "ros_logs"))
                 if cell.domain_id is not None:
                     env["ROS_DOMAIN_ID"] = str(cell.domain_id)
-                env = loopback_env(env, self.run_dir)      # LOCALHOST: every DDS socket on lo
+                env = cell_process_env(env, self.run_dir)  # UDP only (survives kill -9); LOCALHOST: on lo
                 self.processes.append(ManagedProcess(cell, node, argv, env, cell_dir / f"{node.name}.log",
                                                      nice=node_niceness(f"{cell.cell}/{node.name}", env)))
 

@@ -1,5 +1,6 @@
-"""A process of a cell that asks for LOCALHOST discovery opens no DDS socket outside the
-loopback interface, and still talks to an in-process node that only set LOCALHOST."""
+"""A process of a cell uses UDP only unless told otherwise; one that asks for LOCALHOST discovery
+opens no DDS socket outside the loopback interface, and still talks to an in-process node that
+only set LOCALHOST."""
 import os
 import pathlib
 import subprocess
@@ -8,7 +9,8 @@ import time
 
 import pytest
 
-from thermal_comp_common.runtime.dds_loopback import PROFILE_NAME, PROFILES_ENV, RANGE_ENV, loopback_env
+from thermal_comp_common.runtime.dds_transport import (PROFILE_NAME, PROFILES_ENV, RANGE_ENV, TRANSPORTS_ENV,
+                                                       cell_process_env, loopback_env, restart_safe_env)
 
 CHILD = """
 import sys, rclpy
@@ -30,6 +32,17 @@ def test_env_only_changes_a_localhost_process_without_its_own_profile(tmp_path):
     env = loopback_env({RANGE_ENV: "LOCALHOST", "X": "1"}, tmp_path)
     assert env[PROFILES_ENV] == str(tmp_path / PROFILE_NAME) and env["X"] == "1"
     assert "<address>127.0.0.1</address>" in pathlib.Path(env[PROFILES_ENV]).read_text()
+
+
+def test_a_cell_process_uses_udp_only_unless_it_names_a_transport_or_a_profile(tmp_path):
+    assert restart_safe_env({"X": "1"}) == {"X": "1", TRANSPORTS_ENV: "UDPv4"}
+    assert restart_safe_env({TRANSPORTS_ENV: "SHM"}) == {TRANSPORTS_ENV: "SHM"}
+    assert restart_safe_env({PROFILES_ENV: "/etc/mine.xml"}) == {PROFILES_ENV: "/etc/mine.xml"}
+    # the loopback profile names its own transports: UDP on lo, no shared memory
+    env = cell_process_env({RANGE_ENV: "LOCALHOST"}, tmp_path)
+    assert env[TRANSPORTS_ENV] == "UDPv4"
+    assert "SHM" not in pathlib.Path(env[PROFILES_ENV]).read_text()
+    assert cell_process_env({}, tmp_path) == {TRANSPORTS_ENV: "UDPv4"}
 
 
 def _udp_local_addresses(pid: int) -> list[str]:
