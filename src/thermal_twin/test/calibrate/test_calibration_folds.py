@@ -16,33 +16,21 @@ from thermal_twin.calibrate.fit import Estimate
 from thermal_twin.calibrate.runs import calibrate_folds, calibrate_runs, holdout_fold, parameter_spread
 from thermal_twin.diagnose.report_check import underived_numbers
 from thermal_twin.machine.schema import load_machine
-from thermal_twin.sim.simulate import simulate
-from thermal_eval.diagnose.concealed import operating_programme
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import write_recording_csv
 from thermal_comp_common.recording_sources import RunEntry
 from thermal_comp_common.run_splits import run_splits
+from moved_mini_mill import SECTION, TRUE, TWIN, moved_runs
 from thermal_comp_common.runtime.task_engine import EngineSpec
 
-TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"
-HEAD = ("links", "spindle_head", "conductance")
-LOSSES = ("sources", "spindle_losses", "coefficient")
-TRUE = {HEAD: 8.0 * 1.6, LOSSES: 0.00015396 * 1.4}
-SECTION = {"kinds": {"capacity": "fixed", "bias": "fixed", "boundary": "fixed", "gain": "fixed",
-                     "conductance": {"factor": 2.0}, "source": {"factor": 2.0}}}
 NAMES = ["a", "b", "c", "d"]
 UNITS = ["U1", "U1", "U2", "U2"]
 
 
 @pytest.fixture(scope="module")
 def runs():
-    """Four 8 h runs of the moved twin (two per unit), each its own seeded programme, from rest."""
-    spec = load_machine(TWIN).to_dict()
-    true = load_machine(TWIN).to_dict()
-    for (a, b, c), v in TRUE.items():
-        true[a][b][c] = v
-    return [simulate(true, operating_programme(spec, hours=8.0, step_s=300.0, seed=40 + k), seed=k).to_recording()
-            for k in range(4)]
+    """Four 8 h runs of the moved twin (two per unit)."""
+    return moved_runs(4, 8.0, 40)
 
 
 def _entries(n: int) -> list[RunEntry]:

@@ -3,7 +3,6 @@ its own initial state), split by run, per-run and pooled figures; runs that do n
 from __future__ import annotations
 
 import json
-import pathlib
 
 import numpy as np
 import pytest
@@ -12,29 +11,14 @@ from thermal_twin.calibrate.cli import main
 from thermal_twin.calibrate.fit import CalibrationError
 from thermal_twin.calibrate.runs import calibrate_runs, holdout_indices, own_reference
 from thermal_twin.machine.schema import load_machine
-from thermal_twin.sim.simulate import simulate
-from thermal_eval.diagnose.concealed import operating_programme
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import write_recording_csv
-
-TWIN = pathlib.Path(__file__).parents[1] / "diagnose" / "mini_mill.yaml"
-HEAD = ("links", "spindle_head", "conductance")
-LOSSES = ("sources", "spindle_losses", "coefficient")
-TRUE = {HEAD: 8.0 * 1.6, LOSSES: 0.00015396 * 1.4}
-# the structure's conductances and the spindle's loss law move; the rest is the drawing's
-SECTION = {"kinds": {"capacity": "fixed", "bias": "fixed", "boundary": "fixed", "gain": "fixed",
-                     "conductance": {"factor": 2.0}, "source": {"factor": 2.0}}}
-
+from moved_mini_mill import SECTION, TRUE, TWIN, moved_runs
 
 @pytest.fixture(scope="module")
 def runs():
-    """Three 12 h runs of the moved twin, each its own programme and hall (seeded), each from rest."""
-    spec = load_machine(TWIN).to_dict()
-    true = load_machine(TWIN).to_dict()
-    for (a, b, c), v in TRUE.items():
-        true[a][b][c] = v
-    return [simulate(true, operating_programme(spec, hours=12.0, step_s=300.0, seed=10 + k), seed=k).to_recording()
-            for k in range(3)]
+    """Three 12 h runs of the moved twin."""
+    return moved_runs(3, 12.0, 10)
 
 
 def test_runs_together_recover_the_moved_parameters_and_the_held_out_run_improves(runs):
