@@ -1,5 +1,5 @@
 """The data-set figures of ``thermal-comp bench evaluate``: a twin-made fleet scored on unseen
-runs and an unseen unit, FL_THERMAL cut into runs beside its single-recording figures, and the
+runs and an unseen unit (against its noisy recording and against the twin's noise-free truth), FL_THERMAL cut into runs beside its single-recording figures, and the
 wall time of ``evaluate`` on many runs."""
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import numpy as np
 
 from thermal_comp_common.runtime.task_engine import EngineSpec
 from thermal_eval.datasets.evaluate_runs import evaluate_runs
-from thermal_eval.datasets.fleet import FleetPlan, unseen_fold, write_fleet
-from thermal_eval.datasets.report_runs import print_runs
+from thermal_eval.datasets.fleet import FleetPlan, load_truth, unseen_fold, write_fleet
+from thermal_eval.datasets.report_runs import fleet_markdown, print_runs
 from thermal_eval.datasets.runs import Run, load_runs, segments
 from thermal_comp_common.recording_sources import RunEntry, resolve_runs
 from thermal_comp_common.run_splits import RunFold, run_splits
@@ -27,8 +27,11 @@ ROLE_NAMES = {"validation": "unseen_runs", "test": "unseen_unit"}
 
 def summary(pooled: dict[str, Any], base: str) -> dict[str, Any]:
     """Per model: channel-mean MAE and the worst channel's ratio (open loop: to ``base``;
-    adaptive: to holding the same probes)."""
+    adaptive: to holding the same probes); ``vs_truth``: the same against the truth when the
+    pooled figures have it."""
     out: dict[str, Any] = {"open_loop": {}, "adaptive": {}}
+    if "vs_truth" in pooled:
+        out["vs_truth"] = summary(pooled["vs_truth"], base)
     for name, cells in pooled["open_loop"].items():
         r = [c[f"ratio_to_{base}"] for c in cells.values() if c.get(f"ratio_to_{base}") is not None]
         out["open_loop"][name] = {"mean_mae_um": round(float(np.mean([c["mae_um"] for c in cells.values()])), 3),
@@ -43,12 +46,14 @@ def summary(pooled: dict[str, Any], base: str) -> dict[str, Any]:
     return out
 
 
-def worst_run_ratio(figures: dict[str, Any]) -> dict[str, dict[str, float]]:
-    """Per adaptive model and role: the largest ratio to holding of any held-out run and channel."""
+def worst_run_ratio(figures: dict[str, Any], vs_truth: bool = False) -> dict[str, dict[str, float]]:
+    """Per adaptive model and role: the largest ratio to holding of any held-out run and channel
+    (``vs_truth``: both scored against the truth)."""
     out: dict[str, dict[str, float]] = {}
     for fold in figures["folds"]:
         for r in fold["per_run"]:
-            for name, cells in r["pooled"]["adaptive"].items():
+            p = r["pooled"].get("vs_truth", {}) if vs_truth else r["pooled"]
+            for name, cells in p.get("adaptive", {}).items():
                 v = [c["ratio_to_hold"] for c in cells.values() if c.get("ratio_to_hold") is not None]
                 if v:
                     d = out.setdefault(name, {})
@@ -73,7 +78,9 @@ def run_fleet(engine: EngineSpec, quick: bool = False, presets=("spindle-stand",
             runs = load_runs(resolve_runs([str(write_fleet(plan, pathlib.Path(d) / preset))]))
             made = time.perf_counter() - t0
             fold = unseen_fold(plan, train_per_unit)
-            f = evaluate_runs(runs, [fold], budget=HOURLY, engine=engine, run_start=run_start, rest_h=rest_h)
+            truth = [load_truth(r) for r in runs]
+            f = evaluate_runs(runs, [fold], budget=HOURLY, engine=engine, run_start=run_start, rest_h=rest_h,
+                              truth=truth)
         print(f"fleet {preset}: {len(runs)} runs (units x runs {plan.units} x {plan.runs_per_unit}, {plan.hours:g} h, "
               f"probe noise {plan.probe_noise_um} um); validation = unseen runs of U0-U{plan.units - 2}, "
               f"test = every run of unseen unit U{plan.units - 1}")
@@ -82,7 +89,9 @@ def run_fleet(engine: EngineSpec, quick: bool = False, presets=("spindle-stand",
         out[preset] = {"plan": plan.__dict__, "run_start": f["run_start"],
                        "simulate_seconds": round(made, 1), "seconds": f["seconds"],
                        **{ROLE_NAMES[k]: summary(v, base) for k, v in f["pooled"].items()},
-                       "worst_run_ratio_to_hold": worst_run_ratio(f), "evaluation": f}
+                       "worst_run_ratio_to_hold": worst_run_ratio(f),
+                       "worst_run_ratio_to_hold_vs_truth": worst_run_ratio(f, vs_truth=True), "evaluation": f}
+        print(fleet_markdown(preset, out[preset], seed))
     return out
 
 

@@ -8,6 +8,12 @@ programme draw), simulated by the twin, with probe noise added to every displace
 hall temperature inputs of the twin (its environment) are left out of the recording: a real
 cell measures the hall by a sensor, not by a set-point. Written as recording CSVs plus a
 manifest (unit, programme, date) in a folder; deterministic for fixed seeds.
+
+The twin knows what a real recording never does: the displacements without the probe noise.
+They are written apart (``truth/<run>.csv``, displacement columns only, named by the manifest's
+``truth_path``, relative to the recording's folder) where no source of runs looks: a folder of
+runs lists its own files only, and the models read the recording alone. :func:`load_truth`
+gives them to the scoring (:func:`thermal_eval.datasets.evaluate_runs.evaluate_runs`).
 """
 from __future__ import annotations
 
@@ -18,8 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thermal_comp_common.recording_csv import column_kind, write_recording_csv
+from thermal_comp_common.recording_csv import RecordingError, column_kind, read_recording_csv, write_recording_csv
+from thermal_comp_common.recording_sources import DatasetError
 from thermal_comp_common.run_splits import RunFold
+from thermal_eval.datasets.runs import Run
 from thermal_twin.machine.instance import machine_instance
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.scenarios import make_timeline, scenario_names
@@ -27,6 +35,7 @@ from thermal_twin.sim.simulate import environment_input_names, simulate
 
 PROBE_NOISE_UM = 0.2
 FIRST_DAY = datetime.date(2026, 1, 5)
+TRUTH_FOLDER = "truth"
 
 
 @dataclass(frozen=True)
@@ -43,7 +52,7 @@ class FleetPlan:
 def write_fleet(plan: FleetPlan, folder: str | pathlib.Path) -> pathlib.Path:
     """Simulate every run of the plan into ``folder`` and write ``manifest.csv``; its path."""
     folder = pathlib.Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    (folder / TRUTH_FOLDER).mkdir(parents=True, exist_ok=True)
     programmes = scenario_names(plan.preset)
     rows = []
     for u in range(plan.units):
@@ -59,14 +68,39 @@ def write_fleet(plan: FleetPlan, folder: str | pathlib.Path) -> pathlib.Path:
                     for c, v in rec.columns.items() if c not in env}
             name = f"u{u}_r{k}"
             write_recording_csv(folder / f"{name}.csv", rec.time_s, cols)
+            truth = f"{TRUTH_FOLDER}/{name}.csv"
+            write_recording_csv(folder / truth, rec.time_s,
+                                {c: v for c, v in rec.columns.items() if column_kind(c) == "error"})
             rows.append({"path": f"{name}.csv", "name": name, "unit": f"U{u}", "programme": programme,
-                         "date": (FIRST_DAY + datetime.timedelta(days=k)).isoformat()})
+                         "date": (FIRST_DAY + datetime.timedelta(days=k)).isoformat(), "truth_path": truth})
     manifest = folder / "manifest.csv"
     with manifest.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
     return manifest
+
+
+def load_truth(run: Run) -> dict[str, np.ndarray] | None:
+    """The run's noise-free displacements in the run's frame (relative to the recording's first
+    finite reading of each channel, the reference its displacements are scored from), or None
+    when its manifest names no ``truth_path``."""
+    rel = run.entry.extra.get("truth_path")
+    if not rel:
+        return None
+    path = pathlib.Path(run.entry.path).parent / rel
+    try:
+        truth, rec = read_recording_csv(path), read_recording_csv(run.entry.path)
+    except RecordingError as exc:
+        raise DatasetError(f"{run.entry.path}: field 'truth_path' = {rel!r}: {exc}") from None
+    out = {}
+    for c in run.data.channels:
+        v, raw = truth.columns.get(c), rec.columns.get(c)
+        if v is None or raw is None or v.shape != (len(run.data),) or not np.array_equal(truth.time_s, rec.time_s):
+            raise DatasetError(f"{path}: field {c!r}: missing or not on the recording's {len(run.data)} rows and times")
+        ok = np.flatnonzero(np.isfinite(raw))
+        out[c] = v - (raw[ok[0]] if ok.size else 0.0)
+    return out
 
 
 def unseen_fold(plan: FleetPlan, train_runs_per_unit: int) -> RunFold:
