@@ -40,6 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="several runs, as evaluate's --runs-split: TRAIN,VAL,TEST fractions, loro, by:FIELD, "
                         "by:FIELD=VALUE or test=NAME,...; one fit per fold; with several folds the twin written "
                         "is fitted on all runs (docs/calibrate.md)")
+    p.add_argument("--initial-state", choices=("steady", "readings"), default="steady",
+                   help="where every recording starts the twin: its idle equilibrium (a machine at rest) or where "
+                        "the recording's first readings put it, its displacements then relative to its first row "
+                        "(a recording that starts warm; docs/calibrate.md, \"Warm starts\")")
     p.add_argument("--max-nfev", type=int, default=20,
                    help="at most this many optimiser iterations (default 20)")
     p.add_argument("--block-min", type=float, default=30.0,

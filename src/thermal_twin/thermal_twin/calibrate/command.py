@@ -45,10 +45,12 @@ def run(args) -> int:
         if split is None:
             frac = 1 / 3 if args.holdout_fraction is None else args.holdout_fraction
             r, runs, folds = calibrate(machine, recs[0], holdout_fraction=frac, section=section,
-                                       max_nfev=args.max_nfev, progress=say, engine=engine), None, None
+                                       max_nfev=args.max_nfev, progress=say, engine=engine,
+                                       initial_state=args.initial_state), None, None
         else:
             folds = calibrate_folds(machine, recs, [e.name for e in entries], split, section=section,
-                                    max_nfev=args.max_nfev, progress=say, engine=engine)
+                                    max_nfev=args.max_nfev, progress=say, engine=engine,
+                                    initial_state=args.initial_state)
             r, runs = folds.written.result, folds.written.runs
     except (MachineSpecError, MappingError, CalibrationSpecError, RecordingError, CalibrationError,
             InputEstimationError, TaskEngineError, DatasetError, ValueError, OSError) as exc:

@@ -22,6 +22,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from thermal_twin.calibrate.bounds import Param, free_parameters, patch_machine, set_values
+from thermal_twin.sim.initial_state import own_reference, start_state
 from thermal_twin.sim.inputs_timeline import timeline_from_recording
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.fit import FitProblem, effective_samples
@@ -91,11 +92,15 @@ class TwinModel:
     """The twin as a function of theta: outputs on the shared channels and the exact
     derivatives of the linear parameters."""
 
-    def __init__(self, spec: dict, params: list[Param], rec: Recording, channels: list[str]):
+    def __init__(self, spec: dict, params: list[Param], rec: Recording, channels: list[str],
+                 initial_state: str = "steady"):
         self.spec0, self.params, self.rec, self.channels = spec, params, rec, channels
         self.n_evals = 0
         self.sim_steps = 0
-        self.machine0 = load_machine(spec)
+        # ``readings``: this recording starts the twin where its sensors read (a warm start);
+        # the spec written (:meth:`spec`) keeps the twin's own initial state
+        self.machine0 = load_machine(spec if initial_state == "steady" else
+                                     {**spec, "initial_state": start_state(spec, rec, initial_state)})
         # the inputs do not depend on any parameter: resolved once
         self.inputs = timeline_from_recording(self.machine0, rec).resolved(self.machine0)
 
@@ -156,7 +161,7 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
               section: Mapping | None = None, max_nfev: int = 30,
               progress: Callable[[str], None] | None = None, prior: bool = True,
               start: Mapping[str, float] | None = None, engine: EngineSpec | None = None,
-              sigma: Mapping[str, float] | None = None) -> CalibrationResult:
+              sigma: Mapping[str, float] | None = None, initial_state: str = "steady") -> CalibrationResult:
     """Fit the free parameters of ``twin`` (path, preset, mapping or Machine) to
     ``recording``; ``section`` overrides the machine's own ``calibration`` section.
     ``prior``: pull every parameter toward its nominal value (a Gaussian prior whose 95 %
@@ -167,17 +172,19 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
     (default serial; the same answer on every engine). BLAS runs on one thread
     (``single_thread_blas``). ``sigma``: the measurement noise of channels whose noise the
     recording cannot show (sparse probes of an error channel), by column; the others' comes
-    from their second differences."""
+    from their second differences. ``initial_state``: ``steady`` (the twin's idle equilibrium) or
+    ``readings`` (where the recording's first readings put it: a recording that starts warm)."""
     with single_thread_blas(), held_engine(engine) as held:
         t_start = time.perf_counter()
-        jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma)
+        jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma, initial_state)
         jacobian.engine = held
         theta, status = fit_theta(jacobian, max_nfev, prior, start)
         return _result(jacobian, recording, theta, status, prior, t_start)
 
 
 def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping | None,
-           progress: Callable[[str], None] | None, sigma: Mapping[str, float] | None = None) -> "Jacobian":
+           progress: Callable[[str], None] | None, sigma: Mapping[str, float] | None = None,
+           initial_state: str = "steady") -> "Jacobian":
     """Check twin and recording, choose the free parameters; the residual and its Jacobian."""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise CalibrationError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
@@ -192,6 +199,8 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     params, fixed = relevant_parameters(free_parameters(spec0, section), machine, channels)
     if not params:
         raise CalibrationError("no free parameter: the calibration section fixes everything")
+    if initial_state == "readings":       # the twin starts where the recording does: so do its displacements
+        recording = own_reference(machine, recording)
     n_train = int(round(len(recording) * (1.0 - holdout_fraction)))
     if n_train < MIN_RECORDING_ROWS:
         raise CalibrationError(f"recording {recording.source}: {n_train} training rows, "
@@ -204,7 +213,7 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     rest = [c for c in channels if c not in given]
     fp = FitProblem(recording, channels, n_train, resolution=res,
                     sigma={**(FitProblem(recording, rest, n_train, resolution=res).sigma if rest else {}), **given})
-    jacobian = Jacobian(TwinModel(spec0, params, recording, channels), fp, machine, progress)
+    jacobian = Jacobian(TwinModel(spec0, params, recording, channels, initial_state), fp, machine, progress)
     jacobian.fixed = fixed
     return jacobian
 
@@ -239,6 +248,7 @@ def _result(jacobian: "Jacobian", recording: Recording, theta: np.ndarray, statu
             t_start: float) -> CalibrationResult:
     """Intervals at the optimum, outputs before/after, the calibrated description."""
     model, channels = jacobian.model, jacobian.model.channels
+    recording = model.rec          # as fitted (relative to its start when the twin starts there)
     params = model.params
     lb, ub = jacobian.theta_bounds()
     r = jacobian.resid(theta)

@@ -25,6 +25,7 @@ from thermal_twin.calibrate.fit import (CalibrationError, CalibrationResult, Jac
                                         pick_channels, posterior_intervals, relevant_parameters)
 from thermal_twin.diagnose.fit import FitProblem
 from thermal_twin.machine.schema import Machine, load_machine
+from thermal_twin.sim.initial_state import own_reference
 from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import Recording
@@ -156,7 +157,8 @@ def _prepared(twin, runs: Sequence[Recording], names: Sequence[str] | None) -> t
 def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None = None,
                    holdout: int | str | Sequence[str] | None = None, section: Mapping | None = None,
                    max_nfev: int = 30, progress: Callable[[str], None] | None = None, prior: bool = True,
-                   engine: EngineSpec | None = None, fold: RunFold | None = None) -> RunsCalibration:
+                   engine: EngineSpec | None = None, fold: RunFold | None = None,
+                   initial_state: str = "steady") -> RunsCalibration:
     """Fit the free parameters of ``twin`` to the training runs of ``runs`` together (every run
     from its own initial state) and score every run; the split is ``fold`` (the grammar of
     :mod:`thermal_comp_common.run_splits`) or else ``holdout`` as :func:`holdout_indices`.
@@ -165,12 +167,13 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
     machine, runs, names = _prepared(twin, runs, names)
     fold = holdout_fold(names, holdout) if fold is None else fold
     with single_thread_blas(), held_engine(engine) as eng:
-        return _fit_fold(machine, runs, names, fold, section, max_nfev, progress, prior, eng)
+        return _fit_fold(machine, runs, names, fold, section, max_nfev, progress, prior, eng, initial_state)
 
 
 def calibrate_folds(twin, runs: Sequence[Recording], names: Sequence[str] | None, folds: Sequence[RunFold],
                     section: Mapping | None = None, max_nfev: int = 30, progress: Callable[[str], None] | None = None,
-                    prior: bool = True, engine: EngineSpec | None = None) -> FoldsCalibration:
+                    prior: bool = True, engine: EngineSpec | None = None,
+                    initial_state: str = "steady") -> FoldsCalibration:
     """One calibration per fold (as :func:`calibrate_runs`); the held-out figures pooled over the
     folds and the parameters' spread across them. Several folds: the twin written is one more fit,
     on all runs (the folds measured how such a fit does on runs it has not seen); one fold: that
@@ -188,9 +191,9 @@ def calibrate_folds(twin, runs: Sequence[Recording], names: Sequence[str] | None
     fits: list[RunsCalibration | None] = [None] * len(jobs)
     with single_thread_blas(), held_engine(engine) as eng:
         if len(jobs) > 1 and (eng.kind == "dask" or eng.workers > 1):
-            done = map_tasks(_fold_task, (machine, runs, names, section, max_nfev, prior), jobs, eng)
+            done = map_tasks(_fold_task, (machine, runs, names, section, max_nfev, prior, initial_state), jobs, eng)
         else:
-            done = ((k, _fit_fold(machine, runs, names, f, section, max_nfev, progress, prior, eng))
+            done = ((k, _fit_fold(machine, runs, names, f, section, max_nfev, progress, prior, eng, initial_state))
                     for k, f in enumerate(jobs))
         for k, rc in done:
             fits[k] = rc
@@ -207,8 +210,8 @@ def calibrate_folds(twin, runs: Sequence[Recording], names: Sequence[str] | None
 
 def _fold_task(shared, fold: RunFold) -> RunsCalibration:
     """One fold's fit on an engine's worker (its Jacobian serial: the folds are the parallelism)."""
-    machine, runs, names, section, max_nfev, prior = shared
-    return _fit_fold(machine, runs, names, fold, section, max_nfev, None, prior, EngineSpec())
+    machine, runs, names, section, max_nfev, prior, initial_state = shared
+    return _fit_fold(machine, runs, names, fold, section, max_nfev, None, prior, EngineSpec(), initial_state)
 
 
 def _fold_summary(fold: RunFold, rc: RunsCalibration) -> dict:
@@ -257,7 +260,7 @@ def parameter_spread(fits: Sequence[RunsCalibration], written: RunsCalibration) 
 
 
 def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, section, max_nfev: int,
-              progress, prior: bool, eng) -> RunsCalibration:
+              progress, prior: bool, eng, initial_state: str = "steady") -> RunsCalibration:
     """One fit over the fold's training runs (already relative to their own start); every run of
     the fold scored. A fold without held-out runs is the fit on all its runs (in sample only)."""
     held = [i for _, i in fold.held_out()]
@@ -275,7 +278,7 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
     sig = [FitProblem(runs[i], channels, len(runs[i]), resolution=res).sigma for i in train]
     sigma = {c: float(np.median([s[c] for s in sig])) for c in channels}
-    models = {i: TwinModel(spec0, params, runs[i], channels) for i in order}
+    models = {i: TwinModel(spec0, params, runs[i], channels, initial_state) for i in order}
     parts = []
     for i in train:
         part = Jacobian(models[i], FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res), machine)
@@ -299,20 +302,6 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     roles = {i: "validation" for i in fold.validation} | {i: "holdout" for i in fold.test}
     table = [_run_figures(names[i], runs[i], roles.get(i, "train"), channels, before[i], after[i]) for i in order]
     return RunsCalibration(result, table)
-
-
-def own_reference(machine: Machine, rec: Recording) -> Recording:
-    """The run with every displacement channel relative to its first finite value: the twin's
-    displacements start at 0 with every run, so the run's must too (a run cut from a longer
-    recording starts wherever the machine had drifted to)."""
-    out = rec.slice(0, len(rec))
-    for c in machine.errors:
-        if c in out.columns:
-            v = np.asarray(out.columns[c], dtype=float)
-            ok = np.flatnonzero(np.isfinite(v))
-            if ok.size:
-                out.columns[c] = v - v[ok[0]]
-    return out
 
 
 def _hours(rec: Recording) -> float:

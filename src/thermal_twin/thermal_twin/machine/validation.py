@@ -108,6 +108,7 @@ def validate_machine(raw: dict) -> Machine:
     for iname, ispec in inputs.items():
         if ispec.from_sensor is not None and ispec.from_sensor not in sensors:
             raise _fail(f"inputs.{iname}.from_sensor", ispec.from_sensor, "is not a sensor")
+    _check_initial_readings(init, sensors)
     errors, spec["errors"] = _errors(_mapping(raw.get("errors"), "errors", required=False), nodes)
     if raw.get("contacts") is not None:      # which places touch (the mismatch finder's new paths)
         spec["contacts"] = _contacts(raw["contacts"], nodes, boundaries)
@@ -245,14 +246,33 @@ def _nodes(section: dict, boundaries: dict) -> tuple[dict[str, NodeSpec], dict]:
 
 
 def _initial_state(init: Any, boundaries: dict) -> str | dict:
+    """``steady``, ``{boundary: NAME}`` or ``{readings: {SENSOR: degC}}`` (the sensors are checked
+    once they are parsed: :func:`_check_initial_readings`)."""
     if isinstance(init, Mapping):
-        _check_keys(init, {"boundary"}, "initial_state")
+        _check_keys(init, {"boundary", "readings"}, "initial_state")
+        if len(init) != 1:
+            raise _fail("initial_state", dict(init), "must have exactly one of boundary, readings")
+        if "readings" in init:
+            readings = _mapping(init["readings"], "initial_state.readings")
+            return {"readings": {str(k): _number(readings, k, "initial_state.readings", lo=-100.0, hi=300.0)
+                                 for k in readings}}
         if init.get("boundary") not in boundaries:
             raise _fail("initial_state.boundary", init.get("boundary"), "is not a boundary")
         return {"boundary": init["boundary"]}
     if init != "steady":
-        raise _fail("initial_state", init, "must be 'steady' or {boundary: NAME}")
+        raise _fail("initial_state", init, "must be 'steady', {boundary: NAME} or {readings: {SENSOR: degC}}")
     return init
+
+
+def _check_initial_readings(init: str | dict, sensors: dict) -> None:
+    """Every sensor of ``initial_state.readings`` exists and sees at least one node."""
+    if not isinstance(init, dict) or "readings" not in init:
+        return
+    if not init["readings"]:
+        raise _fail("initial_state.readings", {}, "must name at least one sensor")
+    for sid in init["readings"]:
+        if sid not in sensors:
+            raise _fail("initial_state.readings", sid, "is not a sensor")
 
 
 def _links(section: dict, nodes: dict, places: set, inputs: dict) -> tuple[dict[str, LinkSpec], dict]:

@@ -11,6 +11,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from thermal_twin.sim.initial_state import readings_state
 from thermal_twin.sim.inputs_timeline import InputsTimeline
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_comp_common.recording_csv import Recording
@@ -45,10 +46,13 @@ def idle_inputs(machine: Machine, inputs: Mapping[str, float]) -> dict[str, floa
 def initial_temperatures(net: ThermalNetwork, inputs: Mapping[str, float]) -> np.ndarray:
     """Node temperatures at t = 0 as the machine's ``initial_state`` says: ``steady`` is
     the equilibrium of the idle machine with its environment at t = 0 (:func:`idle_inputs`),
-    i.e. a machine that has stood still long enough, as at the start of a test."""
+    i.e. a machine that has stood still long enough, as at the start of a test; ``readings``
+    the state the sensors read at t = 0 (:func:`~thermal_twin.sim.initial_state.readings_state`)."""
     init = net.machine.initial_state
     if init == "steady":
         return net.steady_state(idle_inputs(net.machine, inputs), 0.0)
+    if "readings" in init:          # a recording that starts warm (sim/initial_state.py)
+        return readings_state(net, inputs, init["readings"])
     tb = net.boundary_temperatures(inputs)
     return np.full(net.n, tb[net.boundary_names.index(init["boundary"])])
 
