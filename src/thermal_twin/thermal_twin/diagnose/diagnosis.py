@@ -24,7 +24,7 @@ from thermal_twin.diagnose.effects import EFFECTS, classify_driver
 from thermal_twin.diagnose.fit import (BIC_THRESHOLD, FitProblem, Hypothesis, effective_samples,
                                       worse_channels)
 from thermal_twin.diagnose.report import DiagnosisSeries
-from thermal_twin.diagnose.search_round import RoundInputs, prune, run_round
+from thermal_twin.diagnose.search_round import RoundInputs, exchange, prune, run_round
 from thermal_twin.diagnose.significance import ALPHA, PROCEDURE, holdout_p_value
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
@@ -61,6 +61,7 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
     screened per round)."""
     adopted: list[Hypothesis] = []
     all_hyps: list[Hypothesis] = []
+    rounds: list[list[Hypothesis]] = []
     tried: list[int] = []
     spec_first, y_first = base, y_base
     bar = None
@@ -78,14 +79,21 @@ def _search(problem: FitProblem, base: dict, y_base: np.ndarray, drivers: dict, 
         if best is None or not best.supported(min_improvement_pct):
             break
         adopted.append(best)
+        rounds.append(hyps)
         base = best.spec
         y_base = problem.outputs(base)
     if bar is not None:
         bar.close()
     if adopted:
-        # refitted together, each paying for itself, no channel worse (search_round.prune)
+        # rivals of each round's choice tried with the others refitted (search_round.exchange),
+        # then refitted together, each paying for itself, no channel worse (search_round.prune)
+        notes = notes if notes is not None else []
+        adopted, swap = exchange(problem, spec_first, y_first, rounds, adopted, min_improvement_pct)
+        if swap:
+            notes.append(f"exchanged {swap['greedy']} for {swap['exchanged']}: held-out weighted sum of squares "
+                         f"{swap['holdout_sse_greedy']:.4g} -> {swap['holdout_sse_exchanged']:.4g} when refitted together")
         adopted, dropped = prune(problem, spec_first, y_first, adopted, min_improvement_pct)
-        (notes if notes is not None else []).extend(f"{d['effect']} dropped: {d['reason']}" for d in dropped)
+        notes.extend(f"{d['effect']} dropped: {d['reason']}" for d in dropped)
         base = adopted[-1].spec if adopted else spec_first
         y_base = problem.outputs(base) if adopted else y_first
     return adopted, all_hyps, base, y_base, tried

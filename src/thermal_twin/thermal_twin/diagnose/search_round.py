@@ -15,6 +15,13 @@ values fixed: with two effects concealed, the first is fitted while the second i
 missing, and its values carry the second's share (a conductance 12 % high, a channel it
 does not act on made worse). So:
 
+0. **Exchange** (:func:`exchange`): with several effects adopted, the first was chosen while
+   the second was still missing, so a near rival of the first (a coolant where a heat source
+   was adopted, a neighbouring node) can be the better choice once the second is there. The
+   best few supported hypotheses of every round are tried in place of its adopted one, each
+   set refitted together on the training window; the set with the lowest held-out weighted
+   sum of squares (the rounds' own ranking, no longer conditioned on a first choice made
+   without the second effect) that leaves no channel worse replaces the greedy one.
 1. **Joint refit** (:func:`refit`): every adopted effect's parameters together, on the
    training window, from the values the rounds found (same bounds).
 2. **Each pays for itself** (:func:`prune`): an adopted effect stays only if removing it
@@ -28,6 +35,7 @@ does not act on made worse). So:
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -236,6 +244,61 @@ def refit(problem: FitProblem, base: dict, hyps: list[Hypothesis], max_nfev: int
     if not 2 * sol.cost < c0:
         return [np.asarray(h.values, dtype=float) for h in hyps]
     return _split(hyps, sol.x)
+
+
+#: rivals of a round's adopted effect tried in its place by :func:`exchange` (with it, at most)
+EXCHANGE_TOP = 4
+
+
+def _rivals(hyps: list[Hypothesis], adopted: Hypothesis, min_improvement_pct: float, top: int) -> list[Hypothesis]:
+    """The adopted hypothesis and the best other supported ones of its round (ranked first)."""
+    out = [adopted]
+    for h in sorted(hyps, key=lambda h: h.rank_key(min_improvement_pct)):
+        if len(out) >= top:
+            break
+        if h is not adopted and h.supported(min_improvement_pct):
+            out.append(h)
+    return out
+
+
+def exchange(problem: FitProblem, base: dict, y_base: np.ndarray, rounds: list[list[Hypothesis]],
+             adopted: list[Hypothesis], min_improvement_pct: float, top: int = EXCHANGE_TOP
+             ) -> tuple[list[Hypothesis], dict | None]:
+    """Try the best ``top`` supported hypotheses of every round in place of its adopted one
+    (``rounds[i]`` holds round i+1's hypotheses, ``adopted[i]`` its choice), every set
+    refitted together (:func:`refit`); the set with the lowest held-out weighted sum of squares
+    among those leaving no channel worse than ``y_base`` wins (the greedy set on a tie). Returns
+    (the set, with its joint values and cumulative descriptions; a record of the exchange or
+    None when the greedy set stays)."""
+    if len(adopted) < 2:
+        return adopted, None
+    nt = problem.n_train
+    alts = [_rivals(hyps, a, min_improvement_pct, top) for hyps, a in zip(rounds, adopted)]
+    best, greedy_sse = None, None
+    for combo in itertools.product(*alts):
+        if len({(h.candidate.effect, h.candidate.target) for h in combo}) < len(combo):
+            continue
+        combo = list(combo)
+        greedy = all(h is a for h, a in zip(combo, adopted))
+        try:    # a round's candidate edits a description that may lack what another round added
+            vals = refit(problem, base, combo)
+            y = problem.outputs(_spec(base, combo, vals))
+        except (MachineSpecError, KeyError, ValueError):
+            continue
+        if not greedy and worse_channels(problem, y_base, y):
+            continue
+        sse = float(np.sum(problem.weighted_residual(y, nt) ** 2))
+        if greedy:
+            greedy_sse = sse
+        if best is None or sse < best[0] or (sse == best[0] and greedy):
+            best = (sse, combo, vals, greedy)
+    if best is None or best[3] or greedy_sse is None:
+        return adopted, None
+    sse, combo, vals, _ = best
+    out = [dataclasses.replace(h, values=v, spec=_spec(base, combo[:i + 1], vals[:i + 1]))
+           for i, (h, v) in enumerate(zip(combo, vals))]
+    return out, {"greedy": [h.candidate.key for h in adopted], "exchanged": [h.candidate.key for h in combo],
+                 "holdout_sse_greedy": greedy_sse, "holdout_sse_exchanged": sse}
 
 
 def _gain(problem: FitProblem, y_with: np.ndarray, y_without: np.ndarray) -> float:
