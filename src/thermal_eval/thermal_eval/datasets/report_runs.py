@@ -90,9 +90,9 @@ def _f(v: float | None, fmt: str = ".3f") -> str:
     return "-" if v is None else format(v, fmt)
 
 
-def _ratio_cell(a: float | None, b: float | None) -> str:
-    """Two worst-channel ratios to holding (unseen runs / unseen unit); bold above 0.5."""
-    return " / ".join("-" if v is None else (f"**{v:.2f}**" if v > 0.5 else f"{v:.2f}") for v in (a, b))
+def _ratio_cell(a: float | None, b: float | None, bold: bool = True) -> str:
+    """Two ratios to holding (unseen runs / unseen unit); ``bold``: those above 0.5 (the target)."""
+    return " / ".join("-" if v is None else (f"**{v:.2f}**" if bold and v > 0.5 else f"{v:.2f}") for v in (a, b))
 
 
 def _fleet_rows(fig: dict[str, Any], truth: bool) -> list[str]:
@@ -115,7 +115,7 @@ def _fleet_rows(fig: dict[str, Any], truth: bool) -> list[str]:
             cells += [f"{_f(a['mean_mae_um'])} ({_f(a['hold_mean_mae_um'])})",
                       f"{_f(b['mean_mae_um'])} ({_f(b['hold_mean_mae_um'])})",
                       _ratio_cell(a["worst_channel_ratio_to_hold"], b["worst_channel_ratio_to_hold"]),
-                      _ratio_cell(w.get("unseen_runs"), w.get("unseen_unit"))]
+                      _ratio_cell(w.get("unseen_runs"), w.get("unseen_unit"), bold=False)]
         else:
             cells += ["-"] * 4
         rows.append(cells)
@@ -125,7 +125,7 @@ def _fleet_rows(fig: dict[str, Any], truth: bool) -> list[str]:
 def fleet_markdown(preset: str, fig: dict[str, Any], seed: int) -> str:
     """One preset's fleet figures (``bench evaluate`` JSON ``fleet.<preset>``) as a markdown
     table: per model the figures against the noisy recording, then the same against the truth
-    when the fleet has one; bold: above 0.5 x holding."""
+    when the fleet has one; bold: a pooled worst channel above 0.5 x holding."""
     plan, rs = fig["plan"], fig["run_start"]
     head = (f"**{preset}**, fleet seed {seed} ({plan['units']} units x {plan['runs_per_unit']} runs of "
             f"{plan['hours']:g} h, probe noise {plan['probe_noise_um']:g} um, runs start: {rs['mode']}, rest "
