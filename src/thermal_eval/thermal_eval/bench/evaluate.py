@@ -22,7 +22,9 @@ Figures:
   test-run MAE beside the single recording's (:mod:`thermal_eval.datasets.bench_runs`);
 - ``fleet``: a twin-made fleet per preset (4 units x 5 runs of 5 h, probe noise), trained on 3
   runs of 3 units, scored on their other runs and on the unseen unit, adaptive at one probing
-  per hour beside holding; ``--timing-runs=40``: wall time of ``evaluate`` on 40 runs of 5 h.
+  per hour beside holding; each figure against the noisy recording (what a real one gives) and,
+  under ``vs_truth``, against the twin's noise-free displacement (the models' probes stay
+  noisy); ``--timing-runs=40``: wall time of ``evaluate`` on 40 runs of 5 h.
 
 ``--quick``: every 4th FL_THERMAL row and a smaller fleet (a smoke run; its figures differ).
 ``--sections=fl_thermal,plateau,segments,fleet`` picks the parts (default: all of them).
