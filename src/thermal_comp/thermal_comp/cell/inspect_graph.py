@@ -124,6 +124,10 @@ def probe(args, angles: list[float]) -> int:
                             points=args.points, angles=angles, cycle_timeout_s=args.timeout,
                             server_wait_s=args.wait, deadline_s=args.deadline,
                             busy_retry_s=args.busy_retry, on_feedback=on_feedback)
+        if result.success and bar:
+            # result and feedback travel on separate topics, the result may overtake the last
+            # feedback: a cycle that succeeded probed every point
+            bar[0].to(bar[0].total)
     except CellTimeout as exc:
         print(f"thermal-comp probe: {exc} (namespace '{args.namespace or '/'}', domain "
               f"{cell.graph.domain_id})", file=sys.stderr)
