@@ -149,4 +149,4 @@ def test_fleet_table_shows_both_scorings(tmp_path):
     assert "| worst channel x hold (runs / unit) |" in header and "vs truth: worst channel x hold (runs / unit)" in header
     row = next(x for x in text.splitlines() if x.startswith("| `lagged_ridge`"))
     tr = fig["unseen_unit"]["vs_truth"]["adaptive"]["lagged_ridge"]["worst_channel_ratio_to_hold"]
-    assert row.count("|") == header.count("|") and f"{tr:.2f}" in row.split("|")[-3]
+    assert row.count("|") == header.count("|") and f"{tr:.3f}" in row.split("|")[-3]

@@ -92,7 +92,7 @@ def _f(v: float | None, fmt: str = ".3f") -> str:
 
 def _ratio_cell(a: float | None, b: float | None, bold: bool = True) -> str:
     """Two ratios to holding (unseen runs / unseen unit); ``bold``: those above 0.5 (the target)."""
-    return " / ".join("-" if v is None else (f"**{v:.2f}**" if bold and v > 0.5 else f"{v:.2f}") for v in (a, b))
+    return " / ".join("-" if v is None else (f"**{v:.3f}**" if bold and v > 0.5 else f"{v:.3f}") for v in (a, b))
 
 
 def _fleet_rows(fig: dict[str, Any], truth: bool) -> list[str]:
