@@ -129,12 +129,22 @@ def read_manifest(path: str | pathlib.Path) -> list[RunEntry]:
     return [_entry(r, w, base) for r, w in zip(rows, where)]
 
 
-def _folder(p: pathlib.Path) -> list[pathlib.Path]:
-    found = sorted(q for q in p.iterdir() if (q.is_file() and q.suffix.lower() in RECORDING_SUFFIXES)
-                   or _is_bag_folder(q))
+def _folder(p: pathlib.Path) -> list[RunEntry]:
+    """A folder's runs: its manifest's when it holds one (a CSV with a ``path`` column or
+    ``manifest.yaml``), else every recording in it, sorted by name."""
+    files = sorted(q for q in p.iterdir() if q.is_file())
+    manifests = [q for q in files if (q.suffix.lower() == ".csv" and is_manifest(q))
+                 or q.name.lower() in ("manifest.yaml", "manifest.yml")]
+    if len(manifests) > 1:
+        raise DatasetError(f"{p}: folder holds {len(manifests)} manifests ({', '.join(q.name for q in manifests)}); "
+                           "give the one to use")
+    if manifests:
+        return read_manifest(manifests[0])
+    found = [q for q in sorted(p.iterdir()) if (q.is_file() and q.suffix.lower() in RECORDING_SUFFIXES)
+             or _is_bag_folder(q)]
     if not found:
         raise DatasetError(f"{p}: folder holds no recording (*.csv, *.mcap or bag folders)")
-    return found
+    return [RunEntry(str(q), q.stem) for q in found]
 
 
 def resolve_runs(sources: Iterable[str]) -> list[RunEntry]:
@@ -147,13 +157,14 @@ def resolve_runs(sources: Iterable[str]) -> list[RunEntry]:
             hits = sorted(glob.glob(src))
             if not hits:
                 raise DatasetError(f"source {src!r}: the pattern matches no file")
-            runs += [RunEntry(h, pathlib.Path(h).stem) for h in hits]
+            # a manifest the pattern also matches is no recording
+            runs += [RunEntry(h, pathlib.Path(h).stem) for h in hits if not is_manifest(pathlib.Path(h))]
         elif not p.exists():
             raise DatasetError(f"source {src!r}: no such file or folder")
         elif p.is_file() and is_manifest(p):
             runs += read_manifest(p)
         elif p.is_dir() and not _is_bag_folder(p):
-            runs += [RunEntry(str(q), q.stem) for q in _folder(p)]
+            runs += _folder(p)
         else:
             runs.append(RunEntry(str(p), p.stem))
     if not runs:

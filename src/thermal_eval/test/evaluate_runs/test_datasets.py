@@ -58,6 +58,16 @@ def test_sources_files_folder_glob_and_manifests(folder, tmp_path):
     assert [r.unit for r in runs] == ["U1", "U3"] and runs[0].extra == {"shift": "night"}
 
 
+def test_a_folder_with_its_manifest_gives_the_manifests_runs_and_a_glob_skips_the_manifest(folder):
+    (folder / "manifest.csv").write_text("path,unit\nday3.csv,U2\nday1.csv,U1\n")
+    runs = resolve_runs([str(folder)])
+    assert [(r.name, r.unit) for r in runs] == [("day3", "U2"), ("day1", "U1")]
+    assert [r.name for r in resolve_runs([str(folder / "*.csv")])] == [f"day{k}" for k in range(5)]
+    (folder / "other.csv").write_text("path\nday0.csv\n")
+    with pytest.raises(DatasetError, match="folder holds 2 manifests \\(manifest.csv, other.csv\\)"):
+        resolve_runs([str(folder)])
+
+
 @pytest.mark.parametrize("row, words", [
     ("{unit: U1}", ["runs[0]", "'path'"]),
     ("{path: runs/nope.csv}", ["runs[0]", "'path'", "nope.csv"]),
