@@ -179,7 +179,7 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
         jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma, initial_state)
         jacobian.engine = held
         theta, status = fit_theta(jacobian, max_nfev, prior, start)
-        return _result(jacobian, recording, theta, status, prior, t_start)
+        return _result(jacobian, theta, status, prior, t_start)
 
 
 def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping | None,
@@ -244,11 +244,12 @@ def fit_theta(jacobian: "Jacobian", max_nfev: int, prior: bool, start: Mapping[s
     return theta, status
 
 
-def _result(jacobian: "Jacobian", recording: Recording, theta: np.ndarray, status: str, prior: bool,
+def _result(jacobian: "Jacobian", theta: np.ndarray, status: str, prior: bool,
             t_start: float) -> CalibrationResult:
-    """Intervals at the optimum, outputs before/after, the calibrated description."""
+    """Intervals at the optimum, outputs before/after, the calibrated description; the recording
+    as fitted (relative to its start when the twin starts there)."""
     model, channels = jacobian.model, jacobian.model.channels
-    recording = model.rec          # as fitted (relative to its start when the twin starts there)
+    recording = model.rec
     params = model.params
     lb, ub = jacobian.theta_bounds()
     r = jacobian.resid(theta)
