@@ -158,16 +158,18 @@ def calibrate_runs(twin, runs: Sequence[Recording], names: Sequence[str] | None 
                    holdout: int | str | Sequence[str] | None = None, section: Mapping | None = None,
                    max_nfev: int = 30, progress: Callable[[str], None] | None = None, prior: bool = True,
                    engine: EngineSpec | None = None, fold: RunFold | None = None,
-                   initial_state: str = "steady") -> RunsCalibration:
+                   initial_state: str = "steady", sigma: Mapping[str, float] | None = None) -> RunsCalibration:
     """Fit the free parameters of ``twin`` to the training runs of ``runs`` together (every run
     from its own initial state) and score every run; the split is ``fold`` (the grammar of
     :mod:`thermal_comp_common.run_splits`) or else ``holdout`` as :func:`holdout_indices`.
     Prior, weights, bounds and intervals as :func:`~thermal_twin.calibrate.fit.calibrate`; the
-    noise sigma of a channel is the median over the training runs of each run's own."""
+    noise sigma of a channel is the median over the training runs of each run's own, or ``sigma``'s
+    for the channels it names (sparse probes of an error channel, as for one recording)."""
     machine, runs, names = _prepared(twin, runs, names)
     fold = holdout_fold(names, holdout) if fold is None else fold
     with single_thread_blas(), held_engine(engine) as eng:
-        return _fit_fold(machine, runs, names, fold, section, max_nfev, progress, prior, eng, initial_state)
+        return _fit_fold(machine, runs, names, fold, section, max_nfev, progress, prior, eng, initial_state,
+                         sigma)
 
 
 def calibrate_folds(twin, runs: Sequence[Recording], names: Sequence[str] | None, folds: Sequence[RunFold],
@@ -260,7 +262,8 @@ def parameter_spread(fits: Sequence[RunsCalibration], written: RunsCalibration) 
 
 
 def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, section, max_nfev: int,
-              progress, prior: bool, eng, initial_state: str = "steady") -> RunsCalibration:
+              progress, prior: bool, eng, initial_state: str = "steady",
+              sigma_given: Mapping[str, float] | None = None) -> RunsCalibration:
     """One fit over the fold's training runs (already relative to their own start); every run of
     the fold scored. A fold without held-out runs is the fit on all its runs (in sample only)."""
     held = [i for _, i in fold.held_out()]
@@ -278,6 +281,7 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
     sig = [FitProblem(runs[i], channels, len(runs[i]), resolution=res).sigma for i in train]
     sigma = {c: float(np.median([s[c] for s in sig])) for c in channels}
+    sigma.update({c: float(v) for c, v in (sigma_given or {}).items() if c in channels})
     models = {i: TwinModel(spec0, params, runs[i], channels, initial_state) for i in order}
     parts = []
     for i in train:
