@@ -9,10 +9,11 @@ vectorising everything: within a run of one conductance regime the state recursi
 decouples into scalar modal recursions run by ``scipy.signal.lfilter``. The exact step
 maps come from the symmetric eigen-decomposition of C^-1/2 K C^-1/2 (closed form of the
 same zero-order hold the twin computes with ``expm``), cached across calls because most
-candidate effects leave the conductances alone. It implements
-exactly the semantics of ``simulate`` (inputs hold from ``time_s[k]``, periodic sources at
-mid-step, first-order sensor lag, errors relative to t = 0); a test checks it against
-``simulate`` to 1e-9. Sensor noise and quantisation are left out on purpose: the finder
+candidate effects leave the conductances alone. On a regular grid it
+implements exactly the semantics of ``simulate`` (inputs hold from ``time_s[k]``, periodic
+sources at mid-step, first-order sensor lag, errors relative to t = 0); a test checks it
+against ``simulate`` to 1e-9. Rows a recording dropped are put back with interpolated inputs
+(:func:`gap_filled`) instead of holding the last row's inputs across the gap. Sensor noise and quantisation are left out on purpose: the finder
 compares the recording with the expected reading.
 """
 from __future__ import annotations
@@ -70,14 +71,60 @@ def expected_outputs(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, 
     return outputs_from_states(machine, net, t, X, tb)
 
 
+def gap_filled(time_s: np.ndarray, values: Mapping[str, np.ndarray]
+               ) -> tuple[np.ndarray, dict[str, np.ndarray], np.ndarray] | None:
+    """The time grid with the rows a recording dropped put back, or None on a regular grid.
+
+    The nominal step is the grid's own median step; a step of m + 1 nominal steps (rounded,
+    so a jittered regular grid never counts) hides m rows. They are put back at equal
+    spacing with every input interpolated linearly between the rows around the gap: an input
+    that switches once at an unknown instant of the gap has that ramp as its expected value
+    (a zero-order hold from the last row assumes the latest switch, which doubles the
+    expected squared error of a step and lags a continuously varying input by the gap).
+    Returns (time, inputs, rows): ``rows`` index the original instants in the filled grid."""
+    t = np.asarray(time_s, dtype=float)
+    if t.size < 3:
+        return None
+    dt = np.diff(t)
+    hidden = np.rint(dt / np.median(dt)).astype(np.int64) - 1
+    if not np.any(hidden >= 1):
+        return None
+    parts = np.maximum(hidden, 0) + 1                      # sub-steps per original step
+    step = np.repeat(np.arange(dt.size), parts)
+    first = np.concatenate([[0], np.cumsum(parts)[:-1]])
+    frac = (np.arange(step.size) - np.repeat(first, parts)) / np.repeat(parts, parts)
+    t_new = np.concatenate([t[step] + frac * dt[step], t[-1:]])
+    vals = {}
+    for k, v in values.items():
+        a = np.asarray(v, dtype=float)
+        vals[k] = np.concatenate([a[step] + frac * (a[step + 1] - a[step]), a[-1:]])
+    rows = np.concatenate([first, [step.size]])
+    return t_new, vals, rows
+
+
 def node_states(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.ndarray],
                 stop: int | None = None) -> tuple[ThermalNetwork, np.ndarray, np.ndarray, np.ndarray]:
     """(network, time, node temperatures X (time x nodes), boundary temperatures (time x
     boundaries)) of ``machine`` for the resolved ``inputs`` over ``time_s[:stop]``; the
-    calibration needs X for the error gains' exact derivatives."""
+    calibration needs X for the error gains' exact derivatives.
+
+    Inputs hold from each row to the next (the twin's zero-order hold), except across rows a
+    recording dropped: there the twin steps through the missing instants with interpolated
+    inputs (:func:`gap_filled`) and X is returned at the recorded instants only."""
     t = np.asarray(time_s, dtype=float)[:stop]
+    vals = {k: np.asarray(inputs[k], dtype=float)[:t.size] for k in machine.inputs}
+    filled = gap_filled(t, vals)
+    if filled is None:
+        return _held_states(machine, t, vals)
+    t_fill, vals_fill, rows = filled
+    net, _, X, tb = _held_states(machine, t_fill, vals_fill)
+    return net, t, X[rows], tb[rows]
+
+
+def _held_states(machine: Machine, t: np.ndarray, vals: dict[str, np.ndarray]
+                 ) -> tuple[ThermalNetwork, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`node_states` with every input held from its row to the next."""
     n_t = t.size
-    vals = {k: np.asarray(inputs[k], dtype=float)[:n_t] for k in machine.inputs}
     net = ThermalNetwork(machine)
     n = net.n
 
