@@ -9,7 +9,9 @@ twin (``DIR/prior.json`` with ``DIR/model_config.yaml``), and a report (``report
 and the unit's prior replayed over the recording's probes, beside holding the last probe, the
 training mean and a static regression. The adaptive test is against the type's prior, or with
 ``--current-prior`` against the prior running now (online learning); the report names it.
-docs/learn.md.
+Several recordings of one unit (``learn A B C``, a folder, a glob or a manifest): the twin is
+calibrated on the training runs jointly, adopted on the validation runs, scored per held-out run
+and pooled (``--runs-split``, learn.runs). docs/learn.md.
 """
 from __future__ import annotations
 
@@ -18,20 +20,28 @@ import sys
 
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
 from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.run_splits import DEFAULT_RUN_SPLIT
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="thermal-comp learn", description=__doc__.split("\n\n")[0])
-    p.add_argument("recording", metavar="REC", help="the cell's bag (folder or .mcap) or a recording CSV whose "
-                                                   "error columns hold probe results (total error), empty elsewhere")
+    p.add_argument("recording", metavar="REC", nargs="+",
+                   help="the cell's bag (folder or .mcap) or a recording CSV whose error columns hold probe results "
+                        "(total error since the run's start), empty elsewhere; several: files, a folder, a glob or a "
+                        "manifest (path, unit, programme, date, hall_setpoint_c), runs of one unit")
+    p.add_argument("--runs-split", default=None, metavar="HOW",
+                   help="several runs: which train, validate and test (evaluate's grammar: TRAIN,VAL,TEST fractions, "
+                        f"default {DEFAULT_RUN_SPLIT}; test=NAME,...[;validation=NAME,...]; by:FIELD=VALUE); one fold")
     p.add_argument("--twin", required=True, help="the type's twin: machine YAML file or preset name")
     p.add_argument("--out", required=True, help="output folder (new or empty unless --force)")
     p.add_argument("--force", action="store_true", help="write into an existing non-empty --out")
-    p.add_argument("--train-h", type=float, default=48.0,
-                   help="learn from the probes of the first H hours; later ones are held out (default 48)")
+    p.add_argument("--train-h", type=float, default=None,
+                   help="one recording: learn from the probes of the first H hours; later ones are held out "
+                        "(default 48)")
     p.add_argument("--validate-h", type=float, default=None,
-                   help="the last H hours of the --train-h window only decide whether the learned twin is "
-                        "adopted (not fitted on; default a quarter of --train-h)")
+                   help="the last H hours of the --train-h window (several runs without validation runs: of every "
+                        "training run) only decide whether the learned twin is adopted (not fitted on; default a "
+                        "quarter)")
     p.add_argument("--max-nfev", type=int, default=20, help="at most this many optimiser iterations (default 20)")
     p.add_argument("--probe-noise-um", type=float, default=None,
                    help="the probes' standard uncertainty for linear components (default: Table 5.4, 0.25)")

@@ -10,6 +10,8 @@ from typing import Any, Mapping
 from thermal_comp_common.bags.recording import BagRecordingError
 from thermal_comp_common.components import is_angular
 from thermal_comp_common.probe_and_hold import table_5_4_noise
+from thermal_comp_common.recording_sources import is_manifest, resolve_runs
+from thermal_comp_common.run_splits import run_splits
 from thermal_twin.calibrate.fit import CalibrationError
 from thermal_twin.machine.schema import MachineSpecError, load_machine
 
@@ -17,6 +19,13 @@ from thermal_eval.learn.command import learn
 from thermal_eval.learn.current import CurrentPrior, load_current
 from thermal_eval.learn.finder import finder_markdown
 from thermal_eval.learn.probes import ProbeDataError, cell_recording
+from thermal_eval.learn.report_text import fmt, tested_against_lines
+from thermal_eval.learn.runs.command import learn_runs
+from thermal_eval.learn.runs.report import runs_markdown
+from thermal_eval.learn.runs.sources import cell_runs
+
+#: one recording: the probes of the first this many hours train (--train-h)
+DEFAULT_TRAIN_H = 48.0
 
 
 def _out_dir(path: str, force: bool) -> pathlib.Path:
@@ -52,21 +61,6 @@ def _current(args, machine) -> CurrentPrior | None:
     return load_current(args.current_prior, args.current_config, args.twin, machine)
 
 
-def _fmt(v) -> str:
-    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else f"{v:.3g}"
-
-
-def _tested_against(ref: Mapping[str, Any] | None) -> list[str]:
-    """The line naming the prior the adaptive test was against (none without priors)."""
-    if not ref:
-        return []
-    who = ("the prior built on the twin given (--twin: a preset or a twin file)" if ref["source"] == "type"
-           else "the prior running now (--current-prior)")
-    cfg = f", configuration `{ref['model_config']}`" if ref.get("model_config") else ""
-    return [f"Tested against {who}: `{ref['prior']}` (sha256 {ref['sha256']}{cfg}; soft-sensor twin "
-            f"`{ref['type_model'] or '-'}`).", ""]
-
-
 def markdown(rep: Mapping[str, Any]) -> str:
     """report.md, every figure taken from ``rep`` (report.json)."""
     lines = [f"# Learning the unit: {rep['twin']} from {rep['recording']}", "",
@@ -75,7 +69,7 @@ def markdown(rep: Mapping[str, Any]) -> str:
              f"the next {rep['validate_h']:g} h ({rep['probes']['validation']}), {rep['probes']['held_out']} held out. "
              f"Calibration {rep['wall_s']['calibration']} s, twin {rep['twin_simulated_h_per_s']} simulated h/s.", "",
              f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
-             *_tested_against(rep.get("tested_against")),
+             *tested_against_lines(rep.get("tested_against")),
              "## What was added", ""]
     st = rep.get("structure") or {}
     lines += [f"- {w['what']} (fit cost {w['fit_cost']:.3g} of the calibrated twin's; validation: "
@@ -87,37 +81,79 @@ def markdown(rep: Mapping[str, Any]) -> str:
         lines += [f"- {t['what']}: fit cost {t['fit_cost']:.3g}; {t['validation'].get('reason', '')}" for t in rejected]
     lines += ["", "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
     for p in rep["parameters"]:
-        lines.append(f"| {p['name']} | {_fmt(p['start'])} {p['unit']} | {_fmt(p['value'])} | "
-                     f"{_fmt(p['change_pct'])} % | {'yes: beyond the builder tolerance?' if p['at_bound'] else ''} |")
+        lines.append(f"| {p['name']} | {fmt(p['start'])} {p['unit']} | {fmt(p['value'])} | "
+                     f"{fmt(p['change_pct'])} % | {'yes: beyond the builder tolerance?' if p['at_bound'] else ''} |")
     scores = rep["held_out_scores"]
     comps = list(next(iter(scores.values()))) if scores else []
     lines += ["", "## Held-out probes (RMSE of probe - prediction, made before the probe)", "",
               "| predictor | " + " | ".join(comps) + " |", "|---" * (len(comps) + 1) + "|"]
     for name, row in scores.items():
-        lines.append(f"| {name} | " + " | ".join(_fmt(row[c]["rmse"]) for c in comps) + " |")
+        lines.append(f"| {name} | " + " | ".join(fmt(row[c]["rmse"]) for c in comps) + " |")
     lines += ["", "Units: um (E_A0C, E_B0C, E_C0C: um/m). The probe noise is part of every figure alike.",
               *finder_markdown(rep.get("finder")), "", "## Files", ""] + [f"- {k}: `{v}`" for k, v in rep["files"].items()]
     return "\n".join(lines) + "\n"
 
 
+def _one_recording(sources: list[str]) -> str | None:
+    """The path when the sources name exactly one run (the single-recording learn), else None."""
+    if len(sources) != 1:
+        return None
+    p = pathlib.Path(sources[0])
+    if p.exists() and not is_manifest(p) and (p.is_file() or (p / "metadata.yaml").is_file()):
+        return sources[0]
+    runs = resolve_runs(sources)
+    return runs[0].path if len(runs) == 1 else None
+
+
+def _several(args, machine, current, out: pathlib.Path, say) -> dict:
+    """The several-run learning (learn.runs): one fold of --runs-split, every run read and checked."""
+    if args.train_h is not None:
+        raise ValueError(f"--train-h {args.train_h:g}: splits one recording in time; with several runs the split "
+                         "is by run (--runs-split)")
+    runs = cell_runs(args.recording)
+    noise = _noise(args, list(runs[0].probes.values))
+    for r in runs:
+        r.probes.noise = dict(noise)
+    folds = run_splits([r.entry for r in runs], args.runs_split)
+    if len(folds) > 1:
+        raise ValueError(f"--runs-split {args.runs_split}: gives {len(folds)} folds; learn writes one unit twin, "
+                         "give a split of one fold (TRAIN,VAL,TEST fractions, test=NAME,..., by:FIELD=VALUE)")
+    return learn_runs(machine, runs, folds[0], out, args.validate_h, max_nfev=args.max_nfev, progress=say,
+                      build_priors=not args.no_prior, current=current)
+
+
 def run(args) -> int:
     """Exit code: 0 written, 2 bad input (one line)."""
+    sources = list(args.recording) if isinstance(args.recording, (list, tuple)) else [args.recording]
+    say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    runs_split = getattr(args, "runs_split", None)
     try:
-        if not (math.isfinite(args.train_h) and args.train_h > 0):
-            raise ValueError(f"--train-h: {args.train_h!r} must be a number of hours > 0")
+        one = _one_recording(sources)
+        if one is not None and runs_split is not None:
+            raise ValueError(f"--runs-split {runs_split}: {sources[0]} is one run; splitting by run needs at "
+                             "least two (one recording is split in time: --train-h)")
+        train_h = DEFAULT_TRAIN_H if args.train_h is None else args.train_h
+        if one is not None and not (math.isfinite(train_h) and train_h > 0):
+            raise ValueError(f"--train-h: {train_h!r} must be a number of hours > 0")
         machine = load_machine(args.twin)
         current = _current(args, machine)
         out = _out_dir(args.out, args.force)
-        rec, probes = cell_recording(args.recording)
-        probes.noise = _noise(args, list(probes.values))
-        say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-        rep = learn(machine, rec, probes, out, args.train_h, max_nfev=args.max_nfev, progress=say,
-                    build_priors=not args.no_prior, validate_h=args.validate_h, current=current)
+        if one is None:
+            rep = _several(args, machine, current, out, say)
+        else:
+            rec, probes = cell_recording(one)
+            probes.noise = _noise(args, list(probes.values))
+            rep = learn(machine, rec, probes, out, train_h, max_nfev=args.max_nfev, progress=say,
+                        build_priors=not args.no_prior, validate_h=args.validate_h, current=current)
     except (ValueError, OSError, MachineSpecError, BagRecordingError, ProbeDataError, CalibrationError) as exc:
         print(f"thermal-comp learn: {exc}", file=sys.stderr)
         return 2
-    (out / "report.md").write_text(markdown(rep))
+    (out / "report.md").write_text(markdown(rep) if one is not None else runs_markdown(rep))
     print(f"wrote {out / 'report.md'}, {out / 'report.json'}, " + ", ".join(rep["files"].values()))
+    if one is None:
+        print(f"learned from {sum(r['role'] == 'train' for r in rep['runs'])} runs in {rep['wall_s']['total']:.1f} s; "
+              f"{'adopted' if rep['adoption']['adopt'] else 'not adopted'}: {rep['adoption']['reason']}")
+        return 0
     print(f"learned in {sum(rep['wall_s'].values()):.1f} s (twin {rep['twin_simulated_h_per_s']} simulated h/s); "
           f"words: {'; '.join(w['what'] for w in rep['structure']['words']) or 'none'}")
     return 0

@@ -43,7 +43,7 @@ class UnitFit:
         return self.calibration.spec
 
 
-def _rows(rec: Recording, probe_times: np.ndarray, train_until_s: float) -> np.ndarray:
+def fit_rows(rec: Recording, probe_times: np.ndarray, train_until_s: float) -> np.ndarray:
     """Rows kept for the fit: every k-th training row (at most MAX_TRAIN_ROWS), every probe row,
     every k-th held-out row (held-out rows are only scored)."""
     t = rec.time_s
@@ -86,7 +86,7 @@ def learn_unit_twin(twin, rec: Recording, probes: ProbeSet, train_until_s: float
         raise LearnError(f"--train-h: only {min(train.count(c) for c in few)} probes of {few[0]!r} up to "
                          f"t = {train_until_s / 3600.0:.1f} h, need at least {MIN_PROBES}")
     full = probe_recording(rec, probes, components)
-    rows = _rows(full, probes.time_s, train_until_s)
+    rows = fit_rows(full, probes.time_s, train_until_s)
     fit_rec = Recording(full.time_s[rows], {k: v[rows] for k, v in full.columns.items()}, source=rec.source)
     n_train = int(np.searchsorted(fit_rec.time_s, train_until_s, side="right"))
     holdout = 1.0 - n_train / len(fit_rec)

@@ -1,0 +1,45 @@
+"""report.md of a several-run ``learn``, every figure taken from its report.json. No rclpy."""
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from thermal_eval.learn.report_text import fmt, tested_against_lines
+
+
+def _table(title: str, scores: Mapping[str, Any]) -> list[str]:
+    """RMSE (and n) per predictor and component."""
+    comps = list(next(iter(scores.values()))) if scores else []
+    lines = ["", title, "", "| predictor | " + " | ".join(comps) + " |", "|---" * (len(comps) + 1) + "|"]
+    for name, row in scores.items():
+        lines.append(f"| {name} | " + " | ".join(fmt(row[c]["rmse"]) for c in comps) + " |")
+    return lines
+
+
+def runs_markdown(rep: Mapping[str, Any]) -> str:
+    """report.md of :func:`thermal_eval.learn.runs.command.learn_runs`'s report."""
+    lines = [f"# Learning the unit: {rep['twin']} from {len(rep['runs'])} runs", "",
+             f"Split `{rep['split']}`; the adoption is decided on {rep['validation_rule']}. Calibration "
+             f"{rep['wall_s']['calibration']} s, twin {rep['twin_simulated_h_per_s']} simulated h/s.", "",
+             "| run | role | unit | programme | date | hours | probes | fitted up to h | validation probes | scored probes |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rep["runs"]:
+        lines.append(f"| {r['name']} | {r['role']} | {r['unit'] or '-'} | {r['programme'] or '-'} | {r['date'] or '-'} | "
+                     f"{r['hours']:.2f} | {r['probes']} | {fmt(r['fitted_until_h'])} | {r['validation_probes']} | "
+                     f"{r['scored_probes']} |")
+    lines += ["", f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
+              *tested_against_lines(rep.get("tested_against")), f"Words: {rep['structure']}.", "",
+              "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
+    for p in rep["parameters"]:
+        lines.append(f"| {p['name']} | {fmt(p['start'])} {p['unit']} | {fmt(p['value'])} | "
+                     f"{fmt(p['change_pct'])} % | {'yes' if p['at_bound'] else ''} |")
+    pooled = rep["scores"]["pooled"]
+    for role in ("test", "validation", "train"):
+        if role in pooled:
+            what = {"test": "the test runs (never fitted, never decided on)", "validation": "the validation runs",
+                    "train": "the training runs' validation windows"}[role]
+            lines += _table(f"## Pooled over {what}: RMSE of probe - prediction, made before the probe", pooled[role])
+    for name, scores in rep["scores"]["per_run"].items():
+        lines += _table(f"### Run {name}", scores)
+    lines += ["", "Units: um (E_A0C, E_B0C, E_C0C: um/m). The probe noise is part of every figure alike.", "",
+              "## Files", ""] + [f"- {k}: `{v}`" for k, v in rep["files"].items()]
+    return "\n".join(lines) + "\n"
