@@ -9,7 +9,7 @@ import numpy as np
 
 from thermal_comp_common.recording_csv import write_recording_csv
 from thermal_eval.diagnose.concealed import operating_programme
-from thermal_eval.learn.bench import cell_view
+from thermal_eval.learn.probes import cell_view
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.simulate import simulate
 

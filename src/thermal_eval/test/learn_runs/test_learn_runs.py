@@ -80,6 +80,21 @@ def test_one_recording_is_learned_as_before(days, tmp_path):
     assert "runs" not in a and a["train_h"] == 4
 
 
+def test_leave_one_run_out_learns_once_per_fold_and_pools_the_held_out_runs(days, tmp_path):
+    out = tmp_path / "loro"
+    assert learn_main([*map(str, days[:3]), "--twin", str(TWIN), "--out", str(out), "--runs-split", "loro", *NFEV]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert [f["test"] for f in rep["folds"]] == [["day1"], ["day2"], ["day3"]]
+    assert all((out / "folds" / f"0{k}" / "unit_twin.yaml").is_file() for k in (1, 2, 3))
+    assert {r["role"] for r in rep["runs"]} == {"train"}          # the twin written: every run
+    pooled = rep["pooled_over_folds"]["twin (unit), open loop"]
+    assert all(pooled[c]["n"] == 3 * 12 for c in COMPS)
+    one = [f["scores"][f["test"][0]]["twin (unit), open loop"]["E_Z0T"] for f in rep["folds"]]
+    assert pooled["E_Z0T"]["rmse"] == pytest.approx(np.sqrt(np.mean([o["rmse"] ** 2 for o in one])))
+    md = (out / "report.md").read_text()
+    assert "| twin (unit), open loop | " + " | ".join(f"{pooled[c]['rmse']:.3g}" for c in COMPS) + " |" in md
+
+
 @pytest.mark.parametrize("case, match", [
     ("missing", r"source '.*nope.csv': no such file or folder"),
     ("glob", r"source '.*zz\*.csv': the pattern matches no file"),
@@ -89,7 +104,6 @@ def test_one_recording_is_learned_as_before(days, tmp_path):
     ("units", r"run 'day2': field 'unit' = 'U2' differs from run 'day1' \('U1'\)"),
     ("few", r"run 'short' \(.*\): field 'E_Z0T' has 3 probes in its fit window, need at least 8"),
     ("train_h", r"--train-h 4: splits one recording in time"),
-    ("folds", r"--runs-split loro: gives 3 folds; learn writes one unit twin"),
     ("one_split", r"--runs-split loro: .*day1.csv is one run"),
 ])
 def test_bad_runs_are_refused_in_one_line(days, tmp_path, capsys, case, match):
@@ -117,8 +131,8 @@ def test_bad_runs_are_refused_in_one_line(days, tmp_path, capsys, case, match):
         extra = ["--runs-split", "test=day2"] if case == "few" else []
     elif case == "units":
         srcs = [_manifest(tmp_path, days[:3], ["U1", "U2", "U1"])]
-    elif case in ("train_h", "folds"):
-        srcs, extra = d, (["--train-h", "4"] if case == "train_h" else ["--runs-split", "loro"])
+    elif case == "train_h":
+        srcs, extra = d, ["--train-h", "4"]
     else:
         srcs, extra = d[:1], ["--runs-split", "loro"]
     assert learn_main([*srcs, "--twin", str(TWIN), "--out", str(tmp_path / "o"), *extra, *NFEV]) == 2

@@ -36,7 +36,8 @@ from thermal_twin.sim.simulate import simulate
 
 from thermal_eval.learn.command import UNIT_CONFIG, UNIT_PRIOR, learn
 from thermal_eval.learn.probe_score import prequential_model
-from thermal_eval.learn.probes import ProbeSet, strip_errors
+from thermal_eval.learn.probes import ProbeSet, cell_view
+from thermal_eval.learn.runs.bench import UNITS as RUNS_UNITS, run_section
 from thermal_eval.learn.units import KINDS, structural_unit
 from thermal_eval.replay.baseline_beside import beside_in_window
 from thermal_eval.replay.summary import PROBE_RESOLUTION_UM, probe_noise
@@ -46,14 +47,6 @@ SCENARIO, HOURS, TRAIN_H = "talc-178h-dry", 178.0, 48.0
 #: reported seeds; seeds 11 and 12 were looked at while setting the adoption rule and the words' rules
 SEEDS = (17, 18)
 QUICK = {"kinds": ("extra_source", "links"), "seeds": (13,), "hours": 96.0, "train_h": 36.0}
-
-
-def cell_view(rec: Recording, machine) -> Recording:
-    """What a cell records: no error column and no environment input a twin takes from a sensor
-    (the true hall temperature)."""
-    cell = strip_errors(rec)
-    hidden = [n for n, s in machine.inputs.items() if s.from_sensor]
-    return Recording(cell.time_s, {k: v for k, v in cell.columns.items() if k not in hidden}, source=rec.source)
 
 
 def recorded_probes(result, rec: Recording, noise: dict, seed: int) -> ProbeSet:
@@ -186,6 +179,9 @@ def parse(extra: list[str]) -> argparse.Namespace:
     ap = argparse.ArgumentParser(prog="thermal-comp bench learn")
     ap.add_argument("--seeds", type=int, nargs="+", default=None, help=f"unit seeds (default {list(SEEDS)})")
     ap.add_argument("--kinds", nargs="+", choices=KINDS, default=None, help="kinds of unit (default all)")
+    ap.add_argument("--runs", action="store_true",
+                    help="instead: learning from several daily runs against the first run only, scored on unseen "
+                         "runs of the same unit (learn.runs.bench; --seeds/--kinds pick its units)")
     a = ap.parse_args(extra)
     if a.seeds and min(a.seeds) < 0:
         ap.error(f"--seeds: {a.seeds} must be >= 0")
@@ -216,6 +212,11 @@ def results_markdown(units: list[dict]) -> str:
 def run(args: argparse.Namespace | None = None) -> dict:
     quick = bool(getattr(args, "quick", False)) if args is not None else False
     own = parse(list(getattr(args, "extra", None) or []))
+    if own.runs:
+        units = [(k, s) for s in own.seeds for k in (own.kinds or KINDS)] if own.seeds else \
+            [u for u in RUNS_UNITS if not own.kinds or u[0] in own.kinds]
+        out = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_learn_")) / "learn_runs"
+        return run_section(out, units=tuple(units))
     kinds, seeds = (QUICK["kinds"], QUICK["seeds"]) if quick else (KINDS, SEEDS)
     kinds, seeds = tuple(own.kinds or kinds), tuple(own.seeds or seeds)
     hours, train_h = (QUICK["hours"], QUICK["train_h"]) if quick else (HOURS, TRAIN_H)

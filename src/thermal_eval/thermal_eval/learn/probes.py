@@ -79,6 +79,14 @@ def strip_errors(rec: Recording) -> Recording:
     return Recording(rec.time_s, cols, source=rec.source, warnings=list(rec.warnings))
 
 
+def cell_view(rec: Recording, machine) -> Recording:
+    """What a cell records: no error column and no environment input a twin takes from a sensor
+    (the true hall temperature)."""
+    cell = strip_errors(rec)
+    hidden = [n for n, s in machine.inputs.items() if s.from_sensor]
+    return Recording(cell.time_s, {k: v for k, v in cell.columns.items() if k not in hidden}, source=rec.source)
+
+
 def _component(col: str) -> str:
     return col[:-3] if col.endswith("_um") else col
 

@@ -21,6 +21,7 @@ from thermal_eval.learn.finder import finder_markdown
 from thermal_eval.learn.probes import ProbeDataError, cell_recording
 from thermal_eval.learn.report_text import fmt, tested_against_lines
 from thermal_eval.learn.runs.command import learn_runs
+from thermal_eval.learn.runs.folds import learn_folds
 from thermal_eval.learn.runs.report import runs_markdown
 from thermal_eval.learn.runs.sources import cell_runs
 
@@ -106,7 +107,8 @@ def _one_recording(sources: list[str]) -> str | None:
 
 
 def _several(args, machine, current, out: pathlib.Path, say) -> dict:
-    """The several-run learning (learn.runs): one fold of --runs-split, every run read and checked."""
+    """The several-run learning (learn.runs): every run read and checked, one learning per fold of
+    --runs-split (several folds: learn.runs.folds)."""
     if args.train_h is not None:
         raise ValueError(f"--train-h {args.train_h:g}: splits one recording in time; with several runs the split "
                          "is by run (--runs-split)")
@@ -115,11 +117,9 @@ def _several(args, machine, current, out: pathlib.Path, say) -> dict:
     for r in runs:
         r.probes.noise = dict(noise)
     folds = run_splits([r.entry for r in runs], args.runs_split)
-    if len(folds) > 1:
-        raise ValueError(f"--runs-split {args.runs_split}: gives {len(folds)} folds; learn writes one unit twin, "
-                         "give a split of one fold (TRAIN,VAL,TEST fractions, test=NAME,..., by:FIELD=VALUE)")
-    return learn_runs(machine, runs, folds[0], out, args.validate_h, max_nfev=args.max_nfev, progress=say,
-                      build_priors=not args.no_prior, current=current)
+    how = learn_runs if len(folds) == 1 else learn_folds
+    return how(machine, runs, folds[0] if len(folds) == 1 else folds, out, args.validate_h, max_nfev=args.max_nfev,
+               progress=say, build_priors=not args.no_prior, current=current)
 
 
 def run(args) -> int:

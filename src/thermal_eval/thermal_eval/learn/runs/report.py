@@ -38,6 +38,12 @@ def runs_markdown(rep: Mapping[str, Any]) -> str:
             what = {"test": "the test runs (never fitted, never decided on)", "validation": "the validation runs",
                     "train": "the training runs' validation windows"}[role]
             lines += _table(f"## Pooled over {what}: RMSE of probe - prediction, made before the probe", pooled[role])
+    if rep.get("folds"):
+        lines += ["", "## Folds: each learning scored on the runs it held out", "",
+                  "| fold | trained on | held out | adopted | folder |", "|---|---|---|---|---|"]
+        lines += [f"| {f['name']} | {', '.join(f['train'])} | {', '.join(f['test'])} | {'yes' if f['adopt'] else 'no'} | "
+                  f"`{f['dir']}` |" for f in rep["folds"]]
+        lines += _table("## Pooled over the folds' held-out runs: RMSE of probe - prediction", rep["pooled_over_folds"])
     for name, scores in rep["scores"]["per_run"].items():
         lines += _table(f"### Run {name}", scores)
     lines += ["", "Units: um (E_A0C, E_B0C, E_C0C: um/m). The probe noise is part of every figure alike.", "",
