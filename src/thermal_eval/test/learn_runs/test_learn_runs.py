@@ -62,6 +62,7 @@ def test_a_corrupted_held_out_run_does_not_change_the_fitted_twin(days, tmp_path
     a = learn_runs(str(TWIN), clean, fold(clean), tmp_path / "a", max_nfev=4, build_priors=False)
     b = learn_runs(str(TWIN), dirty, fold(dirty), tmp_path / "b", max_nfev=4, build_priors=False)
     assert [p["value"] for p in a["parameters"]] == [p["value"] for p in b["parameters"]]
+    assert (tmp_path / "a" / "unit_twin.yaml").read_text() == (tmp_path / "b" / "unit_twin.yaml").read_text()
     assert a["adoption"] == b["adoption"]
     assert "the last quarter of every training run" in a["validation_rule"]
     held = lambda r: r["scores"]["per_run"]["day4"]["twin (unit), open loop"]["E_Z0T"]["rmse"]   # noqa: E731

@@ -182,6 +182,7 @@ def parse(extra: list[str]) -> argparse.Namespace:
     ap.add_argument("--runs", action="store_true",
                     help="instead: learning from several daily runs against the first run only, scored on unseen "
                          "runs of the same unit (learn.runs.bench; --seeds/--kinds pick its units)")
+    ap.add_argument("--no-words", action="store_true", help="with --runs: the joint calibration only, no word search")
     a = ap.parse_args(extra)
     if a.seeds and min(a.seeds) < 0:
         ap.error(f"--seeds: {a.seeds} must be >= 0")
@@ -216,7 +217,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
         units = [(k, s) for s in own.seeds for k in (own.kinds or KINDS)] if own.seeds else \
             [u for u in RUNS_UNITS if not own.kinds or u[0] in own.kinds]
         out = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_learn_")) / "learn_runs"
-        return run_section(out, units=tuple(units))
+        return run_section(out, units=tuple(units), words=not own.no_words)
     kinds, seeds = (QUICK["kinds"], QUICK["seeds"]) if quick else (KINDS, SEEDS)
     kinds, seeds = tuple(own.kinds or kinds), tuple(own.seeds or seeds)
     hours, train_h = (QUICK["hours"], QUICK["train_h"]) if quick else (HOURS, TRAIN_H)

@@ -71,7 +71,7 @@ def moved_parameters(calibration) -> list[dict[str, Any]]:
     return out
 
 
-def _strained(e, machine: Machine) -> bool:
+def strained(e, machine: Machine) -> bool:
     """A parameter that may hide physics beyond the builder's tolerance: at its bound, moved by
     more than half its tolerance, or the conductance of a link to a boundary (the hall, a
     coolant: the convection coefficients scatter most)."""
@@ -89,14 +89,14 @@ def _structure(fit: UnitFit, probes: ProbeSet, fit_until: float, train_until: fl
     final calibration with the words stands unless the validation probes find it worse than the
     words fitted without it (then the first calibration, or none for words on the type's twin)."""
     cal = fit.calibration
-    strained = [(e.param, e.value) for e in cal.estimates if _strained(e, fit.machine)]
+    at_strain = [(e.param, e.value) for e in cal.estimates if strained(e, fit.machine)]
     rec = fit.fit_rec
     upto = rec.slice(0, int(np.searchsorted(rec.time_s, train_until, side="right")))
     noise = {c: probes.noise[c] for c in fit.components}
-    st = search(fit.machine, cal.spec, strained, upto, fit.components, noise, fit_until, progress)
+    st = search(fit.machine, cal.spec, at_strain, upto, fit.components, noise, fit_until, progress)
     if not st.words:
         return st, None, None
-    spec, cal2 = recalibrate(fit.machine, st, cal, rec, fit.holdout, noise, max_nfev, released_names(strained),
+    spec, cal2 = recalibrate(fit.machine, st, cal, rec, fit.holdout, noise, max_nfev, released_names(at_strain),
                              progress)
     val = (upto.time_s > fit_until) & np.any([np.isfinite(upto.columns[c]) for c in fit.components], axis=0)
     a, b = twin_outputs(st.spec, upto), twin_outputs(spec, upto)

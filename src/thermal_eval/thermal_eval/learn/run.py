@@ -95,15 +95,22 @@ def markdown(rep: Mapping[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _one_recording(sources: list[str]) -> str | None:
-    """The path when the sources name exactly one run (the single-recording learn), else None."""
-    if len(sources) != 1:
+def _plain_recording(sources: list[str]) -> str | None:
+    """The path when the sources are one recording file or bag (or a path that does not exist:
+    the single-recording learn names it), else None (a folder, a manifest or a glob: resolved)."""
+    if len(sources) != 1 or any(ch in sources[0] for ch in "*?["):
         return None
     p = pathlib.Path(sources[0])
-    if p.exists() and not is_manifest(p) and (p.is_file() or (p / "metadata.yaml").is_file()):
+    if not p.exists() or (p.is_file() and not is_manifest(p)) or (p / "metadata.yaml").is_file():
         return sources[0]
-    runs = resolve_runs(sources)
-    return runs[0].path if len(runs) == 1 else None
+    return None
+
+
+def _single_train_h(args) -> float:
+    train_h = DEFAULT_TRAIN_H if args.train_h is None else args.train_h
+    if not (math.isfinite(train_h) and train_h > 0):
+        raise ValueError(f"--train-h: {train_h!r} must be a number of hours > 0")
+    return train_h
 
 
 def _several(args, machine, current, out: pathlib.Path, say) -> dict:
@@ -128,22 +135,24 @@ def run(args) -> int:
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     runs_split = getattr(args, "runs_split", None)
     try:
-        one = _one_recording(sources)
-        if one is not None and runs_split is not None:
-            raise ValueError(f"--runs-split {runs_split}: {sources[0]} is one run; splitting by run needs at "
-                             "least two (one recording is split in time: --train-h)")
-        train_h = DEFAULT_TRAIN_H if args.train_h is None else args.train_h
-        if one is not None and not (math.isfinite(train_h) and train_h > 0):
-            raise ValueError(f"--train-h: {train_h!r} must be a number of hours > 0")
+        one = _plain_recording(sources)
+        if one is not None:
+            _single_train_h(args)
         machine = load_machine(args.twin)
         current = _current(args, machine)
         out = _out_dir(args.out, args.force)
+        if one is None:
+            entries = resolve_runs(sources)
+            one = entries[0].path if len(entries) == 1 else None
+        if one is not None and runs_split is not None:
+            raise ValueError(f"--runs-split {runs_split}: {sources[0]} is one run; splitting by run needs at "
+                             "least two (one recording is split in time: --train-h)")
         if one is None:
             rep = _several(args, machine, current, out, say)
         else:
             rec, probes = cell_recording(one)
             probes.noise = _noise(args, list(probes.values))
-            rep = learn(machine, rec, probes, out, train_h, max_nfev=args.max_nfev, progress=say,
+            rep = learn(machine, rec, probes, out, _single_train_h(args), max_nfev=args.max_nfev, progress=say,
                         build_priors=not args.no_prior, validate_h=args.validate_h, current=current)
     except (ValueError, OSError, MachineSpecError, BagRecordingError, ProbeDataError, CalibrationError) as exc:
         print(f"thermal-comp learn: {exc}", file=sys.stderr)

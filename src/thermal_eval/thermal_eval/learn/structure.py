@@ -65,10 +65,10 @@ JOINT_NFEV = 20
 def twin_outputs(spec: dict, rec: Recording, stop: int | None = None) -> dict[str, np.ndarray]:
     """Noise-free outputs of a description (following boundaries and drifts included) on the
     recording's rows, its inputs from the recording (a sensor-fed input read backwards)."""
-    return _twin_run(spec, rec, stop)[0]
+    return twin_run(spec, rec, stop)[0]
 
 
-def _twin_run(spec: dict, rec: Recording, stop: int | None = None):
+def twin_run(spec: dict, rec: Recording, stop: int | None = None):
     """(outputs, node temperatures, node names) of :func:`twin_outputs`."""
     m = load_machine(spec)
     vals = timeline_from_recording(m, rec).resolved(m)
@@ -104,17 +104,28 @@ class Tried:
                 "fit_cost": round(self.fit_cost, 4), "validation": self.validation, "chosen": self.chosen}
 
 
-class _Scorer:
+class Scorer:
     """Residuals on the fit window and predictions at the validation probes of ``rec`` (the fit
-    rows up to the end of the validation window, probe columns NaN off the probe rows)."""
+    rows up to the end of the validation window, probe columns NaN off the probe rows). A
+    subclass may score several runs: it gives :meth:`simulate` and calls :meth:`setup`."""
 
     def __init__(self, rec: Recording, channels: list[str], components: list[str], noise: dict,
                  fit_until: float, base: dict, type_spec: dict):
-        self.rec, self.channels, self.components, self.noise = rec, channels, components, noise
-        self.fit = rec.time_s <= fit_until
+        self.rec, self.stop = rec, len(rec)
+        self.setup(channels, components, noise, rec.time_s <= fit_until,
+                   {c: np.asarray(rec.columns[c], float) for c in channels}, base, type_spec)
+
+    def simulate(self, spec: dict):
+        """(outputs, node temperatures, node names) of the description on the scored rows."""
+        return twin_run(spec, self.rec, self.stop)
+
+    def setup(self, channels: list[str], components: list[str], noise: dict, fit: np.ndarray, meas: dict,
+              base: dict, type_spec: dict) -> None:
+        """The rows (``fit``: fitted, the rest validation), the measurements and their weights."""
+        self.channels, self.components, self.noise = channels, components, noise
+        self.fit = fit
         self.val = ~self.fit
-        self.meas = {c: np.asarray(rec.columns[c], float) for c in channels}
-        self.stop = len(rec)
+        self.meas = meas
         self.evals = 0
         self.type_gains = {c: dict(type_spec["errors"][c]["terms"]) for c in components}
         self.sd_fit = None                 # the gains' data weight: what the calibrated twin leaves
@@ -135,7 +146,7 @@ class _Scorer:
         """The description's outputs, its error gains refitted to the fit window's probes (a
         word changes the temperatures the gains map; the calibration tuned them to the old ones)."""
         self.evals += 1
-        out, X, names = _twin_run(spec, self.rec, self.stop)
+        out, X, names = self.simulate(spec)
         if self.sd_fit is None:
             return out
         self.gains = {}
@@ -168,7 +179,7 @@ class _Scorer:
                       {c: out[c][ok] for c in self.components}, np.ones(int(ok.sum()), bool), margin=margin)
 
 
-def _fit_word(scorer: _Scorer, base: dict, word: Word, joint: list = ()) -> tuple[np.ndarray, float, dict, dict]:
+def _fit_word(scorer: Scorer, base: dict, word: Word, joint: list = ()) -> tuple[np.ndarray, float, dict, dict]:
     """(the word's theta, fit cost, outputs, the ``joint`` parameters' values fitted with it):
     the word alone, or together with ``joint`` (Params, each within its tolerance bounds, from
     its value in ``base``)."""
@@ -227,11 +238,14 @@ class Structure:
 
 
 def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, components: list[str],
-           noise: dict, fit_until: float, progress: Callable[[str], None] = lambda m: None) -> Structure:
+           noise: dict, fit_until: float, progress: Callable[[str], None] = lambda m: None,
+           make_scorer: Callable[[list[str], dict], Scorer] | None = None) -> Structure:
     """Words for the unit (module docstring): ``rec`` holds the fit rows up to the end of the
     validation window with the probes in their columns. Each word is fitted on two bases, the
     calibrated twin and the type's (where the calibration has not absorbed the missing physics
-    into bounded parameters), and judged against the best description so far."""
+    into bounded parameters), and judged against the best description so far. ``make_scorer``
+    (channels, base description -> Scorer): another scorer (several runs), ``rec`` then gives
+    the channels and the inputs at the start only."""
     t0 = time.perf_counter()
     channels = [c for c in [s.column for s in machine.sensors.values()] + components if c in rec.columns]
     tl = timeline_from_recording(machine, rec)
@@ -245,7 +259,8 @@ def search(machine: Machine, cal_spec: dict, at_bound: list, rec: Recording, com
     ref, st = bases["calibrated"], Structure()
     joint = coupling_parameters(machine, [p for p, _ in at_bound])
     for round_ in range(MAX_WORDS):
-        scorer = _Scorer(rec, channels, components, noise, fit_until, ref, type_spec)
+        scorer = Scorer(rec, channels, components, noise, fit_until, ref, type_spec) if make_scorer is None \
+            else make_scorer(channels, ref)
         progress(f"structure: round {round_ + 1}, {len(pool)} candidate words on the calibrated and the type's twin")
         best = None
         for name, base in bases.items():
@@ -284,7 +299,7 @@ def coupling_parameters(machine: Machine, params: list) -> list:
 _NO_WORD = Word("none", "no word", (), np.zeros(0), np.zeros(0), np.zeros(0), lambda s, th: None, lambda th: "no word")
 
 
-def _try_words(scorer: _Scorer, name: str, base: dict, pool: list[Word], joint: list, components: list[str],
+def _try_words(scorer: Scorer, name: str, base: dict, pool: list[Word], joint: list, components: list[str],
                noise: dict) -> list[Tried]:
     """Every word of ``pool`` fitted on ``base`` and judged: better on the fit window, not
     refused, an effect above the probe noise, then on the validation probes. A word fitted with
@@ -321,7 +336,7 @@ def _try_words(scorer: _Scorer, name: str, base: dict, pool: list[Word], joint: 
     return tried
 
 
-def _drift_told(scorer: _Scorer, base: dict, word: Word, theta: np.ndarray, moved: dict, out: dict,
+def _drift_told(scorer: Scorer, base: dict, word: Word, theta: np.ndarray, moved: dict, out: dict,
                 components: list[str], noise: dict) -> tuple[np.ndarray, float, dict]:
     """A sensor's drift is kept only if the probes can tell it from none: its own effect on the
     errors (the word against the same word with no drift, on the validation rows) is at least
@@ -337,7 +352,7 @@ def _drift_told(scorer: _Scorer, base: dict, word: Word, theta: np.ndarray, move
     return still, _cost(scorer, out0), out0
 
 
-def _cost(scorer: _Scorer, out: dict) -> float:
+def _cost(scorer: Scorer, out: dict) -> float:
     r = scorer.residual(out)
     return float(r @ r)
 

@@ -65,17 +65,18 @@ def unit_runs(kind: str, seed: int, folder: pathlib.Path) -> list[str]:
     return paths
 
 
-def _learn(paths: list[str], n_train: int, out: pathlib.Path, priors: bool, progress) -> dict:
+def _learn(paths: list[str], n_train: int, out: pathlib.Path, priors: bool, words: bool, progress) -> dict:
     runs = cell_runs(paths[:n_train] + paths[-UNSEEN:])
     test = ",".join(r.name for r in runs[-UNSEEN:])
     fold = run_splits([r.entry for r in runs], f"test={test}")[0]
-    return learn_runs("nmv5000", runs, fold, out, max_nfev=NFEV, progress=progress, build_priors=priors)
+    return learn_runs("nmv5000", runs, fold, out, max_nfev=NFEV, progress=progress, build_priors=priors, words=words)
 
 
-def unit_case(kind: str, seed: int, root: pathlib.Path, priors: bool, progress: Callable[[str], None]) -> dict:
+def unit_case(kind: str, seed: int, root: pathlib.Path, priors: bool, words: bool,
+              progress: Callable[[str], None]) -> dict:
     paths = unit_runs(kind, seed, root / f"{kind}_{seed}" / "runs")
-    reps = {"first run": _learn(paths, 1, root / f"{kind}_{seed}" / "first", priors, progress),
-            f"{DAYS} runs": _learn(paths, DAYS, root / f"{kind}_{seed}" / "days", priors, progress)}
+    reps = {"first run": _learn(paths, 1, root / f"{kind}_{seed}" / "first", priors, words, progress),
+            f"{DAYS} runs": _learn(paths, DAYS, root / f"{kind}_{seed}" / "days", priors, words, progress)}
     table: dict[str, dict] = {}
     for arm, rep in reps.items():
         pooled = rep["scores"]["pooled"]["test"]
@@ -85,6 +86,7 @@ def unit_case(kind: str, seed: int, root: pathlib.Path, priors: bool, progress: 
     return {"kind": kind, "seed": seed, "truth": structural_unit(kind, seed).truth,
             "adopted": {arm: rep["adoption"]["adopt"] for arm, rep in reps.items()},
             "reasons": {arm: rep["adoption"]["reason"] for arm, rep in reps.items()},
+            "words": {arm: [w["what"] for w in (rep["structure"] or {}).get("words", [])] for arm, rep in reps.items()},
             "wall_s": {arm: rep["wall_s"]["total"] for arm, rep in reps.items()}, "rmse": table}
 
 
@@ -104,20 +106,20 @@ def table_text(u: dict) -> str:
     return "\n".join(lines)
 
 
-def run_section(root: pathlib.Path, priors: bool = True, units=UNITS) -> dict:
-    """The section (module docstring); figures by name."""
+def run_section(root: pathlib.Path, priors: bool = True, units=UNITS, words: bool = True) -> dict:
+    """The section (module docstring); figures by name. ``words``: learn searches its words."""
     figures: dict = {"learn_runs.run_h": RUN_H, "learn_runs.days": DAYS, "learn_runs.unseen": UNSEEN}
     cases = []
     for k, (kind, seed) in enumerate(units, 1):
         print(f"[runs {k}/{len(units)}] unit #{seed} ({kind}): {DAYS + UNSEEN} runs of {RUN_H:g} h ...", flush=True)
-        u = unit_case(kind, seed, root, priors, lambda m: None)
+        u = unit_case(kind, seed, root, priors, words, lambda m: None)
         cases.append(u)
         hold = u["rmse"]["hold last probe"]
         for name, row in u["rmse"].items():
             figures[f"learn_runs.{kind}_{seed}.{name}"] = round(_ratio(row, hold), 3)
         print(f"  {u['truth']}\n  adopted: " + "; ".join(f"{a}: {'yes' if v else 'no'} ({u['reasons'][a]})"
                                                        for a, v in u["adopted"].items())
-              + f"\n  learn wall s: {u['wall_s']}\n  RMSE on the {UNSEEN} unseen runs' probes (um, um/m), pooled:\n"
+              + f"\n  words: {u['words']}\n  learn wall s: {u['wall_s']}\n  RMSE on the {UNSEEN} unseen runs' probes (um, um/m), pooled:\n"
               + table_text(u), flush=True)
     root.mkdir(parents=True, exist_ok=True)
     (root / "runs.json").write_text(json.dumps(cases, indent=1, default=str) + "\n")

@@ -6,8 +6,8 @@ loop, the type's (or current) and the unit's prior replayed over each run from a
 (the run's own start and probing clock), beside holding the run's last probe, the training
 probes' mean and a static regression fitted on the training runs. No rclpy.
 
-The word search (learn.structure) runs on one recording only: with several runs the unit twin is
-the joint calibration within the builder's tolerances.
+After the joint calibration, learn's words for what the calibration cannot say are searched on
+the same runs (learn.runs.structure_runs), each judged on the validation probes.
 """
 from __future__ import annotations
 
@@ -33,6 +33,7 @@ from thermal_eval.learn.probe_score import hold_last, prequential_model, score_t
 from thermal_eval.learn.probes import ProbeSet
 from thermal_eval.learn.runs.fit import RunsFit, fit_runs
 from thermal_eval.learn.runs.sources import CellRun
+from thermal_eval.learn.runs.structure_runs import runs_words
 from thermal_eval.learn.structure import twin_outputs
 
 
@@ -98,9 +99,11 @@ def _roles(fold: RunFold) -> dict[int, str]:
         {i: "test" for i in fold.test}
 
 
-def write_runs_twin(fit: RunsFit, runs: Sequence[CellRun], out: pathlib.Path) -> pathlib.Path:
-    """The calibrated twin as a machine YAML (validated on the way back in)."""
-    spec = dict(fit.spec)
+def write_runs_twin(fit: RunsFit, runs: Sequence[CellRun], out: pathlib.Path, spec: dict | None = None
+                    ) -> pathlib.Path:
+    """The calibrated twin (with its words when given ``spec``) as a machine YAML (validated on
+    the way back in)."""
+    spec = dict(fit.spec if spec is None else spec)
     names = ", ".join(runs[i].name for i in fit.fit_until)
     spec["description"] = f"{fit.machine.description} -- learned from runs {names}".strip()
     path = out / UNIT_TWIN
@@ -111,15 +114,17 @@ def write_runs_twin(fit: RunsFit, runs: Sequence[CellRun], out: pathlib.Path) ->
 
 def learn_runs(twin, runs: Sequence[CellRun], fold: RunFold, out: pathlib.Path, validate_h: float | None = None,
                max_nfev: int = 20, progress: Callable[[str], None] = lambda m: None, build_priors: bool = True,
-               current: CurrentPrior | None = None) -> dict[str, Any]:
+               current: CurrentPrior | None = None, words: bool = True) -> dict[str, Any]:
     """Learn the unit from ``fold``'s training runs (module docstring); write its files into
-    ``out``; the report as a dict (also ``out/report.json``)."""
+    ``out``; the report as a dict (also ``out/report.json``). ``words``: search them."""
     t0 = time.perf_counter()
     machine = twin if isinstance(twin, Machine) else load_machine(twin)
     fit = fit_runs(machine, runs, fold, validate_h, max_nfev, progress)
     comps = fit.components
+    st, unit_spec = runs_words(fit, runs, progress) if words else (None, None)
+    unit_spec = fit.spec if unit_spec is None else unit_spec
     out.mkdir(parents=True, exist_ok=True)
-    unit_path = write_runs_twin(fit, runs, out)
+    unit_path = write_runs_twin(fit, runs, out, unit_spec)
     roles = _roles(fold)
     order = sorted(roles)
     scored = {i: (np.ones(runs[i].probes.time_s.size, bool) if roles[i] != "train" else
@@ -128,7 +133,7 @@ def learn_runs(twin, runs: Sequence[CellRun], fold: RunFold, out: pathlib.Path, 
     type_spec = machine.to_dict()
     for i in order:
         preds[i]["twin (type), open loop"] = _at_probes(type_spec, runs[i], comps)
-        preds[i]["twin (unit), open loop"] = _at_probes(fit.spec, runs[i], comps)
+        preds[i]["twin (unit), open loop"] = _at_probes(unit_spec, runs[i], comps)
     val_idx = sorted(fit.validation)
     masks = {i: fit.validation.get(i, np.zeros(runs[i].probes.time_s.size, bool)) for i in order}
     vsub, vpred, vmask = _pooled(runs, val_idx, preds, masks, comps)
@@ -150,6 +155,10 @@ def learn_runs(twin, runs: Sequence[CellRun], fold: RunFold, out: pathlib.Path, 
             files |= {"prior": str(out / UNIT_PRIOR), "model_config": str(out / UNIT_CONFIG)}
     progress(("adopted: " if adoption.adopt else "not adopted: ") + adoption.reason)
     report = _report(machine, runs, fold, fit, roles, scored, preds, adoption, tested_against, files)
+    report["structure"] = None if st is None else {
+        "words": [t.as_dict() for t in st.words], "tried": [t.as_dict() for t in st.tried],
+        "wall_s": round(st.wall_s, 1), "twin_runs": st.evals,
+        "note": "the words are kept with the joint calibration's parameters (no recalibration with them)"}
     report["wall_s"] = {"calibration": round(fit.wall_s, 1), "priors_and_scores": round(time.perf_counter() - t1, 1),
                         "total": round(time.perf_counter() - t0, 1)}
     (out / "report.json").write_text(json.dumps(finite_figures(report), indent=1, allow_nan=False) + "\n")
@@ -184,7 +193,5 @@ def _report(machine, runs, fold, fit: RunsFit, roles, scored, preds, adoption: A
             "probes": {"noise": {c: runs[0].probes.noise[c] for c in comps}, "notes": runs[0].probes.notes},
             "adoption": adoption.as_dict(), "tested_against": tested_against,
             "parameters": moved_parameters(cal), "fixed": cal.fixed,
-            "structure": "the word search runs on one recording only; with several runs the unit twin is the "
-                         "joint calibration within the builder's tolerances",
             "scores": {"per_run": per_run, "pooled": pooled}, "files": files,
             "twin_simulated_h_per_s": round(cal.simulated_h / max(cal.wall_s, 1e-9), 1)}

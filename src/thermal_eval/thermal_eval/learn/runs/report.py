@@ -15,6 +15,16 @@ def _table(title: str, scores: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _words(st: Mapping[str, Any] | None) -> list[str]:
+    if st is None:
+        return ["Words: not searched.", ""]
+    lines = ["## What was added", ""]
+    lines += [f"- {w['what']} (fit cost {w['fit_cost']:.3g} of the calibrated twin's; validation: "
+              f"{w['validation']['reason']})" for w in st["words"]] or [
+        "Nothing: no word was better on the validation probes than the calibrated twin."]
+    return lines + ["", f"{len(st['tried'])} words tried in {st['wall_s']} s; {st['note']}.", ""]
+
+
 def runs_markdown(rep: Mapping[str, Any]) -> str:
     """report.md of :func:`thermal_eval.learn.runs.command.learn_runs`'s report."""
     lines = [f"# Learning the unit: {rep['twin']} from {len(rep['runs'])} runs", "",
@@ -27,7 +37,7 @@ def runs_markdown(rep: Mapping[str, Any]) -> str:
                      f"{r['hours']:.2f} | {r['probes']} | {fmt(r['fitted_until_h'])} | {r['validation_probes']} | "
                      f"{r['scored_probes']} |")
     lines += ["", f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
-              *tested_against_lines(rep.get("tested_against")), f"Words: {rep['structure']}.", "",
+              *tested_against_lines(rep.get("tested_against")), *_words(rep.get("structure")),
               "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
     for p in rep["parameters"]:
         lines.append(f"| {p['name']} | {fmt(p['start'])} {p['unit']} | {fmt(p['value'])} | "
