@@ -119,6 +119,26 @@ def channel_sigma(x: np.ndarray) -> float:
     return max(s_mad, 0.25 * s_std, 1e-3)
 
 
+def quantisation_step(x: np.ndarray) -> float:
+    """The step of the lattice a channel's readings lie on (0.0 when they lie on none): the
+    smallest change between consecutive readings, if every reading is the first plus an
+    integer number of it. A reading quantised much more coarsely than its noise is a
+    staircase whose second differences are mostly zero, so :func:`channel_sigma` sees almost
+    no noise while the reading errs by up to half a step; the step says how much."""
+    x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
+    if x.size < 3:
+        return 0.0
+    d = np.abs(np.diff(x))
+    tiny = 1e-9 * max(1.0, float(np.max(np.abs(x))))
+    d = d[d > tiny]
+    if d.size == 0:
+        return 0.0
+    q = float(np.min(d))
+    k = (x - x[0]) / q
+    return q if float(np.max(np.abs(k - np.rint(k)))) < 1e-3 else 0.0
+
+
 @dataclass
 class FitProblem:
     """A recording, the channels shared with the twin, their weights and the split."""
