@@ -14,6 +14,7 @@ import yaml
 from thermal_comp_common.recording_csv import Recording, write_recording_csv
 from thermal_twin.identify import DescriptionError, identify, init_twin, parse_description
 from thermal_twin.identify.cli import main
+from thermal_twin.identify.identification import section
 from thermal_twin.identify.structure import starting_spec
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.inputs_timeline import InputsTimeline
@@ -74,6 +75,8 @@ def rec() -> Recording:
     (lambda d: d.update(hidden=7), "hidden: 7"),
     (lambda d: d.update(contacts=[["motor", "motor"]]), "contacts[0]"),
     (lambda d: d.update(colour="red"), "colour: 'red'"),
+    (lambda d: d.update(loop_length_m=-1), "loop_length_m: -1"),
+    (lambda d: d.update(alpha_per_k=0.5), "alpha_per_k: 0.5"),
 ])
 def test_a_bad_description_is_refused_naming_field_and_value(change, names):
     d = copy.deepcopy(DESCRIPTION)
@@ -91,6 +94,21 @@ def test_the_starting_structure_is_a_valid_machine_with_sensor_bodies_and_hidden
     missing = Recording(rec.time_s, {k: v for k, v in rec.columns.items() if k != "s_head_c"})
     with pytest.raises(DescriptionError, match="sensors.s_head: column 's_head_c'"):
         starting_spec(parse_description(DESCRIPTION), missing)
+
+
+def test_a_loop_length_bounds_every_thermo_elastic_gain_by_alpha_times_length(rec):
+    spec = starting_spec(parse_description(DESCRIPTION), rec, hidden=1)
+    wide = section(parse_description(DESCRIPTION), spec, rec)["parameters"]
+    d = parse_description({**DESCRIPTION, "loop_length_m": 0.5})
+    assert d.gain_bound() == pytest.approx(11.5e-6 * 0.5 * 1e6)
+    params = section(d, spec, rec)["parameters"]
+    for node in ("motor", "head", "hidden_1"):
+        lo, hi = params[f"errors.z_um.terms.{node}"]["bounds"]
+        assert (lo, hi) == (-d.gain_bound(), d.gain_bound())
+        assert wide[f"errors.z_um.terms.{node}"]["bounds"][1] > hi     # without it: the channel's span
+    # a longer loop than the data's own range leaves the data's range
+    long = parse_description({**DESCRIPTION, "loop_length_m": 100.0})
+    assert section(long, spec, rec)["parameters"]["errors.z_um.terms.head"] == wide["errors.z_um.terms.head"]
 
 
 def test_an_unsensed_slow_body_becomes_a_hidden_node_that_beats_the_baselines(rec, tmp_path):

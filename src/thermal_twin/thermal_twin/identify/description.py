@@ -22,6 +22,8 @@ displacements:                     # channel -> direction (x y z radial: um; a b
   E_Z0T: {direction: z}
 contacts: [[motor, head]]          # optional: which bodies touch (default: every pair)
 hidden: 2                          # optional: most hidden bodies to try (0-3, default 2)
+loop_length_m: 2.0                 # optional: the structural loop tool-workpiece (m), bounds the gains
+alpha_per_k: 11.5e-6               # optional: its expansion coefficient (default steel / cast iron)
 ```
 """
 from __future__ import annotations
@@ -39,7 +41,8 @@ ANGULAR_DIRECTIONS = ("a", "b", "c")
 MAX_HIDDEN = 3
 _NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _TOP_KEYS = ("name", "description", "hall", "sensors", "boundaries", "inputs", "displacements", "contacts",
-             "hidden")
+             "hidden", "loop_length_m", "alpha_per_k")
+STEEL_ALPHA = 11.5e-6     # 1/K, steel and cast iron (10-12e-6)
 
 
 class DescriptionError(ValueError):
@@ -75,6 +78,14 @@ class Description:
     contacts: list[tuple[str, str]] | None
     hidden: int
     text: str = ""
+    loop_length_m: float = 0.0              # 0: not given (no physical bound on the gains)
+    alpha_per_k: float = STEEL_ALPHA
+
+    def gain_bound(self) -> float:
+        """The largest thermo-elastic gain a body can have, um/K (um/m per K for a tilt): the whole
+        loop at the body's temperature expands by alpha x length; a tilt is taken over a base of 1 m.
+        0 when the description gives no loop length."""
+        return self.alpha_per_k * self.loop_length_m * 1e6
 
     @property
     def bodies(self) -> list[str]:
@@ -248,7 +259,9 @@ def parse_description(raw: Any, text: str = "") -> Description:
     d = Description(_name(raw["name"], "name"), _name(raw["hall"], "hall"),
                     _sensors(_mapping(raw["sensors"], "sensors")), bounds, cooled,
                     _inputs(_mapping(raw.get("inputs"), "inputs")), disp, contacts,
-                    int(_number(raw.get("hidden", 2), "hidden", 0, MAX_HIDDEN)), text)
+                    int(_number(raw.get("hidden", 2), "hidden", 0, MAX_HIDDEN)), text,
+                    _number(raw.get("loop_length_m", 0.0), "loop_length_m", 0.0, 100.0),
+                    _number(raw.get("alpha_per_k", STEEL_ALPHA), "alpha_per_k", 1e-7, 1e-4))
     _check_names(d)
     return d
 

@@ -5,7 +5,10 @@ body's, which sets the scale: temperatures depend on ratios), source coefficient
 convection, thermo-elastic gains, sensor biases and constant boundary temperatures are fitted
 with ``thermal-comp calibrate``'s machinery (:func:`thermal_twin.calibrate.fit.calibrate`:
 bounded least squares on the simulated twin) within wide ranges (a factor 30, gains within 30 x
-the channel's span per K), with calibrate's Gaussian prior toward the starting structure as a
+the channel's span per K, and within alpha x the structural loop's length when the description
+gives it: no body's temperature can move an error by more than its whole loop expanding; without
+that bound the fit of one day explained a slope by two hidden bodies with opposite gains tens of
+um/K large, whose difference the twin then extrapolated), with calibrate's Gaussian prior toward the starting structure as a
 weak regulariser (sd a quarter of those ranges; the data counted as their effective number of
 samples): on one day of data the plain fit extrapolated worse (docs/twin_init.md). Two passes: the second weights every channel by the residual the first
 left on it (maximum likelihood with one unknown variance per channel); temperature channels
@@ -99,12 +102,15 @@ def section(d: Description, spec: dict, rec: Recording) -> dict:
     # a sensor that feeds a boundary (the hall, a coolant return) is the boundary: no bias of its own
     params: dict = {f"nodes.{first}.capacity": "fixed"}
     params |= {f"sensors.{sid}.bias": "fixed" for sid, p in d.sensors.items() if not p.body}
+    physical = d.gain_bound()
     for ch, e in spec["errors"].items():
         x = np.asarray(rec.columns[ch], float)
         x = x[np.isfinite(x)]
         span = float(np.ptp(x)) if x.size else 1.0
+        bound = WIDE * max(span, 0.1)
+        bound = min(bound, physical) if physical > 0 else bound
         for node in e["terms"]:
-            params[f"errors.{ch}.terms.{node}"] = {"bounds": [-WIDE * max(span, 0.1), WIDE * max(span, 0.1)]}
+            params[f"errors.{ch}.terms.{node}"] = {"bounds": [-bound, bound]}
     kinds = {k: {"factor": WIDE} for k in ("capacity", "conductance", "convection", "source")}
     kinds |= {"bias": {"absolute": 2.0}, "boundary": {"absolute": 5.0}}
     return {"kinds": kinds, "parameters": params}
