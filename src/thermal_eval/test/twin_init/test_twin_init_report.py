@@ -74,3 +74,15 @@ def test_the_bench_takes_its_sections_and_refuses_an_unknown_one(capsys):
     with pytest.raises(SystemExit):
         options(argparse.Namespace(extra=["--sections=fl,unit"]))
     assert "'unit' is not one of units, adoption, fl" in capsys.readouterr().err
+
+
+def test_the_bench_takes_seeds_and_kinds_and_refuses_unknown_ones(capsys):
+    opts = options(argparse.Namespace(extra=["--seeds=30,31", "--kinds=links,gain"]))
+    assert opts.seeds == (30, 31) and opts.kinds == ("links", "gain")
+    default = options(argparse.Namespace(extra=[]))
+    assert default.seeds is None and default.kinds is None
+    for bad, said in (("--kinds=links,lnks", "'lnks' is not one of"), ("--seeds=3x", "'3x' must be"),
+                      ("--seeds=,", "names no seed")):
+        with pytest.raises(SystemExit):
+            options(argparse.Namespace(extra=[bad]))
+        assert said in capsys.readouterr().err

@@ -12,7 +12,9 @@ the no-prior one over 24-48 h and takes over at 48 h only if it predicted those 
 ridge, the training mean and a static regression (units_case.py, fl_case.py), and its soft
 sensors as an ``evaluate`` model in adaptive mode (<= 1 probing per hour, six probe phases)
 beside every data-only adaptive row (fl_adaptive.py).
-``--sections=units,adoption,fl`` picks the parts (default all), ``--csv=PATH`` the FL_THERMAL file.
+``--sections=units,adoption,fl`` picks the parts (default all), ``--seeds=24,25`` and
+``--kinds=links,gain`` the units (default the reported seeds, every kind), ``--csv=PATH`` the
+FL_THERMAL file.
 Writes ``twin_init.json`` (units and FL rows) into the output folder.
 """
 from __future__ import annotations
@@ -71,11 +73,24 @@ def options(args: argparse.Namespace | None) -> argparse.Namespace:
     ap.add_argument("--sections", default=",".join(SECTIONS),
                     help="comma-separated parts to run: " + ", ".join(SECTIONS) + " (default: all)")
     ap.add_argument("--csv", default=None, help="FL_THERMAL CSV (default: the shared data folder's)")
+    ap.add_argument("--seeds", default=None, help="comma-separated unit seeds (default: "
+                    + ",".join(map(str, SEEDS)) + ")")
+    ap.add_argument("--kinds", default=None, help="comma-separated unit kinds: " + ", ".join(KINDS) + " (default: all)")
     opts = ap.parse_args(list(getattr(args, "extra", None) or []))
     opts.sections = [s.strip() for s in opts.sections.split(",") if s.strip()]
     bad = [s for s in opts.sections if s not in SECTIONS]
     if bad:
         ap.error(f"--sections: {bad[0]!r} is not one of {', '.join(SECTIONS)}")
+    opts.kinds = tuple(k.strip() for k in opts.kinds.split(",") if k.strip()) if opts.kinds else None
+    bad = [k for k in opts.kinds or () if k not in KINDS]
+    if bad or opts.kinds == ():
+        ap.error(f"--kinds: {bad[0] if bad else opts.kinds!r} is not one of {', '.join(KINDS)}")
+    try:
+        opts.seeds = tuple(int(s) for s in opts.seeds.split(",") if s.strip()) if opts.seeds else None
+    except ValueError:
+        ap.error(f"--seeds: {opts.seeds!r} must be comma-separated integers")
+    if opts.seeds == ():
+        ap.error("--seeds: names no seed")
     return opts
 
 
@@ -104,6 +119,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
     quick = bool(getattr(args, "quick", False)) if args is not None else False
     opts = options(args)
     kinds, seeds, hours = (QUICK["kinds"], QUICK["seeds"], QUICK["hours"]) if quick else (KINDS, SEEDS, HOURS)
+    kinds, seeds = opts.kinds or kinds, opts.seeds or seeds
     root = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_twin_init_")) / "twin_init"
     figures: dict = {"twin_init.hours": hours, "twin_init.init_h": INIT_H}
     units, adopted, fl = [], [], None
