@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from thermal_comp_common.components import is_angular
 from thermal_comp_common.recording_csv import write_recording_csv
 from thermal_comp_common.run_splits import run_splits
 from thermal_twin.sim.scenarios import make_timeline
@@ -82,7 +83,7 @@ def unit_case(kind: str, seed: int, root: pathlib.Path, priors: bool, words: boo
         pooled = rep["scores"]["pooled"]["test"]
         for name, row in pooled.items():
             shared = name in ("hold last probe", "twin (type), open loop") or name.endswith("type prior")
-            table[name if shared else f"{name} [{arm}]"] = {c: v["rmse"] for c, v in row.items()}
+            table[name if shared else f"{name} ({arm})"] = {c: v["rmse"] for c, v in row.items()}
     return {"kind": kind, "seed": seed, "truth": structural_unit(kind, seed).truth,
             "adopted": {arm: rep["adoption"]["adopt"] for arm, rep in reps.items()},
             "reasons": {arm: rep["adoption"]["reason"] for arm, rep in reps.items()},
@@ -90,9 +91,10 @@ def unit_case(kind: str, seed: int, root: pathlib.Path, priors: bool, words: boo
             "wall_s": {arm: rep["wall_s"]["total"] for arm, rep in reps.items()}, "rmse": table}
 
 
-def _ratio(row: dict, hold: dict) -> float:
-    """Mean over the components of RMSE / holding's RMSE (each component scaled by holding)."""
-    r = [row[c] / hold[c] for c in hold if math.isfinite(row.get(c, math.nan)) and hold[c] > 0]
+def _ratio(row: dict, hold: dict, linear: bool = False) -> float:
+    """Mean over the components (``linear``: the linear ones) of RMSE / holding's RMSE."""
+    r = [row[c] / hold[c] for c in hold if math.isfinite(row.get(c, math.nan)) and hold[c] > 0
+         and not (linear and is_angular(c))]
     return float(np.mean(r)) if r else math.nan
 
 
@@ -104,6 +106,29 @@ def table_text(u: dict) -> str:
     for name, row in rows.items():
         lines.append(f"    {name:44} " + " ".join(f"{row[c]:6.2f}" for c in comps) + f"   {_ratio(row, hold):6.2f}")
     return "\n".join(lines)
+
+
+#: the rows of the summary table (predictor name as in the report, arm or None for the shared ones)
+SUMMARY = (("hold last probe", None), ("twin (type), open loop", None), ("adaptive, type prior", None),
+           ("twin (unit), open loop", "first run"), ("twin (unit), open loop", f"{DAYS} runs"),
+           ("adaptive, unit prior", "first run"), ("adaptive, unit prior", f"{DAYS} runs"),
+           ("training mean", f"{DAYS} runs"), ("static regression", f"{DAYS} runs"))
+
+
+def summary_markdown(cases: list[dict]) -> str:
+    """Per unit, each predictor's mean over the components of RMSE / holding's RMSE on the unseen
+    runs' probes (all components / the linear ones: the angular ones sit at the probe noise), and
+    whether each learning was adopted (runs.md, the table of docs/learn.md)."""
+    head = [n if arm is None else f"{n} ({arm})" for n, arm in SUMMARY]
+    lines = ["| unit | what differs (hidden from learn) | adopted (first run / " + f"{DAYS} runs) | " + " | ".join(head)
+             + " |", "|---|---|---|" + "---|" * len(head)]
+    for u in cases:
+        hold = u["rmse"]["hold last probe"]
+        cells = [f"{_ratio(u['rmse'][h], hold):.2f} / {_ratio(u['rmse'][h], hold, True):.2f}"
+                 if h in u["rmse"] else "-" for h in head]
+        adopted = " / ".join("yes" if v else "no" for v in u["adopted"].values())
+        lines.append(f"| #{u['seed']} {u['kind']} | {u['truth']} | {adopted} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def run_section(root: pathlib.Path, priors: bool = True, units=UNITS, words: bool = True) -> dict:
@@ -123,5 +148,6 @@ def run_section(root: pathlib.Path, priors: bool = True, units=UNITS, words: boo
               + table_text(u), flush=True)
     root.mkdir(parents=True, exist_ok=True)
     (root / "runs.json").write_text(json.dumps(cases, indent=1, default=str) + "\n")
+    (root / "runs.md").write_text(summary_markdown(cases))
     print(f"learn --runs: details {root / 'runs.json'}")
     return figures
