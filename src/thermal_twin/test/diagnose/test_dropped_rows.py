@@ -8,7 +8,7 @@ import numpy as np
 
 from thermal_eval.diagnose.concealed import operating_programme
 from thermal_twin.diagnose.fit import noise_free
-from thermal_twin.diagnose.twin_eval import expected_outputs, gap_filled, node_states
+from thermal_twin.diagnose.twin_eval import expected_outputs, gap_envelope, gap_filled, node_states
 from thermal_twin.diagnose import twin_eval
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.inputs_timeline import InputsTimeline
@@ -79,3 +79,30 @@ def test_dropped_rows_at_input_switches_cost_less_than_holding_the_last_row():
     def rms(out):
         return np.sqrt(np.mean([np.mean((out[c] - truth[c][keep]) ** 2) for c in truth]))
     assert rms(filled) < 0.6 * rms(held)
+
+
+def test_the_envelope_of_the_unknown_switch_instant_bounds_the_filled_twin_error():
+    """Where no input changes across a gap the instant does not matter (zero envelope); after
+    a gap hiding a spindle switch the twin's error with interpolated inputs stays within the
+    envelope between the switch at the gap's first missing instant and at its end, summed
+    over the gaps."""
+    t, vals = _programme()
+    assert gap_envelope(MACHINE, t, vals) is None
+    truth = expected_outputs(MACHINE, t, vals)
+    speed = next(k for k in MACHINE.inputs if "rpm" in k)
+    switches = np.flatnonzero(np.diff(vals[speed]) != 0) + 1
+    keep = np.ones(t.size, bool)
+    keep[switches] = False
+    quiet = np.flatnonzero(np.all([np.diff(v) == 0 for v in vals.values()], axis=0))
+    keep[quiet[quiet > 1][::10]] = False                 # gaps across which nothing changes
+    keep[0] = keep[-1] = True
+    kept = {k: v[keep] for k, v in vals.items()}
+    env = gap_envelope(MACHINE, t[keep], kept)
+    filled = expected_outputs(MACHINE, t[keep], kept)
+    first_switch_row = int(np.searchsorted(t[keep], t[switches[0]]))
+    for c in truth:
+        assert np.all(env[c][:first_switch_row] < 1e-9 * max(1.0, np.ptp(truth[c])))
+        # within 1 % of the largest envelope: the gaps' effects add up only approximately
+        # where conductances depend on the speed
+        assert np.all(np.abs(filled[c] - truth[c][keep]) <= env[c] + 0.01 * np.max(env[c])), c
+    assert max(float(np.max(e)) for e in env.values()) > 0.01

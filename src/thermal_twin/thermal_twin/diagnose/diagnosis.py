@@ -25,6 +25,8 @@ from thermal_twin.diagnose.fit import (BIC_THRESHOLD, FitProblem, Hypothesis, ef
                                       worse_channels)
 from thermal_twin.diagnose.report import DiagnosisSeries
 from thermal_twin.diagnose.search_round import RoundInputs, exchange, prune, run_round
+from thermal_twin.diagnose.twin_eval import gap_envelope
+from thermal_twin.sim.inputs_timeline import timeline_from_recording
 from thermal_twin.diagnose.significance import ALPHA, PROCEDURE, holdout_p_value
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
@@ -305,6 +307,17 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
                      copy.deepcopy(cmp.base0) if calibrate else None)
 
 
+def _exclude_gap_rows(problem: FitProblem, machine: Machine, rec: Recording) -> None:
+    """Readings after a gap of dropped rows across which an input changed are left out of
+    every fit and score where the twin's uncertainty from the unknown instant of the change
+    exceeds the noise: an instant uniform within the gap moves the output uniformly within
+    the envelope (:func:`twin_eval.gap_envelope`), a standard deviation of envelope / sqrt(12).
+    There no twin, whatever physics it has, can be compared with the reading."""
+    env = gap_envelope(machine, rec.time_s, timeline_from_recording(machine, rec).resolved(machine))
+    if env is not None:
+        problem.exclude(np.stack([env[c] / np.sqrt(12.0) > problem.sigma[c] for c in problem.channels]))
+
+
 def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: bool,
              calibration_section: Mapping | None, calibration_nfev: int,
              engine: EngineSpec | None = None, clock_offset: bool = True) -> _Comparison:
@@ -338,6 +351,7 @@ def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: boo
             rec = clock.realign(rec, offset.shift_s)
             problem = FitProblem(rec, channels, n_train, sigma=problem.sigma, resolution=resolution)
             y_given = problem.outputs(spec0)
+    _exclude_gap_rows(problem, machine, rec)
     base0, y0, cal_section = spec0, y_given, None
     if calibrate:
         base0, cal_section = calibrated_base(machine, problem, holdout_fraction, calibration_section,

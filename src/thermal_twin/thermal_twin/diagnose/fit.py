@@ -186,6 +186,12 @@ class FitProblem:
         r = (self._meas[:, sl] - y[:, sl]) * self._w
         return np.where(self._valid[:, sl], r, 0.0)
 
+    def exclude(self, mask: np.ndarray) -> None:
+        """Treat the readings where ``mask`` (channels x time) is True as missing: no fit or
+        score uses them."""
+        self._valid &= ~np.asarray(mask, dtype=bool)
+        self._meas = np.where(self._valid, self._meas, 0.0)
+
     def train_residual(self, y: np.ndarray) -> np.ndarray:
         """The weighted residual the fits minimise (training window, strided)."""
         return self.weighted_residual(y, 0, self.n_train, self.stride)

@@ -102,6 +102,40 @@ def gap_filled(time_s: np.ndarray, values: Mapping[str, np.ndarray]
     return t_new, vals, rows
 
 
+def gap_envelope(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.ndarray]
+                 ) -> dict[str, np.ndarray] | None:
+    """How much the unknown instants of input changes inside gaps of dropped rows can move
+    each output (None on a regular grid): per gap across which an input changed, |outputs
+    with that change at the gap's first missing instant - outputs with it at the gap's end|,
+    summed over the gaps (the gaps' effects add up or cancel depending on where each change
+    truly was). The truth lies within it; the interpolated inputs of :func:`node_states`
+    meet it half-way on average, so where the envelope is large no twin can be compared
+    with the reading."""
+    t = np.asarray(time_s, dtype=float)
+    vals = {k: np.asarray(inputs[k], dtype=float)[:t.size] for k in machine.inputs}
+    filled = gap_filled(t, vals)
+    if filled is None:
+        return None
+    t_fill, _, rows = filled
+    step = np.searchsorted(rows, np.arange(t_fill.size), side="right") - 1
+    inserted = np.ones(t_fill.size, dtype=bool)
+    inserted[rows] = False
+    changed = np.zeros(t.size, dtype=bool)
+    changed[:-1] = np.any([np.diff(v) != 0 for v in vals.values()], axis=0) if vals else False
+    after = np.minimum(step + 1, t.size - 1)
+
+    def outputs(pick: np.ndarray) -> dict[str, np.ndarray]:
+        net, _, X, tb = _held_states(machine, t_fill, {k: v[pick] for k, v in vals.items()})
+        return outputs_from_states(machine, net, t, X[rows], tb[rows])
+    late = outputs(step)
+    env = {k: np.zeros(t.size) for k in late}
+    for g in np.unique(step[inserted & changed[step]]):
+        early = outputs(np.where(inserted & (step == g), after, step))
+        for k in env:
+            env[k] += np.abs(early[k] - late[k])
+    return env
+
+
 def node_states(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.ndarray],
                 stop: int | None = None) -> tuple[ThermalNetwork, np.ndarray, np.ndarray, np.ndarray]:
     """(network, time, node temperatures X (time x nodes), boundary temperatures (time x
