@@ -144,7 +144,8 @@ def run_section(root: pathlib.Path, priors: bool = True, units=UNITS, words: boo
             figures[f"learn_runs.{kind}_{seed}.{name}"] = round(_ratio(row, hold), 3)
         print(f"  {u['truth']}\n  adopted: " + "; ".join(f"{a}: {'yes' if v else 'no'} ({u['reasons'][a]})"
                                                        for a, v in u["adopted"].items())
-              + f"\n  words: {u['words']}\n  learn wall s: {u['wall_s']}\n  RMSE on the {UNSEEN} unseen runs' probes (um, um/m), pooled:\n"
+              + f"\n  words: {u['words']}\n  learn wall s: {u['wall_s']}\n"
+              + f"  RMSE on the {UNSEEN} unseen runs' probes (um, um/m), pooled:\n"
               + table_text(u), flush=True)
     root.mkdir(parents=True, exist_ok=True)
     (root / "runs.json").write_text(json.dumps(cases, indent=1, default=str) + "\n")

@@ -30,15 +30,18 @@ def runs_markdown(rep: Mapping[str, Any]) -> str:
     lines = [f"# Learning the unit: {rep['twin']} from {len(rep['runs'])} runs", "",
              f"Split `{rep['split']}`; the adoption is decided on {rep['validation_rule']}. Calibration "
              f"{rep['wall_s']['calibration']} s, twin {rep['twin_simulated_h_per_s']} simulated h/s.", "",
-             "| run | role | unit | programme | date | hours | probes | fitted up to h | validation probes | scored probes |",
+             "| run | role | unit | programme | date | hours | probes | fitted up to h | validation probes "
+             "| scored probes |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rep["runs"]:
-        lines.append(f"| {r['name']} | {r['role']} | {r['unit'] or '-'} | {r['programme'] or '-'} | {r['date'] or '-'} | "
+        lines.append(f"| {r['name']} | {r['role']} | {r['unit'] or '-'} | {r['programme'] or '-'} | "
+                     f"{r['date'] or '-'} | "
                      f"{r['hours']:.2f} | {r['probes']} | {fmt(r['fitted_until_h'])} | {r['validation_probes']} | "
                      f"{r['scored_probes']} |")
     lines += ["", f"**{'Adopted' if rep['adoption']['adopt'] else 'Not adopted'}**: {rep['adoption']['reason']}.", "",
               *tested_against_lines(rep.get("tested_against")), *_words(rep.get("structure")),
-              "## What moved", "", "| parameter | start | learned | change | at tolerance bound |", "|---|---|---|---|---|"]
+              "## What moved", "", "| parameter | start | learned | change | at tolerance bound |",
+              "|---|---|---|---|---|"]
     for p in rep["parameters"]:
         lines.append(f"| {p['name']} | {fmt(p['start'])} {p['unit']} | {fmt(p['value'])} | "
                      f"{fmt(p['change_pct'])} % | {'yes' if p['at_bound'] else ''} |")
@@ -47,11 +50,13 @@ def runs_markdown(rep: Mapping[str, Any]) -> str:
         if role in pooled:
             what = {"test": "the test runs (never fitted, never decided on)", "validation": "the validation runs",
                     "train": "the training runs' validation windows"}[role]
-            lines += _table(f"## Pooled over {what}: RMSE of probe - prediction, made before the probe", pooled[role])
+            lines += _table(f"## Pooled over {what}: RMSE of probe - prediction, made before the probe",
+                            pooled[role])
     if rep.get("folds"):
         lines += ["", "## Folds: each learning scored on the runs it held out", "",
                   "| fold | trained on | held out | adopted | folder |", "|---|---|---|---|---|"]
-        lines += [f"| {f['name']} | {', '.join(f['train'])} | {', '.join(f['test'])} | {'yes' if f['adopt'] else 'no'} | "
+        lines += [f"| {f['name']} | {', '.join(f['train'])} | {', '.join(f['test'])} | "
+                  f"{'yes' if f['adopt'] else 'no'} | "
                   f"`{f['dir']}` |" for f in rep["folds"]]
         lines += _table("## Pooled over the folds' held-out runs: RMSE of probe - prediction", rep["pooled_over_folds"])
     for name, scores in rep["scores"]["per_run"].items():
