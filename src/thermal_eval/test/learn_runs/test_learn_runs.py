@@ -55,6 +55,20 @@ def test_several_runs_give_a_joint_twin_scored_per_run_and_pooled(days, tmp_path
     assert (out / "unit_twin.yaml").is_file() and "day1, day2" in (out / "unit_twin.yaml").read_text()
 
 
+def test_a_folder_of_three_runs_takes_the_default_split_one_run_each(days, tmp_path):
+    folder = tmp_path / "three"
+    folder.mkdir()
+    for p in days[:3]:
+        (folder / p.name).write_bytes(p.read_bytes())
+    out = tmp_path / "out3"
+    assert learn_main([str(folder), "--twin", str(TWIN), "--out", str(out), *NFEV]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["split"] == "0.6,0.2,0.2"
+    assert [(r["name"], r["role"]) for r in rep["runs"]] == [("day1", "train"), ("day2", "validation"),
+                                                             ("day3", "test")]
+    assert rep["adoption"]["validation_probes"] == 12 and sorted(rep["scores"]["pooled"]) == ["test", "validation"]
+
+
 def test_a_corrupted_held_out_run_does_not_change_the_fitted_twin(days, tmp_path):
     bad = write_runs(tmp_path / "bad", 4, corrupt={3: 1000.0})
     fold = lambda runs: run_splits([r.entry for r in runs], "test=day4")[0]       # noqa: E731
