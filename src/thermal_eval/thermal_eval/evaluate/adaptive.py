@@ -18,12 +18,10 @@ y_p + w (c - y_p) is dy - w dp (dy the displacement's change since the probe, dp
 the best w is the share of the model's predicted change that the displacement makes,
 sum(dy dp) / sum(dp^2) in [0, 1]: *measured* on the training rows (the model's out-of-fold
 walk-forward prediction, over the probing interval) and then from the model's own probings (the
-last pairs of consecutive probings, kept as far as they confirm it beyond their noise:
-:func:`online_gains`). A model whose predicted changes do not happen (noise, a plateau it does
-not see) gets w near 0 and the held probe wins: the result is never clearly worse than holding.
-Until the probes confirm a gain, a predicted change within the readings' dead band is not acted
-on (:func:`dead_band_um`); once they do, only the model's own band applies (:func:`model_band_um`).
-(The rates q of a held probe and of the model error are reported beside it.)
+last few pairs of consecutive probings, :func:`online_gains`). A model whose predicted changes do
+not happen (noise, a plateau it does not see) gets w near 0 and the held probe wins: the result
+is never clearly worse than holding. (The rates q of a held probe and of the model error are
+reported beside it.)
 The baseline beside each model holds that model's own probes at exactly its probe instants.
 No rclpy here.
 """
@@ -43,12 +41,8 @@ from thermal_comp_common.metrics import q_prod
 from thermal_eval.evaluate.spec import EvaluationData
 
 PROBE_DURATION_S = 95.0
-#: pairs of consecutive probings whose changes set the gain (the fewest that give a gain and its
-#: standard error; more pairs keep a gain the machine stopped making, e.g. on a plateau)
-GAIN_MEMORY = 2
-#: a gain from the probes is followed as far as it exceeds this many standard errors (two: the
-#: dead band's convention)
-CONFIRM_SIGMAS = 2.0
+#: pairs of consecutive probings whose changes set the gain
+GAIN_MEMORY = 4
 
 
 class AdaptiveSettingsError(ValueError):
@@ -238,26 +232,17 @@ def resolution_um(y: np.ndarray, n_train: int, run_id: np.ndarray | None = None)
     return q if float(np.mean(np.abs(k - np.round(k)) <= 0.05)) >= ON_GRID_SHARE else 0.0
 
 
-def model_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0,
-                  run_id: np.ndarray | None = None, prediction: np.ndarray | None = None) -> float:
-    """The band of changes that are not changes whatever the probes say: the largest of the
-    probe's resolution, the step of a quantised signal (:func:`resolution_um`) and, with
-    ``prediction``, two standard deviations of the difference of two values of the model's
-    prediction (its own noise, from its inputs')."""
-    terms = [float(probe_resolution_um), resolution_um(y, n_train, run_id)]
-    if prediction is not None:
-        terms.append(DEAD_BAND_SIGMAS * reading_noise_um(prediction, n_train, run_id))
-    return max(terms)
-
-
 def dead_band_um(y: np.ndarray, n_train: int, probe_resolution_um: float = 0.0,
                  run_id: np.ndarray | None = None, prediction: np.ndarray | None = None) -> float:
-    """Predicted changes smaller than this are not acted on (the compensation holds) until the
-    probes confirm the model's gain: the larger of :func:`model_band_um` and two standard
-    deviations of the difference of two readings (a smaller change cannot be told from the
-    probes' noise by one pair of them: on a plateau those are the wrong ones)."""
-    return max(model_band_um(y, n_train, probe_resolution_um, run_id, prediction),
-               DEAD_BAND_SIGMAS * reading_noise_um(y, n_train, run_id))
+    """Predicted changes smaller than this are not acted on (the compensation holds): the largest
+    of the probe's resolution, the step of a quantised signal (:func:`resolution_um`), two
+    standard deviations of the difference of two readings (a smaller change cannot be told from
+    the probes' noise, so the probes cannot confirm it: on a plateau those are the wrong ones) and,
+    with ``prediction``, two standard deviations of the difference of two values of the model's
+    prediction (its own noise, from its inputs')."""
+    noises = [y] + ([prediction] if prediction is not None else [])
+    return max([float(probe_resolution_um), resolution_um(y, n_train, run_id)]
+               + [DEAD_BAND_SIGMAS * reading_noise_um(v, n_train, run_id) for v in noises])
 
 
 def shrink(dp: np.ndarray, band: float) -> np.ndarray:
@@ -286,39 +271,23 @@ def training_gain(t: np.ndarray, y: np.ndarray, p_oof: np.ndarray, first: int, s
     return change_gain(dy, dp)
 
 
-def confirmed_gain(dy, dp, noise_um: float, default: float) -> float:
-    """The probes' gain sum(dy dp) / sum(dp^2) kept as far as it exceeds :data:`CONFIRM_SIGMAS`
-    standard errors (a non-negative garrote, se^2 = 2 noise^2 / sum(dp^2): each dy is the
-    difference of two readings), clipped to [0, 1]; ``default`` without any predicted change.
-    With ``noise_um`` 0 it is :func:`change_gain`."""
-    dy, dp = np.asarray(dy, dtype=float), np.asarray(dp, dtype=float)
-    ok = np.isfinite(dy) & np.isfinite(dp)
-    den = float(np.sum(dp[ok] ** 2))
-    if den <= 0:
-        return float(default)
-    g = float(np.sum(dy[ok] * dp[ok]) / den)
-    t2 = CONFIRM_SIGMAS ** 2 * 2.0 * noise_um ** 2 / den
-    return float(np.clip(g * (1.0 - t2 / g ** 2), 0.0, 1.0)) if g * g > t2 else 0.0
-
-
 def online_gains(y: np.ndarray, p: np.ndarray, measured: list[int], gain0: float,
-                 memory: int = GAIN_MEMORY, band: float = 0.0, noise_um: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-    """The gain in force after each measurement, and whether the probes decided it: the training
-    gain until two probings have been made (or while the model predicted no change beyond
-    ``band`` over the last ``memory`` pairs), else the probes' own over those pairs of consecutive
-    probings (dy measured, dp the model's change between them beyond ``band``), as far as they
-    confirm it beyond the readings' noise ``noise_um`` (:func:`confirmed_gain`). Reads the
+                 memory: int = GAIN_MEMORY, band: float = 0.0) -> np.ndarray:
+    """The gain in force after each measurement: the training gain until two probings have been
+    made, then sum(dy dp) / sum(dp^2) over the last ``memory`` pairs of consecutive probings
+    (dy measured, dp the model's change between them), clipped to [0, 1]. Reads the
     displacement at measured rows only."""
-    gains, decided = [gain0], [False]
+    gains = [gain0]
     dys: list[float] = []
     dps: list[float] = []
     for prev, r in zip(measured[:-1], measured[1:]):
         dys.append(float(y[r] - y[prev]))
         dps.append(float(shrink(np.asarray(p[r] - p[prev]), band)))
-        by_probes = len(dys) >= 2 and any(d != 0 for d in dps[-memory:])
-        gains.append(confirmed_gain(dys[-memory:], dps[-memory:], noise_um, gain0) if by_probes else gain0)
-        decided.append(by_probes)
-    return np.asarray(gains), np.asarray(decided)
+        if len(dys) < 2:
+            gains.append(gain0)
+            continue
+        gains.append(change_gain(dys[-memory:], dps[-memory:], default=gain0))
+    return np.asarray(gains)
 
 
 def _segment_values(values: np.ndarray, measured: list[int], start: int, n: int) -> np.ndarray:
@@ -347,25 +316,21 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         y = data.displacement_um[c]
         p_oof, first = oof[c]
         band = dead_band_um(y, start, budget.probe_resolution_um, data.run_id, p)
-        own = model_band_um(y, start, budget.probe_resolution_um, data.run_id, p)
         q_y = measured_hold_rate(t, y, start)
         q_m = measured_hold_rate(t[first:start], (y - p_oof)[first:start], start - first)
         gain0 = training_gain(t, y, p_oof, first, start, lag_h, band, data.run_id)
-        gains, by_probes = online_gains(y, p, measured, gain0, band=own, noise_um=reading_noise_um(y, start, data.run_id))
-        # the readings' band until the probes decide the gain, the model's own after
-        bands = np.where(by_probes, own, band)
+        gains = online_gains(y, p, measured, gain0, band=band)
         if regain and c in regain and isinstance(regain[c], RidgeRefit):    # re-fitted at each probing
             corrected = regain[c].compensation(y, measured, start, n)
-            gains, bands = np.ones_like(gains), np.full(len(measured), band)
+            gains = np.ones_like(gains)
         elif regain and c in regain:
             contrib, penalty, *forgetting = regain[c]        # (contributions, penalty[, forgetting])
             corrected = regained_compensation(y, p, contrib, measured, start, n, penalty, *forgetting)
-            gains, bands = np.ones_like(gains), np.full(len(measured), band)
+            gains = np.ones_like(gains)
         else:
             corrected = _piecewise_offset(y, p, measured, start, n)
         y_p = _segment_values(y[measured], measured, start, n)
-        # the model's change beyond the band in force
-        outside = y_p + shrink(corrected - y_p, _segment_values(bands, measured, start, n))
+        outside = y_p + shrink(corrected - y_p, band)          # the model's change beyond the dead band
         # uncertainty-weighted hold with a unit hold rate: w = dt / (dt + s^2) = gain
         g = _segment_values(gains, measured, start, n)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -376,7 +341,6 @@ def run_adaptive(data: EvaluationData, prediction: Mapping[str, np.ndarray], oof
         weights[c] = float(np.mean(gains))
         rates[c] = {"hold_rate_um2_per_h": round(q_y, 3), "model_error_rate_um2_per_h": round(q_m, 3),
                     "training_gain": round(gain0, 3), "dead_band_um": round(band, 4),
-                    "model_band_um": round(own, 4),
                     "quantised_step_um": round(resolution_um(y, start, data.run_id), 4)}
     return AdaptiveResult(comp, corr, hold, rows, triggered, weights, rates, load)
 
