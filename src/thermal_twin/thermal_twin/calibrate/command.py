@@ -9,7 +9,7 @@ import sys
 import yaml
 
 from thermal_twin.calibrate.report import plot_input_estimate, write_report
-from thermal_twin.calibrate.fit import CalibrationError, calibrate, pick_channels
+from thermal_twin.calibrate.fit import CalibrationError, calibrate, left_out_lines, pick_channels
 from thermal_twin.calibrate.runs import SPREAD_SHARE, calibrate_folds, check_same_columns, holdout_fold
 from thermal_twin.calibrate.input_estimation import InputEstimationError, fill_missing_inputs, missing_inputs
 from thermal_twin.calibrate.bounds import CalibrationSpecError
@@ -72,6 +72,8 @@ def run(args) -> int:
     unid = [e.param.name for e in r.estimates if any(f.startswith("not identified") for f in e.flags)]
     print(f"not identified by this recording: {len(unid)} of {len(r.estimates)}; "
           f"correlated pairs: {len(r.correlated)}")
+    for line in left_out_lines(r.left_out_counts()):
+        print(f"left out: {line}")
     for n in notes:
         print(f"note: {n}")
     print("report: " + ", ".join(str(p) for p in [out / "twin_calibrated.yaml", *paths.values()]))

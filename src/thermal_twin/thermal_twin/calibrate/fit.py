@@ -26,7 +26,7 @@ from thermal_twin.sim.initial_state import own_reference, start_state
 from thermal_twin.sim.inputs_timeline import timeline_from_recording
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.fit import FitProblem, effective_samples
-from thermal_twin.diagnose.twin_eval import node_states, outputs_from_states
+from thermal_twin.diagnose.twin_eval import gap_uncertain_readings, node_states, outputs_from_states
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
 from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
@@ -77,12 +77,27 @@ class CalibrationResult:
     status: str
     tau: float                         # residual autocorrelation time used for the intervals
     fixed: list[str] = field(default_factory=list)   # parameters left out, with the reason
+    # readings left out of the fit and of every figure (:func:`leave_out_gap_readings`), by
+    # channel (only channels with some), and the noise sigma the rule compared with
+    left_out: dict[str, np.ndarray] = field(default_factory=dict)
+    sigma: dict[str, float] = field(default_factory=dict)
+
+    def scored(self, c: str) -> np.ndarray:
+        """Channel ``c``'s readings as fitted and scored: NaN where left out."""
+        m = self.measured[c]
+        return np.where(self.left_out[c], np.nan, m) if c in self.left_out else m
+
+    def left_out_counts(self) -> dict[str, dict]:
+        """Per channel with readings left out: how many in the training and held-out windows."""
+        k = self.n_train
+        return {c: {"train": int(np.count_nonzero(v[:k])), "holdout": int(np.count_nonzero(v[k:])),
+                    "sigma": self.sigma.get(c)} for c, v in self.left_out.items()}
 
     def channel_table(self) -> dict[str, dict]:
         k = self.n_train
         out = {}
         for c in self.channels:
-            m, b, a = self.measured[c], self.before[c], self.after[c]
+            m, b, a = self.scored(c), self.before[c], self.after[c]
             out[c] = {"train_rmse_before": rmse(m[:k], b[:k]), "train_rmse_after": rmse(m[:k], a[:k]),
                       "holdout_rmse_before": rmse(m[k:], b[k:]), "holdout_rmse_after": rmse(m[k:], a[k:])}
         return out
@@ -130,6 +145,28 @@ class TwinModel:
         return np.stack([out[c] for c in self.channels]), net, X
 
 
+def leave_out_gap_readings(fp: FitProblem, machine: Machine, inputs: Mapping[str, np.ndarray]
+                           ) -> dict[str, np.ndarray]:
+    """Leave out of ``fp`` the readings diagnose leaves out, by the same rule
+    (:func:`~thermal_twin.diagnose.twin_eval.gap_uncertain_readings` with ``fp``'s noise): after a
+    gap of dropped rows hiding an input change whose unknown instant moves the twin by more than
+    the noise. Returns the left-out readings by channel (only channels with some)."""
+    mask = gap_uncertain_readings(machine, fp.recording.time_s, inputs, fp.channels, fp.sigma)
+    if mask is None:
+        return {}
+    fp.exclude(mask)
+    return {c: mask[j] for j, c in enumerate(fp.channels) if mask[j].any()}
+
+
+def left_out_lines(counts: Mapping[str, Mapping]) -> list[str]:
+    """One sentence per channel with readings left out, from the counts of
+    :meth:`CalibrationResult.left_out_counts` (so a report's text is made from its own data)."""
+    return [f"{c}: {v['train'] + v['holdout']} readings left out ({v['train']} training, {v['holdout']} held-out) "
+            f"after gaps of dropped rows hiding an input change, where the change's unknown instant moves "
+            f"the twin by more than the channel's noise (envelope / sqrt(12) > sigma {v['sigma']:.3g})"
+            for c, v in counts.items()]
+
+
 def pick_channels(machine, rec: Recording) -> tuple[list[str], list[str]]:
     """Shared channels with data, and the shared or twin columns that are all NaN."""
     cols = [machine.sensors[s].column for s in machine.sensors] + list(machine.errors)
@@ -161,7 +198,8 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
               section: Mapping | None = None, max_nfev: int = 30,
               progress: Callable[[str], None] | None = None, prior: bool = True,
               start: Mapping[str, float] | None = None, engine: EngineSpec | None = None,
-              sigma: Mapping[str, float] | None = None, initial_state: str = "steady") -> CalibrationResult:
+              sigma: Mapping[str, float] | None = None, initial_state: str = "steady",
+              leave_out_gaps: bool = True) -> CalibrationResult:
     """Fit the free parameters of ``twin`` (path, preset, mapping or Machine) to
     ``recording``; ``section`` overrides the machine's own ``calibration`` section.
     ``prior``: pull every parameter toward its nominal value (a Gaussian prior whose 95 %
@@ -173,10 +211,12 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
     (``single_thread_blas``). ``sigma``: the measurement noise of channels whose noise the
     recording cannot show (sparse probes of an error channel), by column; the others' comes
     from their second differences. ``initial_state``: ``steady`` (the twin's idle equilibrium) or
-    ``readings`` (where the recording's first readings put it: a recording that starts warm)."""
+    ``readings`` (where the recording's first readings put it: a recording that starts warm).
+    ``leave_out_gaps``: leave out the readings :func:`leave_out_gap_readings` names (False only
+    to measure what the rule does)."""
     with single_thread_blas(), held_engine(engine) as held:
         t_start = time.perf_counter()
-        jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma, initial_state)
+        jacobian = _setup(twin, recording, holdout_fraction, section, progress, sigma, initial_state, leave_out_gaps)
         jacobian.engine = held
         theta, status = fit_theta(jacobian, max_nfev, prior, start)
         return _result(jacobian, theta, status, prior, t_start)
@@ -184,7 +224,7 @@ def calibrate(twin, recording: Recording, holdout_fraction: float = 1 / 3,
 
 def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping | None,
            progress: Callable[[str], None] | None, sigma: Mapping[str, float] | None = None,
-           initial_state: str = "steady") -> "Jacobian":
+           initial_state: str = "steady", leave_out_gaps: bool = True) -> "Jacobian":
     """Check twin and recording, choose the free parameters; the residual and its Jacobian."""
     if not 0.05 <= holdout_fraction <= 0.8:
         raise CalibrationError(f"holdout_fraction: {holdout_fraction!r} must be within [0.05, 0.8]")
@@ -213,8 +253,10 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     rest = [c for c in channels if c not in given]
     fp = FitProblem(recording, channels, n_train, resolution=res,
                     sigma={**(FitProblem(recording, rest, n_train, resolution=res).sigma if rest else {}), **given})
-    jacobian = Jacobian(TwinModel(spec0, params, recording, channels, initial_state), fp, machine, progress)
-    jacobian.fixed = fixed
+    model = TwinModel(spec0, params, recording, channels, initial_state)
+    left_out = leave_out_gap_readings(fp, machine, model.inputs) if leave_out_gaps else {}
+    jacobian = Jacobian(model, fp, machine, progress)
+    jacobian.fixed, jacobian.left_out = fixed, left_out
     return jacobian
 
 
@@ -272,7 +314,7 @@ def _result(jacobian: "Jacobian", theta: np.ndarray, status: str, prior: bool,
         after={c: y_after[j] for j, c in enumerate(channels)}, n_train=jacobian.fp.n_train,
         cost_before=0.5 * float(r_start @ r_start), cost_after=0.5 * float(r @ r),
         n_evals=model.n_evals, wall_s=wall, simulated_h=sim_h, status=status, tau=tau,
-        fixed=jacobian.fixed)
+        fixed=jacobian.fixed, left_out=jacobian.left_out, sigma=dict(jacobian.fp.sigma))
 
 
 def data_weight(r: np.ndarray, n_channels: int) -> float:
@@ -325,6 +367,7 @@ class Jacobian:
         self.cache: dict = {}
         self.engine: EngineSpec | None = None
         self.fixed: list[str] = []            # parameters left out, with the reason
+        self.left_out: dict[str, np.ndarray] = {}   # readings left out, by channel
         self.r_start: np.ndarray | None = None
 
     def theta_bounds(self) -> tuple[np.ndarray, np.ndarray]:

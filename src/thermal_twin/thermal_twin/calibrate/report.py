@@ -8,7 +8,7 @@ import pathlib
 
 import numpy as np
 
-from thermal_twin.calibrate.fit import CORR_LIMIT, CalibrationResult
+from thermal_twin.calibrate.fit import CORR_LIMIT, CalibrationResult, left_out_lines
 from thermal_twin.calibrate.runs import SPREAD_SHARE, FoldsCalibration
 
 
@@ -30,6 +30,7 @@ def report_dict(r: CalibrationResult, twin: str, recording: str, notes: list[str
         "correlated_pairs": [{"a": a, "b": b, "corr": c} for a, b, c in r.correlated],
         "correlated_pairs_limit": CORR_LIMIT,
         "fixed": r.fixed,
+        "left_out": r.left_out_counts(),
         "fit": {"cost_before": r.cost_before, "cost_after": r.cost_after, "status": r.status,
                 "twin_evaluations": r.n_evals, "wall_s": r.wall_s, "simulated_h": r.simulated_h,
                 "simulated_h_per_s": r.simulated_h / max(r.wall_s, 1e-9),
@@ -108,6 +109,9 @@ def write_markdown(rep: dict, out: pathlib.Path) -> pathlib.Path:
             lines.append(f"- ... {len(rep['correlated_pairs']) - 30} more in report.json")
     if rep["fixed"]:
         lines += ["", "Left fixed: " + "; ".join(rep["fixed"])]
+    if rep["left_out"]:
+        lines += ["", "**Readings left out of the fit and of every figure:**", ""]
+        lines += [f"- {x}" for x in left_out_lines(rep["left_out"])]
     if rep["notes"]:
         lines += ["", "## Notes", ""] + [f"- {n}" for n in rep["notes"]]
     lines += ["", "![channels](channels.png)", "", "![parameters](parameters.png)", ""]

@@ -22,7 +22,8 @@ import numpy as np
 
 from thermal_twin.calibrate.bounds import free_parameters
 from thermal_twin.calibrate.fit import (CalibrationError, CalibrationResult, Jacobian, TwinModel, fit_theta,
-                                        pick_channels, posterior_intervals, relevant_parameters)
+                                        leave_out_gap_readings, pick_channels, posterior_intervals,
+                                        relevant_parameters)
 from thermal_twin.diagnose.fit import FitProblem
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.sim.initial_state import own_reference
@@ -283,9 +284,12 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     sigma = {c: float(np.median([s[c] for s in sig])) for c in channels}
     sigma.update({c: float(v) for c, v in (sigma_given or {}).items() if c in channels})
     models = {i: TwinModel(spec0, params, runs[i], channels, initial_state) for i in order}
+    problems = {i: FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res) for i in order}
+    # every run, fitted or held out, leaves out the same readings as diagnose would
+    left_out = {i: leave_out_gap_readings(problems[i], machine, models[i].inputs) for i in order}
     parts = []
     for i in train:
-        part = Jacobian(models[i], FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res), machine)
+        part = Jacobian(models[i], problems[i], machine)
         part.engine = eng
         parts.append(part)
     jac = _RunsJacobian(parts, progress)
@@ -297,6 +301,9 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     before = {i: models[i].run(np.zeros(len(params)))[0] for i in order}
     after = {i: models[i].run(theta)[0] for i in order}
     result = _end_to_end(runs, order, len(train), channels, before, after)
+    result.left_out = {c: np.concatenate([left_out[i].get(c, np.zeros(len(runs[i]), bool)) for i in order])
+                       for c in channels if any(c in left_out[i] for i in order)}
+    result.sigma = dict(sigma)
     result.spec, result.estimates = models[train[0]].spec(theta), estimates
     result.correlated, result.fixed = correlated, fixed
     result.cost_before, result.cost_after = 0.5 * float(jac.r_start @ jac.r_start), 0.5 * float(r @ r)
@@ -304,7 +311,8 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     result.simulated_h = sum(m.sim_steps / max(len(runs[i]) - 1, 1) * _hours(runs[i]) for i, m in models.items())
     result.status, result.tau, result.wall_s = status, tau, time.perf_counter() - t_start
     roles = {i: "validation" for i in fold.validation} | {i: "holdout" for i in fold.test}
-    table = [_run_figures(names[i], runs[i], roles.get(i, "train"), channels, before[i], after[i]) for i in order]
+    table = [_run_figures(names[i], runs[i], roles.get(i, "train"), channels, before[i], after[i], left_out[i])
+             for i in order]
     return RunsCalibration(result, table)
 
 
@@ -329,12 +337,15 @@ def _end_to_end(runs, order, n_train_runs, channels, before, after) -> Calibrati
         n_evals=0, wall_s=0.0, simulated_h=0.0, status="", tau=1.0)
 
 
-def _run_figures(name: str, rec: Recording, role: str, channels, y_before, y_after) -> dict:
+def _run_figures(name: str, rec: Recording, role: str, channels, y_before, y_after,
+                 left_out: Mapping[str, np.ndarray] | None = None) -> dict:
     """One run's RMSE per channel before and after the calibration; ``n`` the samples scored
-    (recorded and simulated finite), so runs pool as sqrt(sum n rmse^2 / sum n)."""
+    (recorded, not left out, and simulated finite), so runs pool as sqrt(sum n rmse^2 / sum n)."""
     chans = {}
     for j, c in enumerate(channels):
         m = np.asarray(rec.columns[c], dtype=float)
+        if left_out and c in left_out:
+            m = np.where(left_out[c], np.nan, m)
         n = int(np.count_nonzero(np.isfinite(m) & np.isfinite(y_after[j])))
         chans[c] = {"rmse_before": rmse(m, y_before[j]), "rmse_after": rmse(m, y_after[j]), "n": n}
     return {"name": name, "source": rec.source, "role": role, "rows": len(rec), "hours": _hours(rec),

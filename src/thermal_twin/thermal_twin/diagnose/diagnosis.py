@@ -25,7 +25,7 @@ from thermal_twin.diagnose.fit import (BIC_THRESHOLD, FitProblem, Hypothesis, ef
                                       worse_channels)
 from thermal_twin.diagnose.report import DiagnosisSeries
 from thermal_twin.diagnose.search_round import RoundInputs, exchange, prune, run_round
-from thermal_twin.diagnose.twin_eval import gap_envelope
+from thermal_twin.diagnose.twin_eval import gap_uncertain_readings
 from thermal_twin.sim.inputs_timeline import timeline_from_recording
 from thermal_twin.diagnose.significance import ALPHA, PROCEDURE, holdout_p_value
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
@@ -308,14 +308,13 @@ def _diagnose(twin: str | Mapping | Machine, recording: Recording, holdout_fract
 
 
 def _exclude_gap_rows(problem: FitProblem, machine: Machine, rec: Recording) -> None:
-    """Readings after a gap of dropped rows across which an input changed are left out of
-    every fit and score where the twin's uncertainty from the unknown instant of the change
-    exceeds the noise: an instant uniform within the gap moves the output uniformly within
-    the envelope (:func:`twin_eval.gap_envelope`), a standard deviation of envelope / sqrt(12).
-    There no twin, whatever physics it has, can be compared with the reading."""
-    env = gap_envelope(machine, rec.time_s, timeline_from_recording(machine, rec).resolved(machine))
-    if env is not None:
-        problem.exclude(np.stack([env[c] / np.sqrt(12.0) > problem.sigma[c] for c in problem.channels]))
+    """The readings :func:`twin_eval.gap_uncertain_readings` names (after a gap hiding an input
+    change whose unknown instant moves the twin by more than the noise) are left out of every
+    fit and score: there no twin, whatever physics it has, can be compared with the reading."""
+    mask = gap_uncertain_readings(machine, rec.time_s, timeline_from_recording(machine, rec).resolved(machine),
+                                  problem.channels, problem.sigma)
+    if mask is not None:
+        problem.exclude(mask)
 
 
 def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: bool,

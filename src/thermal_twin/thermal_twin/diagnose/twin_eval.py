@@ -136,6 +136,20 @@ def gap_envelope(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.n
     return env
 
 
+def gap_uncertain_readings(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.ndarray],
+                           channels: list[str], sigma: Mapping[str, float]) -> np.ndarray | None:
+    """The readings (channels x time, True: leave out) no twin can be compared with: after a gap
+    of dropped rows across which an input changed, where the twin's uncertainty from the unknown
+    instant of the change exceeds the channel's noise ``sigma``. An instant uniform within the
+    gap moves the output uniformly within :func:`gap_envelope`, a standard deviation of
+    envelope / sqrt(12). None on a regular grid. The one rule every command that fits or scores
+    a twin on a recording applies (diagnose, calibrate)."""
+    env = gap_envelope(machine, time_s, inputs)
+    if env is None:
+        return None
+    return np.stack([env[c] / math.sqrt(12.0) > sigma[c] for c in channels])
+
+
 def node_states(machine: Machine, time_s: np.ndarray, inputs: Mapping[str, np.ndarray],
                 stop: int | None = None) -> tuple[ThermalNetwork, np.ndarray, np.ndarray, np.ndarray]:
     """(network, time, node temperatures X (time x nodes), boundary temperatures (time x
