@@ -12,9 +12,8 @@ import pytest
 from thermal_twin.calibrate.cli import main
 from thermal_twin.calibrate.fit import calibrate, left_out_lines
 from thermal_twin.calibrate.runs import calibrate_runs
-from thermal_twin.diagnose.diagnosis import _exclude_gap_rows
+from thermal_twin.diagnose.diagnosis import _compare
 from thermal_twin.diagnose.fit import FitProblem
-from thermal_twin.machine.schema import load_machine
 from thermal_comp_common.metrics import rmse
 from thermal_comp_common.recording_csv import Recording, write_recording_csv
 from moved_mini_mill import SECTION, TRUE, TWIN, moved_runs
@@ -60,14 +59,30 @@ def test_dropped_rows_at_switches_are_left_out_and_the_fit_is_closer_to_the_trut
     # nothing is left out before the first gap: the rule acts only after a hidden change
     first_gap = int(np.argmax(np.diff(rec.time_s) > 1.5 * np.median(np.diff(rec.time_s))))
     assert not any(m[:first_gap + 1].any() for m in with_rule.left_out.values())
-    # the same readings diagnose leaves out (its rule on the same problem and noise)
-    machine = load_machine(TWIN)
-    fp = FitProblem(rec, with_rule.channels, with_rule.n_train, sigma=with_rule.sigma)
-    _exclude_gap_rows(fp, machine, rec)
-    for j, c in enumerate(with_rule.channels):
-        mask = with_rule.left_out.get(c, np.zeros(len(rec), bool))
-        assert np.array_equal(~fp._valid[j] & np.isfinite(rec.columns[c]), mask), c
     assert _rel_error(with_rule) < _rel_error(without), (_rel_error(with_rule), _rel_error(without))
+
+
+@pytest.mark.parametrize("lattice", [0.0, 0.2])
+def test_calibrate_leaves_out_the_readings_diagnose_leaves_out(full, lattice):
+    """Diagnose's own comparison (no clock offset) and calibrate leave out the same readings, also
+    where the recorder quantises the temperatures more coarsely than the twin's sensors."""
+    rec = _dropped_at_switches(full)
+    if lattice:
+        for c in rec.columns:
+            if c.endswith("_c"):
+                rec.columns[c] = np.round(np.asarray(rec.columns[c]) / lattice) * lattice
+    res = calibrate(TWIN, rec, section=SECTION, max_nfev=2)
+    cmp = _compare(TWIN, rec, 1 / 3, False, None, 0, clock_offset=False)
+    shared = [c for c in cmp.channels if c in res.channels]
+    assert len(shared) >= 5 and sum(int(m.sum()) for m in res.left_out.values()) > 0
+    if lattice:     # the lattice raises the noise the rule compares with above the readings' own
+        spread = FitProblem(rec, shared, res.n_train).sigma
+        assert any(res.sigma[c] > 2.0 * spread[c] for c in shared)
+    for j, c in enumerate(cmp.channels):
+        if c in shared:
+            assert res.sigma[c] == cmp.problem.sigma[c], c
+            left = ~cmp.problem._valid[j] & np.isfinite(np.asarray(rec.columns[c], dtype=float))
+            assert np.array_equal(left, res.left_out.get(c, np.zeros(len(rec), bool))), c
 
 
 def test_held_out_figures_score_the_same_readings_before_and_after(full):

@@ -26,6 +26,7 @@ from thermal_twin.sim.initial_state import own_reference, start_state
 from thermal_twin.sim.inputs_timeline import timeline_from_recording
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.fit import FitProblem, effective_samples
+from thermal_twin.diagnose.statistics import recorded_resolution
 from thermal_twin.diagnose.twin_eval import gap_uncertain_readings, node_states, outputs_from_states
 from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
@@ -145,17 +146,28 @@ class TwinModel:
         return np.stack([out[c] for c in self.channels]), net, X
 
 
-def leave_out_gap_readings(fp: FitProblem, machine: Machine, inputs: Mapping[str, np.ndarray]
-                           ) -> dict[str, np.ndarray]:
+def leave_out_gap_readings(fp: FitProblem, machine: Machine, inputs: Mapping[str, np.ndarray],
+                           sigma: Mapping[str, float]) -> dict[str, np.ndarray]:
     """Leave out of ``fp`` the readings diagnose leaves out, by the same rule
-    (:func:`~thermal_twin.diagnose.twin_eval.gap_uncertain_readings` with ``fp``'s noise): after a
-    gap of dropped rows hiding an input change whose unknown instant moves the twin by more than
-    the noise. Returns the left-out readings by channel (only channels with some)."""
-    mask = gap_uncertain_readings(machine, fp.recording.time_s, inputs, fp.channels, fp.sigma)
+    (:func:`~thermal_twin.diagnose.twin_eval.gap_uncertain_readings`): after a gap of dropped
+    rows hiding an input change whose unknown instant moves the twin by more than the noise
+    ``sigma`` (:func:`rule_sigma`). Returns the left-out readings by channel (only channels with some)."""
+    mask = gap_uncertain_readings(machine, fp.recording.time_s, inputs, fp.channels, sigma)
     if mask is None:
         return {}
     fp.exclude(mask)
     return {c: mask[j] for j, c in enumerate(fp.channels) if mask[j].any()}
+
+
+def rule_sigma(machine: Machine, rec: Recording, channels: list[str], n_train: int) -> dict[str, float]:
+    """The noise the gap rule compares with, as diagnose weighs the channels: the second-difference
+    estimate floored by the quantisation noise of the recorded lattice
+    (:func:`~thermal_twin.diagnose.statistics.recorded_resolution`). The fit's own weights keep the
+    twin's sensor resolution (unchanged on regular grids)."""
+    if not channels:
+        return {}
+    res = {machine.sensors[s].column: machine.sensors[s].resolution for s in machine.sensors}
+    return FitProblem(rec, channels, n_train, resolution=recorded_resolution(res, rec.columns, channels)).sigma
 
 
 def left_out_lines(counts: Mapping[str, Mapping]) -> list[str]:
@@ -254,9 +266,10 @@ def _setup(twin, recording: Recording, holdout_fraction: float, section: Mapping
     fp = FitProblem(recording, channels, n_train, resolution=res,
                     sigma={**(FitProblem(recording, rest, n_train, resolution=res).sigma if rest else {}), **given})
     model = TwinModel(spec0, params, recording, channels, initial_state)
-    left_out = leave_out_gap_readings(fp, machine, model.inputs) if leave_out_gaps else {}
+    noise = {**rule_sigma(machine, recording, rest, n_train), **given}
+    left_out = leave_out_gap_readings(fp, machine, model.inputs, noise) if leave_out_gaps else {}
     jacobian = Jacobian(model, fp, machine, progress)
-    jacobian.fixed, jacobian.left_out = fixed, left_out
+    jacobian.fixed, jacobian.left_out, jacobian.rule_sigma = fixed, left_out, noise
     return jacobian
 
 
@@ -314,7 +327,7 @@ def _result(jacobian: "Jacobian", theta: np.ndarray, status: str, prior: bool,
         after={c: y_after[j] for j, c in enumerate(channels)}, n_train=jacobian.fp.n_train,
         cost_before=0.5 * float(r_start @ r_start), cost_after=0.5 * float(r @ r),
         n_evals=model.n_evals, wall_s=wall, simulated_h=sim_h, status=status, tau=tau,
-        fixed=jacobian.fixed, left_out=jacobian.left_out, sigma=dict(jacobian.fp.sigma))
+        fixed=jacobian.fixed, left_out=jacobian.left_out, sigma=dict(jacobian.rule_sigma))
 
 
 def data_weight(r: np.ndarray, n_channels: int) -> float:
@@ -368,6 +381,7 @@ class Jacobian:
         self.engine: EngineSpec | None = None
         self.fixed: list[str] = []            # parameters left out, with the reason
         self.left_out: dict[str, np.ndarray] = {}   # readings left out, by channel
+        self.rule_sigma: dict[str, float] = {}       # the noise the gap rule compared with
         self.r_start: np.ndarray | None = None
 
     def theta_bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -23,7 +23,7 @@ import numpy as np
 from thermal_twin.calibrate.bounds import free_parameters
 from thermal_twin.calibrate.fit import (CalibrationError, CalibrationResult, Jacobian, TwinModel, fit_theta,
                                         leave_out_gap_readings, pick_channels, posterior_intervals,
-                                        relevant_parameters)
+                                        relevant_parameters, rule_sigma)
 from thermal_twin.diagnose.fit import FitProblem
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.sim.initial_state import own_reference
@@ -285,8 +285,12 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     sigma.update({c: float(v) for c, v in (sigma_given or {}).items() if c in channels})
     models = {i: TwinModel(spec0, params, runs[i], channels, initial_state) for i in order}
     problems = {i: FitProblem(runs[i], channels, len(runs[i]), sigma=sigma, resolution=res) for i in order}
-    # every run, fitted or held out, leaves out the same readings as diagnose would
-    left_out = {i: leave_out_gap_readings(problems[i], machine, models[i].inputs) for i in order}
+    # every run, fitted or held out, leaves out the readings diagnose would, with the training runs'
+    # median noise as the rule sees it
+    rule = [rule_sigma(machine, runs[i], channels, len(runs[i])) for i in train]
+    noise = {c: float(np.median([s[c] for s in rule])) for c in channels}
+    noise.update({c: float(v) for c, v in (sigma_given or {}).items() if c in channels})
+    left_out = {i: leave_out_gap_readings(problems[i], machine, models[i].inputs, noise) for i in order}
     parts = []
     for i in train:
         part = Jacobian(models[i], problems[i], machine)
@@ -303,7 +307,7 @@ def _fit_fold(machine: Machine, runs: list, names: list[str], fold: RunFold, sec
     result = _end_to_end(runs, order, len(train), channels, before, after)
     result.left_out = {c: np.concatenate([left_out[i].get(c, np.zeros(len(runs[i]), bool)) for i in order])
                        for c in channels if any(c in left_out[i] for i in order)}
-    result.sigma = dict(sigma)
+    result.sigma = noise
     result.spec, result.estimates = models[train[0]].spec(theta), estimates
     result.correlated, result.fixed = correlated, fixed
     result.cost_before, result.cost_after = 0.5 * float(jac.r_start @ jac.r_start), 0.5 * float(r @ r)

@@ -21,8 +21,8 @@ from thermal_twin.diagnose.calibrated import (calibrated_base, joint_adoption_te
                                                unnamed_beats_free_calibration)
 from thermal_twin.machine.schema import Machine, load_machine
 from thermal_twin.diagnose.effects import EFFECTS, classify_driver
-from thermal_twin.diagnose.fit import (BIC_THRESHOLD, FitProblem, Hypothesis, effective_samples, quantisation_step,
-                                      worse_channels)
+from thermal_twin.diagnose.fit import BIC_THRESHOLD, FitProblem, Hypothesis, effective_samples, worse_channels
+from thermal_twin.diagnose.statistics import recorded_resolution
 from thermal_twin.diagnose.report import DiagnosisSeries
 from thermal_twin.diagnose.search_round import RoundInputs, exchange, prune, run_round
 from thermal_twin.diagnose.twin_eval import gap_uncertain_readings
@@ -336,10 +336,8 @@ def _compare(twin, recording: Recording, holdout_fraction: float, calibrate: boo
     # noise-free by construction, and the plausibility checks need the resolution
     spec0 = machine.to_dict()
     n_train = int(round(len(rec) * (1.0 - holdout_fraction)))
-    resolution = {machine.sensors[sid].column: machine.sensors[sid].resolution for sid in machine.sensors}
-    # a recorder may quantise more coarsely than the twin's sensors: the readings' own lattice
-    for c in channels:
-        resolution[c] = max(resolution.get(c, 0.0), quantisation_step(rec.columns[c]))
+    resolution = recorded_resolution({machine.sensors[sid].column: machine.sensors[sid].resolution
+                                      for sid in machine.sensors}, rec.columns, channels)
     problem = FitProblem(rec, channels, n_train, resolution=resolution)
     y_given = problem.outputs(spec0)
     offset = None

@@ -41,6 +41,9 @@ from thermal_twin.sim.inputs_timeline import timeline_from_recording
 from thermal_twin.machine.schema import MachineSpecError, load_machine
 from thermal_twin.diagnose.effects import Candidate
 from thermal_twin.diagnose.significance import holdout_p_value, holm_reject
+# the noise estimates live with the other residual statistics; imported here for FitProblem,
+# and importable from here as before
+from thermal_twin.diagnose.statistics import channel_sigma, quantisation_step  # noqa: F401
 from thermal_twin.diagnose.twin_eval import expected_outputs, node_states
 from thermal_comp_common.recording_csv import Recording
 
@@ -103,40 +106,6 @@ def noise_free(spec: dict) -> dict:
         d.pop("noise_std", None)
         d.pop("resolution", None)
     return s
-
-
-def channel_sigma(x: np.ndarray) -> float:
-    """Measurement noise of a channel from its second differences (var = 6 sigma^2 for
-    white noise; smooth thermal transients nearly cancel): the MAD estimate (robust to the
-    kinks of steps), but at least a quarter of the plain std estimate (a quantised, slowly
-    varying reading has a zero MAD), floored at 1e-3."""
-    x = np.asarray(x, dtype=float)
-    d = np.diff(x[np.isfinite(x)], n=2)
-    if d.size < 2:
-        return 1.0
-    s_mad = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(6.0)
-    s_std = float(np.std(d)) / math.sqrt(6.0)
-    return max(s_mad, 0.25 * s_std, 1e-3)
-
-
-def quantisation_step(x: np.ndarray) -> float:
-    """The step of the lattice a channel's readings lie on (0.0 when they lie on none): the
-    smallest change between consecutive readings, if every reading is the first plus an
-    integer number of it. A reading quantised much more coarsely than its noise is a
-    staircase whose second differences are mostly zero, so :func:`channel_sigma` sees almost
-    no noise while the reading errs by up to half a step; the step says how much."""
-    x = np.asarray(x, dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size < 3:
-        return 0.0
-    d = np.abs(np.diff(x))
-    tiny = 1e-9 * max(1.0, float(np.max(np.abs(x))))
-    d = d[d > tiny]
-    if d.size == 0:
-        return 0.0
-    q = float(np.min(d))
-    k = (x - x[0]) / q
-    return q if float(np.max(np.abs(k - np.rint(k)))) < 1e-3 else 0.0
 
 
 @dataclass
