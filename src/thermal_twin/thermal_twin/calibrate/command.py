@@ -111,7 +111,9 @@ def _print_figures(r, runs, folds) -> None:
     for c, v in r.channel_table().items():
         b, a = (pooled[c]["rmse_before"], pooled[c]["rmse_after"]) if pooled else \
             (v["holdout_rmse_before"], v["holdout_rmse_after"])
-        print(f"  {c:10s} {what} RMSE {b:.4g} -> {a:.4g}")
+        gone = r.left_out_counts().get(c, {}).get("holdout", 0)
+        print(f"  {c:10s} {what} RMSE {b:.4g} -> {a:.4g}"
+              + (f" ({gone} held-out readings left out after gaps)" if gone and not runs else ""))
     shown = [(x, f["name"]) for f in folds.folds for x in f["runs"] if x["role"] != "train"] if several else \
         [(x, None) for x in runs or []]
     for x, fold in shown:

@@ -32,7 +32,7 @@ from thermal_comp_common.runtime.blas_threads import single_thread_blas
 from thermal_comp_common.runtime.engine_options import held_engine
 from thermal_comp_common.bags.recording import MIN_CHANNEL_VALUES, MIN_RECORDING_ROWS
 from thermal_comp_common.metrics import rmse
-from thermal_comp_common.recording_csv import Recording
+from thermal_comp_common.recording_csv import Recording, column_kind, error_unit
 from thermal_comp_common.runtime.task_engine import EngineSpec, map_tasks
 
 LINEAR_KINDS = ("bias", "gain")
@@ -92,7 +92,8 @@ class CalibrationResult:
         """Per channel with readings left out: how many in the training and held-out windows."""
         k = self.n_train
         return {c: {"train": int(np.count_nonzero(v[:k])), "holdout": int(np.count_nonzero(v[k:])),
-                    "sigma": self.sigma.get(c)} for c, v in self.left_out.items()}
+                    "sigma": self.sigma.get(c), "unit": "K" if column_kind(c) == "sensor" else error_unit(c)}
+                for c, v in self.left_out.items()}
 
     def channel_table(self) -> dict[str, dict]:
         k = self.n_train
@@ -175,7 +176,7 @@ def left_out_lines(counts: Mapping[str, Mapping]) -> list[str]:
     :meth:`CalibrationResult.left_out_counts` (so a report's text is made from its own data)."""
     return [f"{c}: {v['train'] + v['holdout']} readings left out ({v['train']} training, {v['holdout']} held-out) "
             f"after gaps of dropped rows hiding an input change, where the change's unknown instant moves "
-            f"the twin by more than the channel's noise (envelope / sqrt(12) > sigma {v['sigma']:.3g})"
+            f"the twin by more than the channel's noise (envelope / sqrt(12) > sigma {v['sigma']:.3g} {v['unit']})"
             for c, v in counts.items()]
 
 
