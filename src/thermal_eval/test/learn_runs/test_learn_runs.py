@@ -154,3 +154,11 @@ def test_bad_runs_are_refused_in_one_line(days, tmp_path, capsys, case, match):
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and err.startswith("thermal-comp learn: "), err
     assert re.search(match, err), err
+    assert not (tmp_path / "o").exists()          # a refused learning leaves no folder behind
+
+
+def test_a_refusal_keeps_a_folder_the_user_made(days, tmp_path):
+    out = tmp_path / "mine"
+    out.mkdir()
+    assert learn_main([str(days[0]), str(days[0]), "--twin", str(TWIN), "--out", str(out), *NFEV]) == 2
+    assert out.is_dir()

@@ -40,6 +40,12 @@ def _out_dir(path: str, force: bool) -> pathlib.Path:
     return out
 
 
+def _drop_if_empty(out: pathlib.Path, created: bool) -> None:
+    """A refused learning leaves no folder behind that it made itself and wrote nothing into."""
+    if created and out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
+
+
 def _noise(args, components) -> dict[str, float]:
     noise = table_5_4_noise(components)
     for c in components:
@@ -134,6 +140,7 @@ def run(args) -> int:
     sources = list(args.recording) if isinstance(args.recording, (list, tuple)) else [args.recording]
     say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
     runs_split = getattr(args, "runs_split", None)
+    created = not pathlib.Path(args.out).exists()
     try:
         one = _plain_recording(sources)
         if one is not None:
@@ -155,6 +162,7 @@ def run(args) -> int:
             rep = learn(machine, rec, probes, out, _single_train_h(args), max_nfev=args.max_nfev, progress=say,
                         build_priors=not args.no_prior, validate_h=args.validate_h, current=current)
     except (ValueError, OSError, MachineSpecError, BagRecordingError, ProbeDataError, CalibrationError) as exc:
+        _drop_if_empty(pathlib.Path(args.out), created)
         print(f"thermal-comp learn: {exc}", file=sys.stderr)
         return 2
     (out / "report.md").write_text(markdown(rep) if one is not None else runs_markdown(rep))
