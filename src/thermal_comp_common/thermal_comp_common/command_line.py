@@ -18,3 +18,12 @@ def run_parsed(work: str, *args: Any) -> int:
     if not module or not function:
         raise ValueError(f"work {work!r}: expected 'package.module:function'")
     return int(getattr(importlib.import_module(module), function)(*args) or 0)
+
+
+def add_sample_period_argument(ap) -> None:
+    """The one ``--sample-period-s S`` of every command that reads recordings (``ap``: a parser or
+    an argument group): a CSV without a ``time_s`` column has row i at i x S seconds. A CSV with
+    a time column, or a bag, given a period is refused (its own time wins, never silently)."""
+    ap.add_argument("--sample-period-s", type=float, metavar="S", default=None,
+                    help="a CSV without a time_s column: row i is at i x S seconds (every recording "
+                         "read; refused for a CSV with a time_s column or a bag)")

@@ -119,19 +119,24 @@ def bag_to_recording(contents: BagContents, temperatures_topic: str = "temperatu
 
 
 def load_recording(path, temperatures_topic: str = "temperatures",
-                   errors_topic: str = "errors/ground_truth") -> Recording:
+                   errors_topic: str = "errors/ground_truth", sample_period_s: float | None = None) -> Recording:
     """A recording CSV, or a bag folder / ``.mcap`` file turned into the same columns.
 
     A bag that ends early (``BagContents.damage``) raises :class:`TruncatedBagError` naming
     where it ends, or, when truncated bags are allowed (``--allow-truncated``), is read up to there with a warning
     in ``Recording.warnings``. Raises ``FileNotFoundError`` for a missing path and
     ``ValueError`` (naming the file, column or topic) for content that cannot be read.
+    ``sample_period_s``: a CSV without a ``time_s`` column (row i at i x S); refused for a bag,
+    which has its own time stamps.
     """
     path = pathlib.Path(path)
     if not path.exists():
         raise FileNotFoundError(f"recording {str(path)!r}: no such file or folder")
     if path.is_file() and path.suffix.lower() == ".csv":
-        return read_recording_csv(path)
+        return read_recording_csv(path, sample_period_s=sample_period_s)
+    if sample_period_s is not None:
+        raise RecordingError(f"{path}: a bag has its own time stamps; a sample period "
+                             f"({sample_period_s:g} s, --sample-period-s) is only for a CSV without a time_s column")
     contents = read_bag(path)
     try:
         rec = bag_to_recording(contents, temperatures_topic, errors_topic)

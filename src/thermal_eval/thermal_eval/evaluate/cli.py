@@ -18,7 +18,7 @@ from thermal_comp_common.runtime.engine_options import add_engine_arguments
 
 from thermal_eval.evaluate.opt_in import OPT_IN
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def parser() -> argparse.ArgumentParser:
@@ -39,8 +39,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--rest-h", type=float, default=None, metavar="H",
                     help="several runs: each starts after its first reading held H hours, so dynamic models start it "
                          "at rest (default: 3 for separate runs, 0 for continued ones)")
-    ap.add_argument("--sample-period-s", type=float, metavar="S",
-                    help="the CSV has no time_s column: row i is at i x S seconds")
+    add_sample_period_argument(ap)
     ap.add_argument("--out", required=True, metavar="DIR", help="output folder (refused if not empty, see --force)")
     ap.add_argument("--force", action="store_true", help="write into a non-empty --out")
     ap.add_argument("--spec", metavar="YAML", help="columns, units, split and mapping in one file")

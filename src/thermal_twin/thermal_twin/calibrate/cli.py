@@ -18,7 +18,7 @@ import sys
 
 from thermal_comp_common.runtime.engine_options import add_engine_arguments
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--temperatures-topic", default="temperatures", help="bag only")
     p.add_argument("--errors-topic", default="errors/ground_truth", help="bag only")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_sample_period_argument(p)
     add_allow_truncated_argument(p)
     add_engine_arguments(p, what="Jacobian columns")
     return p

@@ -130,7 +130,7 @@ def read_real_recording(path: str | pathlib.Path, mapping: ColumnMapping | None 
     path = pathlib.Path(path)
     mapping = mapping or ColumnMapping()
     if path.suffix.lower() != ".csv":
-        return _rename(load_recording(path, temperatures_topic, errors_topic), mapping)
+        return _rename(load_recording(path, temperatures_topic, errors_topic, sample_period_s), mapping)
     if not path.is_file():
         raise RecordingError(f"{path}: no such file")
     text, notes = normalised_csv_text(path.read_text(encoding="utf-8", errors="strict"))

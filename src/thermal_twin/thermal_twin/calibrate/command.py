@@ -131,7 +131,8 @@ def _read_runs(args, machine, entries) -> tuple[list, list[str], list[tuple]]:
     """Every run read with the same mapping and topics, each run's missing inputs estimated
     from its own temperatures; (recordings, notes, [(run name, estimate, its recording)])."""
     mapping = parse_mapping(args.map_file, args.map)
-    raw = [read_real_recording(e.path, mapping, args.temperatures_topic, args.errors_topic) for e in entries]
+    raw = [read_real_recording(e.path, mapping, args.temperatures_topic, args.errors_topic, args.sample_period_s)
+           for e in entries]
     if len(raw) > 1:
         check_same_columns(raw, [e.name for e in entries])   # before any estimate fills a column in
     recs, notes, estimates = [], [], []
