@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 from thermal_comp_common.run_splits import DEFAULT_RUN_SPLIT
 
 
@@ -55,6 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the model configuration --current-prior runs with (default: the shipped one for its "
                         "soft-sensor twin)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_sample_period_argument(p)
     add_allow_truncated_argument(p)
     return p
 

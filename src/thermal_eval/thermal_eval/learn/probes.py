@@ -113,13 +113,15 @@ def _applied_at(path: pathlib.Path, times: np.ndarray, components: list[str], b_
     return out
 
 
-def cell_recording(path, noise: dict[str, float] | None = None) -> tuple[Recording, ProbeSet]:
+def cell_recording(path, noise: dict[str, float] | None = None,
+                   sample_period_s: float | None = None) -> tuple[Recording, ProbeSet]:
     """(temperatures and machine inputs, probes of the total error) from a cell's bag or a
     recording CSV (module docstring); ``noise``: the probes' uncertainty per component
-    (default: the message's own, else Table 5.4)."""
+    (default: the message's own, else Table 5.4); ``sample_period_s``: a CSV without a time column."""
     path = pathlib.Path(path)
     is_csv = path.is_file() and path.suffix.lower() == ".csv"
-    rec = load_recording(path) if is_csv else load_recording(path, errors_topic=MEASURED_TOPIC)
+    rec = load_recording(path, sample_period_s=sample_period_s) if is_csv \
+        else load_recording(path, errors_topic=MEASURED_TOPIC, sample_period_s=sample_period_s)
     cols = [c for c in rec.errors if np.isfinite(rec.columns[c]).any()]
     if not cols:
         raise ProbeDataError(f"{path}: no probing result ({'no error value' if is_csv else 'nothing on ' + MEASURED_TOPIC})")

@@ -125,7 +125,7 @@ def _several(args, machine, current, out: pathlib.Path, say) -> dict:
     if args.train_h is not None:
         raise ValueError(f"--train-h {args.train_h:g}: splits one recording in time; with several runs the split "
                          "is by run (--runs-split)")
-    runs = cell_runs(args.recording)
+    runs = cell_runs(args.recording, sample_period_s=args.sample_period_s)
     noise = _noise(args, list(runs[0].probes.values))
     for r in runs:
         r.probes.noise = dict(noise)
@@ -157,7 +157,7 @@ def run(args) -> int:
         if one is None:
             rep = _several(args, machine, current, out, say)
         else:
-            rec, probes = cell_recording(one)
+            rec, probes = cell_recording(one, sample_period_s=args.sample_period_s)
             probes.noise = _noise(args, list(probes.values))
             rep = learn(machine, rec, probes, out, _single_train_h(args), max_nfev=args.max_nfev, progress=say,
                         build_priors=not args.no_prior, validate_h=args.validate_h, current=current)

@@ -67,14 +67,16 @@ def enough_probes(run: CellRun, probes: ProbeSet, where: str) -> None:
                                f"need at least {MIN_CHANNEL_VALUES}")
 
 
-def cell_runs(sources: Sequence[str], noise: dict[str, float] | None = None) -> list[CellRun]:
-    """Every run the sources name, read and checked (module docstring)."""
+def cell_runs(sources: Sequence[str], noise: dict[str, float] | None = None,
+              sample_period_s: float | None = None) -> list[CellRun]:
+    """Every run the sources name, read and checked (module docstring); ``sample_period_s``: every
+    CSV without a time column."""
     entries = resolve_runs(sources)
     _one_unit(entries)
     runs: list[CellRun] = []
     for e in entries:
         try:
-            rec, probes = cell_recording(e.path, noise)
+            rec, probes = cell_recording(e.path, noise, sample_period_s)
         except (ProbeDataError, ValueError, OSError) as exc:
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise DatasetError(f"run {e.name!r}: {msg}") from None
