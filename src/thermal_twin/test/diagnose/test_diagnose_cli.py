@@ -128,3 +128,23 @@ def test_an_existing_output_folder_is_refused_and_an_empty_column_named(recordin
     rec = read_recording_csv(recording_csv)
     rec.columns["dead_c"] = np.full(len(rec), np.nan)
     assert empty_columns(rec) == ["dead_c"]
+
+
+def test_a_csv_without_time_column_is_read_only_with_a_sample_period(recording_csv, tmp_path, capsys):
+    from thermal_comp_common.bags.csv_to_bag import csv_to_bag               # this test only
+    untimed = tmp_path / "untimed.csv"
+    untimed.write_text("\n".join(line.split(",", 1)[1] for line in recording_csv.read_text().splitlines()) + "\n")
+    args = ["--twin", str(TWIN), "--recording", str(untimed), "--quiet", "--no-rerun", "--max-effects", "0",
+            "--no-unnamed", "--no-clock-offset"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 1
+    assert "no time column: give the sample period, e.g. --sample-period-s" in capsys.readouterr().err
+    out = tmp_path / "b"
+    assert main(args + ["--out", str(out), "--sample-period-s", "300"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    rows = len(recording_csv.read_text().splitlines()) - 1
+    assert rep["split"]["end_s"] == pytest.approx((rows - 1) * 300.0)       # row i at i x 300 s
+    bag = tmp_path / "bag"
+    csv_to_bag(recording_csv, bag)
+    assert main(["--twin", str(TWIN), "--recording", str(bag), "--out", str(tmp_path / "c"),
+                 "--sample-period-s", "300"]) == 1
+    assert "a bag has its own time stamps" in capsys.readouterr().err

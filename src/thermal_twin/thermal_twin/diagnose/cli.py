@@ -21,7 +21,7 @@ import sys
 from thermal_comp_common.runtime.engine_options import add_engine_arguments
 from thermal_twin.diagnose.effects import EFFECTS
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not look for a common time shift of the measured channels against the inputs")
     p.add_argument("--no-rerun", action="store_true", help="do not write the rerun recording")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_sample_period_argument(p)
     add_allow_truncated_argument(p)
     add_engine_arguments(p, what="channel analyses and candidate fits")
     return p

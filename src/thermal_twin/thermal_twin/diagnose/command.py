@@ -43,7 +43,7 @@ def run(args) -> int:
         engine = engine_from_args(args)
         machine = load_machine(args.twin)
         rec = read_real_recording(rec_path, parse_mapping(args.map_file, args.map),
-                                  args.temperatures_topic, args.errors_topic)
+                                  args.temperatures_topic, args.errors_topic, args.sample_period_s)
         rec.warnings += name_mismatches(machine, rec)
         empty = empty_columns(rec)
         if empty:     # named, never dropped silently
