@@ -119,3 +119,22 @@ def test_sweep_refuses_a_cut_bag_unless_allowed(cut_bag, tmp_path, capsys):
     assert sweep_main([str(cut_bag), "--out", str(tmp_path / "allowed"), *common, "--allow-truncated"]) == 0
     assert "warning: " in capsys.readouterr().err
     assert (tmp_path / "allowed" / "results.jsonl").read_text().count("\n") == 1
+
+
+def test_a_csv_without_time_column_is_read_only_with_a_sample_period(short_csv, tmp_path, capsys):
+    rec = read_recording_csv(short_csv)
+    period = float(rec.time_s[1] - rec.time_s[0])
+    untimed = tmp_path / "untimed.csv"
+    untimed.write_text("\n".join(line.split(",", 1)[1] for line in short_csv.read_text().splitlines()) + "\n")
+    out = tmp_path / "r.json"
+    assert replay_main([str(untimed), *TALC, "--json", str(out)]) == 2
+    assert "no time column: give the sample period, e.g. --sample-period-s" in _one_line(capsys.readouterr().err)
+    assert replay_main([str(untimed), *TALC, "--sample-period-s", f"{period:g}", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["duration_h"] == pytest.approx((len(rec) - 1) * period / 3600.0)
+    # several runs: every run read with the period
+    second = tmp_path / "second.csv"
+    second.write_text(untimed.read_text())
+    assert replay_main([str(untimed), str(second), *TALC, "--sample-period-s", f"{period:g}",
+                        "--json", str(tmp_path / "two.json")]) == 0
+    runs = json.loads((tmp_path / "two.json").read_text())["runs"]
+    assert [r["duration_h"] for r in runs] == [pytest.approx((len(rec) - 1) * period / 3600.0)] * 2

@@ -17,7 +17,7 @@ import sys
 from thermal_comp_common.probe_and_hold import (TABLE_5_4_NOISE_ANGULAR_UM_PER_M, TABLE_5_4_NOISE_LINEAR_UM,
                                                 TABLE_5_4_RESOLUTION_UM)
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument, truncated_bags_allowed
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 MODEL_KINDS = ("talc", "agp", "cd")
 
@@ -54,6 +54,7 @@ def parser() -> argparse.ArgumentParser:
                          "default: the whole compensation part)")
     ap.add_argument("--prior", metavar="PRIOR", help="start the model (talc, agp or cd) from this prior of its kind (thermal-comp prior --model KIND, or --from-state of another machine); its model_kind must match --model")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_sample_period_argument(ap)
     add_allow_truncated_argument(ap)
     return ap
 

@@ -112,7 +112,7 @@ def run(args, collect: list | None = None) -> int:
             raise ReplayInputError(f"--hours: {args.hours!r} must be a finite number > 0")
         config = load_config_file(args.config) if args.config else {}
         config.update(parse_overrides(args.overrides))
-        rec = load_replay_recording(args.recording, args.errors_topic, args.temperatures_topic)
+        rec = load_replay_recording(args.recording, args.errors_topic, args.temperatures_topic, args.sample_period_s)
         config, notes = canonical_config(args.model, config, rec.names("error"))
         model = build_model(args.model, config) if not args.prior else _with_prior(args.model, config, args.prior)
         stop = None

@@ -31,11 +31,11 @@ class ReplayInputError(ValueError):
 
 
 def load_replay_recording(path: str | pathlib.Path, errors_topic: str = "errors/ground_truth",
-                          temperatures_topic: str = "temperatures"):
-    """A ``Recording`` from a twin CSV, a bag folder or an ``.mcap`` file; a bad file is a
-    :class:`ReplayInputError` naming it."""
+                          temperatures_topic: str = "temperatures", sample_period_s: float | None = None):
+    """A ``Recording`` from a twin CSV (``sample_period_s``: one without a time column), a bag
+    folder or an ``.mcap`` file; a bad file is a :class:`ReplayInputError` naming it."""
     try:
-        return load_recording(path, temperatures_topic, errors_topic)
+        return load_recording(path, temperatures_topic, errors_topic, sample_period_s)
     except (OSError, ValueError) as exc:
         msg = str(exc)
         raise ReplayInputError(msg if msg.startswith("recording ") else f"recording {str(path)!r}: {msg}") from None
