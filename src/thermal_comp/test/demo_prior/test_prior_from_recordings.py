@@ -47,3 +47,22 @@ def test_history_prior_written_with_its_identity(tmp_path, capsys):
     assert prior["identity"]["input_names"] == ["hall"] and prior["held_out"][0].endswith("day3.csv")
     assert main(["--from-recordings", str(runs / "day1.csv"), "--out", str(tmp_path / "one.json")]) == 2
     assert "need at least 2" in capsys.readouterr().err
+
+
+def test_runs_without_time_column_are_read_only_with_a_sample_period(tmp_path, capsys):
+    runs = _write_runs(tmp_path / "runs")
+    untimed = tmp_path / "untimed"
+    untimed.mkdir()
+    for p in sorted(runs.glob("*.csv")):
+        (untimed / p.name).write_text("\n".join(line.split(",", 1)[1] for line in p.read_text().splitlines()) + "\n")
+    out = tmp_path / "prior.json"
+    assert main(["--from-recordings", str(untimed), "--out", str(out)]) == 2
+    assert "no time column: give the sample period, e.g. --sample-period-s" in capsys.readouterr().err
+    assert main(["--from-recordings", str(untimed), "--out", str(out), "--sample-period-s", "300"]) == 0
+    assert main(["--from-recordings", str(runs), "--out", str(tmp_path / "timed.json")]) == 0
+    # row i at i x 300 s: the same prior as from the runs with their time column
+    got, want = json.loads(out.read_text()), json.loads((tmp_path / "timed.json").read_text())
+    assert got["validation_rms"] == want["validation_rms"]
+    with pytest.raises(SystemExit):
+        main(["--out", str(out), "--sample-period-s", "300"])
+    assert "only with --from-recordings" in capsys.readouterr().err

@@ -229,7 +229,7 @@ def _from_recordings(a) -> dict:
     recs = []
     for p in paths:
         try:
-            recs.append(load_recording(p))
+            recs.append(load_recording(p, sample_period_s=a.sample_period_s))
         except (OSError, ValueError) as exc:
             raise PriorError(f"--from-recordings: {exc}") from None
         print(f"read {p} ({len(recs[-1])} rows)", file=sys.stderr)

@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from thermal_comp.prior.programmes import SEED_BASE, TRAINING_SCENARIOS
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -40,11 +40,15 @@ def _parser() -> argparse.ArgumentParser:
                           "folders of them or globs, in time order (the last one is held out to choose and check "
                           "the prior); --model picks the model (default talc), --config overrides the "
                           "configuration taken from the recordings' columns")
+    add_sample_period_argument(ap)
     return ap
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    ap = _parser()
+    args = ap.parse_args(argv)
+    if args.sample_period_s is not None and not args.from_recordings:
+        ap.error(f"--sample-period-s {args.sample_period_s:g}: only with --from-recordings (the runs it reads)")
     return run_parsed("thermal_comp.prior.build:run", args)
 
 if __name__ == "__main__":
