@@ -5,6 +5,7 @@ project's machine format (load_machine reads it back)."""
 from __future__ import annotations
 
 import copy
+import json
 import pathlib
 
 import numpy as np
@@ -145,3 +146,20 @@ def test_cli_writes_the_twin_and_refuses_bad_input_in_one_line(rec, tmp_path, ca
     assert main(["init", "--recording", str(csv), "--description", str(desc), "--out", str(tmp_path / "o2")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "inputs.speed.heats[0]: 'spindle'" in err[0]
+
+
+def test_a_csv_without_time_column_is_read_only_with_a_sample_period(rec, tmp_path, capsys):
+    timed = tmp_path / "timed.csv"
+    write_recording_csv(timed, rec.time_s, rec.columns)
+    csv = tmp_path / "rec.csv"
+    lines = timed.read_text().splitlines()[:182]              # header and the first 6 h (181 rows)
+    csv.write_text("\n".join(line.split(",", 1)[1] for line in lines) + "\n")
+    desc = tmp_path / "d.yaml"
+    desc.write_text("name: rig\nhall: hall\nsensors: {hall: null, s_motor: motor, s_head: head}\n"
+                    "inputs: {speed: {heats: [motor]}}\ndisplacements: {z_um: z}\nhidden: 0\n")
+    args = ["init", "--recording", str(csv), "--description", str(desc), "--quiet", "--max-nfev", "2"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 2
+    assert "no time column: give the sample period, e.g. --sample-period-s" in capsys.readouterr().err
+    out = tmp_path / "b"
+    assert main(args + ["--out", str(out), "--sample-period-s", "120"]) == 0
+    assert json.loads((out / "report.json").read_text())["recording_h"] == pytest.approx(180 * 120.0 / 3600.0)

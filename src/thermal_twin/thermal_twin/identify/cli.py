@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--max-nfev", type=int, default=40, help="optimiser iterations per pass (default 40)")
     i.add_argument("--force", action="store_true", help="write into a non-empty --out")
     i.add_argument("--quiet", action="store_true", help="no progress lines")
+    add_sample_period_argument(i)
     return p
 
 

@@ -31,9 +31,10 @@ TWIN_FILE = "twin.yaml"
 PROBES_TOPIC = "errors/measured"
 
 
-def read_recording(path: str, hours: float | None = None) -> Recording:
-    """A recording CSV or a cell bag (probes from ``errors/measured``), its first ``hours``."""
-    rec = load_recording(path, errors_topic=PROBES_TOPIC)
+def read_recording(path: str, hours: float | None = None, sample_period_s: float | None = None) -> Recording:
+    """A recording CSV (``sample_period_s``: one without a time column) or a cell bag (probes
+    from ``errors/measured``), its first ``hours``."""
+    rec = load_recording(path, errors_topic=PROBES_TOPIC, sample_period_s=sample_period_s)
     if hours is not None:
         if not (math.isfinite(hours) and hours > 0):
             raise DescriptionError(f"--hours: {hours!r} must be a number of hours > 0")
@@ -122,7 +123,7 @@ def run(args) -> int:
         if out.exists() and (not out.is_dir() or any(out.iterdir())) and not args.force:
             raise DescriptionError(f"--out {args.out}: exists and is not an empty folder (--force writes into it)")
         d = load_description(args.description)
-        rec = read_recording(args.recording, args.hours)
+        rec = read_recording(args.recording, args.hours, args.sample_period_s)
         say = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
         rep = init_twin(d, rec, out, holdout=args.holdout, max_nfev=args.max_nfev, progress=say)
     except (DescriptionError, CalibrationError, MachineSpecError, RecordingError, BagRecordingError,
