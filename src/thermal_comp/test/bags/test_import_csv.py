@@ -86,3 +86,17 @@ def test_cli_reports_a_truncated_csv_and_keeps_the_rows_before(tmp_path):
                         "--no-progress"], env=env(), capture_output=True, text=True, timeout=120)
     assert p.returncode == 2 and "line 3: column 'a_c': 'x' is not a number" in p.stderr
     assert not (tmp_path / "bag2").exists()
+
+
+def test_a_csv_without_time_column_is_imported_only_with_a_sample_period(tmp_path):
+    csv = small_recording_csv(tmp_path / "r.csv", rows=12)
+    untimed = tmp_path / "untimed.csv"
+    untimed.write_text("\n".join(line.split(",", 1)[1] for line in csv.read_text().splitlines()) + "\n")
+    cmd = [sys.executable, "-m", "thermal_comp.bags.import_csv_cli", str(untimed), "--no-progress"]
+    p = subprocess.run([*cmd, str(tmp_path / "refused")], env=env(), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "--sample-period-s" in p.stderr and not (tmp_path / "refused").exists()
+    p = subprocess.run([*cmd, str(tmp_path / "bag"), "--sample-period-s", "30"], env=env(), capture_output=True,
+                       text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    stamps = [m.stamp_ns * 1e-9 for m in read_bag(tmp_path / "bag").messages if m.topic.endswith("temperatures")]
+    assert len(stamps) == 12 and stamps[-1] - stamps[0] == pytest.approx(11 * 30.0)

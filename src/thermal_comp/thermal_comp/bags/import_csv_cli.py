@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def _rows(text: str) -> tuple[int, int | None]:
@@ -26,6 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
                "Exit codes: 0 imported, 2 bad arguments, unreadable CSV (one line naming file, line "
                "and column) or OUT exists (without --force).")
     ap.add_argument("csv", metavar="CSV", help="recording CSV file")
+    add_sample_period_argument(ap)
     ap.add_argument("out", metavar="OUT", help="bag folder to create (must not exist, see --force)")
     ap.add_argument("--force", action="store_true",
                     help="replace an existing bag folder OUT (only a bag or an empty folder)")

@@ -17,7 +17,7 @@ def run(args) -> int:
     try:
         if args.force:
             remove_bag_folder(args.out)
-        rec = read_recording_csv(args.csv)
+        rec = read_recording_csv(args.csv, sample_period_s=args.sample_period_s)
         if not args.no_progress:
             lo, hi = args.rows
             total = len(range(lo, len(rec) if hi is None else min(hi, len(rec)), max(args.every, 1)))

@@ -138,3 +138,17 @@ def test_a_csv_without_time_column_is_read_only_with_a_sample_period(short_csv, 
                         "--json", str(tmp_path / "two.json")]) == 0
     runs = json.loads((tmp_path / "two.json").read_text())["runs"]
     assert [r["duration_h"] for r in runs] == [pytest.approx((len(rec) - 1) * period / 3600.0)] * 2
+
+
+def test_sweep_reads_a_csv_without_time_column_only_with_a_sample_period(short_csv, tmp_path, capsys):
+    from thermal_eval.sweep.cli import main as sweep_main      # the sweep's CLI only in this test
+    untimed = tmp_path / "untimed.csv"
+    untimed.write_text("\n".join(line.split(",", 1)[1] for line in short_csv.read_text().splitlines()) + "\n")
+    common = ["--limit", "1", "--jobs", "1", "--no-progress", "--set", "cp_length_h=2"]
+    assert sweep_main([str(untimed), "--out", str(tmp_path / "refused"), *common]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and err.startswith("thermal-comp sweep: ") and "--sample-period-s" in err, err
+    rec = read_recording_csv(short_csv)
+    period = f"{float(rec.time_s[1] - rec.time_s[0]):g}"
+    assert sweep_main([str(untimed), "--out", str(tmp_path / "ok"), *common, "--sample-period-s", period]) == 0
+    assert (tmp_path / "ok" / "results.jsonl").read_text().count("\n") == 1

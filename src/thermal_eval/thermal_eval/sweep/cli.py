@@ -17,7 +17,7 @@ from thermal_comp_common.metrics import Q_PROD_MIN_PCT
 from thermal_comp_common.probe_and_hold import (TABLE_5_4_NOISE_ANGULAR_UM_PER_M, TABLE_5_4_NOISE_LINEAR_UM,
                                                 TABLE_5_4_RESOLUTION_UM)
 from thermal_comp_common.bags.truncation import add_allow_truncated_argument
-from thermal_comp_common.command_line import run_parsed
+from thermal_comp_common.command_line import add_sample_period_argument, run_parsed
 
 
 def parser() -> argparse.ArgumentParser:
@@ -41,6 +41,7 @@ def parser() -> argparse.ArgumentParser:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-progress", action="store_true")
     add_allow_truncated_argument(ap)
+    add_sample_period_argument(ap)
     return ap
 
 

@@ -37,7 +37,7 @@ def run(args) -> int:
         if not points:
             raise SweepError(f"--grid-subset {args.grid_subset!r}: selects no combination of the grid")
         with truncated_bags_allowed(args.allow_truncated):     # read in this process only
-            rec = load_replay_recording(args.recording)
+            rec = load_replay_recording(args.recording, sample_period_s=args.sample_period_s)
         for w in rec.warnings:                                 # what was used is said before the work
             print(f"warning: {w}", file=sys.stderr)
         run = SweepRun("talc", base, args.probe_noise_um, args.probe_noise_um_per_m, args.probe_resolution_um,
