@@ -72,6 +72,22 @@ def test_model_excludes_flagged_sensors_and_ignores_late_temperatures(tmp_path, 
         # matched on both of our ends (the graph alone says nothing about the node's writers)
         _spin_until(ex, lambda: pub.get_subscription_count() >= 1
                     and all(s.get_publisher_count() >= 1 for s in subs), 60.0, proc, "talc_model node not discovered")
+        # Discovery is not symmetric: the node's prediction writer may not know our reader yet, and
+        # a volatile prediction sent before it does is lost. The first instant is re-sent until its
+        # prediction is heard; the node answers a repeated instant with the same prediction, never
+        # a second update.
+        t0, vals0, st0 = frames[0]
+        for _ in range(30):
+            pub.publish(TemperatureArray(header=Header(stamp=s_to_stamp(t0)), sensor_ids=ids,
+                                         temperatures_degc=vals0, status=st0))
+            try:
+                _spin_until(ex, lambda: t0 in preds, 2.0, proc, "warm-up")
+                break
+            except AssertionError:
+                if proc.poll() is not None:
+                    raise
+        else:
+            raise AssertionError(f"no prediction for the first instant (process exit {proc.poll()})")
         seen = {}
         for t, vals, st in frames:
             pub.publish(TemperatureArray(header=Header(stamp=s_to_stamp(t)), sensor_ids=ids,
