@@ -196,8 +196,11 @@ def test_a_cell_on_one_host_is_recorded_completely_on_another(tmp_path, ros_doma
                       "-r", "__node:=viewer")
         procs.append(viewer)
         bag = tmp_path / "bag"
+        # an observer subscribes to the ground truth (what machine_sim waits for) only once it hears
+        # a publisher of each topic the cell publishes from its first instant
         recorder = Proc(hosts.b, env, *cli, "record", str(bag), "--ros-args", "-r", "__ns:=/mh",
-                        "-r", "__node:=recorder", "-p", f"lockstep_participant:={str(participant).lower()}")
+                        "-r", "__node:=recorder", "-p", f"lockstep_participant:={str(participant).lower()}",
+                        "-p", "expect_from_start:=['temperatures']")
         procs.append(recorder)
 
         launch.wait_for("mh/machine_sim exited with code 0", timeout=120.0)

@@ -16,6 +16,11 @@ and in the closing line), not written again; ``keep_resends:=true`` writes every
 topic holds each instant once (before, a cell under load held 160 copies of 59 instants on
 every topic but the ground truth, which machine_sim did not re-send).
 
+As an observer (machine_sim's ``wait_for_subscribers``) with ``expect_from_start``, it subscribes
+to errors/ground_truth, the topic machine_sim checks, only once each expected topic has a matched
+publisher: DDS matches each pair of processes on its own, so a participant's writer (the
+sensors') may not know a remote recorder yet when machine_sim, which does, starts.
+
 As a lock-step participant (``lockstep_participant``) the recorder loses nothing across a crash
 and restart: it acknowledges instant t_k on ``sim_sync`` only once it has written a message
 stamped t_k on every one of ``ack_topics`` and handed the file to the OS (fsynced with
@@ -170,7 +175,12 @@ PARAMS = [
              "at t_k too before t_k is acknowledged (ones not recorded are ignored)"),
     rt.Param("expect_from_start", [""], "lock-step: follow topics expected at the first instant "
              "this recorder acknowledges too (the cell's participants publish them from its first "
-             "instant: a message lost before the recorder matched its publisher is re-sent)"),
+             "instant: a message lost before the recorder matched its publisher is re-sent); as an "
+             "observer: errors/ground_truth, the topic machine_sim's wait_for_subscribers checks, is "
+             "subscribed only once each of these topics has a matched publisher (observer_wait_s)"),
+    rt.Param("observer_wait_s", 60.0, "observer with expect_from_start: wall s to wait for their "
+             "publishers before subscribing to errors/ground_truth anyway (the topics still unheard "
+             "are named)", lo=0.1, hi=3600.0),
     rt.Param("follow_timeout_s", 10.0, "lock-step: wall s to wait for an expected follow topic "
              "once every ack_topics topic of t_k is written; then it is named and no longer "
              "expected until written again", lo=0.1, hi=3600.0),
@@ -203,7 +213,9 @@ class BagRecorderNode(Node):
         self._stamp_bound = default_max_ahead_s(p["max_stamp_ahead_s"],
                                                 bool(self.get_parameter("use_sim_time").value))
         self.stamps: dict[str, StampGuard] = {}       # topic -> its guard (stamped topics, made on first use)
-        infos = self._subscribe(topic_specs(p["topics"], p["health"]))
+        specs = topic_specs(p["topics"], p["health"])
+        gated = self._gate_topic(specs, p)
+        infos = self._subscribe(specs, deferred=gated)
         self._ack_topics: set[str] = set()
         self._follow_topics: set[str] = set()
         self._pending: dict[int, set[str]] = {}       # stamp -> ack topics written at it (until acknowledged)
@@ -214,6 +226,8 @@ class BagRecorderNode(Node):
         self._sync_pub = None
         if p["lockstep_participant"]:
             self._setup_lockstep(p)
+        elif gated is not None:
+            self._setup_observer_gate(p, gated)
         # The bag last: a start refused for a parameter leaves no empty, unclosed bag behind (which a
         # restart would then step over into OUTPUT.2).
         output = self._output_path(p["output"], p["on_existing"])
@@ -230,17 +244,71 @@ class BagRecorderNode(Node):
         self.get_logger().info(f"recording {len(infos)} topics into {output}: "
                                + ", ".join(i.name for i in infos))
 
-    def _subscribe(self, specs) -> list[TopicInfo]:
-        """A raw subscription per (name, type, QoS); the bag's topic list, names resolved."""
+    def _subscribe(self, specs, deferred: str | None = None) -> list[TopicInfo]:
+        """A raw subscription per (name, type, QoS); the bag's topic list, names resolved. The
+        ``deferred`` topic is in the list but subscribed later (:meth:`_open_gate`)."""
         self._subs = []
+        self._deferred = None
+        self._gate_wait: set[str] = set()
         infos = []
         for name, type_name, qos in specs:
             cls = message_class(type_name)
-            sub = self.create_subscription(cls, name, self._callback_for(len(self._subs)),
-                                           _receive_qos(qos), raw=True)
-            self._subs.append((sub, sub.topic_name, starts_with_stamp(type_name)))
-            infos.append(TopicInfo(sub.topic_name, type_name, [_qos_to_dict(qos)]))
+            topic = self.resolve_topic_name(name)
+            if topic == deferred:
+                self._deferred = (len(self._subs), cls, name, _receive_qos(qos))
+                self._subs.append((None, topic, starts_with_stamp(type_name)))
+            else:
+                sub = self.create_subscription(cls, name, self._callback_for(len(self._subs)),
+                                               _receive_qos(qos), raw=True)
+                self._subs.append((sub, topic, starts_with_stamp(type_name)))
+            infos.append(TopicInfo(topic, type_name, [_qos_to_dict(qos)]))
         return infos
+
+    def _gate_topic(self, specs, p: dict) -> str | None:
+        """The ground-truth topic when this recorder is an observer told what to expect from the
+        start: machine_sim publishes its first instant once an observer subscribes to it, and DDS
+        matches each pair of processes on its own, so a participant's writer (the sensors') may
+        not know this recorder yet; holding that subscription back until every expected topic has
+        a matched publisher keeps their first instants. None: nothing is held back."""
+        expected = [t for t in p["expect_from_start"] if t.strip()]
+        truth = self.resolve_topic_name(rt.TOPIC_ERRORS_TRUE)
+        if p["lockstep_participant"] or not expected:
+            return None
+        recorded = {self.resolve_topic_name(n) for n, _, _ in specs}
+        unknown = sorted({self.resolve_topic_name(t) for t in expected} - recorded)
+        if unknown:
+            raise ValueError(f"parameter 'expect_from_start': {unknown} is not a recorded topic "
+                             "(a topic expected from the first instant must be recorded)")
+        return truth if truth in recorded else None
+
+    def _setup_observer_gate(self, p: dict, gated: str) -> None:
+        self._gate_wait = {self.resolve_topic_name(t) for t in p["expect_from_start"] if t.strip()} - {gated}
+        self._gate_deadline = time.monotonic() + float(p["observer_wait_s"])
+        self._gate_timer = self.create_timer(0.1, self._open_gate, clock=Clock(clock_type=ClockType.STEADY_TIME))
+
+    def unheard_topics(self) -> list[str]:
+        """Observer gate: the expected topics no publisher of which has matched this recorder yet."""
+        subs = {topic: sub for sub, topic, _ in self._subs if sub is not None}
+        return sorted(t for t in self._gate_wait if subs[t].get_publisher_count() == 0)
+
+    def _open_gate(self) -> None:
+        """Subscribe to the held-back topic once every expected topic is heard, or at the deadline
+        (the topics still unheard named on the log: their first instants may be missing)."""
+        if self._deferred is None:
+            return
+        unheard = self.unheard_topics()
+        if unheard and time.monotonic() < self._gate_deadline:
+            return
+        index, cls, name, qos = self._deferred
+        sub = self.create_subscription(cls, name, self._callback_for(index), qos, raw=True)
+        self._subs[index] = (sub, sub.topic_name, self._subs[index][2])
+        self._deferred = None
+        self._gate_timer.cancel()
+        if unheard:
+            self.get_logger().warning(f"no publisher of {', '.join(unheard)} matched within observer_wait_s; "
+                                      f"subscribing to {sub.topic_name} anyway: their first instants may be missing")
+        else:
+            self.get_logger().info(f"every expected topic has a publisher: subscribed to {sub.topic_name}")
 
     def _setup_lockstep(self, p: dict) -> None:
         """Lock-step participant: the ack, follow and start topics checked, sim_sync publisher,
