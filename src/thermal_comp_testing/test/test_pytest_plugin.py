@@ -76,3 +76,38 @@ def test_claimed_ids_stay_in_the_safe_range_until_it_is_exhausted(tmp_path, monk
         holder.stdin.close()
         holder.wait(timeout=30)
     assert domain_ids.SAFE_DOMAIN_IDS == range(0, 102)
+
+
+DDS_PROBE = '''\
+import json, os, pathlib, subprocess, sys
+import pytest
+
+@pytest.mark.ros
+def test_record():
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.environ.get('FASTRTPS_DEFAULT_PROFILES_FILE', ''))"],
+                           capture_output=True, text=True, check=True)
+    profile = pathlib.Path(os.environ["ROS_LOG_DIR"]) / "fastdds_test_process.xml"
+    pathlib.Path(os.environ["RECORD_DIR"], "dds.json").write_text(json.dumps({
+        "here": os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE", ""), "child": child.stdout.strip(),
+        "profile": profile.read_text() if profile.is_file() else ""}))
+'''
+
+
+def test_a_ros_test_process_takes_discovery_off_in_process_delivery_and_its_children_do_not(tmp_path):
+    """The test process's Fast DDS gets the profile (discovery over the transport, against an
+    upstream deadlock); neither the test nor a process it starts sees the variable, and a
+    profile the user names is left alone."""
+    (tmp_path / "test_dds.py").write_text(DDS_PROBE)
+    env = dict(os.environ, RECORD_DIR=str(tmp_path))
+    env.pop("FASTRTPS_DEFAULT_PROFILES_FILE", None)
+    run = _pytest(tmp_path, "test_dds.py", env=env)
+    assert run.returncode == 0, run.stdout + run.stderr
+    seen = json.loads((tmp_path / "dds.json").read_text())
+    assert seen["here"] == "" and seen["child"] == ""
+    assert "<intraprocess_delivery>USER_DATA_ONLY</intraprocess_delivery>" in seen["profile"]
+    user = tmp_path / "user.xml"
+    user.write_text("<dds/>")
+    run = _pytest(tmp_path, "test_dds.py", env=dict(env, FASTRTPS_DEFAULT_PROFILES_FILE=str(user)))
+    assert run.returncode == 0, run.stdout + run.stderr
+    seen = json.loads((tmp_path / "dds.json").read_text())
+    assert seen["here"] == str(user) and seen["child"] == str(user) and seen["profile"] == ""

@@ -57,6 +57,50 @@ def pytest_configure(config):
     os.environ.setdefault("MPLBACKEND", "Agg")
 
 
+#: Fast DDS 2.x reads its default XML profiles from the file this variable names
+PROFILES_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+#: Discovery between the participants of one process goes over the transport; user data stays
+#: in-process. Fast DDS 2.14 can deadlock deleting a writer when its discovery message is
+#: delivered in-process to another participant (upstream Fast-DDS #6502, #6193): a test process
+#: with several contexts then hangs where no timeout can interrupt it.
+TEST_PROCESS_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <library_settings>
+    <intraprocess_delivery>USER_DATA_ONLY</intraprocess_delivery>
+  </library_settings>
+</dds>
+"""
+_dds_configured = False
+
+
+def configure_test_process_dds() -> bool:
+    """Give this process's Fast DDS the test profile (unless the user names a profile): the
+    library reads it when the first participant is made and keeps it, so the variable is
+    set only for that moment and the processes the tests start never inherit it (the cell
+    launcher would otherwise leave its own transport choice out). True if applied."""
+    global _dds_configured
+    if _dds_configured or os.environ.get(PROFILES_ENV):
+        return False
+    _dds_configured = True
+    import rclpy  # ROS only where a ROS test runs: the plugin loads in every run
+    path = pathlib.Path(os.environ["ROS_LOG_DIR"]) / "fastdds_test_process.xml"
+    path.write_text(TEST_PROCESS_PROFILE)
+    os.environ[PROFILES_ENV] = str(path)
+    ctx = rclpy.context.Context()
+    try:
+        rclpy.init(context=ctx)
+        rclpy.create_node("_thermal_comp_dds_profile", context=ctx).destroy_node()  # makes the participant
+    finally:
+        del os.environ[PROFILES_ENV]
+        ctx.try_shutdown()
+    return True
+
+
+def pytest_runtest_setup(item):
+    if item.get_closest_marker("ros") is not None:
+        configure_test_process_dds()
+
+
 @pytest.fixture(scope="session")
 def ros_domain_id() -> int:
     """The ROS_DOMAIN_ID of this test process (already exported to os.environ)."""
