@@ -7,6 +7,7 @@ from __future__ import annotations
 import copy
 import json
 import pathlib
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ import yaml
 from thermal_comp_common.recording_csv import Recording, write_recording_csv
 from thermal_twin.identify import DescriptionError, identify, init_twin, parse_description
 from thermal_twin.identify.cli import main
-from thermal_twin.identify.identification import section
+from thermal_twin.identify.identification import information_criterion, section
 from thermal_twin.identify.structure import starting_spec
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.inputs_timeline import InputsTimeline
@@ -128,6 +129,49 @@ def test_an_unsensed_slow_body_becomes_a_hidden_node_that_beats_the_baselines(re
     cfg = yaml.safe_load((tmp_path / "model_config.yaml").read_text())
     assert cfg["type_model"] == str((tmp_path / "twin.yaml").resolve())
     assert "twin:hidden_1" in cfg["type_input_names"] and cfg["component_names"] == ["z_um"]
+
+
+def test_the_kept_structure_has_the_smallest_criterion_and_is_the_whole_recording_fit(rec):
+    ident = identify(parse_description(DESCRIPTION), rec, holdout=0.25, max_nfev=15)
+    best = min(ident.candidates, key=lambda c: c.criterion)
+    assert ident.spec == best.spec and ident.chosen.hidden == best.hidden
+    # every candidate saw the whole recording (but calibrate's last 5 %); the held-out figures are
+    # of a second fit of the kept structure that never saw the last quarter
+    assert all(c.calibration.n_train > 0.9 * len(rec) for c in ident.candidates)
+    assert ident.chosen.calibration.n_train < 0.8 * len(rec) and "smallest criterion" in ident.notes[0]
+
+
+def _fitted(measured: dict, after: dict, n_parameters: int):
+    """What information_criterion reads of a calibration: its rows, readings, fit and parameters."""
+    n = len(next(iter(measured.values())))
+    return SimpleNamespace(n_train=n, measured=measured, after=after, scored=lambda c: measured[c],
+                           estimates=[None] * n_parameters)
+
+
+def test_the_criterion_counts_probes_and_a_continuous_channels_independent_samples_not_temperatures():
+    d = parse_description({**DESCRIPTION, "displacements": {"z_um": "z", "x_um": "x"}})
+    rng = np.random.default_rng(3)
+    n = 400
+    probes = np.full(n, np.nan)
+    probes[::20] = rng.normal(0.0, 1.0, 20)              # 20 probes: sparse
+    white = rng.normal(0.0, 1.0, n)                        # a continuous channel, white residual
+    zero = np.zeros(n)
+    fit = _fitted({"z_um": probes, "x_um": white, "s_head_c": white}, {"z_um": zero, "x_um": zero, "s_head_c": zero}, 5)
+    more = _fitted(fit.measured, fit.after, 9)
+    # four more parameters cost 4 ln(n) with n the probes plus the white channel's samples
+    gap = information_criterion(d, more) - information_criterion(d, fit)
+    assert 20 + 0.5 * n < np.exp(gap / 4) <= 20 + n
+    # a temperature channel's residual is not counted
+    hot = _fitted({**fit.measured, "s_head_c": 10 * white}, fit.after, 5)
+    assert information_criterion(d, hot) == information_criterion(d, fit)
+    # a slowly wandering residual of the same size counts as far fewer independent samples
+    slow = np.repeat(rng.normal(0.0, 1.0, n // 40), 40)
+    smooth = _fitted({**fit.measured, "x_um": slow}, fit.after, 5)
+    rough = _fitted({**fit.measured, "x_um": slow + 1e-9 * white}, fit.after, 9)
+    assert np.exp((information_criterion(d, rough) - information_criterion(d, smooth)) / 4) < 20 + 0.5 * n
+    # halving a probe channel's residual lowers the criterion by 20 ln 4
+    better = _fitted({**fit.measured, "z_um": probes / 2}, fit.after, 5)
+    assert information_criterion(d, fit) - information_criterion(d, better) == pytest.approx(20 * np.log(4))
 
 
 def test_cli_writes_the_twin_and_refuses_bad_input_in_one_line(rec, tmp_path, capsys):

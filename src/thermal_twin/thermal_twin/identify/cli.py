@@ -22,7 +22,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--out", required=True, help="output folder (new or empty unless --force)")
     i.add_argument("--hours", type=float, help="use only the first H hours of the recording")
     i.add_argument("--holdout", type=float, default=0.25,
-                   help="last fraction kept out to choose the hidden bodies and score (default 0.25)")
+                   help="last fraction kept out of a second fit of the kept structure, for the held-out figures (default 0.25)")
     i.add_argument("--max-nfev", type=int, default=40, help="optimiser iterations per pass (default 40)")
     i.add_argument("--force", action="store_true", help="write into a non-empty --out")
     i.add_argument("--quiet", action="store_true", help="no progress lines")

@@ -62,7 +62,9 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
     report = {"twin": machine.name, "recording": rec.source, "recording_h": float(rec.time_s[-1] - rec.time_s[0]) / 3600,
               "holdout_fraction": holdout, "hidden_bodies": ident.chosen.hidden,
               "nodes": machine.node_names, "soft_sensors": soft_sensors(machine),
-              "candidates": [{"hidden": c.hidden, "held_out_score": c.score} for c in ident.candidates],
+              "candidates": [{"hidden": c.hidden, "parameters": len(c.calibration.estimates),
+                              "information_criterion": c.criterion} for c in ident.candidates],
+              "held_out_score": ident.chosen.score,
               "held_out_rmse": held_out_table(ident, rec),
               "notes": ident.notes + list(rec.warnings),
               "fit": {"twin_runs": cal.n_evals, "simulated_h_per_s": round(cal.simulated_h / max(cal.wall_s, 1e-9), 1)},
@@ -98,19 +100,21 @@ def _fmt(v) -> str:
 def markdown(rep: dict) -> str:
     """report.md, every figure from ``rep`` (report.json)."""
     lines = [f"# twin init: {rep['twin']} from {rep['recording']}", "",
-             f"Recording {rep['recording_h']:.1f} h; structures fitted on the first "
-             f"{100 * (1 - rep['holdout_fraction']):.0f} %, scored on the rest; kept "
-             f"{rep['hidden_bodies']} hidden bodies; nodes {', '.join(rep['nodes'])}. "
+             f"Recording {rep['recording_h']:.1f} h; every structure fitted on the whole recording (its last "
+             f"5 % out), kept {rep['hidden_bodies']} hidden bodies (the smallest information criterion); "
+             f"nodes {', '.join(rep['nodes'])}. "
              f"Wall {rep['wall_s']} s, twin {rep['fit']['simulated_h_per_s']} simulated h/s.", "",
-             "| hidden bodies | held-out score (mean RMSE / training spread) |", "|---|---|"]
-    lines += [f"| {c['hidden']} | {_fmt(c['held_out_score'])} |" for c in rep["candidates"]]
-    lines += ["", "## Held-out RMSE (K for temperatures, um or um/m for displacements)", "",
+             "| hidden bodies | parameters | information criterion (displacement channels) |", "|---|---|---|"]
+    lines += [f"| {c['hidden']} | {c['parameters']} | {_fmt(c['information_criterion'])} |" for c in rep["candidates"]]
+    lines += ["", f"## Held-out RMSE of the kept structure fitted on the first "
+              f"{100 * (1 - rep['holdout_fraction']):.0f} % (K for temperatures, um or um/m for displacements; "
+              f"score {_fmt(rep['held_out_score'])}: mean RMSE / training spread)", "",
               "| channel | twin | twin before the fit | training mean | static regression | values |",
               "|---|---|---|---|---|---|"]
     for c, r in rep["held_out_rmse"].items():
         lines.append(f"| {c} | {_fmt(r['twin'])} | {_fmt(r['twin before fit'])} | {_fmt(r['training mean'])} | "
                      f"{_fmt(r['static regression'])} | {r['n']} |")
-    lines += ["", "The twin written was refitted on the whole recording (its last 5 % out).", ""]
+    lines += ["", "The twin written is the one fitted on the whole recording (its last 5 % out).", ""]
     lines += [f"- {n}" for n in rep["notes"]]
     return "\n".join(lines) + "\n"
 

@@ -14,9 +14,14 @@ samples): on one day of data the plain fit extrapolated worse (docs/twin_init.md
 left on it (maximum likelihood with one unknown variance per channel); temperature channels
 are further down-weighted so that all of them together weigh as much as the sparse probes.
 
-Hidden bodies are added one at a time while the held-out fit (the last ``holdout`` of the
-recording, never fitted) improves by more than ``HIDDEN_MARGIN``; the chosen structure is then
-refitted on the whole recording (but its last 5 %). The notes say when the kept structure has a
+Hidden bodies are chosen by Schwarz's information criterion on the whole recording (but its last
+5 %, calibrate's minimum): every structure with 0 ... ``hidden`` hidden bodies is fitted on it and
+the one with the smallest criterion on the displacement channels is kept
+(:func:`information_criterion`). A held-out window at the end of one day ranked the structures
+the other way round from the days after it and left the candidates a quarter less data to show
+their slow part; every reading of the day, penalised by the parameters it costs, ranked them as
+their extrapolation did (docs/twin_init.md). The kept structure is fitted once more on the first
+``1 - holdout`` only, for the report's held-out figures. The notes say when the kept structure has a
 mode slower than the data it was fitted on (``MODE_LIMIT`` x that length, :mod:`modes`): such a
 mode shows in the data only as a slope, so its time constant and gains, and the twin's
 extrapolation beyond the recording, are not identified. Refusing such structures was measured
@@ -35,13 +40,12 @@ from thermal_comp_common.probe_and_hold import table_5_4_noise
 from thermal_comp_common.recording_csv import Recording
 
 from thermal_twin.calibrate.fit import CalibrationResult, calibrate
-from thermal_twin.diagnose.fit import channel_sigma
+from thermal_twin.diagnose.fit import channel_sigma, effective_samples
 from thermal_twin.identify.description import Description
 from thermal_twin.identify.modes import slowest_mode_h
 from thermal_twin.identify.structure import starting_spec
 
 WIDE = 30.0                      # every positive parameter within a factor 30 of its start
-HIDDEN_MARGIN = 0.01             # a hidden body must lower the held-out score by 1 %
 SPARSE_FRACTION = 0.5            # a channel with fewer finite rows than this is sparse (probes)
 PRIOR = True                     # calibrate's prior toward the start (module docstring)
 FINAL_HOLDOUT = 0.05             # the final refit keeps only this much out (calibrate's minimum)
@@ -57,14 +61,15 @@ class Candidate:
     score: float                         # mean held-out RMSE / training spread over the channels
     slowest_h: float = math.nan          # the fitted structure's slowest time constant at rest, h
     fitted_h: float = math.nan           # the length of data it was fitted on, h
+    criterion: float = math.nan          # information criterion on the displacement channels
 
 
 @dataclass
 class Identification:
     description: Description
     spec: dict                           # the identified twin (refitted on the whole recording)
-    chosen: Candidate
-    candidates: list[Candidate]
+    chosen: Candidate                    # the kept structure fitted on the training part only
+    candidates: list[Candidate]          # every structure fitted on the whole recording
     channels: list[str]
     n_train: int
     notes: list[str] = field(default_factory=list)
@@ -166,7 +171,33 @@ def fit_structure(d: Description, rec: Recording, hidden: int, holdout: float, m
     norm = [v / _spread(rec, c, cal.n_train) for c, v in ho.items() if math.isfinite(v)]
     score = float(np.mean(norm)) if norm else math.inf
     fitted_h = float(rec.time_s[min(cal.n_train, rec.time_s.size) - 1] - rec.time_s[0]) / 3600.0
-    return Candidate(hidden, cal.spec, cal, ho, score, slowest_mode_h(cal.spec), fitted_h)
+    return Candidate(hidden, cal.spec, cal, ho, score, slowest_mode_h(cal.spec), fitted_h,
+                     information_criterion(d, cal))
+
+
+def information_criterion(d: Description, cal: CalibrationResult) -> float:
+    """Schwarz's criterion of a fitted structure on its fitted rows, counted on the displacement
+    channels (what the twin is for): sum_c n_c ln(RSS_c / m_c) + k ln(sum_c n_c), k the fitted
+    parameters, m_c the channel's fitted readings and n_c their evidence: every sparse probe (some
+    25 min apart, each with its own noise), a continuous channel's effective number of
+    independent residual samples. The temperatures are fitted but not counted: their thousands of
+    autocorrelated rows would reward every added body."""
+    k = cal.n_train
+    log_lik, n_all = 0.0, 0.0
+    for c in d.displacements:
+        if c not in cal.measured:
+            continue
+        y, p = np.asarray(cal.scored(c), float)[:k], np.asarray(cal.after[c], float)[:k]
+        r = (y - p)[np.isfinite(y) & np.isfinite(p)]
+        if r.size < 2:
+            continue
+        sparse = np.isfinite(np.asarray(cal.measured[c], float)).mean() < SPARSE_FRACTION
+        n = float(r.size) if sparse else min(float(r.size), effective_samples(r))
+        log_lik += n * math.log(max(float(r @ r), 1e-12) / r.size)
+        n_all += n
+    if n_all == 0:
+        return math.inf
+    return log_lik + len(cal.estimates) * math.log(max(n_all, 2.0))
 
 
 def identifiable(c: Candidate) -> bool:
@@ -177,25 +208,24 @@ def identifiable(c: Candidate) -> bool:
 
 def identify(d: Description, rec: Recording, holdout: float = 0.25, max_nfev: int = 40,
              progress: Callable[[str], None] = lambda m: None) -> Identification:
-    """Identify the twin (module docstring): choose the hidden bodies on held-out data, refit."""
+    """Identify the twin (module docstring): fit every structure on the whole recording, keep the
+    smallest information criterion, fit it on the training part for the held-out report."""
     cands = []
-    best = None
     for hidden in range(d.hidden + 1):
         progress(f"fitting the structure with {hidden} hidden bod{'y' if hidden == 1 else 'ies'}")
-        c = fit_structure(d, rec, hidden, holdout, max_nfev, progress)
+        c = fit_structure(d, rec, hidden, FINAL_HOLDOUT, max_nfev, progress)
         cands.append(c)
-        progress(f"  held-out score {c.score:.4g}, slowest mode {c.slowest_h:.1f} h on {c.fitted_h:.1f} h of data")
-        if best is None or c.score < best.score * (1.0 - HIDDEN_MARGIN):
-            best = c
-        else:
-            break
-    start = {e.param.name: e.value for e in best.calibration.estimates}
-    progress(f"refitting {best.hidden} hidden on the whole recording")
-    final = fit_structure(d, rec, best.hidden, FINAL_HOLDOUT, max_nfev, progress, start=start)
-    notes = [f"hidden bodies tried: {[c.hidden for c in cands]}, held-out scores "
-             f"{[round(c.score, 4) for c in cands]}, slowest modes {[round(c.slowest_h, 1) for c in cands]} h; "
-             f"kept {best.hidden} (a hidden body must lower the score by {100 * HIDDEN_MARGIN:g} %)"]
+        progress(f"  information criterion {c.criterion:.1f} ({len(c.calibration.estimates)} parameters), "
+                 f"slowest mode {c.slowest_h:.1f} h on {c.fitted_h:.1f} h of data")
+    best = min(cands, key=lambda c: c.criterion)
+    progress(f"fitting {best.hidden} hidden on the first {100 * (1 - holdout):.0f} % for the held-out figures")
+    # from the structure's own start: started from the whole-recording fit it would have seen the held-out rows
+    trained = fit_structure(d, rec, best.hidden, holdout, max_nfev, progress)
+    notes = [f"hidden bodies tried: {[c.hidden for c in cands]}, information criteria "
+             f"{[round(c.criterion, 1) for c in cands]}, slowest modes {[round(c.slowest_h, 1) for c in cands]} h; "
+             f"kept {best.hidden} (the smallest criterion)"]
     if not identifiable(best):
         notes.append(f"the kept structure has a mode of {best.slowest_h:.1f} h, slower than the {best.fitted_h:.1f} h "
                      "it was fitted on: its extrapolation beyond the recording is not identified by the data")
-    return Identification(d, final.spec, best, cands, best.calibration.channels, best.calibration.n_train, notes)
+    return Identification(d, best.spec, trained, cands, trained.calibration.channels, trained.calibration.n_train,
+                          notes)
