@@ -11,7 +11,7 @@ from thermal_twin.identify import load_description
 
 from thermal_eval.twin_init.bench import options
 from thermal_eval.twin_init.fl_case import DESCRIPTION as FL_DESCRIPTION
-from thermal_eval.twin_init.report import INIT, NO_PRIOR, TYPE, markdown
+from thermal_eval.twin_init.report import INIT, NO_PRIOR, TYPE, before_after_table, markdown
 from thermal_eval.twin_init.units_case import DESCRIPTION
 
 COMPS = {"E_X0C": 1.234, "E_Y0C": 2.0, "E_Z0T": 3.0, "E_R0T": 4.0, "E_A0C": 5.0, "E_B0C": 6.0, "E_C0C": 7.0}
@@ -38,6 +38,16 @@ def test_the_tables_print_the_json_figures():
     assert "1.988 [2.500]" in md and "1.100 [1.200]" in md
     assert "| #23 extra_source | 3 | no | worse on E_Z0T | 1.065 | 1.904 | 1.065 |" in md
     assert "0 of 1 at most 0.5" not in md and "1 of 1 at most 0.5" in md
+
+
+def test_before_and_after_are_matched_by_unit_and_counted():
+    after = _doc()["units"]
+    before = [{**after[0], "hidden_bodies": 1, "ratios": {NO_PRIOR: 2.0634, INIT: 0.6017}},
+              {**after[0], "seed": 99, "ratios": {NO_PRIOR: 1.0, INIT: 0.1}}]      # no after row: left out
+    lines = before_after_table(after, before)
+    assert "| #22 links | 1 -> 2 | 2.063 | 0.602 | **0.457** | -0.145 |" in lines
+    assert lines[-1] == ("- 1 units: before 0.602-0.602 (mean 0.602, 0 at most 0.5), after 0.457-0.457 "
+                         "(mean 0.457, 1 at most 0.5); better on 1, worse on 0; worse than no prior on 0")
 
 
 def test_the_bench_descriptions_are_valid():

@@ -1,5 +1,6 @@
 """The tables of docs/twin_init.md, generated from ``bench twin-init``'s ``twin_init.json``:
-``python -m thermal_eval.twin_init.report PATH/twin_init.json``."""
+``python -m thermal_eval.twin_init.report PATH/twin_init.json``; with a second JSON of the same
+units run on other code, ``... AFTER.json BEFORE.json`` prints the two side by side."""
 from __future__ import annotations
 
 import json
@@ -97,6 +98,31 @@ def summary(units: list[dict]) -> list[str]:
             f"twin {min(speed):.0f}-{max(speed):.0f} simulated h/s in the fit."]
 
 
+def before_after_table(after: list[dict], before: list[dict]) -> list[str]:
+    """Per unit of ``after`` (matched by seed and kind): hidden bodies and the init-twin ratio before
+    and after, beside the no-prior protocol of the same run; a summary line below."""
+    old = {(u["seed"], u["kind"]): u for u in before}
+    lines = ["| unit | hidden bodies before -> after | no prior running on | init-twin prior before | "
+             "**init-twin prior after** | change |", "|---|---|---|---|---|---|"]
+    pairs = []
+    for u in after:
+        b = old.get((u["seed"], u["kind"]))
+        if b is None:
+            continue
+        r0, r1 = b["ratios"][INIT], u["ratios"][INIT]
+        pairs.append((r0, r1, u["ratios"][NO_PRIOR]))
+        lines.append(f"| #{u['seed']} {u['kind']} | {b['hidden_bodies']} -> {u['hidden_bodies']} | "
+                     f"{_f(u['ratios'][NO_PRIOR])} | {_f(r0)} | **{_f(r1)}** | {r1 - r0:+.3f} |")
+    if pairs:
+        r0, r1, none = (list(x) for x in zip(*pairs))
+        lines += ["", f"- {len(pairs)} units: before {min(r0):.3f}-{max(r0):.3f} (mean {sum(r0) / len(r0):.3f}, "
+                      f"{sum(r <= 0.5 for r in r0)} at most 0.5), after {min(r1):.3f}-{max(r1):.3f} (mean "
+                      f"{sum(r1) / len(r1):.3f}, {sum(r <= 0.5 for r in r1)} at most 0.5); better on "
+                      f"{sum(a < b for a, b in zip(r1, r0))}, worse on {sum(a > b for a, b in zip(r1, r0))}; "
+                      f"worse than no prior on {sum(a > n for a, n in zip(r1, none))}"]
+    return lines
+
+
 def markdown(doc: dict) -> str:
     out = []
     if doc.get("units"):
@@ -120,4 +146,9 @@ def markdown(doc: dict) -> str:
 
 
 if __name__ == "__main__":
-    sys.stdout.write(markdown(json.loads(pathlib.Path(sys.argv[1]).read_text())))
+    _doc = json.loads(pathlib.Path(sys.argv[1]).read_text())
+    if len(sys.argv) > 2:
+        _before = json.loads(pathlib.Path(sys.argv[2]).read_text())
+        sys.stdout.write("\n".join(before_after_table(_doc["units"], _before["units"])) + "\n")
+    else:
+        sys.stdout.write(markdown(_doc))
