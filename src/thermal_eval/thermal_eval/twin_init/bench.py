@@ -4,8 +4,8 @@
 given: twin init from the first 24 h of the cell's own recording (no-prior TALC probing), a
 TALC prior on that twin, TALC from it from 24 h on; the ratio of P99_lin to probe-and-hold over
 the rest of the run beside the no-prior TALC running on and the type's prior (which needs the
-preset). Default seeds 26-27, the reported ones (21-25 were looked at while setting the
-identification).
+preset). Default seeds 26-27, reported before (21-25 were looked at while setting the
+identification, 32-33 reported after; docs/twin_init.md says which code saw which seeds).
 (a') the same units with an adoption test (adoption_case.py): the init-twin prior's TALC runs beside
 the no-prior one over 24-48 h and takes over at 48 h only if it predicted those probes better.
 (b) FL_THERMAL: the init twin's open-loop MAE on the test and validation rows beside the lagged
@@ -32,7 +32,7 @@ from thermal_eval.twin_init.fl_case import fl_case
 from thermal_eval.twin_init.units_case import unit_case
 
 HOURS, INIT_H = 178.0, 24.0
-#: reported seeds; seeds 21-25 were looked at while setting the identification (identify.py)
+#: reported seeds; 21-25 were looked at while setting the identification, 32-33 were reported later
 SEEDS = (26, 27)
 QUICK = {"kinds": ("links",), "seeds": (22,), "hours": 72.0}
 SECTIONS = ("units", "adoption", "fl")
