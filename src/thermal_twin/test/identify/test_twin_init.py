@@ -16,7 +16,7 @@ import yaml
 from thermal_comp_common.recording_csv import Recording, write_recording_csv
 from thermal_twin.identify import DescriptionError, identify, init_twin, parse_description
 from thermal_twin.identify.cli import main
-from thermal_twin.identify.identification import information_criterion, section
+from thermal_twin.identify.identification import CRITERION, HELD_OUT, information_criterion, probes_only, section
 from thermal_twin.identify.structure import starting_spec
 from thermal_twin.machine.schema import load_machine
 from thermal_twin.sim.inputs_timeline import InputsTimeline
@@ -131,10 +131,27 @@ def test_an_unsensed_slow_body_becomes_a_hidden_node_that_beats_the_baselines(re
     assert "twin:hidden_1" in cfg["type_input_names"] and cfg["component_names"] == ["z_um"]
 
 
+def _probed(rec: Recording, every: int = 15) -> Recording:
+    """``rec`` with its displacement only at every ``every``-th row (a probe every 30 min)."""
+    z = np.full(len(rec), np.nan)
+    z[::every] = rec.columns["z_um"][::every]
+    return Recording(rec.time_s, {**rec.columns, "z_um": z}, source="probed")
+
+
+def test_probes_choose_by_the_criterion_and_continuous_errors_by_the_held_out_score(rec):
+    assert probes_only(parse_description(DESCRIPTION), _probed(rec))
+    assert not probes_only(parse_description(DESCRIPTION), rec)
+    held = identify(parse_description(DESCRIPTION), rec, holdout=0.25, max_nfev=15)
+    assert held.chosen_by == HELD_OUT and "held-out scores" in held.notes[0]
+    # the held-out path fits its candidates on the training part and writes the refit
+    assert held.chosen is held.candidates[held.chosen.hidden] and held.spec != held.chosen.spec
+
+
 def test_the_kept_structure_has_the_smallest_criterion_and_is_the_whole_recording_fit(rec):
-    ident = identify(parse_description(DESCRIPTION), rec, holdout=0.25, max_nfev=15)
+    ident = identify(parse_description(DESCRIPTION), _probed(rec), holdout=0.25, max_nfev=15)
+    assert ident.chosen_by == CRITERION and [c.hidden for c in ident.candidates] == [0, 1]
     best = min(ident.candidates, key=lambda c: c.criterion)
-    assert ident.spec == best.spec and ident.chosen.hidden == best.hidden
+    assert ident.spec == best.spec and ident.chosen.hidden == best.hidden == 1, ident.notes
     # every candidate saw the whole recording (but calibrate's last 5 %); the held-out figures are
     # of a second fit of the kept structure that never saw the last quarter
     assert all(c.calibration.n_train > 0.9 * len(rec) for c in ident.candidates)

@@ -20,7 +20,7 @@ from thermal_comp_common.recording_csv import Recording, RecordingError
 
 from thermal_twin.calibrate.fit import CalibrationError
 from thermal_twin.identify.description import Description, DescriptionError, load_description
-from thermal_twin.identify.identification import identify
+from thermal_twin.identify.identification import CRITERION, HELD_OUT, identify
 from thermal_twin.identify.own_config import MODEL_CONFIG
 from thermal_twin.identify.scores import held_out_table
 from thermal_twin.machine.schema import load_machine, save_machine
@@ -62,8 +62,11 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
     report = {"twin": machine.name, "recording": rec.source, "recording_h": float(rec.time_s[-1] - rec.time_s[0]) / 3600,
               "holdout_fraction": holdout, "hidden_bodies": ident.chosen.hidden,
               "nodes": machine.node_names, "soft_sensors": soft_sensors(machine),
+              "chosen_by": ident.chosen_by,
               "candidates": [{"hidden": c.hidden, "parameters": len(c.calibration.estimates),
-                              "information_criterion": c.criterion} for c in ident.candidates],
+                              "information_criterion": c.criterion if ident.chosen_by == CRITERION else None,
+                              "held_out_score": c.score if ident.chosen_by == HELD_OUT else None}
+                             for c in ident.candidates],
               "held_out_score": ident.chosen.score,
               "held_out_rmse": held_out_table(ident, rec),
               "notes": ident.notes + list(rec.warnings),
@@ -99,13 +102,17 @@ def _fmt(v) -> str:
 
 def markdown(rep: dict) -> str:
     """report.md, every figure from ``rep`` (report.json)."""
+    how = ("every structure fitted on the whole recording, its last 5 % out" if rep["chosen_by"] == CRITERION else
+           f"structures fitted on the first {100 * (1 - rep['holdout_fraction']):.0f} %, scored on the rest")
     lines = [f"# twin init: {rep['twin']} from {rep['recording']}", "",
-             f"Recording {rep['recording_h']:.1f} h; every structure fitted on the whole recording (its last "
-             f"5 % out), kept {rep['hidden_bodies']} hidden bodies (the smallest information criterion); "
+             f"Recording {rep['recording_h']:.1f} h; kept {rep['hidden_bodies']} hidden bodies by the "
+             f"{rep['chosen_by']} ({how}); "
              f"nodes {', '.join(rep['nodes'])}. "
              f"Wall {rep['wall_s']} s, twin {rep['fit']['simulated_h_per_s']} simulated h/s.", "",
-             "| hidden bodies | parameters | information criterion (displacement channels) |", "|---|---|---|"]
-    lines += [f"| {c['hidden']} | {c['parameters']} | {_fmt(c['information_criterion'])} |" for c in rep["candidates"]]
+             "| hidden bodies | parameters | information criterion (displacement channels) | held-out score |",
+             "|---|---|---|---|"]
+    lines += [f"| {c['hidden']} | {c['parameters']} | {_fmt(c['information_criterion'])} | {_fmt(c['held_out_score'])} |"
+              for c in rep["candidates"]]
     lines += ["", f"## Held-out RMSE of the kept structure fitted on the first "
               f"{100 * (1 - rep['holdout_fraction']):.0f} % (K for temperatures, um or um/m for displacements; "
               f"score {_fmt(rep['held_out_score'])}: mean RMSE / training spread)", "",
