@@ -44,7 +44,7 @@ from thermal_comp_common.probe_and_hold import table_5_4_noise
 from thermal_comp_common.recording_csv import Recording
 
 from thermal_twin.calibrate.fit import CalibrationResult, calibrate
-from thermal_twin.diagnose.fit import channel_sigma, effective_samples
+from thermal_twin.diagnose.fit import channel_sigma
 from thermal_twin.identify.description import Description
 from thermal_twin.identify.modes import slowest_mode_h
 from thermal_twin.identify.structure import starting_spec
@@ -184,13 +184,12 @@ def fit_structure(d: Description, rec: Recording, hidden: int, holdout: float, m
 
 def information_criterion(d: Description, cal: CalibrationResult) -> float:
     """Schwarz's criterion of a fitted structure on its fitted rows, counted on the displacement
-    channels (what the twin is for): sum_c n_c ln(RSS_c / m_c) + k ln(sum_c n_c), k the fitted
-    parameters, m_c the channel's fitted readings and n_c their evidence: every sparse probe (some
-    25 min apart, each with its own noise), a continuous channel's effective number of
-    independent residual samples. The temperatures are fitted but not counted: their thousands of
-    autocorrelated rows would reward every added body."""
+    channels' probes (what the twin is for): sum_c n_c ln(RSS_c / n_c) + k ln(sum_c n_c), k the
+    fitted parameters and n_c the channel's fitted probes (some 25 min apart, each with its own
+    noise). The temperatures are fitted but not counted: their thousands of autocorrelated rows
+    would reward every added body. For probes only (:func:`probes_only`)."""
     k = cal.n_train
-    log_lik, n_all = 0.0, 0.0
+    log_lik, n_all = 0.0, 0
     for c in d.displacements:
         if c not in cal.measured:
             continue
@@ -198,13 +197,11 @@ def information_criterion(d: Description, cal: CalibrationResult) -> float:
         r = (y - p)[np.isfinite(y) & np.isfinite(p)]
         if r.size < 2:
             continue
-        sparse = np.isfinite(np.asarray(cal.measured[c], float)).mean() < SPARSE_FRACTION
-        n = float(r.size) if sparse else min(float(r.size), effective_samples(r))
-        log_lik += n * math.log(max(float(r @ r), 1e-12) / r.size)
-        n_all += n
+        log_lik += r.size * math.log(max(float(r @ r), 1e-12) / r.size)
+        n_all += r.size
     if n_all == 0:
         return math.inf
-    return log_lik + len(cal.estimates) * math.log(max(n_all, 2.0))
+    return log_lik + len(cal.estimates) * math.log(max(n_all, 2))
 
 
 def identifiable(c: Candidate) -> bool:
