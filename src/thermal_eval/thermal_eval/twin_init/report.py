@@ -54,16 +54,19 @@ def adoption_table(rows: list[dict]) -> list[str]:
 def reselect_table(rows: list[dict]) -> list[str]:
     """The structure re-chosen at 48 h on day 2's probes beside the criterion's running on; a summary."""
     names = ("no prior running on", "criterion's structure from 24 h, running on",
-             "best on day 2's probes from 48 h if adopted", "type prior running on (needs the preset)")
+             "best on day 2's probes from 48 h, always", "best on day 2's probes from 48 h if adopted",
+             "type prior running on (needs the preset)")
+    heads = ("no prior running on", "criterion's structure from 24 h, running on", "best on day 2, always",
+             "**best on day 2 if adopted**", "type prior (needs the preset)")
     lines = ["| unit | hidden: criterion / best on day 2 | day-2 cost by hidden bodies | day-2 probes | taken over | why | "
-             + " | ".join(names) + " |", "|---|---|---|---|---|---|---|---|---|---|"]
+             + " | ".join(heads) + " |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cost = " / ".join(f"{h}: {v:.1f}" for h, v in sorted(r["day2_cost"].items()))
         lines.append(f"| #{r['seed']} {r['kind']} | {r['in_use']} / {r['best']} | {cost} | {r['day2_probes']} | "
                      f"{'yes' if r['adopted'] else 'no'} | {r['reason']} | "
                      + " | ".join(_f(r['ratios'].get(n)) for n in names) + " |")
     crit = [r["ratios"][names[1]] for r in rows]
-    new = [r["ratios"][names[2]] for r in rows]
+    new = [r["ratios"][names[3]] for r in rows]
     none = [r["ratios"][names[0]] for r in rows]
     if rows:
         lines += ["", f"- over 48-178 h, {len(rows)} units: criterion's structure {min(crit):.3f}-{max(crit):.3f} "
