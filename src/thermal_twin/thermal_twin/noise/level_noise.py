@@ -39,7 +39,7 @@ import scipy.stats
 #: level persistence per step of the fitted series: AR(1) levels of short to long memory, and the walk
 PHIS = (0.5, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 1.0)
 #: level innovation variance over the white variance, per step of the fitted series
-RATIOS = tuple(float(v) for v in np.geomspace(1e-5, 1e3, 17))
+RATIOS = tuple(float(v) for v in np.geomspace(1e-5, 30.0, 14))
 #: the white model is kept unless the level's likelihood ratio is significant at this level
 LEVEL_ALPHA = 0.01
 #: the likelihood is evaluated on at most this many samples (every k-th of a longer series)
@@ -51,12 +51,10 @@ DIFFUSE = 1e8
 @dataclass(frozen=True)
 class LevelNoise:
     """Fitted level of each channel, per sample of the full-resolution series: ``phi`` and
-    ``ratio`` arrays (channels,), ratio 0 where the channel is white; ``scale`` the white part's
-    variance s^2 in the residual's units (1 where white: the residual is taken as scaled)."""
+    ``ratio`` arrays (channels,), ratio 0 where the channel is white."""
 
     phi: np.ndarray
     ratio: np.ndarray
-    scale: np.ndarray
 
     @property
     def white(self) -> np.ndarray:
@@ -64,7 +62,7 @@ class LevelNoise:
 
     @staticmethod
     def all_white(n_channels: int) -> "LevelNoise":
-        return LevelNoise(np.ones(n_channels), np.zeros(n_channels), np.ones(n_channels))
+        return LevelNoise(np.ones(n_channels), np.zeros(n_channels))
 
     def as_dict(self, channels: list[str]) -> dict:
         return {c: {"phi": float(p), "ratio": float(q)} for c, p, q in zip(channels, self.phi, self.ratio)
@@ -140,12 +138,11 @@ def fit_level_noise(r: np.ndarray, valid: np.ndarray, stride: int = 1) -> LevelN
     rows = np.arange(r.shape[0])
     level = 2.0 * (ll[rows, best] - ll_white) > scipy.stats.chi2.isf(LEVEL_ALPHA, 2)
     phi_s, ratio_s = phis[0, best], ratios[0, best]
-    s2 = np.maximum(ssq[:, 1:][rows, best], 1e-300) / np.maximum(n[:, 0], 1)
     # per row of the recording: phi^step = phi_s, and the level's variance over step rows the same
     phi_f = phi_s ** (1.0 / step)
     with np.errstate(divide="ignore", invalid="ignore"):
-        per_row = np.where(phi_s < 1.0, (1.0 - phi_f ** 2) / (1.0 - phi_s ** 2), 1.0 / step)
-    return LevelNoise(np.where(level, phi_f, 1.0), np.where(level, ratio_s * per_row, 0.0), np.where(level, s2, 1.0))
+        scale = np.where(phi_s < 1.0, (1.0 - phi_f ** 2) / (1.0 - phi_s ** 2), 1.0 / step)
+    return LevelNoise(np.where(level, phi_f, 1.0), np.where(level, ratio_s * scale, 0.0))
 
 
 def whiten(r: np.ndarray, valid: np.ndarray, noise: LevelNoise, start: int = 0) -> np.ndarray:
@@ -153,8 +150,7 @@ def whiten(r: np.ndarray, valid: np.ndarray, noise: LevelNoise, start: int = 0) 
     the recording from its first) under ``noise``: the window judged on its own, the level's
     prior at ``start`` its unconditional variance there (:func:`start_variance`, the level zero
     at row 0: the twin starts from the recorded state); missing readings give 0. White channels
-    are returned as they are, the others in units of their white part (the fitted s, so every
-    channel's innovations have unit variance, as a white channel's weighted residual has)."""
+    are returned as they are."""
     r = np.atleast_2d(np.asarray(r, dtype=float))[:, start:]
     valid = np.atleast_2d(np.asarray(valid, dtype=bool))[:, start:]
     out = np.where(valid, r, 0.0)
@@ -163,7 +159,7 @@ def whiten(r: np.ndarray, valid: np.ndarray, noise: LevelNoise, start: int = 0) 
         return out
     phi, ratio = noise.phi[lv][:, None], noise.ratio[lv][:, None]
     _, _, e = _filter(out[lv], valid[lv], phi, ratio, start_variance(phi, ratio, start), keep=True)
-    out[lv] = e[:, 0, :] / np.sqrt(noise.scale[lv])[:, None]
+    out[lv] = e[:, 0, :]
     return out
 
 
@@ -173,8 +169,7 @@ def change_noise(before: LevelNoise, after: LevelNoise) -> LevelNoise:
     level of the residual before it (a fit on the training window cannot have shaped that one;
     a fit that follows part of a walk leaves a residual that looks mean-reverting)."""
     white = after.white
-    return LevelNoise(np.where(white, 1.0, before.phi), np.where(white, 0.0, before.ratio),
-                      np.where(white, 1.0, before.scale))
+    return LevelNoise(np.where(white, 1.0, before.phi), np.where(white, 0.0, before.ratio))
 
 
 def judged_sums(fit_before: np.ndarray, fit_after: np.ndarray, fit_valid: np.ndarray, stride: int,
