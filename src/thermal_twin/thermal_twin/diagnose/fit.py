@@ -45,7 +45,6 @@ from thermal_twin.diagnose.significance import holdout_p_value, holm_reject
 # and importable from here as before
 from thermal_twin.diagnose.statistics import channel_sigma, quantisation_step  # noqa: F401
 from thermal_twin.diagnose.twin_eval import expected_outputs, node_states
-from thermal_twin.noise import judged_sums
 from thermal_comp_common.recording_csv import Recording
 
 BIC_THRESHOLD = -2.0
@@ -186,7 +185,6 @@ class Hypothesis:
     indistinguishable_from: list[str] = field(default_factory=list)
     round: int = 1
     n_eff_holdout: float = 0.0          # effective held-out samples of the residual after
-    gls_holdout: tuple[float, float] | None = None   # held-out (before, after) by what the noise cannot explain
     holm_pass: bool = True              # survives the round's Holm correction (mismatch_testing)
     worse: list[str] = field(default_factory=list)   # channels measurably worse on held-out data
     acted_improvement_pct: float | None = None        # held-out fall on the channels it acts on
@@ -194,8 +192,8 @@ class Hypothesis:
 
     @property
     def p_value(self) -> float:
-        s0, s1 = self.gls_holdout or (self.sse_holdout_before, self.sse_holdout_after)
-        return holdout_p_value(s0, s1, len(self.values), self.n_eff_holdout)
+        return holdout_p_value(self.sse_holdout_before, self.sse_holdout_after, len(self.values),
+                               self.n_eff_holdout)
 
     @property
     def plausible(self) -> bool:
@@ -275,20 +273,6 @@ def effective_samples(r: np.ndarray) -> float:
     neg = np.flatnonzero(rho < 0)
     tau = 1.0 + 2.0 * float(np.sum(rho[:neg[0]] if neg.size else rho))
     return max(10.0, r.size / max(tau, 1.0))
-
-
-def gls_holdout(problem: FitProblem, y0: np.ndarray, y1: np.ndarray) -> tuple[float, float, float]:
-    """Held-out sums of squares of the twin's outputs ``y0`` and ``y1`` (before and after a
-    change) and the effective samples after, counted on what each channel's noise cannot
-    explain: the one-step innovations of the held-out residual under white readings plus a
-    wandering level (random walk or AR(1)) fitted on the training residuals
-    (:func:`thermal_twin.noise.change_noise`). One covariance for both, so the difference is
-    their likelihood ratio; a white channel counts its residual as it is."""
-    nt, st = problem.n_train, problem.stride
-    valid = problem._valid
-    (s0, s1), w1, _ = judged_sums(problem.train_residual(y0), problem.train_residual(y1), valid[:, :nt:st], st,
-                                  [problem.weighted_residual(y0), problem.weighted_residual(y1)], valid, nt)
-    return s0, s1, effective_samples(w1)
 
 
 def delta_bic(r0: np.ndarray, r1: np.ndarray, k: int) -> float:
@@ -480,11 +464,10 @@ def fit_candidate(problem: FitProblem, base_spec: dict, c: Candidate, y0_full: n
     r1t = problem.train_residual(y1)
     r0h = problem.weighted_residual(y0_full, nt)
     r1h = problem.weighted_residual(y1, nt)
-    g0, g1, n_eff = gls_holdout(problem, y0_full, y1)
     return Hypothesis(candidate=c, values=v, spec=spec, err_screen=err_screen,
                       sse_train_before=float(np.sum(r0t ** 2)), sse_train_after=float(np.sum(r1t ** 2)),
                       sse_holdout_before=float(np.sum(r0h ** 2)), sse_holdout_after=float(np.sum(r1h ** 2)),
                       delta_bic=delta_bic(r0t, r1t, len(c.params)), reason=c.implausible(v) or _unresolved(problem, c, v),
-                      n_eff_holdout=n_eff, gls_holdout=(g0, g1), worse=worse_channels(problem, y0_full, y1),
+                      n_eff_holdout=effective_samples(r1h), worse=worse_channels(problem, y0_full, y1),
                       acted_improvement_pct=acted_improvement_pct(r0h, r1h),
                       change=problem.weighted(y1[:, :nt:problem.stride] - y0_full[:, :nt:problem.stride]).ravel())

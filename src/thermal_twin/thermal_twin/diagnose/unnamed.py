@@ -23,7 +23,6 @@ from thermal_comp_common.runtime.task_engine import map_tasks
 from thermal_twin.diagnose import statistics as stats
 from thermal_twin.diagnose.fit import effective_samples
 from thermal_twin.diagnose.significance import holdout_p_value, holm_reject
-from thermal_twin.noise import judged_sums
 
 THRESHOLD = 0.8              # selection frequency a term needs
 N_SUBSAMPLES = 40
@@ -171,14 +170,7 @@ def fit_channel(channel: str, resid: np.ndarray, lib: list[Term], n_train: int, 
     base = r[ho] - r[:n_train][ok[:n_train]].mean()
     after = r[ho] - full[ho]
     s0, s1 = min(float(base @ base), float(r[ho] @ r[ho])), float(after @ after)
-    # judged by what the channel's noise cannot explain (a wandering level follows a drift term)
-    (g_raw, g_base, g1), w1, noise = judged_sums(
-        r[None, tr], (r - full)[None, tr], ok[None, tr], stride,
-        [r[None], (r - r[:n_train][ok[:n_train]].mean())[None], (r - full)[None]], ok[None], n_train)
-    if noise.white.all():
-        p = holdout_p_value(s0, s1, len(order), effective_samples(after[None, :]))
-    else:
-        p = holdout_p_value(min(g_raw, g_base), g1, len(order), effective_samples(w1))
+    p = holdout_p_value(s0, s1, len(order), effective_samples(after[None, :]))
     lead = max(order, key=lambda j: abs(coef[1 + order.index(j)]) * sd[j])
     return Discrepancy(channel, [lib[j].name for j in order], [float(c) for c in coef[1:]], float(coef[0]),
                        [float(freq[j]) for j in order], nearest_word(lib[lead], is_error), s0, s1, p, full)
