@@ -80,10 +80,10 @@ def test_the_fl_adaptive_table_prints_the_json_figures_and_a_units_free_doc_work
 def test_the_bench_takes_its_sections_and_refuses_an_unknown_one(capsys):
     opts = options(argparse.Namespace(extra=["--sections=fl", "--csv=/x.csv"]))
     assert opts.sections == ["fl"] and opts.csv == "/x.csv"
-    assert options(argparse.Namespace(extra=[])).sections == ["units", "adoption", "reselect", "fl"]
+    assert options(argparse.Namespace(extra=[])).sections == ["units", "adoption", "fl"]
     with pytest.raises(SystemExit):
         options(argparse.Namespace(extra=["--sections=fl,unit"]))
-    assert "'unit' is not one of units, adoption, reselect, fl" in capsys.readouterr().err
+    assert "'unit' is not one of units, adoption, fl" in capsys.readouterr().err
 
 
 def test_the_bench_takes_seeds_and_kinds_and_refuses_unknown_ones(capsys):
@@ -96,16 +96,3 @@ def test_the_bench_takes_seeds_and_kinds_and_refuses_unknown_ones(capsys):
         with pytest.raises(SystemExit):
             options(argparse.Namespace(extra=[bad]))
         assert said in capsys.readouterr().err
-
-
-def test_the_reselect_table_prints_the_json_figures_and_counts_against_the_criterion():
-    from thermal_eval.twin_init.reselect_case import ADOPTED_ROW, ALWAYS_ROW, CRITERION_ROW  # the bench's row names
-    row = {"seed": 22, "kind": "hall_drift", "in_use": 2, "best": 3, "day2_cost": {"2": 77.8, "3": 73.28},
-           "day2_probes": 12, "adopted": True, "reason": "better",
-           "ratios": {NO_PRIOR: 2.0481, CRITERION_ROW: 0.5404, ALWAYS_ROW: 0.4191, ADOPTED_ROW: 0.4191, TYPE: 0.281}}
-    kept = {**row, "seed": 23, "best": 2, "adopted": False, "reason": "kept",
-            "ratios": {**row["ratios"], ALWAYS_ROW: 0.5404, ADOPTED_ROW: 0.5404}}
-    md = markdown({"units": [], "adoption": [], "reselect": [row, kept], "fl_thermal": None})
-    assert "| #22 hall_drift | 2 / 3 | 2: 77.8 / 3: 73.3 | 12 | yes | better | 2.048 | 0.540 | 0.419 | 0.419 | 0.281 |" in md
-    assert md.rstrip().endswith("re-chosen 0.419-0.540 (mean 0.480, 1 at most 0.5); taken over on 1, better on 1, "
-                                "worse on 0; worse than no prior on 0")

@@ -5,17 +5,14 @@ given: twin init from the first 24 h of the cell's own recording (no-prior TALC 
 TALC prior on that twin, TALC from it from 24 h on; the ratio of P99_lin to probe-and-hold over
 the rest of the run beside the no-prior TALC running on and the type's prior (which needs the
 preset). Default seeds 26-27, reported before (21-25 were looked at while setting the
-identification, 32-33 reported after; docs/twin_init.md says which code saw which seeds).
+identification, 32-35 reported after; docs/twin_init.md says which code saw which seeds).
 (a') the same units with an adoption test (adoption_case.py): the init-twin prior's TALC runs beside
 the no-prior one over 24-48 h and takes over at 48 h only if it predicted those probes better.
-(a'') the same units with the structure re-chosen at 48 h (reselect_case.py): every candidate twin
-init fitted on day 1 scored open loop on the probes of 24-48 h, the best taking over if it beats
-the one in use on them.
 (b) FL_THERMAL: the init twin's open-loop MAE on the test and validation rows beside the lagged
 ridge, the training mean and a static regression (units_case.py, fl_case.py), and its soft
 sensors as an ``evaluate`` model in adaptive mode (<= 1 probing per hour, six probe phases)
 beside every data-only adaptive row (fl_adaptive.py).
-``--sections=units,adoption,reselect,fl`` picks the parts (default all), ``--seeds=24,25`` and
+``--sections=units,adoption,fl`` picks the parts (default all), ``--seeds=24,25`` and
 ``--kinds=links,gain`` the units (default the reported seeds, every kind), ``--csv=PATH`` the
 FL_THERMAL file.
 Writes ``twin_init.json`` (units and FL rows) into the output folder.
@@ -32,14 +29,13 @@ from thermal_eval.learn.units import KINDS
 from thermal_eval.twin_init.adoption_case import adopted_case
 from thermal_eval.twin_init.fl_adaptive import PROBE_PHASES
 from thermal_eval.twin_init.fl_case import fl_case
-from thermal_eval.twin_init.reselect_case import ADOPTED_ROW, reselect_case
 from thermal_eval.twin_init.units_case import unit_case
 
 HOURS, INIT_H = 178.0, 24.0
-#: reported seeds; 21-25 were looked at while setting the identification, 32-33 were reported later
+#: reported seeds; 21-25 were looked at while setting the identification, 32-35 were reported later
 SEEDS = (26, 27)
 QUICK = {"kinds": ("links",), "seeds": (22,), "hours": 72.0}
-SECTIONS = ("units", "adoption", "reselect", "fl")
+SECTIONS = ("units", "adoption", "fl")
 
 
 def _units(kinds, seeds, hours, root: pathlib.Path, figures: dict) -> list[dict]:
@@ -68,22 +64,6 @@ def _adoption(kinds, seeds, hours, root: pathlib.Path, figures: dict) -> list[di
             figures[f"twin_init.adoption.{kind}_{seed}.ratio.{name}"] = round(v, 3)
         print(f"  {'adopted' if r['adopted'] else 'NOT adopted'} at 48 h ({r['reason']}); ratio from 48 h: "
               + ", ".join(f"{k} {v:.3f}" for k, v in r["ratios"].items()), flush=True)
-    return rows
-
-
-def _reselect(kinds, seeds, hours, root: pathlib.Path, figures: dict) -> list[dict]:
-    rows = []
-    for kind, seed in [(k, s) for s in seeds for k in kinds]:
-        print(f"re-choosing at 48 h: unit #{seed} ({kind}) ...", flush=True)
-        r = reselect_case(kind, seed, hours, root / f"reselect_{kind}_{seed}")
-        rows.append(r)
-        for name, v in r["ratios"].items():
-            figures[f"twin_init.reselect.{kind}_{seed}.ratio.{name}"] = round(v, 3)
-        print(f"  hidden {r['in_use']} -> best on day 2 {r['best']} (costs {r['day2_cost']}), "
-              f"{'taken over' if r['adopted'] else 'kept'} ({r['reason']}); ratio from 48 h: "
-              + ", ".join(f"{k} {v:.3f}" for k, v in r["ratios"].items()), flush=True)
-    if rows:
-        figures["twin_init.reselect.worst_ratio"] = round(max(r["ratios"][ADOPTED_ROW] for r in rows), 3)
     return rows
 
 
@@ -142,7 +122,7 @@ def run(args: argparse.Namespace | None = None) -> dict:
     kinds, seeds = opts.kinds or kinds, opts.seeds or seeds
     root = pathlib.Path(getattr(args, "out_dir", None) or tempfile.mkdtemp(prefix="bench_twin_init_")) / "twin_init"
     figures: dict = {"twin_init.hours": hours, "twin_init.init_h": INIT_H}
-    units, adopted, reselected, fl = [], [], [], None
+    units, adopted, fl = [], [], None
     if "units" in opts.sections:
         units = _units(kinds, seeds, hours, root, figures)
         ratios = [u["ratios"]["init-twin prior from 24 h"] for u in units]
@@ -152,13 +132,10 @@ def run(args: argparse.Namespace | None = None) -> dict:
               f"({figures['twin_init.units_at_most_0_5']} at most 0.5)", flush=True)
     if "adoption" in opts.sections:
         adopted = _adoption(kinds, seeds, hours, root, figures)
-    if "reselect" in opts.sections:
-        reselected = _reselect(kinds, seeds, hours, root, figures)
     if "fl" in opts.sections:
         fl = _fl(root, opts.csv, figures)
     root.mkdir(parents=True, exist_ok=True)
-    (root / "twin_init.json").write_text(json.dumps({"units": units, "adoption": adopted, "reselect": reselected,
-                                                    "fl_thermal": fl},
+    (root / "twin_init.json").write_text(json.dumps({"units": units, "adoption": adopted, "fl_thermal": fl},
                                                    indent=1, default=str) + "\n")
     print(f"details {root / 'twin_init.json'}")
     return figures

@@ -51,33 +51,6 @@ def adoption_table(rows: list[dict]) -> list[str]:
     return lines
 
 
-def reselect_table(rows: list[dict]) -> list[str]:
-    """The structure re-chosen at 48 h on day 2's probes beside the criterion's running on; a summary."""
-    names = ("no prior running on", "criterion's structure from 24 h, running on",
-             "best on day 2's probes from 48 h, always", "best on day 2's probes from 48 h if adopted",
-             "type prior running on (needs the preset)")
-    heads = ("no prior running on", "criterion's structure from 24 h, running on", "best on day 2, always",
-             "**best on day 2 if adopted**", "type prior (needs the preset)")
-    lines = ["| unit | hidden: criterion / best on day 2 | day-2 cost by hidden bodies | day-2 probes | taken over | why | "
-             + " | ".join(heads) + " |", "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        cost = " / ".join(f"{h}: {v:.1f}" for h, v in sorted(r["day2_cost"].items()))
-        lines.append(f"| #{r['seed']} {r['kind']} | {r['in_use']} / {r['best']} | {cost} | {r['day2_probes']} | "
-                     f"{'yes' if r['adopted'] else 'no'} | {r['reason']} | "
-                     + " | ".join(_f(r['ratios'].get(n)) for n in names) + " |")
-    crit = [r["ratios"][names[1]] for r in rows]
-    new = [r["ratios"][names[3]] for r in rows]
-    none = [r["ratios"][names[0]] for r in rows]
-    if rows:
-        lines += ["", f"- over 48-178 h, {len(rows)} units: criterion's structure {min(crit):.3f}-{max(crit):.3f} "
-                      f"(mean {sum(crit) / len(crit):.3f}, {sum(v <= 0.5 for v in crit)} at most 0.5), re-chosen "
-                      f"{min(new):.3f}-{max(new):.3f} (mean {sum(new) / len(new):.3f}, {sum(v <= 0.5 for v in new)} "
-                      f"at most 0.5); taken over on {sum(r['adopted'] for r in rows)}, better on "
-                      f"{sum(a < b for a, b in zip(new, crit))}, worse on {sum(a > b for a, b in zip(new, crit))}; "
-                      f"worse than no prior on {sum(a > n for a, n in zip(new, none))}"]
-    return lines
-
-
 def fl_table(fl: dict) -> list[str]:
     names = list(next(iter(fl["rows"].values())))
     lines = ["| channel | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
@@ -160,9 +133,6 @@ def markdown(doc: dict) -> str:
     if doc.get("adoption"):
         out += ["", "### With the adoption test: the init-twin prior takes over at 48 h only if it predicted the "
                     "probes of 24-48 h better (ratio to probe-and-hold over 48-178 h)", ""] + adoption_table(doc["adoption"])
-    if doc.get("reselect"):
-        out += ["", "### The structure re-chosen at 48 h on day 2's probes (ratio to probe-and-hold over 48-178 h)",
-                ""] + reselect_table(doc["reselect"])
     if doc.get("fl_thermal"):
         fl = doc["fl_thermal"]
         out += ["", f"### FL_THERMAL: test [validation] MAE, um ({fl['hidden_bodies']} hidden bodies; "

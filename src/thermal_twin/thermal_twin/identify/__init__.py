@@ -6,9 +6,8 @@ package and must not load scipy and the simulator behind it."""
 from thermal_comp_common.public_api import lazy_exports
 
 __all__, __getattr__, __dir__ = lazy_exports(__name__, {
-    "command": ["CANDIDATES", "TWIN_FILE", "init_twin", "read_recording"],
+    "command": ["TWIN_FILE", "init_twin", "read_recording"],
     "description": ["Description", "DescriptionError", "load_description", "parse_description"],
     "identification": ["Identification", "identify"],
     "own_config": ["MODEL_CONFIG", "own_model_config", "unit_config"],
-    "reselect": ["Ranked", "open_loop", "probe_cost", "rank_on_probes"],
 })

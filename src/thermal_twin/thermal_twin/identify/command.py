@@ -1,9 +1,7 @@
 """The work of ``thermal-comp twin init`` (:mod:`thermal_twin.identify.cli` parses the arguments):
 read the recording and the description, identify the twin, write ``twin.yaml`` (the project's
 machine description: ``learn --twin`` and ``prior --machine`` take it like a preset),
-``report.json`` and ``report.md`` generated from it, and every candidate structure's fitted twin
-under ``candidates/`` (the product re-chooses among them once later probes are in,
-:mod:`reselect`). No rclpy.
+``report.json`` and ``report.md`` generated from it. No rclpy.
 """
 from __future__ import annotations
 
@@ -29,8 +27,6 @@ from thermal_twin.machine.schema import load_machine, save_machine
 from thermal_twin.machine.spec import MachineSpecError
 
 TWIN_FILE = "twin.yaml"
-#: every candidate structure's fitted twin, ``hidden_<n>.yaml`` (for re-choosing on later probes)
-CANDIDATES = "candidates"
 #: a cell bag's probing results (residuals of a compensated machine are not turned into totals here)
 PROBES_TOPIC = "errors/measured"
 
@@ -63,11 +59,6 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
     save_machine(spec, path)
     machine = load_machine(str(path))
     cal = ident.chosen.calibration
-    (out / CANDIDATES).mkdir(exist_ok=True)
-    candidates = {}
-    for c in ident.candidates:
-        candidates[str(c.hidden)] = str(out / CANDIDATES / f"hidden_{c.hidden}.yaml")
-        save_machine(dict(c.spec, description=f"twin init candidate with {c.hidden} hidden bodies"), candidates[str(c.hidden)])
     report = {"twin": machine.name, "recording": rec.source, "recording_h": float(rec.time_s[-1] - rec.time_s[0]) / 3600,
               "holdout_fraction": holdout, "hidden_bodies": ident.chosen.hidden,
               "nodes": machine.node_names, "soft_sensors": soft_sensors(machine),
@@ -80,7 +71,7 @@ def init_twin(description: Description | str, rec: Recording, out: pathlib.Path,
               "held_out_rmse": held_out_table(ident, rec),
               "notes": ident.notes + list(rec.warnings),
               "fit": {"twin_runs": cal.n_evals, "simulated_h_per_s": round(cal.simulated_h / max(cal.wall_s, 1e-9), 1)},
-              "wall_s": round(time.perf_counter() - t0, 1), "files": {"twin": str(path), "candidates": candidates}}
+              "wall_s": round(time.perf_counter() - t0, 1), "files": {"twin": str(path)}}
     (out / MODEL_CONFIG).write_text(yaml.safe_dump(model_config(d, machine, path), sort_keys=False))
     report["files"]["model_config"] = str(out / MODEL_CONFIG)
     (out / "report.json").write_text(json.dumps(finite_figures(report), indent=1) + "\n")
