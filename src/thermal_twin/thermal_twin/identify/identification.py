@@ -18,14 +18,13 @@ When the errors are sparse probes, the hidden bodies are chosen by Schwarz's inf
 criterion on the whole recording (but its last 5 %, calibrate's minimum): every structure with
 0 ... ``hidden`` hidden bodies is fitted on it and the one with the smallest criterion on the
 displacement channels is kept (:func:`information_criterion`), then fitted once more on the first
-``1 - holdout`` only for the report's held-out figures. A held-out window at the end of one day
-holds two or three probing instants and left the candidates a quarter less of the data that show
-their slow part; it ranked the structures the other way round from the days after it, and the
-criterion compensated better on most units (docs/twin_init.md). When the errors are measured
-continuously the held-out window holds thousands of their readings and is kept: hidden bodies
-are added one at a time while the held-out score (the last ``holdout``, never fitted) falls by
-more than ``HIDDEN_MARGIN``, and the kept structure is refitted on the whole recording (but its
-last 5 %); on FL_THERMAL the criterion kept a body more and extrapolated worse. The notes say when the kept structure has a
+``1 - holdout`` only for the report's held-out figures. Why not a held-out window there: at the
+end of one day it holds two or three probing instants, and it takes from the candidates the data
+that show their slow part. When the errors are measured continuously the held-out window holds
+thousands of their readings and is kept: hidden bodies are added one at a time while the held-out
+score (the last ``holdout``, never fitted) falls by more than ``HIDDEN_MARGIN``, and the kept
+structure is refitted on the whole recording (but its last 5 %). The measurements behind both
+rules are in docs/twin_init.md. The notes say when the kept structure has a
 mode slower than the data it was fitted on (``MODE_LIMIT`` x that length, :mod:`modes`): such a
 mode shows in the data only as a slope, so its time constant and gains, and the twin's
 extrapolation beyond the recording, are not identified. Refusing such structures was measured
